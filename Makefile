@@ -1,0 +1,34 @@
+# lpvflow: two set-up commands from a fresh clone: `make design` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: venv test design fmus bench lint clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+fmus: $(STAMP)
+	@if [ -f fmu_plants/build.py ]; then $(PY) fmu_plants/build.py; fi
+
+test: $(STAMP) fmus
+	$(PY) -m pytest -q -m "not slow"
+
+design: $(STAMP) fmus
+	$(VENV)/bin/lpvflow design
+
+bench: $(STAMP) fmus
+	$(PY) -m pytest -q -m slow
+	$(PY) benchmarks/run_all.py
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+clean:
+	rm -rf build fmu_plants/build .pytest_cache

@@ -1,0 +1,238 @@
+"""Measured data of an LPV plant: inputs u, outputs y, scheduling p, sampling time Ts.
+
+Every defect is a :class:`lpvflow.DataError` with one line naming the field and what to do,
+never a numpy traceback. Readers: CSV with a header row, Parquet, MATLAB .mat.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import scipy.io
+import scipy.signal
+
+from lpvflow.errors import DataError
+
+#: Relative tolerance on the spacing of a time column before it counts as non-uniform.
+TIME_TOLERANCE = 1e-6
+
+
+def _matrix(name: str, values: np.ndarray | list, names: list[str]) -> np.ndarray:
+    a = np.asarray(values, dtype=float)
+    if a.ndim == 1:
+        a = a[:, None]
+    if a.ndim != 2:
+        raise DataError(f"{name} must be a vector or an (N, n) array, got {a.ndim} dimensions")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        k, c = np.argwhere(bad)[0]
+        label = names[c] if c < len(names) else f"{name}[{c}]"
+        raise DataError(
+            f"column {label!r} has NaN/inf at sample {k} ({int(bad[:, c].sum())} bad values): "
+            "remove or interpolate those samples"
+        )
+    return a
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """One experiment: u (N, nu), y (N, ny), p (N, n_p) as float64, sampling time Ts in seconds.
+
+    ``offsets`` records what :meth:`remove_offsets` subtracted, so predictions can be mapped back.
+    """
+
+    u: np.ndarray
+    y: np.ndarray
+    p: np.ndarray
+    Ts: float
+    u_names: list[str] = field(default_factory=list)
+    y_names: list[str] = field(default_factory=list)
+    p_names: list[str] = field(default_factory=list)
+    offsets: dict[str, list[float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for attr, prefix in (("u", "u"), ("y", "y"), ("p", "p")):
+            names = list(getattr(self, f"{attr}_names"))
+            arr = _matrix(attr, getattr(self, attr), names)
+            if not names:
+                names = [f"{prefix}{i}" for i in range(arr.shape[1])]
+            if len(names) != arr.shape[1]:
+                raise DataError(f"{attr} has {arr.shape[1]} column(s) but {len(names)} name(s): {names}")
+            object.__setattr__(self, attr, arr)
+            object.__setattr__(self, f"{attr}_names", names)
+        lengths = {"u": len(self.u), "y": len(self.y), "p": len(self.p)}
+        if len(set(lengths.values())) != 1:
+            raise DataError(f"u, y and p must have the same number of samples, got {lengths}")
+        if not (np.isfinite(self.Ts) and self.Ts > 0):
+            raise DataError(f"sampling time Ts must be a positive number of seconds, got {self.Ts}")
+        if self.N < 2:
+            raise DataError(f"a dataset needs at least 2 samples, got {self.N}")
+
+    @property
+    def N(self) -> int:
+        return len(self.y)
+
+    def require_samples(self, needed: int, what: str) -> None:
+        """Raise unless there is at least one sample more than ``needed`` (e.g. parameters + lags)."""
+        if self.N <= needed:
+            raise DataError(
+                f"{self.N} samples are too few for {what} (needs more than {needed}): "
+                "record longer data or lower the orders/basis degree"
+            )
+
+    # ----------------------------------------------------------------------------- operations
+    def split(self, fraction: float = 0.5) -> tuple[Dataset, Dataset]:
+        """Estimation and validation parts: the first ``fraction`` of the samples and the rest."""
+        if not 0 < fraction < 1:
+            raise DataError(f"split fraction must be between 0 and 1, got {fraction}")
+        k = round(self.N * fraction)
+        if k < 2 or self.N - k < 2:
+            raise DataError(f"{self.N} samples cannot be split at {fraction}: both parts need 2 or more")
+        return self.select(slice(0, k)), self.select(slice(k, self.N))
+
+    def select(self, rows: slice) -> Dataset:
+        return replace(self, u=self.u[rows], y=self.y[rows], p=self.p[rows])
+
+    def remove_offsets(self, signals: str = "uy") -> Dataset:
+        """Subtract the mean of the chosen signals (default inputs and outputs, never scheduling)."""
+        changes, offsets = {}, dict(self.offsets)
+        for s in signals:
+            if s not in "uyp":
+                raise DataError(f"unknown signal group {s!r}; use a combination of 'u', 'y', 'p'")
+            mean = getattr(self, s).mean(axis=0)
+            changes[s] = getattr(self, s) - mean
+            offsets[s] = (np.asarray(offsets.get(s, 0.0)) + mean).tolist()
+        return replace(self, offsets=offsets, **changes)
+
+    def decimate(self, factor: int) -> Dataset:
+        """Down-sample by an integer factor with an anti-aliasing filter (scipy.signal.decimate).
+
+        Scheduling is decimated without filtering (it must stay a sample of the true p).
+        """
+        if int(factor) != factor or factor < 1:
+            raise DataError(f"decimation factor must be a whole number >= 1, got {factor}")
+        factor = int(factor)
+        if factor == 1:
+            return self
+        if self.N // factor < 30:
+            raise DataError(f"decimating {self.N} samples by {factor} leaves too few samples (< 30)")
+        filt = lambda a: scipy.signal.decimate(a, factor, axis=0, zero_phase=True)  # noqa: E731
+        return replace(self, u=filt(self.u), y=filt(self.y), p=self.p[::factor], Ts=self.Ts * factor)
+
+    # ------------------------------------------------------------------------------- readers
+    @classmethod
+    def from_columns(
+        cls, table: dict[str, np.ndarray], source: str, u: list[str], y: list[str], p: list[str],
+        time: str | None = None, Ts: float | None = None,
+    ) -> Dataset:
+        """Build from a name → column mapping; checks names, the time axis and Ts."""
+        for role, cols in (("--u", u), ("--y", y), ("--p", p)):
+            if not cols:
+                raise DataError(f"no {role} column named; pass at least one column name")
+            missing = [c for c in cols if c not in table]
+            if missing:
+                raise DataError(
+                    f"{source}: column(s) {missing} not found (given for {role}); "
+                    f"available: {sorted(table)}"
+                )
+        if time is not None:
+            if time not in table:
+                raise DataError(f"{source}: time column {time!r} not found; available: {sorted(table)}")
+            ts_from_time = _uniform_step(np.asarray(table[time], dtype=float), time)
+            if Ts is not None and abs(Ts - ts_from_time) > TIME_TOLERANCE * ts_from_time:
+                raise DataError(f"Ts={Ts} disagrees with the time column step {ts_from_time:g}; drop one")
+            Ts = ts_from_time
+        if Ts is None:
+            raise DataError(f"{source}: no time column and no Ts given; pass --Ts or name the time column")
+
+        def stack(cols: list[str]) -> np.ndarray:
+            return np.column_stack([np.asarray(table[c], dtype=float) for c in cols])
+
+        return cls(stack(u), stack(y), stack(p), float(Ts), list(u), list(y), list(p))
+
+    @classmethod
+    def read(cls, path: str | Path, u: list[str], y: list[str], p: list[str],
+             time: str | None = "auto", Ts: float | None = None) -> Dataset:
+        """Read CSV (header row), Parquet or .mat; ``time="auto"`` uses a ``time``/``t`` column if present."""
+        path = Path(path)
+        if not path.exists():
+            raise DataError(f"data file {str(path)!r} does not exist")
+        suffix = path.suffix.lower()
+        if suffix in (".csv", ".txt"):
+            table = _read_csv(path)
+        elif suffix in (".parquet", ".pq"):
+            table = _read_parquet(path)
+        elif suffix == ".mat":
+            table = _read_mat(path)
+        else:
+            raise DataError(f"{path.name}: unknown data format {suffix!r}; use .csv, .parquet or .mat")
+        if time == "auto":
+            time = next((c for c in ("time", "t", "Time") if c in table), None)
+        return cls.from_columns(table, path.name, u, y, p, time=time, Ts=Ts)
+
+
+def _uniform_step(t: np.ndarray, name: str) -> float:
+    if len(t) < 2 or not np.all(np.isfinite(t)):
+        raise DataError(f"time column {name!r} needs at least 2 finite values")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        k = int(np.argmax(dt <= 0))
+        raise DataError(f"time column {name!r} is not increasing at sample {k + 1} (t={t[k + 1]:g})")
+    step = float(np.median(dt))
+    worst = int(np.argmax(np.abs(dt - step)))
+    if abs(dt[worst] - step) > TIME_TOLERANCE * step + 1e-12:
+        raise DataError(
+            f"time column {name!r} is not uniformly spaced (step {dt[worst]:g} at sample {worst + 1}, "
+            f"median {step:g}): resample the data to a fixed step first"
+        )
+    return step
+
+
+def _read_csv(path: Path) -> dict[str, np.ndarray]:
+    with path.open(newline="") as fh:
+        reader = csv.reader(fh)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise DataError(f"{path.name} is empty; expected a header row and data") from None
+        rows = [r for r in reader if r]
+    if len(set(header)) != len(header):
+        raise DataError(f"{path.name}: duplicate column names in the header {header}")
+    for i, r in enumerate(rows):
+        if len(r) != len(header):
+            raise DataError(f"{path.name}: line {i + 2} has {len(r)} fields, the header has {len(header)}")
+    try:
+        data = np.array(rows, dtype=float).reshape(len(rows), len(header))
+    except ValueError:
+        for i, r in enumerate(rows):
+            for name, v in zip(header, r, strict=True):
+                try:
+                    float(v)
+                except ValueError:
+                    raise DataError(
+                        f"{path.name}: line {i + 2}, column {name!r}: {v!r} is not a number"
+                    ) from None
+        raise
+    return {h: data[:, i] for i, h in enumerate(header)}
+
+
+def _read_parquet(path: Path) -> dict[str, np.ndarray]:
+    import pyarrow.parquet as pq
+
+    try:
+        table = pq.read_table(path)
+    except Exception as exc:  # pyarrow raises several unrelated types for a bad file
+        raise DataError(f"{path.name} is not a readable Parquet file ({exc.__class__.__name__})") from None
+    return {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
+
+
+def _read_mat(path: Path) -> dict[str, np.ndarray]:
+    try:
+        raw = scipy.io.loadmat(path, squeeze_me=True)
+    except Exception as exc:  # scipy raises ValueError/TypeError/MatReadError for a bad file
+        raise DataError(f"{path.name} is not a readable MATLAB file ({exc.__class__.__name__})") from None
+    return {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in raw.items()
+            if not k.startswith("__") and np.asarray(v).dtype.kind in "fiu"}

@@ -1,0 +1,400 @@
+"""LPV model objects: input-output (LPVIO) and state-space (LPVSS), with JSON save/load.
+
+LPVIO, shifted (left polynomial, LPR) form — thesis (5.35)/(5.37) in the time domain (notes_002
+§1.4), Schulz et al. eq. (1)/(3):
+
+    y(k) + Σ_i A_i(ψ(p(k−i))) y(k−i) = Σ_j B_j(ψ(p(k−j))) u(k−j) + e(k) + Σ_m C_m(ψ(p(k−m))) e(k−m)
+
+every coefficient evaluated at the sample of the signal it multiplies. The static (Bamieh–Giarré)
+form evaluates every coefficient at ψ(p(k)) instead (thesis (3.5)/(4.5)); it has no exact
+realization with static dependence (thesis §5.2, Example 5.1).
+
+LPVSS, affine in ψ (design.md; Schulz et al. Sec. II):
+
+    x(k+1) = A(ψ)x + B(ψ)u [+ K(ψ)e],   y = C(ψ)x + D(ψ)u [+ e],   M(ψ) = Σ_l ψ_l(p(k)) M_l.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import control
+import numpy as np
+
+from lpvflow.basis import Basis
+from lpvflow.errors import DataError, ModelError
+from lpvflow.simulate import io_recursion, ss_recursion
+
+FORMAT_VERSION = 1
+_LOADERS: dict[str, Callable[[dict], Any]] = {}
+
+
+def register_format(kind: str, loader: Callable[[dict], Any]) -> None:
+    """Make :func:`load` understand files with ``"format": "lpvflow/<kind>"``."""
+    _LOADERS[kind] = loader
+
+
+def _as_2d(name: str, x: Any, n_rows: int | None = None) -> np.ndarray:
+    a = np.asarray(x, dtype=float)
+    if a.ndim == 1:
+        a = a[:, None]
+    if a.ndim != 2:
+        raise DataError(f"{name} must be an (N, n) array, got shape {a.shape}")
+    if n_rows is not None and len(a) != n_rows:
+        raise DataError(f"{name} has {len(a)} samples but the scheduling signal has {n_rows}")
+    if not np.all(np.isfinite(a)):
+        raise DataError(f"{name} contains NaN or inf at sample {int(np.argmin(np.isfinite(a).all(1)))}")
+    return a
+
+
+def _check_width(name: str, a: np.ndarray, n: int) -> None:
+    if a.shape[1] != n:
+        raise DataError(f"{name} has {a.shape[1]} column(s) but the model expects {n}")
+
+
+def _lagged_sum(psi: np.ndarray, coeffs: np.ndarray, signal: np.ndarray, shifted: bool) -> np.ndarray:
+    """Σ_j M_j(ψ(k−j) or ψ(k)) s(k−j) for coefficient stack ``coeffs`` (n_lag, n_psi, ny, ns)."""
+    n = len(signal)
+    out = np.zeros((n, coeffs.shape[2]))
+    for j in range(coeffs.shape[0]):
+        if not np.any(coeffs[j]) or j >= n:
+            continue
+        if shifted:  # g_j(t) = M_j(ψ(t)) s(t), then delayed by j samples
+            g = np.einsum("tl,los,ts->to", psi[: n - j], coeffs[j], signal[: n - j], optimize=True)
+        else:
+            g = np.einsum("tl,los,ts->to", psi[j:], coeffs[j], signal[: n - j], optimize=True)
+        out[j:] += g
+    return out
+
+
+def _atomic_write_json(path: str | os.PathLike, payload: dict) -> None:
+    """Write JSON to ``path`` via a temporary file and rename: a failure never truncates ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(payload, fh, indent=1)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+# ======================================================================================= LPVIO
+@dataclass
+class LPVIO:
+    """MIMO LPV-ARX/ARMAX input-output model.
+
+    Attributes:
+        A: (na_max, n_psi, ny, ny); ``A[i-1, l]`` is the ψ_l component of A_i (lag i).
+        B: (nb_lag_max+1, n_psi, ny, nu); ``B[j, l]`` is the ψ_l component of B_j (lag j ≥ 0).
+        C: (nc, n_psi, ny, ny) noise coefficients C_1 … C_nc (ARMAX), or an empty stack.
+        basis: the scheduling basis ψ.
+        Ts: sampling time in seconds.
+        form: ``"shifted"`` (LPR, realizable with static dependence) or ``"static"``.
+        na: (ny, ny) lags of y_c in equation r; nb, nk: (ny, nu) number of input lags and delay.
+        noise_cov: (ny, ny) residual covariance of the fit, if identified.
+        param_cov: per output, the covariance of its free parameters (same order as
+            :meth:`free_parameters`), if identified.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    basis: Basis
+    Ts: float
+    C: np.ndarray | None = None
+    form: str = "shifted"
+    na: np.ndarray | None = None
+    nb: np.ndarray | None = None
+    nk: np.ndarray | None = None
+    u_names: list[str] = field(default_factory=list)
+    y_names: list[str] = field(default_factory=list)
+    p_names: list[str] = field(default_factory=list)
+    noise_cov: np.ndarray | None = None
+    param_cov: list[np.ndarray] | None = None
+
+    def __post_init__(self) -> None:
+        self.A = np.asarray(self.A, dtype=float)
+        self.B = np.asarray(self.B, dtype=float)
+        if self.A.ndim != 4 or self.B.ndim != 4:
+            raise ModelError("LPVIO coefficients must be 4-D stacks (lag, basis, rows, cols)")
+        ny, nu, n_psi = self.B.shape[2], self.B.shape[3], self.basis.n_psi
+        if self.A.shape[0] == 0:
+            self.A = np.zeros((0, n_psi, ny, ny))
+        self.C = np.zeros((0, n_psi, ny, ny)) if self.C is None else np.asarray(self.C, dtype=float)
+        for name, M, cols in (("A", self.A, ny), ("B", self.B, nu), ("C", self.C, ny)):
+            if M.shape[1:] != (n_psi, ny, cols):
+                raise ModelError(
+                    f"LPVIO {name} has shape {M.shape[1:]} per lag; expected ({n_psi}, {ny}, {cols})"
+                )
+        if self.form not in ("shifted", "static"):
+            raise ModelError(f"LPVIO form must be 'shifted' or 'static', got {self.form!r}")
+        if self.Ts <= 0:
+            raise ModelError(f"sampling time must be positive, got Ts={self.Ts}")
+        self.u_names = self.u_names or [f"u{i}" for i in range(nu)]
+        self.y_names = self.y_names or [f"y{i}" for i in range(ny)]
+        self.p_names = self.p_names or [f"p{i}" for i in range(self.basis.n_p)]
+
+    @property
+    def ny(self) -> int:
+        return self.B.shape[2]
+
+    @property
+    def nu(self) -> int:
+        return self.B.shape[3]
+
+    @property
+    def max_lag(self) -> int:
+        return max(self.A.shape[0], self.B.shape[0] - 1, self.C.shape[0])
+
+    def simulate(self, u: np.ndarray, p: np.ndarray, e: np.ndarray | None = None) -> np.ndarray:
+        """Simulated output for inputs ``u`` (N, nu), scheduling ``p`` (N, n_p), zero initial past.
+
+        ``e`` (N, ny) is the innovation of an ARMAX model (added at the output with C(q) filtering).
+        """
+        p = _as_2d("scheduling p", p)
+        u = _as_2d("input u", u, len(p))
+        _check_width("input u", u, self.nu)
+        psi = self.basis.eval(p)
+        shifted = self.form == "shifted"
+        forced = _lagged_sum(psi, self.B, u, shifted)
+        if e is not None:
+            e = _as_2d("noise e", e, len(p))
+            _check_width("noise e", e, self.ny)
+            forced += e + _lagged_sum(psi, np.concatenate([np.zeros_like(self.C[:1]), self.C]), e, shifted)
+        return io_recursion(forced, psi, self.A, shifted)
+
+    def to_ss(self) -> LPVSS:
+        """Exact observable-form LPVSS with static affine dependence on ψ(p(k)) (thesis (5.24)–(5.26))."""
+        from lpvflow.identify.realize import realize_io
+
+        return realize_io(self)
+
+    # --------------------------------------------------------------------------- serialisation
+    def to_dict(self) -> dict:
+        d = {
+            "format": "lpvflow/lpvio",
+            "version": FORMAT_VERSION,
+            "form": self.form,
+            "Ts": self.Ts,
+            "basis": self.basis.to_dict(),
+            "u_names": self.u_names,
+            "y_names": self.y_names,
+            "p_names": self.p_names,
+            "A": self.A.tolist(),
+            "B": self.B.tolist(),
+            "C": self.C.tolist(),
+        }
+        for name in ("na", "nb", "nk", "noise_cov"):
+            value = getattr(self, name)
+            if value is not None:
+                d[name] = np.asarray(value).tolist()
+        if self.param_cov is not None:
+            d["param_cov"] = [np.asarray(c).tolist() for c in self.param_cov]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> LPVIO:
+        _check_format(d, "lpvio")
+        basis = Basis.from_dict(d["basis"])
+        n_psi = basis.n_psi
+        B = np.asarray(d["B"], dtype=float)
+        ny = B.shape[2]
+
+        def stack(key: str, cols: int) -> np.ndarray:
+            a = np.asarray(d.get(key, []), dtype=float)
+            return a if a.size else np.zeros((0, n_psi, ny, cols))
+
+        opt = {k: np.asarray(d[k]) for k in ("na", "nb", "nk", "noise_cov") if k in d}
+        cov = [np.asarray(c, dtype=float) for c in d["param_cov"]] if "param_cov" in d else None
+        return cls(stack("A", ny), B, basis, float(d["Ts"]), C=stack("C", ny), form=d["form"],
+                   u_names=d["u_names"], y_names=d["y_names"], p_names=d["p_names"],
+                   param_cov=cov, **opt)
+
+    def save(self, path: str | os.PathLike) -> None:
+        _atomic_write_json(path, self.to_dict())
+
+
+# ======================================================================================= LPVSS
+@dataclass
+class LPVSS:
+    """Discrete-time LPV state-space model with static affine dependence on ψ(p(k)).
+
+    Attributes:
+        A, B, C, D: basis components, shapes (n_psi, nx, nx), (n_psi, nx, nu), (n_psi, ny, nx),
+            (n_psi, ny, nu); the matrix at p is Σ_l ψ_l(p) M_l.
+        K: (n_psi, nx, ny) innovation gain of x(k+1) = … + K(ψ)e(k), y = … + e(k), or None.
+        io: the input-output model this was realized from, if any.
+        reduction: what a reduction step recorded (method, singular values, order), if any.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    basis: Basis
+    Ts: float
+    K: np.ndarray | None = None
+    u_names: list[str] = field(default_factory=list)
+    y_names: list[str] = field(default_factory=list)
+    p_names: list[str] = field(default_factory=list)
+    io: LPVIO | None = None
+    reduction: dict | None = None
+
+    def __post_init__(self) -> None:
+        mats = (self.A, self.B, self.C, self.D)
+        self.A, self.B, self.C, self.D = (np.asarray(M, dtype=float) for M in mats)
+        n_psi = self.basis.n_psi
+        nx, nu, ny = self.A.shape[1], self.B.shape[2], self.C.shape[1]
+        expected = {"A": (n_psi, nx, nx), "B": (n_psi, nx, nu), "C": (n_psi, ny, nx), "D": (n_psi, ny, nu)}
+        if self.K is not None:
+            self.K = np.asarray(self.K, dtype=float)
+            expected["K"] = (n_psi, nx, ny)
+        for name, shape in expected.items():
+            if getattr(self, name).shape != shape:
+                raise ModelError(f"LPVSS {name} has shape {getattr(self, name).shape}; expected {shape}")
+        if self.Ts <= 0:
+            raise ModelError(f"sampling time must be positive, got Ts={self.Ts}")
+        self.u_names = self.u_names or [f"u{i}" for i in range(nu)]
+        self.y_names = self.y_names or [f"y{i}" for i in range(ny)]
+        self.p_names = self.p_names or [f"p{i}" for i in range(self.basis.n_p)]
+
+    @property
+    def nx(self) -> int:
+        return self.A.shape[1]
+
+    @property
+    def nu(self) -> int:
+        return self.B.shape[2]
+
+    @property
+    def ny(self) -> int:
+        return self.C.shape[1]
+
+    def matrices(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, C, D) frozen at one scheduling point p (n_p,)."""
+        psi = self.basis.eval(np.atleast_1d(np.asarray(p, dtype=float)).reshape(1, -1))[0]
+        return tuple(np.tensordot(psi, M, axes=1) for M in (self.A, self.B, self.C, self.D))
+
+    def frozen(self, p: np.ndarray) -> control.StateSpace:
+        """The LTI model at constant scheduling p, as a discrete python-control StateSpace (dt = Ts)."""
+        A, B, C, D = self.matrices(p)
+        return control.ss(A, B, C, D, self.Ts, inputs=self.u_names, outputs=self.y_names)
+
+    def simulate(
+        self, u: np.ndarray, p: np.ndarray, x0: np.ndarray | None = None, e: np.ndarray | None = None,
+        return_states: bool = False,
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """Simulate along a scheduling trajectory; returns y (N, ny) [and x (N+1, nx)]."""
+        p = _as_2d("scheduling p", p)
+        u = _as_2d("input u", u, len(p))
+        _check_width("input u", u, self.nu)
+        psi = self.basis.eval(p)
+        A, B, C, D = self.A, self.B, self.C, self.D
+        if e is not None:
+            if self.K is None:
+                raise ModelError("this model has no noise gain K; simulate without e")
+            e = _as_2d("noise e", e, len(p))
+            _check_width("noise e", e, self.ny)
+            eye = np.zeros((self.basis.n_psi, self.ny, self.ny))
+            eye[0] = np.eye(self.ny)
+            B, D, u = np.concatenate([B, self.K], axis=2), np.concatenate([D, eye], axis=2), np.hstack([u, e])
+        x0 = np.zeros(self.nx) if x0 is None else np.asarray(x0, dtype=float).reshape(self.nx)
+        y, x = ss_recursion(psi, np.ascontiguousarray(u), A, B, C, D, x0)
+        return (y, x) if return_states else y
+
+    def vertices(self, box: np.ndarray | None = None) -> list[tuple[np.ndarray, control.StateSpace]]:
+        """Frozen models at the corners of the scheduling box (default: the recorded range).
+
+        Only for a basis affine in p: then the model is affine in p and the corners span a polytope
+        that contains every frozen model of the box.
+        """
+        if not self.basis.is_affine:
+            raise ModelError(
+                f"vertices need a basis affine in p; this model uses {self.basis.kind} "
+                f"(degree {self.basis.degree}): treat its terms as separate parameters"
+            )
+        if box is None:
+            if self.basis.p_min is None:
+                raise ModelError("no scheduling range recorded; pass box=[[min, max], ...]")
+            box = np.column_stack([self.basis.p_min, self.basis.p_max])
+        box = np.asarray(box, dtype=float).reshape(self.basis.n_p, 2)
+        corners = np.array(np.meshgrid(*box, indexing="ij")).reshape(self.basis.n_p, -1).T
+        return [(c, self.frozen(c)) for c in corners]
+
+    # --------------------------------------------------------------------------- serialisation
+    def to_dict(self) -> dict:
+        d = {
+            "format": "lpvflow/lpvss",
+            "version": FORMAT_VERSION,
+            "Ts": self.Ts,
+            "basis": self.basis.to_dict(),
+            "u_names": self.u_names,
+            "y_names": self.y_names,
+            "p_names": self.p_names,
+            "A": self.A.tolist(),
+            "B": self.B.tolist(),
+            "C": self.C.tolist(),
+            "D": self.D.tolist(),
+        }
+        if self.K is not None:
+            d["K"] = self.K.tolist()
+        if self.io is not None:
+            d["io"] = self.io.to_dict()
+        if self.reduction is not None:
+            d["reduction"] = self.reduction
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> LPVSS:
+        _check_format(d, "lpvss")
+        try:
+            return cls(
+                d["A"], d["B"], d["C"], d["D"], Basis.from_dict(d["basis"]), float(d["Ts"]),
+                K=d.get("K"), u_names=d["u_names"], y_names=d["y_names"], p_names=d["p_names"],
+                io=LPVIO.from_dict(d["io"]) if "io" in d else None, reduction=d.get("reduction"),
+            )
+        except KeyError as exc:
+            raise ModelError(f"model file lacks the field {exc.args[0]!r}") from None
+
+    def save(self, path: str | os.PathLike) -> None:
+        _atomic_write_json(path, self.to_dict())
+
+
+def _check_format(d: dict, kind: str) -> None:
+    fmt, version = d.get("format"), d.get("version")
+    if fmt != f"lpvflow/{kind}":
+        raise ModelError(f"expected a lpvflow/{kind} file, got format {fmt!r}")
+    if version != FORMAT_VERSION:
+        raise ModelError(
+            f"lpvflow/{kind} file version {version!r} is not supported (this lpvflow reads version "
+            f"{FORMAT_VERSION}); re-export it with a matching lpvflow"
+        )
+
+
+register_format("lpvio", LPVIO.from_dict)
+register_format("lpvss", LPVSS.from_dict)
+
+
+def load(path: str | os.PathLike) -> Any:
+    """Load any lpvflow JSON file (model, controller, …) by its ``format`` field."""
+    path = Path(path)
+    if not path.exists():
+        raise ModelError(f"model file {str(path)!r} does not exist")
+    try:
+        d = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ModelError(f"{path} is not a lpvflow JSON file ({exc.__class__.__name__})") from None
+    fmt = d.get("format", "") if isinstance(d, dict) else ""
+    kind = fmt.removeprefix("lpvflow/") if fmt.startswith("lpvflow/") else None
+    if kind not in _LOADERS:
+        raise ModelError(f"{path}: unknown format {fmt!r}; expected one of "
+                         + ", ".join(f"lpvflow/{k}" for k in sorted(_LOADERS)))
+    return _LOADERS[kind](d)

@@ -1,0 +1,54 @@
+"""Fit metrics per output channel, exactly as thesis Sec. 3.5 (3.31)–(3.33) (notes_002 §0).
+
+    MSE = 1/(2N) Σ_k (y(k) − ŷ(k))²                       (note the factor 1/2)
+    BFR = 100 % · max(1 − ‖y − ŷ‖₂ / ‖y − ȳ‖₂, 0)          (MATLAB's "fit", thesis "BFT")
+    VAF = 100 % · max(1 − var(y − ŷ) / var(y), 0)
+
+ŷ is normally the *simulated* output on validation data.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lpvflow.errors import DataError
+
+
+def _pair(y: np.ndarray, y_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    y = np.asarray(y, dtype=float).reshape(len(y), -1)
+    y_hat = np.asarray(y_hat, dtype=float).reshape(len(y_hat), -1)
+    if y.shape != y_hat.shape:
+        raise DataError(f"measured {y.shape} and simulated {y_hat.shape} outputs differ in shape")
+    return y, y_hat
+
+
+def mse(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
+    y, y_hat = _pair(y, y_hat)
+    return np.sum((y - y_hat) ** 2, axis=0) / (2 * len(y))
+
+
+def bfr(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
+    y, y_hat = _pair(y, y_hat)
+    spread = np.linalg.norm(y - y.mean(axis=0), axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fit = 1 - np.linalg.norm(y - y_hat, axis=0) / spread
+    return 100 * np.maximum(np.where(spread > 0, fit, 0.0), 0)
+
+
+def vaf(y: np.ndarray, y_hat: np.ndarray) -> np.ndarray:
+    y, y_hat = _pair(y, y_hat)
+    var_y = np.var(y, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fit = 1 - np.var(y - y_hat, axis=0) / var_y
+    return 100 * np.maximum(np.where(var_y > 0, fit, 0.0), 0)
+
+
+def fit_report(y: np.ndarray, y_hat: np.ndarray, names: list[str] | None = None) -> dict:
+    """BFR, VAF and MSE per output as plain lists, keyed by metric."""
+    y, y_hat = _pair(y, y_hat)
+    return {
+        "outputs": names or [f"y{i}" for i in range(y.shape[1])],
+        "bfr": bfr(y, y_hat).tolist(),
+        "vaf": vaf(y, y_hat).tolist(),
+        "mse": mse(y, y_hat).tolist(),
+    }

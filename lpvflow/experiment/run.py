@@ -1,0 +1,186 @@
+"""Run an identification experiment on a plant, open or closed loop, and record what happened.
+
+Sampling convention (per communication step k, t_k = k·Ts): read y(k) from the plant, form u(k),
+record (t_k, u(k), y(k)), then advance the plant from t_k to t_k + Ts with u(k) held (zero-order
+hold). So y(k) depends on u(k-1), u(k-2), ... only, as the discrete models of lpvflow assume.
+
+Open loop: u_j(k) = s_j(k) for every input j with a signal s_j; the others stay at their start
+value. Closed loop with an :class:`~lpvflow.experiment.controller.LtiController` K:
+
+    xc(k+1) = A xc(k) + B (y_K(k) - y_op),
+    u_K(k)  = u_op + C xc(k) + D (y_K(k) - y_op) + r(k),
+
+where y_K are the plant outputs K reads, u_K the plant inputs it drives, and r the excitation added
+to its output (recorded as ``<input>_excitation``); inputs K does not drive may still get a signal
+(e.g. an exogenous engine speed). This is the setting of Boonto (2011), Fig. 3.2 (r_2 added to u).
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from lpvflow.errors import DataError, ModelError
+from lpvflow.experiment import scheduling
+from lpvflow.experiment.controller import LtiController
+from lpvflow.experiment.plant import Plant
+from lpvflow.experiment.specs import SignalSpec, generate, parse_spec
+
+#: Tolerance on duration / Ts being a whole number of steps and on controller Ts matching.
+_STEP_TOLERANCE = 1e-9
+
+
+@dataclass
+class ExperimentRecord:
+    """Recorded columns (``time`` first, then inputs, outputs, excitations, scheduling) and metadata."""
+
+    columns: dict[str, np.ndarray]
+    Ts: float
+    metadata: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.columns["time"]
+
+
+def signal_rng(seed: int, name: str) -> np.random.Generator:
+    """Random generator of the signal on ``name``: depends on the seed and the name only, so adding
+    or reordering other signals does not change it."""
+    return np.random.default_rng([int(seed), zlib.crc32(name.encode())])
+
+
+def step_count(Ts: float, duration: float) -> int:
+    """Number of samples N = duration / Ts; refuse Ts <= 0 and durations that are not whole steps."""
+    if not (np.isfinite(Ts) and Ts > 0):
+        raise DataError(f"communication step Ts={Ts} must be a positive number of seconds")
+    if not (np.isfinite(duration) and duration >= 2 * Ts):
+        raise DataError(f"duration={duration} s must be at least two communication steps of {Ts:g} s")
+    n = round(duration / Ts)
+    if abs(duration / Ts - n) > 1e-6:
+        raise DataError(f"duration={duration:g} s is not a whole number of steps Ts={Ts:g} s")
+    return n
+
+
+def _as_specs(signals: Mapping[str, str | SignalSpec] | None) -> dict[str, SignalSpec]:
+    return {name: spec if isinstance(spec, SignalSpec) else parse_spec(spec)
+            for name, spec in (signals or {}).items()}
+
+
+def _check_names(kind: str, names: list[str] | tuple[str, ...], available: list[str], model: str) -> None:
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        raise ModelError(
+            f"{kind} {', '.join(map(repr, unknown))} not in FMU {model}; "
+            f"it has {', '.join(available) or 'none'}"
+        )
+
+
+def run_experiment(
+    plant: Plant,
+    Ts: float,
+    duration: float,
+    inputs: Mapping[str, str | SignalSpec] | None = None,
+    controller: LtiController | None = None,
+    excitation: Mapping[str, str | SignalSpec] | None = None,
+    scheduling_columns: Mapping[str, str] | None = None,
+    seed: int = 0,
+    progress: bool | None = None,
+) -> ExperimentRecord:
+    """Drive ``plant`` for ``duration`` seconds at step Ts; see the module docstring for the law.
+
+    ``inputs``/``excitation`` map plant input names to signal specs (text or :class:`SignalSpec`);
+    ``scheduling_columns`` maps new column names to expressions of input/output names (default:
+    :data:`scheduling.PLANT_DEFAULTS` for the plant's model name). ``progress=None`` shows a tqdm
+    bar only on a terminal.
+    """
+    n = step_count(Ts, duration)
+    input_specs, excitation_specs = _as_specs(inputs), _as_specs(excitation)
+    model = plant.model_name
+    _check_names("input", list(input_specs), plant.input_names, model)
+    _check_names("excitation input", list(excitation_specs), plant.input_names, model)
+    if controller is None and excitation_specs:
+        raise DataError("an excitation is added to a controller output; give a controller or use --input")
+    if controller is not None:
+        _check_names("controller input (plant output)", controller.inputs, plant.output_names, model)
+        _check_names("controller output (plant input)", controller.outputs, plant.input_names, model)
+        if abs(controller.Ts - Ts) > _STEP_TOLERANCE * Ts:
+            raise ModelError(f"controller Ts={controller.Ts:g} s differs from the experiment Ts={Ts:g} s")
+        both = sorted(set(controller.outputs) & set(input_specs))
+        if both:
+            raise DataError(f"input {', '.join(both)} is driven by the controller; use --excitation for it")
+        not_driven = sorted(set(excitation_specs) - set(controller.outputs))
+        if not_driven:
+            raise DataError(f"excitation on {', '.join(not_driven)}: the controller does not drive it")
+
+    u_open = np.empty((n, len(plant.input_names)))
+    for j, name in enumerate(plant.input_names):
+        spec = input_specs.get(name)
+        operating = plant.start_value(name)
+        u_open[:, j] = operating if spec is None else generate(spec, n, Ts, signal_rng(seed, name), operating)
+    r = {name: generate(spec, n, Ts, signal_rng(seed, "excitation:" + name), 0.0)
+         for name, spec in excitation_specs.items()}
+
+    y = np.empty((n, len(plant.output_names)))
+    u = u_open.copy()
+    if controller is not None:
+        y_index = [plant.output_names.index(name) for name in controller.inputs]
+        u_index = [plant.input_names.index(name) for name in controller.outputs]
+        r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in controller.outputs])
+        xc = np.zeros(controller.A.shape[0])
+    show = None if progress is None else not progress
+    bar = tqdm(total=n, unit="step", desc=f"experiment {model}", disable=show)
+    try:
+        for k in range(n):
+            y[k] = plant.outputs()
+            if not np.all(np.isfinite(y[k])):
+                bad = plant.output_names[int(np.flatnonzero(~np.isfinite(y[k]))[0])]
+                raise ModelError(f"plant output {bad} is non-finite at t={k * Ts:g} s; the run diverged")
+            if controller is not None:
+                e = y[k, y_index] - controller.y_op
+                u[k, u_index] = controller.u_op + controller.C @ xc + controller.D @ e + r_matrix[k]
+                xc = controller.A @ xc + controller.B @ e
+            plant.step(u[k], k * Ts, Ts)
+            if k % 1000 == 999:
+                bar.update(1000)
+        bar.update(n - bar.n)
+    finally:
+        bar.close()
+
+    signals = dict(zip(plant.input_names, u.T, strict=True)) | dict(zip(plant.output_names, y.T, strict=True))
+    columns: dict[str, np.ndarray] = {"time": np.round(np.arange(n) * Ts, 12)} | signals
+    columns |= {f"{name}_excitation": values for name, values in r.items()}
+    defaults = scheduling.PLANT_DEFAULTS.get(model, {})
+    chosen = dict(defaults if scheduling_columns is None else scheduling_columns)
+    for name, expression in chosen.items():
+        if name in columns:
+            raise DataError(f"scheduling column {name!r} clashes with a recorded signal; choose another name")
+        columns[name] = scheduling.evaluate(expression, signals)
+
+    metadata = {
+        "model_name": model,
+        "Ts": Ts,
+        "duration": n * Ts,
+        "n_samples": n,
+        "seed": int(seed),
+        "mode": "open-loop" if controller is None else "closed-loop",
+        "inputs": {name: spec.to_dict() for name, spec in input_specs.items()},
+        "operating_values": {name: plant.start_value(name) for name in plant.input_names},
+        "excitation": {name: spec.to_dict() for name, spec in excitation_specs.items()},
+        "controller": None if controller is None else controller.to_dict(),
+        "scheduling": chosen,
+        "parameters": plant.parameter_values(),
+        "columns": {"time": ["time"], "inputs": list(plant.input_names), "outputs": list(plant.output_names),
+                    "excitation": [f"{name}_excitation" for name in r], "scheduling": list(chosen)},
+    }
+    return ExperimentRecord(columns=columns, Ts=Ts, metadata=metadata)
+
+
+def sidecar_path(csv_path: str | Path) -> Path:
+    """The metadata file written next to the CSV: ``data.csv`` -> ``data.csv.json``."""
+    csv_path = Path(csv_path)
+    return csv_path.with_name(csv_path.name + ".json")

@@ -99,6 +99,8 @@ def run_experiment(
     bar only on a terminal.
     """
     n = step_count(Ts, duration)
+    if int(seed) != seed or seed < 0:
+        raise DataError(f"seed={seed} must be a non-negative integer")
     input_specs, excitation_specs = _as_specs(inputs), _as_specs(excitation)
     model = plant.model_name
     _check_names("input", list(input_specs), plant.input_names, model)

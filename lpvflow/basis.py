@@ -118,7 +118,7 @@ class Basis:
         if self.kind == "poly":
             exps = []
             for total in range(self.degree + 1):
-                for e in itertools.product(range(total + 1), repeat=self.n_p):
+                for e in sorted(itertools.product(range(total + 1), repeat=self.n_p), reverse=True):
                     if sum(e) == total and (self.cross or sum(1 for v in e if v) <= 1):
                         exps.append(tuple(e))
             return tuple(exps)

@@ -1,0 +1,152 @@
+"""Every DataError path of Dataset and its readers, through the Python API and the CLI."""
+
+import numpy as np
+import pytest
+import scipy.io
+
+from lpvflow.data import Dataset
+from lpvflow.errors import DataError
+from lpvflow.pipeline.cli import main
+
+
+def write_csv(path, header, rows):
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(str(v) for v in r) for r in rows) + "\n")
+    return path
+
+
+@pytest.fixture
+def good_rows():
+    rng = np.random.default_rng(0)
+    return [[0.1 * k, *rng.normal(size=3)] for k in range(200)]
+
+
+def test_csv_roundtrip_with_time_column(tmp_path, good_rows):
+    path = write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"], good_rows)
+    d = Dataset.read(path, ["u"], ["y"], ["p"])
+    assert d.Ts == pytest.approx(0.1)
+    assert d.u.shape == (200, 1) and d.u.dtype == np.float64
+    np.testing.assert_allclose(d.y[:, 0], [r[2] for r in good_rows])
+
+
+def test_parquet_and_mat_readers(tmp_path, good_rows):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    cols = dict(zip(["time", "u", "y", "p"], np.array(good_rows).T, strict=True))
+    pq.write_table(pa.table(cols), tmp_path / "d.parquet")
+    scipy.io.savemat(tmp_path / "d.mat", cols)
+    for name in ("d.parquet", "d.mat"):
+        d = Dataset.read(tmp_path / name, ["u"], ["y"], ["p"])
+        assert d.Ts == pytest.approx(0.1) and d.N == 200
+
+
+@pytest.mark.parametrize(
+    ("header", "mutate", "cols", "message"),
+    [
+        (["time", "u", "y", "p"], None, (["u"], ["missing"], ["p"]), "column(s) ['missing'] not found"),
+        (["time", "u", "y", "p"], lambda r: r[5].__setitem__(2, "nan"), None, "'y' has NaN/inf at sample 5"),
+        (["time", "u", "y", "p"], lambda r: r[7].__setitem__(1, "inf"), None, "'u' has NaN/inf at sample 7"),
+        (["time", "u", "y", "p"], lambda r: r[9].__setitem__(0, 0.95), None, "not uniformly spaced"),
+        (["time", "u", "y", "p"], lambda r: r[9].__setitem__(0, 0.0), None, "not increasing at sample 9"),
+        (["time", "u", "y", "p"], lambda r: r[3].__setitem__(3, "abc"), None, "'abc' is not a number"),
+        (["time", "u", "y", "p"], lambda r: r[4].pop(), None, "line 6 has 3 fields"),
+    ],
+)
+def test_csv_defects(tmp_path, good_rows, header, mutate, cols, message):
+    if mutate:
+        mutate(good_rows)
+    path = write_csv(tmp_path / "d.csv", header, good_rows)
+    u, y, p = cols or (["u"], ["y"], ["p"])
+    with pytest.raises(DataError, match=message.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")
+                       .replace(")", r"\)")):
+        Dataset.read(path, u, y, p)
+
+
+def test_array_defects():
+    rng = np.random.default_rng(1)
+    u, y, p = rng.normal(size=(50, 1)), rng.normal(size=(50, 1)), rng.normal(size=(50, 1))
+    with pytest.raises(DataError, match="same number of samples"):
+        Dataset(u, y[:40], p, 1.0)
+    with pytest.raises(DataError, match="Ts must be a positive"):
+        Dataset(u, y, p, 0.0)
+    with pytest.raises(DataError, match="Ts must be a positive"):
+        Dataset(u, y, p, -0.1)
+    with pytest.raises(DataError, match="2 column"):
+        Dataset(np.hstack([u, u]), y, p, 1.0, u_names=["a"])
+    with pytest.raises(DataError, match="too few"):
+        Dataset(u, y, p, 1.0).require_samples(60, "this model")
+
+
+def test_missing_time_and_ts(tmp_path, good_rows):
+    path = write_csv(tmp_path / "d.csv", ["clock", "u", "y", "p"], good_rows)
+    with pytest.raises(DataError, match="no time column and no Ts"):
+        Dataset.read(path, ["u"], ["y"], ["p"])
+    assert Dataset.read(path, ["u"], ["y"], ["p"], Ts=0.5).Ts == 0.5
+    with pytest.raises(DataError, match="disagrees with the time column"):
+        Dataset.read(path, ["u"], ["y"], ["p"], time="clock", Ts=0.5)
+
+
+def test_split_offsets_and_decimate():
+    rng = np.random.default_rng(2)
+    d = Dataset(rng.normal(size=(300, 1)) + 3, rng.normal(size=(300, 1)) - 1, rng.normal(size=(300, 1)), 0.1)
+    est, val = d.split(0.6)
+    assert (est.N, val.N) == (180, 120)
+    centred = d.remove_offsets()
+    assert abs(centred.u.mean()) < 1e-12 and centred.offsets["u"][0] == pytest.approx(d.u.mean())
+    assert np.all(centred.p == d.p)
+    dec = d.decimate(3)
+    assert dec.N == 100 and dec.Ts == pytest.approx(0.3)
+    with pytest.raises(DataError, match="whole number"):
+        d.decimate(1.5)
+    with pytest.raises(DataError, match="between 0 and 1"):
+        d.split(1.2)
+
+
+@pytest.mark.parametrize(
+    ("mutate", "extra", "message"),
+    [
+        (None, ["--y", "nope"], "column(s) ['nope'] not found"),
+        (lambda r: r[5].__setitem__(2, "nan"), [], "has NaN/inf at sample 5"),
+        (lambda r: r[9].__setitem__(0, 0.95), [], "not uniformly spaced"),
+        (lambda r: r[9].__setitem__(0, 0.0), [], "not increasing"),
+        (lambda r: r.__delitem__(slice(12, None)), [], "too few"),
+        (None, ["--Ts", "-1", "--time", "none_such"], "time column 'none_such' not found"),
+        (None, ["--basis", "cubic"], "bad basis spec"),
+        (None, ["--na", "2,x"], "bad order"),
+    ],
+)
+def test_cli_bad_input_exit_2_one_line(tmp_path, good_rows, capsys, mutate, extra, message):
+    if mutate:
+        mutate(good_rows)
+    path = write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"], good_rows)
+    args = ["identify", str(path), "--u", "u", "--y", "y", "--p", "p", "--basis", "poly:2",
+            "-o", str(tmp_path / "m.json")]
+    for i in range(0, len(extra), 2):  # later options override earlier ones
+        args += extra[i : i + 2]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert message in err
+    assert not (tmp_path / "m.json").exists()
+
+
+def test_cli_never_overwrites_the_data_file(tmp_path, good_rows, capsys):
+    path = write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"], good_rows)
+    before = path.read_bytes()
+    assert main(["identify", str(path), "--u", "u", "--y", "y", "--p", "p", "-o", str(path)]) == 2
+    assert "also an input file" in capsys.readouterr().err
+    assert path.read_bytes() == before
+
+
+def test_cli_missing_data_file(tmp_path, capsys):
+    assert main(["identify", str(tmp_path / "none.csv"), "--u", "u", "--y", "y", "--p", "p",
+                 "-o", str(tmp_path / "m.json")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_cli_nonpositive_ts(tmp_path, good_rows, capsys):
+    path = write_csv(tmp_path / "d.csv", ["clock", "u", "y", "p"], good_rows)
+    assert main(["identify", str(path), "--u", "u", "--y", "y", "--p", "p", "--Ts", "0",
+                 "-o", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert "Ts must be a positive" in err and err.count("\n") == 1

@@ -30,7 +30,7 @@ class Plant(Protocol):
 
     def start_value(self, name: str) -> float: ...
 
-    def parameter_values(self) -> dict[str, float]: ...
+    def parameter_values(self) -> dict[str, float | int | bool]: ...
 
     def outputs(self) -> np.ndarray: ...
 
@@ -115,18 +115,21 @@ class FmuPlant:
         else:
             self._fmu.setBoolean(ref, [bool(value)])
 
-    def _get(self, name: str) -> float:
+    def _get(self, name: str) -> float | int | bool:
         var = self._vars[name]
         ref = [var.valueReference]
-        getter = {"Real": self._fmu.getReal, "Integer": self._fmu.getInteger, "Boolean": self._fmu.getBoolean}
-        return float(getter[var.type](ref)[0])
+        if var.type == "Real":
+            return float(self._fmu.getReal(ref)[0])
+        if var.type == "Integer":
+            return int(self._fmu.getInteger(ref)[0])
+        return bool(self._fmu.getBoolean(ref)[0])
 
     def start_value(self, name: str) -> float:
         """Start value of a variable from the model description (0 when none is declared)."""
         start = self._vars[name].start
         return 0.0 if start is None else float(start)
 
-    def parameter_values(self) -> dict[str, float]:
+    def parameter_values(self) -> dict[str, float | int | bool]:
         """Current values of every Real/Integer/Boolean parameter, read back from the instance."""
         return {
             v.name: self._get(v.name) for v in self._md.modelVariables

@@ -31,8 +31,14 @@ from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.plant import Plant
 from lpvflow.experiment.specs import SignalSpec, generate, parse_spec
 
-#: Tolerance on duration / Ts being a whole number of steps and on controller Ts matching.
+#: Tolerance on the controller Ts matching the experiment Ts.
 _STEP_TOLERANCE = 1e-9
+#: FMU outputs with this prefix are diagnostics (noise-free states, derivatives, applied inputs):
+#: not recorded unless asked for, but usable in scheduling expressions.
+DIAGNOSTIC_PREFIX = "diag_"
+#: Output through which an FMU names its scheduling variable; recorded as column ``scheduling``
+#: when neither the user nor :data:`scheduling.PLANT_DEFAULTS` chooses one.
+FMU_SCHEDULING_OUTPUT = "diag_scheduling"
 
 
 @dataclass
@@ -90,13 +96,14 @@ def run_experiment(
     scheduling_columns: Mapping[str, str] | None = None,
     seed: int = 0,
     progress: bool | None = None,
+    record_diagnostics: bool = False,
 ) -> ExperimentRecord:
     """Drive ``plant`` for ``duration`` seconds at step Ts; see the module docstring for the law.
 
     ``inputs``/``excitation`` map plant input names to signal specs (text or :class:`SignalSpec`);
     ``scheduling_columns`` maps new column names to expressions of input/output names (default:
-    :data:`scheduling.PLANT_DEFAULTS` for the plant's model name). ``progress=None`` shows a tqdm
-    bar only on a terminal.
+    :func:`default_scheduling`). Outputs named ``diag_*`` are recorded only with
+    ``record_diagnostics``. ``progress=None`` shows a tqdm bar only on a terminal.
     """
     n = step_count(Ts, duration)
     if int(seed) != seed or seed < 0:
@@ -154,10 +161,12 @@ def run_experiment(
         bar.close()
 
     signals = dict(zip(plant.input_names, u.T, strict=True)) | dict(zip(plant.output_names, y.T, strict=True))
-    columns: dict[str, np.ndarray] = {"time": np.round(np.arange(n) * Ts, 12)} | signals
+    outputs = [name for name in plant.output_names
+               if record_diagnostics or not name.startswith(DIAGNOSTIC_PREFIX)]
+    columns: dict[str, np.ndarray] = {"time": np.round(np.arange(n) * Ts, 12)}
+    columns |= {name: signals[name] for name in [*plant.input_names, *outputs]}
     columns |= {f"{name}_excitation": values for name, values in r.items()}
-    defaults = scheduling.PLANT_DEFAULTS.get(model, {})
-    chosen = dict(defaults if scheduling_columns is None else scheduling_columns)
+    chosen = dict(default_scheduling(plant) if scheduling_columns is None else scheduling_columns)
     for name, expression in chosen.items():
         if name in columns:
             raise DataError(f"scheduling column {name!r} clashes with a recorded signal; choose another name")
@@ -176,10 +185,20 @@ def run_experiment(
         "controller": None if controller is None else controller.to_dict(),
         "scheduling": chosen,
         "parameters": plant.parameter_values(),
-        "columns": {"time": ["time"], "inputs": list(plant.input_names), "outputs": list(plant.output_names),
+        "columns": {"time": ["time"], "inputs": list(plant.input_names), "outputs": outputs,
                     "excitation": [f"{name}_excitation" for name in r], "scheduling": list(chosen)},
     }
     return ExperimentRecord(columns=columns, Ts=Ts, metadata=metadata)
+
+
+def default_scheduling(plant: Plant) -> dict[str, str]:
+    """Scheduling columns when the user names none: the plant's entry in
+    :data:`scheduling.PLANT_DEFAULTS`, else ``scheduling = diag_scheduling`` if the FMU has that output."""
+    if plant.model_name in scheduling.PLANT_DEFAULTS:
+        return dict(scheduling.PLANT_DEFAULTS[plant.model_name])
+    if FMU_SCHEDULING_OUTPUT in plant.output_names:
+        return {"scheduling": FMU_SCHEDULING_OUTPUT}
+    return {}
 
 
 def sidecar_path(csv_path: str | Path) -> Path:

@@ -24,8 +24,13 @@ _BINARY = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
            ast.Pow: operator.pow}
 _UNARY = {ast.USub: operator.neg, ast.UAdd: operator.pos}
 
-#: Default scheduling columns per FMU model name, used when the user names none (issue 4, item 2).
-PLANT_DEFAULTS: dict[str, dict[str, str]] = {}
+#: Default scheduling columns per FMU model name, used when the user names none (issue 4, item 2):
+#: computed from measured signals, as a real experiment would (the FMU's ``diag_scheduling`` is the
+#: noise-free value).
+PLANT_DEFAULTS: dict[str, dict[str, str]] = {
+    "adip": {"sin_arm": "sin(arm_angle)"},
+    "tanks": {"level": "lower_level"},
+}
 
 
 def parse_assignment(text: str) -> tuple[str, str]:

@@ -48,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
     record = run_fmu_experiment(
         args.fmu, args.Ts, args.duration, inputs=inputs, controller=args.controller, excitation=excitation,
         parameters=parameters, scheduling_columns=scheduling, seed=args.seed, output=args.output,
+        record_diagnostics=args.diagnostics,
     )
     columns = ", ".join(record.columns)
     print(f"wrote {args.output} ({record.metadata['n_samples']} samples; columns {columns}) "
@@ -79,6 +80,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--scheduling", action="append", metavar="NAME=EXPR",
                         help="extra column computed from inputs/outputs, e.g. sin_arm=sin(arm_angle); "
                         "default: the plant's scheduling column, if it has one")
+    parser.add_argument("--diagnostics", action="store_true",
+                        help="also record the FMU's diag_* outputs (noise-free states, applied inputs)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the excitation signals (default 0)")
     parser.add_argument("-o", "--output", required=True, metavar="DATA.csv", help="CSV to write")
     parser.set_defaults(func=run)

@@ -1,0 +1,107 @@
+"""Core performance, measured as ratios in one run (issue 2).
+
+1. LPR-ARX on N = 10⁶ samples (SISO, na = nb = 2, nk = 1, one scheduling signal, poly:2): wall time
+   of ``identify_arx`` (regressor built in chunks + chunked QR) against a bare ``numpy.linalg.lstsq``
+   on the *prebuilt* regressor (regressor construction not timed for the baseline), and the peak
+   memory that ``identify_arx`` allocates (tracemalloc) relative to the bytes of u, y, p.
+2. ``LPVSS.simulate`` throughput with nx = 4, nψ = 3 (samples per second, after JIT warm-up).
+
+Run: ``.venv/bin/python benchmarks/bench_core.py`` → benchmarks/results/core.json
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import tracemalloc
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from lpvflow.basis import Basis
+from lpvflow.data import Dataset
+from lpvflow.identify.arx import identify_arx
+from lpvflow.models import LPVSS
+
+
+def best_of(fn, repeats: int = 3) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def lpr_regressor(u: np.ndarray, y: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """The same 12-column shifted-form regressor identify_arx builds, in one piece."""
+    n = len(y)
+    cols = []
+    for lag in (1, 2):
+        cols += [-y[2 - lag : n - lag, 0] * psi[2 - lag : n - lag, l] for l in range(3)]
+    for lag in (1, 2):
+        cols += [u[2 - lag : n - lag, 0] * psi[2 - lag : n - lag, l] for l in range(3)]
+    return np.column_stack(cols)
+
+
+def bench_identify(n: int = 1_000_000) -> dict:
+    rng = np.random.default_rng(0)
+    u, p = rng.normal(size=(n, 1)), rng.uniform(-1, 1, size=(n, 1))
+    y = np.convolve(u[:, 0], [0, 1.0, 0.5], mode="full")[:n, None] + 0.1 * rng.normal(size=(n, 1))
+    data = Dataset(u, y, p, 1.0)
+    psi = Basis.poly(2).eval(p)
+    phi = lpr_regressor(u, y, psi)
+    target = y[2:, 0]
+    t_lstsq = best_of(partial(np.linalg.lstsq, phi, target, rcond=None))
+    t_ours = best_of(partial(identify_arx, data, 2, 2, 1, "poly:2"))
+    theta_ref = np.linalg.lstsq(phi, target, rcond=None)[0]
+    est = identify_arx(data, 2, 2, 1, "poly:2")
+    theta_ours = np.concatenate([est.A[:, :, 0, 0].ravel(), est.B[1:, :, 0, 0].ravel()])
+    del phi
+    tracemalloc.start()
+    identify_arx(data, 2, 2, 1, "poly:2")
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    input_bytes = u.nbytes + y.nbytes + p.nbytes
+    return {
+        "N": n,
+        "time_identify_arx_s": t_ours,
+        "time_lstsq_prebuilt_s": t_lstsq,
+        "time_ratio": t_ours / t_lstsq,
+        "peak_alloc_bytes": peak,
+        "input_bytes": input_bytes,
+        "memory_ratio": peak / input_bytes,
+        "max_coefficient_difference_vs_lstsq": float(np.max(np.abs(theta_ours - theta_ref))),
+    }
+
+
+def bench_simulate(n: int = 2_000_000, nx: int = 4, n_psi: int = 3) -> dict:
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(n_psi, nx, nx)) * 0.1
+    A[0] += 0.5 * np.eye(nx)
+    ss = LPVSS(A, rng.normal(size=(n_psi, nx, 1)), rng.normal(size=(n_psi, 1, nx)), np.zeros((n_psi, 1, 1)),
+               Basis.poly(2), 1.0)
+    u, p = rng.normal(size=(n, 1)), rng.uniform(-1, 1, size=(n, 1))
+    ss.simulate(u[:100], p[:100])  # JIT warm-up
+    t = best_of(lambda: ss.simulate(u, p))
+    return {"N": n, "nx": nx, "n_psi": n_psi, "time_s": t, "samples_per_s": n / t}
+
+
+def main() -> None:
+    results = {"lpr_arx": bench_identify(), "lpvss_simulate": bench_simulate()}
+    out = Path(__file__).parent / "results" / "core.json"
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(results, indent=1))
+    r, s = results["lpr_arx"], results["lpvss_simulate"]
+    print("| measurement | ours | baseline | ratio | goal |")
+    print("|---|---|---|---|---|")
+    print(f"| LPR-ARX N=10⁶ wall time | {r['time_identify_arx_s']:.3f} s | lstsq on prebuilt regressor "
+          f"{r['time_lstsq_prebuilt_s']:.3f} s | {r['time_ratio']:.2f}× | ≤ 1.5× |")
+    print(f"| LPR-ARX peak allocation | {r['peak_alloc_bytes'] / 1e6:.1f} MB | input data "
+          f"{r['input_bytes'] / 1e6:.1f} MB | {r['memory_ratio']:.2f}× | ≤ 3× |")
+    print(f"| LPVSS.simulate nx=4, nψ=3 | {s['samples_per_s'] / 1e6:.2f}·10⁶ samples/s | — | — | ≥ 2·10⁶ |")
+
+
+if __name__ == "__main__":
+    main()

@@ -245,3 +245,16 @@ def test_output_may_not_overwrite_inputs(tmp_path):
     with pytest.raises(DataError, match="is a folder"):
         check_output_path(tmp_path)
     assert fmu.read_bytes() == b"not touched"
+
+
+def test_fmu_scheduling_output_is_the_default_and_diagnostics_are_opt_in():
+    sys = control.ss([[0.9]], [[1.0]], [[1.0], [2.0]], [[0.0], [0.0]], TS)
+    plant = StateSpacePlant(sys, u0=[1.0], name="unlisted")
+    plant.output_names = ["y0", "diag_scheduling"]
+    rec = run_experiment(plant, TS, 0.5, progress=False)
+    assert list(rec.columns) == ["time", "u0", "y0", "scheduling"]
+    np.testing.assert_array_equal(rec.columns["scheduling"], 2 * rec.columns["y0"])
+    plant = StateSpacePlant(sys, u0=[1.0], name="unlisted")
+    plant.output_names = ["y0", "diag_scheduling"]
+    rec = run_experiment(plant, TS, 0.5, progress=False, record_diagnostics=True, scheduling_columns={})
+    assert list(rec.columns) == ["time", "u0", "y0", "diag_scheduling"]

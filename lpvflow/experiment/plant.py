@@ -1,24 +1,22 @@
-"""The plant an experiment drives: an FMI 2.0 Co-Simulation FMU stepped through fmpy's instance API.
+"""The plant an experiment drives: an FMI 2.0 Co-Simulation FMU opened with :func:`lpvflow.fmu.open_fmu`.
 
 :class:`Plant` is the small interface the experiment loop needs (names, operating values, one
-communication step with new inputs, the current outputs). :func:`open_plant` provides it for an FMU;
-tests may supply any object with the same attributes.
+communication step with new inputs, the current outputs). :func:`open_plant` provides it for an
+FMU, with every output (measured and ``diag_*``) so that scheduling expressions and diagnostics can
+use them; tests may supply any object with the same attributes.
 """
 
 from __future__ import annotations
 
 import hashlib
-import math
-import shutil
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
-from fmpy import extract, read_model_description
-from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave
+from fmpy import read_model_description
 
-from lpvflow.errors import ModelError
+from lpvflow.fmu import open_fmu
 
 
 class Plant(Protocol):
@@ -48,116 +46,55 @@ def sha256_of(path: str | Path) -> str:
     return digest.hexdigest()
 
 
-def _bound(text: str | None, default: float) -> float:
-    return default if text is None else float(text)
-
-
 class FmuPlant:
-    """An instantiated FMU in a fixed-step co-simulation; parameters are set before initialisation."""
+    """An FMU instance initialised with ``parameters``; outputs are all FMU outputs, diag_* included."""
 
-    def __init__(self, path: str | Path, parameters: dict[str, float] | None = None) -> None:
-        path = Path(path)
-        if not path.is_file():
-            raise ModelError(f"FMU {path} does not exist; build it with `make fmus` or give the right path")
+    def __init__(self, path: str | Path, parameters: Mapping[str, float]) -> None:
+        probe = open_fmu(path)  # checks the file and that it is FMI 2.0 Co-Simulation
+        probe.close()
+        variables = read_model_description(str(path), validate=False).modelVariables
+        self._types = {v.name: v.type for v in variables if v.causality == "parameter"}
+        self._fmu = open_fmu(path, outputs=[v.name for v in variables if v.causality == "output"])
+        self.model_name: str = self._fmu.name
+        self.input_names = list(self._fmu.input_names)
+        self.output_names = list(self._fmu.output_names)
+        self._set = dict(parameters)
         try:
-            self._md = read_model_description(str(path), validate=False)
-        except Exception as exc:  # fmpy raises several types for a non-FMU file
-            raise ModelError(f"{path} is not a readable FMU ({type(exc).__name__}: {exc})") from None
-        if self._md.coSimulation is None:
-            raise ModelError(f"FMU {path} does not support FMI 2.0 Co-Simulation")
-        self.model_name: str = self._md.modelName
-        self._vars = {v.name: v for v in self._md.modelVariables}
-        self.input_names = [v.name for v in self._md.modelVariables if v.causality == "input"]
-        self.output_names = [v.name for v in self._md.modelVariables if v.causality == "output"]
-        self._u_refs = [self._vars[n].valueReference for n in self.input_names]
-        self._y_refs = [self._vars[n].valueReference for n in self.output_names]
-        parameters = dict(parameters or {})
-        for name, value in parameters.items():
-            self._check_parameter(name, value)
-        self._dir = extract(str(path))
-        try:
-            self._fmu = FMU2Slave(
-                guid=self._md.guid, unzipDirectory=self._dir,
-                modelIdentifier=self._md.coSimulation.modelIdentifier, instanceName=self.model_name,
-            )
-            self._fmu.instantiate()
-            self._fmu.setupExperiment(startTime=0.0)
-            for name, value in parameters.items():
-                self._set(name, value)
-            self._fmu.enterInitializationMode()
-            self._fmu.exitInitializationMode()
-        except FMICallException as exc:
-            self._cleanup()
-            raise ModelError(f"FMU {path.name} refused the initialisation or a parameter ({exc})") from None
-
-    def _check_parameter(self, name: str, value: float) -> None:
-        var = self._vars.get(name)
-        if var is None or var.causality != "parameter":
-            known = sorted(v.name for v in self._md.modelVariables if v.causality == "parameter")
-            raise ModelError(f"FMU {self.model_name} has no parameter {name!r}; it has {', '.join(known)}")
-        if var.type not in ("Real", "Integer", "Boolean"):
-            raise ModelError(f"FMU parameter {name} has type {var.type}; set Real/Integer/Boolean only")
-        if not math.isfinite(value):
-            raise ModelError(f"FMU parameter {name}={value} must be finite")
-        if var.type != "Real" and value != int(value):
-            raise ModelError(f"FMU parameter {name}={value} must be an integer ({var.type})")
-        lo, hi = _bound(var.min, -math.inf), _bound(var.max, math.inf)
-        if not lo <= value <= hi:
-            raise ModelError(f"FMU parameter {name}={value:g} is outside its range [{lo:g}, {hi:g}]")
-
-    def _set(self, name: str, value: float) -> None:
-        var = self._vars[name]
-        ref = [var.valueReference]
-        if var.type == "Real":
-            self._fmu.setReal(ref, [float(value)])
-        elif var.type == "Integer":
-            self._fmu.setInteger(ref, [int(value)])
-        else:
-            self._fmu.setBoolean(ref, [bool(value)])
-
-    def _get(self, name: str) -> float | int | bool:
-        var = self._vars[name]
-        ref = [var.valueReference]
-        if var.type == "Real":
-            return float(self._fmu.getReal(ref)[0])
-        if var.type == "Integer":
-            return int(self._fmu.getInteger(ref)[0])
-        return bool(self._fmu.getBoolean(ref)[0])
+            if self._set:
+                self._fmu.set_parameters(self._set)
+            self._y = self._fmu.reset()
+        except BaseException:
+            self._fmu.close()
+            raise
 
     def start_value(self, name: str) -> float:
-        """Start value of a variable from the model description (0 when none is declared)."""
-        start = self._vars[name].start
-        return 0.0 if start is None else float(start)
+        """Declared start value of an input (its operating value in open loop)."""
+        return self._fmu.start_value(name)
 
     def parameter_values(self) -> dict[str, float | int | bool]:
-        """Current values of every Real/Integer/Boolean parameter, read back from the instance."""
-        return {
-            v.name: self._get(v.name) for v in self._md.modelVariables
-            if v.causality == "parameter" and v.type in ("Real", "Integer", "Boolean")
-        }
+        """Every parameter as used: Real ones read back from the instance, the others as set or declared."""
+        values: dict[str, float | int | bool] = {}
+        for name, kind in self._types.items():
+            if kind == "Real":
+                values[name] = float(self._fmu.get([name])[0])
+            elif name in self._set:
+                values[name] = int(self._set[name]) if kind == "Integer" else bool(self._set[name])
+            else:
+                start = self._fmu.start_value(name)
+                values[name] = int(start) if kind == "Integer" else bool(start)
+        return values
 
     def outputs(self) -> np.ndarray:
-        return np.array(self._fmu.getReal(self._y_refs), dtype=float)
+        return self._y
 
     def step(self, u: np.ndarray, t: float, Ts: float) -> None:
-        """Apply u as the inputs and advance one communication step from t to t + Ts."""
-        try:
-            self._fmu.setReal(self._u_refs, [float(x) for x in u])
-            self._fmu.doStep(currentCommunicationPoint=t, communicationStepSize=Ts)
-        except FMICallException as exc:
-            raise ModelError(f"FMU {self.model_name} failed at t={t:g} s ({exc})") from None
-
-    def _cleanup(self) -> None:
-        shutil.rmtree(self._dir, ignore_errors=True)
+        """Hold u for one communication step from t to t + Ts (the FMU keeps its own clock, equal to t)."""
+        self._y = self._fmu.step(u, Ts)
 
     def close(self) -> None:
-        try:
-            self._fmu.terminate()
-            self._fmu.freeInstance()
-        finally:
-            self._cleanup()
+        self._fmu.close()
 
 
-def open_plant(path: str | Path, parameters: dict[str, float] | None = None) -> Plant:
+def open_plant(path: str | Path, parameters: Mapping[str, float] | None = None) -> Plant:
     """Open an FMU for a fixed-step experiment with the given parameters (effect_* and physical)."""
-    return FmuPlant(path, parameters)
+    return FmuPlant(path, dict(parameters or {}))

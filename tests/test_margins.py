@@ -1,0 +1,150 @@
+"""b(P, K), loop margins and Vinnicombe's robust stability theorem as a seeded property test."""
+
+import control as ct
+import numpy as np
+import pytest
+
+from lpvflow.errors import ModelError
+from lpvflow.validate.margins import closed_loop, is_internally_stable, loop_margins, stability_margin
+from lpvflow.validate.nugap import nugap
+
+s = ct.tf("s")
+
+
+def gain(k, dt=0):
+    return ct.ss([], [], [], np.atleast_2d(k), dt)
+
+
+def observer_controller(P, weight):
+    """Observer-based state feedback K (u = −K y) from LQR/Kalman gains: stabilizes P by design."""
+    A, B, C = P.A, P.B, P.C
+    if P.isdtime():
+        F = ct.dlqr(A, B, np.eye(A.shape[0]), weight * np.eye(B.shape[1]))[0]
+        L = ct.dlqr(A.T, C.T, np.eye(A.shape[0]), weight * np.eye(C.shape[0]))[0].T
+    else:
+        F = ct.lqr(A, B, np.eye(A.shape[0]), weight * np.eye(B.shape[1]))[0]
+        L = ct.lqr(A.T, C.T, np.eye(A.shape[0]), weight * np.eye(C.shape[0]))[0].T
+    return ct.ss(A - B @ F - L @ C + L @ P.D @ F, L, F, np.zeros((B.shape[1], C.shape[0])), P.dt)
+
+
+def thesis_T_peak(P, K, omega):
+    """max σ of the thesis's (6.1) T = [K; I](I + PK)^-1 [P, I] on a grid (independent of lpvflow)."""
+    Gp = np.moveaxis(ct.frequency_response(P, omega).complex.reshape(P.noutputs, P.ninputs, -1), -1, 0)
+    Gk = np.moveaxis(ct.frequency_response(K, omega).complex.reshape(K.noutputs, K.ninputs, -1), -1, 0)
+    p = P.noutputs
+    peak = 0.0
+    for gp, gk in zip(Gp, Gk, strict=True):
+        inner = np.linalg.inv(np.eye(p) + gp @ gk)
+        T = np.vstack([gk, np.eye(p)]) @ inner @ np.hstack([gp, np.eye(p)])
+        peak = max(peak, np.linalg.svd(T, compute_uv=False)[0])
+    return peak
+
+
+def test_matlab_ncfmargin_examples():
+    """MATLAB ncfmargin doc: P = 4/(s-0.001) with C = 1 gives 0.7069, with C = 10 gives 0.0995."""
+    P = ct.ss(4 / (s - 0.001))
+    assert stability_margin(P, gain(1.0)) == pytest.approx(0.7069, abs=5e-5)
+    assert stability_margin(P, gain(10.0)) == pytest.approx(0.0995, abs=5e-5)
+
+
+def test_destabilizing_controller_has_zero_margin():
+    P = ct.ss(4 / (s - 0.001))
+    assert not is_internally_stable(P, gain(-1.0))
+    assert stability_margin(P, gain(-1.0)) == 0.0
+
+
+@pytest.mark.parametrize("dt", [0, 0.1])
+def test_margin_is_inverse_peak_of_thesis_closed_loop(dt):
+    rng = np.random.default_rng(7)
+    P = ct.drss(3, 2, 2) if dt else ct.rss(3, 2, 2)
+    P = ct.ss(P.A, P.B, P.C, P.D, dt)
+    K = observer_controller(P, weight=float(rng.uniform(0.5, 2.0)))
+    b = stability_margin(P, K)
+    assert 0.0 < b <= 1.0
+    top = np.pi / dt * (1 - 1e-12) if dt else 1e3
+    omega = np.concatenate([[0.0], np.logspace(-3, np.log10(top), 20000)])
+    assert b == pytest.approx(1.0 / thesis_T_peak(P, K, omega), rel=1e-4)
+    assert b <= 1.0 / thesis_T_peak(P, K, omega) + 1e-9
+
+
+def test_closed_loop_has_plant_plus_controller_states_and_right_dc_gain():
+    P, K = ct.ss(2 / (s + 1)), ct.ss(3 / (s + 4))
+    T = closed_loop(P, K)
+    assert T.nstates == 2
+    # d_u -> y at DC: P/(1 + K P) = 2 / (1 + 0.75 * 2) = 0.8
+    assert ct.dcgain(T)[0, 0] == pytest.approx(0.8)
+
+
+@pytest.mark.parametrize("dt", [0, 0.05])
+def test_vinnicombe_theorem_holds_on_random_loops(dt, record_property):
+    """If b(P, K) > δν(P, P2) then (P2, K) is internally stable (Vinnicombe 2001, Thm 3.8)."""
+    rng = np.random.default_rng(11)
+    premise, crossed_stability, destabilized_without_premise = 0, 0, 0
+    for _ in range(110):
+        p, m = [(1, 1), (2, 2), (1, 2)][rng.integers(3)]
+        P = ct.drss(int(rng.integers(2, 4)), p, m) if dt else ct.rss(int(rng.integers(2, 4)), p, m)
+        A = P.A * rng.uniform(0.95, 1.15) if dt else P.A + rng.uniform(0.0, 0.4) * np.eye(P.nstates)
+        P = ct.ss(A, P.B, P.C, P.D, dt)
+        K = observer_controller(P, weight=float(rng.choice([0.1, 1.0, 10.0])))
+        b = stability_margin(P, K)
+        scale = float(rng.choice([0.02, 0.1, 0.3]))
+        P2 = ct.ss(P.A + scale * rng.standard_normal(P.A.shape), P.B + scale * rng.standard_normal(P.B.shape),
+                   P.C + scale * rng.standard_normal(P.C.shape), P.D, dt)
+        distance = nugap(P, P2).value
+        stable = is_internally_stable(P2, K)
+        if b > distance:
+            premise += 1
+            assert stable, f"Vinnicombe's theorem violated: b = {b:.4f} > δν = {distance:.4f}"
+            unstable = [np.sum(np.abs(X.poles()) > 1 if dt else X.poles().real > 0) for X in (P, P2)]
+            crossed_stability += int(unstable[0] != unstable[1])
+        elif not stable:
+            destabilized_without_premise += 1
+    record_property("premise_cases", premise)
+    print(f"dt={dt}: premise held in {premise} cases ({crossed_stability} with a changed count of unstable "
+          f"poles); {destabilized_without_premise} other perturbations destabilized the loop")
+    assert premise >= 50
+    assert destabilized_without_premise > 0  # the perturbations are large enough to matter
+
+
+def test_loop_margins_match_closed_form_for_second_order_loop():
+    P, K = ct.ss(5 / ((s + 1) * (s + 2))), gain(1.0)
+    margins = loop_margins(P, K)
+    w_gain = np.sqrt((-5 + np.sqrt(25 + 84)) / 2)  # |L(jω)| = 1
+    assert margins["gain_crossover_rad_s"] == pytest.approx(w_gain, rel=1e-6)
+    expected_pm = 180 - np.degrees(np.arctan(w_gain) + np.arctan(w_gain / 2))
+    assert margins["phase_margin_deg"] == pytest.approx(expected_pm, rel=1e-6)
+    assert margins["gain_margin"] == np.inf
+    omega = np.logspace(-4, 4, 200001)
+    L = 5 / ((1j * omega + 1) * (1j * omega + 2))
+    assert margins["disk_margin"] == pytest.approx(np.min(2 * np.abs(1 + L) / np.abs(1 - L)), rel=1e-4)
+    assert margins["stability_margin_b"] == pytest.approx(stability_margin(P, K))
+
+
+def test_loop_margins_discrete_gain_margin():
+    z = ct.tf([1, 0], [1], 0.1)
+    P = ct.ss(0.5 / (z * (z - 0.5)))
+    margins = loop_margins(P, gain(1.0, 0.1))
+    L_at_phase_crossover = complex(P(np.exp(1j * margins["phase_crossover_rad_s"] * 0.1)))
+    assert abs(abs(np.angle(L_at_phase_crossover, deg=True)) - 180) < 1e-3
+    assert margins["gain_margin"] == pytest.approx(1 / abs(L_at_phase_crossover), rel=1e-6)
+    assert margins["gain_margin"] > 1  # the loop is stable at k = 1
+
+
+@pytest.mark.parametrize(
+    ("P", "K", "words"),
+    [
+        (ct.rss(2, 2, 1), ct.rss(1, 2, 2), "controller must be 1x2"),
+        (ct.rss(2, 1, 1), gain(1.0, 0.1), "continuous-time"),
+        (ct.ss([[0.5]], [[1]], [[1]], 0, 0.1), gain(1.0, 0.2), "Ts"),
+        (gain(1.0), gain(-1.0), "ill-posed"),
+    ],
+)
+def test_bad_loops_raise_one_line_model_error(P, K, words):
+    with pytest.raises(ModelError, match=words) as info:
+        stability_margin(P, K)
+    assert "\n" not in str(info.value)
+
+
+def test_mimo_loop_margins_refused():
+    with pytest.raises(ModelError, match="SISO"):
+        loop_margins(ct.rss(2, 2, 2), ct.rss(1, 2, 2))

@@ -1,0 +1,143 @@
+"""Gain-scheduled controller in vertex form, run online with convex-coordinate scheduling.
+
+    x_k(k+1) = Σ_i λ_i(p(k)) (Ak_i x_k(k) + Bk_i e(k)),    u(k) = Σ_i λ_i(p(k)) (Ck_i x_k(k) + Dk_i e(k)),
+
+λ(p) the convex coordinates of ψ(p) in the design polytope (:mod:`lpvflow.synth.polytope`), e the
+controller input (the tracking error r − y of the 1-DOF loop), u the plant input. Saved as JSON with
+``{"format": "lpvflow/lpv-controller", "version": 1}`` and read back by ``lpvflow.models.load``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import control
+import numpy as np
+
+from lpvflow.basis import Basis
+from lpvflow.errors import DataError, ModelError
+from lpvflow.models import FORMAT_VERSION, _atomic_write_json, _check_format, register_format
+from lpvflow.synth.polytope import Polytope
+
+
+@dataclass
+class LPVController:
+    """Vertex matrices Ak (N, n, n), Bk (N, n, ny), Ck (N, nu, n), Dk (N, nu, ny) on a polytope."""
+
+    Ak: np.ndarray
+    Bk: np.ndarray
+    Ck: np.ndarray
+    Dk: np.ndarray
+    polytope: Polytope
+    basis: Basis
+    Ts: float
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        mats = (self.Ak, self.Bk, self.Ck, self.Dk)
+        self.Ak, self.Bk, self.Ck, self.Dk = (np.asarray(M, dtype=float) for M in mats)
+        N, n = self.Ak.shape[:2]
+        ny, nu = self.Bk.shape[2], self.Ck.shape[1]
+        shapes = {"Ak": (N, n, n), "Bk": (N, n, ny), "Ck": (N, nu, n), "Dk": (N, nu, ny)}
+        for name, shape in shapes.items():
+            if getattr(self, name).shape != shape:
+                raise ModelError(f"controller {name} has shape {getattr(self, name).shape}; expected {shape}")
+        if N != self.polytope.n_vertices:
+            raise ModelError(f"controller has {N} vertex systems but its polytope has "
+                             f"{self.polytope.n_vertices}")
+        self.reset()
+
+    @property
+    def order(self) -> int:
+        return self.Ak.shape[1]
+
+    @property
+    def n_in(self) -> int:
+        return self.Bk.shape[2]
+
+    @property
+    def n_out(self) -> int:
+        return self.Ck.shape[1]
+
+    def reset(self, x0: np.ndarray | None = None) -> None:
+        """Set the controller state (zero by default)."""
+        self.x = np.zeros(self.order) if x0 is None else np.asarray(x0, dtype=float).reshape(self.order)
+
+    def coordinates(self, p: np.ndarray) -> np.ndarray:
+        """λ(p) for one scheduling point p (n_p,)."""
+        psi = self.basis.eval(np.atleast_1d(np.asarray(p, dtype=float)).reshape(1, -1), check_range=False)
+        return self.polytope.coordinates(psi[0])
+
+    def matrices(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, C, D) of the controller frozen at p: Σ λ_i(p) M_i."""
+        lam = self.coordinates(p)
+        return tuple(np.tensordot(lam, M, axes=1) for M in (self.Ak, self.Bk, self.Ck, self.Dk))
+
+    def frozen(self, p: np.ndarray) -> control.StateSpace:
+        return control.ss(*self.matrices(p), self.Ts)
+
+    def output(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """u(k) for input e(k) at p(k), without advancing the state."""
+        _, _, C, D = self.matrices(p)
+        return C @ self.x + D @ np.asarray(e, dtype=float).reshape(self.n_in)
+
+    def step(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """One sample online: returns u(k) and advances the state to k + 1."""
+        e = np.asarray(e, dtype=float).reshape(self.n_in)
+        if not np.all(np.isfinite(e)) or not np.all(np.isfinite(p)):
+            raise DataError("controller input or scheduling value is NaN or inf")
+        A, B, C, D = self.matrices(p)
+        u = C @ self.x + D @ e
+        self.x = A @ self.x + B @ e
+        return u
+
+    def simulate(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Open-loop response u (N, nu) to e (N, ny) along p (N, n_p), from the current state."""
+        e = np.asarray(e, dtype=float).reshape(len(e), self.n_in)
+        p = np.asarray(p, dtype=float).reshape(len(e), -1)
+        return np.array([self.step(ek, pk) for ek, pk in zip(e, p, strict=True)])
+
+    # ------------------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict:
+        poly = self.polytope
+        d = {
+            "format": "lpvflow/lpv-controller", "version": FORMAT_VERSION, "Ts": self.Ts,
+            "basis": self.basis.to_dict(),
+            "polytope": {"kind": poly.kind, "box": poly.box.tolist(),
+                         "psi_vertices": poly.psi_vertices.tolist(),
+                         "term_box": None if poly.term_box is None else poly.term_box.tolist()},
+            "Ak": self.Ak.tolist(), "Bk": self.Bk.tolist(), "Ck": self.Ck.tolist(), "Dk": self.Dk.tolist(),
+            "info": self.info,
+        }
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> LPVController:
+        _check_format(d, "lpv-controller")
+        try:
+            pd = d["polytope"]
+            poly = Polytope(pd["kind"], np.asarray(pd["box"], float), np.asarray(pd["psi_vertices"], float),
+                            None if pd.get("term_box") is None else np.asarray(pd["term_box"], float))
+            return cls(d["Ak"], d["Bk"], d["Ck"], d["Dk"], poly, Basis.from_dict(d["basis"]), float(d["Ts"]),
+                       info=d.get("info", {}))
+        except KeyError as exc:
+            raise ModelError(f"controller file lacks the field {exc.args[0]!r}") from None
+
+    def save(self, path: str | os.PathLike) -> None:
+        _atomic_write_json(path, self.to_dict())
+
+
+def series_input_filter(K: tuple[np.ndarray, ...], WB: control.StateSpace) -> tuple[np.ndarray, ...]:
+    """Vertex matrices of W_B ∘ K (state [x_K; x_B]): the plant input is u_p = W_B u.
+
+    A = [Ak 0; B_B Ck  A_B], B = [Bk; B_B Dk], C = [D_B Ck  C_B], D = D_B Dk (affine in K, so the
+    series controller interpolates with the same λ).
+    """
+    Ak, Bk, Ck, Dk = K
+    Ab, Bb, Cb, Db = (np.asarray(M, dtype=float) for M in (WB.A, WB.B, WB.C, WB.D))
+    A = np.block([[Ak, np.zeros((Ak.shape[0], Ab.shape[0]))], [Bb @ Ck, Ab]])
+    return A, np.vstack([Bk, Bb @ Dk]), np.hstack([Db @ Ck, Cb]), Db @ Dk
+
+
+register_format("lpv-controller", LPVController.from_dict)

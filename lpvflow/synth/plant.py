@@ -1,0 +1,160 @@
+"""Mixed-sensitivity generalized plant at every vertex of the polytope (thesis Fig. 6.6, notes_002 §6.3).
+
+Signals (1-DOF loop, reference r, control u from the controller, plant input u_p):
+
+    u_p = W_B u   (u_p = u without input filter),   y = G(θ) u_p,   e = r − y,
+    z = [W_S e ; W_K u ; W_T y (optional)],          measured output of the generalized plant: e.
+
+With state x = [x_G; x_weights] this is the discrete-time LFT plant of Apkarian, Gahinet & Becker
+(1995, eq. (2))
+
+    x⁺ = A(θ) x + B1(θ) r + B2(θ) u,     z = C1(θ) x + D11 r + D12(θ) u,     e = C2(θ) x + D21 r + D22 u,
+
+built per vertex with ``control.interconnect`` (the state order is the same at every vertex because
+the weights are). The output-feedback LMIs need B2, C2, D12, D21 parameter-independent and D22 = 0
+(Apkarian et al. 1995, assumptions (A1)–(A2); the thesis calls the B2 condition "(A3)"): then the
+closed loop is affine in θ. An identified observable-form model has C constant and D = 0 but B(θ)
+varies; a strictly proper input filter W_B makes B2 = [0; B_WB] constant. :func:`check_a3` says
+which matrix breaks the assumption instead of returning a controller without a guarantee.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import control
+import numpy as np
+
+from lpvflow.basis import Basis
+from lpvflow.errors import ModelError
+from lpvflow.models import LPVSS
+from lpvflow.synth.polytope import Polytope, polytope_of, vertex_matrices
+from lpvflow.synth.weights import DEFAULT_INTEGRATOR_SHIFT, diagonal_weight
+
+_CONST_TOL = 1e-10
+
+
+@dataclass(frozen=True)
+class VertexPlant:
+    """Partitioned generalized plant at one vertex (exogenous w = r, measured output e)."""
+
+    A: np.ndarray
+    B1: np.ndarray
+    B2: np.ndarray
+    C1: np.ndarray
+    C2: np.ndarray
+    D11: np.ndarray
+    D12: np.ndarray
+    D21: np.ndarray
+    D22: np.ndarray
+
+    @property
+    def dims(self) -> tuple[int, int, int, int, int]:
+        """(n, nw, nu, nz, ny)."""
+        return self.A.shape[0], self.B1.shape[1], self.B2.shape[1], self.C1.shape[0], self.C2.shape[0]
+
+    def ss(self, Ts: float) -> control.StateSpace:
+        """The vertex plant as one StateSpace, inputs [w, u], outputs [z, y]."""
+        B = np.hstack([self.B1, self.B2])
+        C = np.vstack([self.C1, self.C2])
+        D = np.block([[self.D11, self.D12], [self.D21, self.D22]])
+        return control.ss(self.A, B, C, D, Ts)
+
+    @classmethod
+    def from_ss(cls, P: control.StateSpace, nw: int, nz: int) -> VertexPlant:
+        A, B, C, D = (np.asarray(M, dtype=float) for M in (P.A, P.B, P.C, P.D))
+        return cls(A, B[:, :nw], B[:, nw:], C[:nz], C[nz:],
+                   D[:nz, :nw], D[:nz, nw:], D[nz:, :nw], D[nz:, nw:])
+
+
+@dataclass(frozen=True)
+class GeneralizedPlant:
+    """Vertex generalized plants of a polytopic LPV design; P(θ) = Σ_v λ_v(θ) P_v exactly."""
+
+    vertices: list[VertexPlant]
+    polytope: Polytope
+    Ts: float
+    n_plant_states: int
+    z_names: list[str]
+    input_filter: control.StateSpace | None = None
+    basis: Basis | None = None
+
+    @property
+    def dims(self) -> tuple[int, int, int, int, int]:
+        return self.vertices[0].dims
+
+    def at(self, lam: np.ndarray) -> VertexPlant:
+        """The plant at convex coordinates λ."""
+        fields = VertexPlant.__dataclass_fields__
+        return VertexPlant(**{k: sum(w * getattr(v, k) for w, v in zip(lam, self.vertices, strict=True))
+                              for k in fields})
+
+
+def check_a3(vertices: list[VertexPlant]) -> None:
+    """Raise ModelError unless B2, C2, D12, D21 are the same at every vertex and D22 = 0."""
+    ref = vertices[0]
+    if np.max(np.abs(ref.D22), initial=0.0) > _CONST_TOL:
+        raise ModelError("the generalized plant has D22 ≠ 0 (plant feed-through into e): add a strictly "
+                         "proper input filter W_B, or identify with an input delay nk >= 1")
+    hints = {"B2": "use a strictly proper input filter W_B (e.g. num = [0, b], den = [1, -a])",
+             "C2": "the plant's C(θ) varies: realize it in observable form (constant C)",
+             "D12": "the plant feed-through D(θ) varies: use a strictly proper W_B",
+             "D21": "the plant feed-through D(θ) varies: use a strictly proper W_B"}
+    for name, hint in hints.items():
+        spread = max(np.max(np.abs(getattr(v, name) - getattr(ref, name)), initial=0.0) for v in vertices)
+        scale = max(1.0, np.max(np.abs(getattr(ref, name)), initial=0.0))
+        if spread > _CONST_TOL * scale:
+            raise ModelError(f"{name} of the generalized plant depends on the scheduling parameter (spread "
+                             f"{spread:.3g}), so vertex controllers cannot be interpolated exactly: {hint}")
+
+
+def _named_ss(M: control.StateSpace, inp: str, out: str, name: str) -> control.StateSpace:
+    return control.ss(M, inputs=[f"{inp}[{i}]" for i in range(M.ninputs)],
+                      outputs=[f"{out}[{i}]" for i in range(M.noutputs)], name=name)
+
+
+def weight_systems(weights: dict, ny: int, nu: int, Ts: float) -> dict[str, control.StateSpace]:
+    """The diagonal weights W_S, W_K and the optional W_B, W_T of a ``[weights]`` table."""
+    for key in ("S", "K"):
+        if key not in weights:
+            raise ModelError(f"design spec lacks the weight [weights.{key}] "
+                             "(W_S on e and W_K on u are required)")
+    eps = float(weights.get("integrator_shift", DEFAULT_INTEGRATOR_SHIFT))
+    if not 0.0 < eps < 0.5:
+        raise ModelError(f"integrator_shift must be in (0, 0.5), got {eps}")
+    sizes = {"S": ny, "K": nu, "B": nu, "T": ny}
+    return {k: diagonal_weight(weights[k], sizes[k], Ts, f"W_{k}", eps) for k in sizes if k in weights}
+
+
+def augment(G: control.StateSpace, W: dict[str, control.StateSpace], Ts: float) -> control.StateSpace:
+    """Interconnect one frozen plant with the weights: inputs [r, u], outputs [z_S, z_K, (z_T), e]."""
+    ny = G.noutputs
+    blocks = [
+        _named_ss(G, "up" if "B" in W else "u", "y", "G"),
+        _named_ss(W["S"], "e", "zS", "WS"),
+        _named_ss(W["K"], "u", "zK", "WK"),
+        control.summing_junction(inputs=["r", "-y"], output="e", dimension=ny, name="sum"),
+    ]
+    outputs = ["zS", "zK"]
+    if "B" in W:
+        blocks.append(_named_ss(W["B"], "u", "up", "WB"))
+    if "T" in W:
+        blocks.append(_named_ss(W["T"], "y", "zT", "WT"))
+        outputs.append("zT")
+    return control.interconnect(blocks, inplist=["r", "u"], outlist=[*outputs, "e"], dt=Ts)
+
+
+def generalized_plant(model: LPVSS, weights: dict, box: np.ndarray | list | None = None) -> GeneralizedPlant:
+    """The augmented plant at each vertex of the tightest polytope of ``model`` over ``box``."""
+    polytope = polytope_of(model, box)
+    ny, nu = model.ny, model.nu
+    W = weight_systems(weights, ny, nu, model.Ts)
+    nz = ny + nu + (ny if "T" in W else 0)
+    vertices = []
+    for A, B, C, D in vertex_matrices(model, polytope):
+        P = augment(control.ss(A, B, C, D, model.Ts), W, model.Ts)
+        vertices.append(VertexPlant.from_ss(P, nw=ny, nz=nz))
+    check_a3(vertices)
+    z_names = [f"W_S e[{i}]" for i in range(ny)] + [f"W_K u[{i}]" for i in range(nu)]
+    z_names += [f"W_T y[{i}]" for i in range(ny)] if "T" in weights else []
+    return GeneralizedPlant(vertices, polytope, model.Ts, model.nx, z_names, W.get("B"), model.basis)

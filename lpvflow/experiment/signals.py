@@ -118,8 +118,9 @@ def multisine(
         phi = rng.uniform(0.0, 2.0 * np.pi, size=lines.size)
     else:
         raise DataError(f"multisine phases={phases!r} is unknown; use 'schroeder' or 'random'")
-    k_one = np.arange(period)
-    one_period = np.cos(2.0 * np.pi * np.outer(k_one, lines) / period + phi).sum(axis=1)
+    spectrum = np.zeros(period // 2 + 1, dtype=complex)
+    spectrum[lines] = 0.5 * period * np.exp(1j * phi)  # irfft of this is Σ_i cos(2π k_i k / P + φ_i)
+    one_period = np.fft.irfft(spectrum, n=period)
     if rms is not None:
         one_period *= rms * np.sqrt(2.0 / lines.size)
     else:

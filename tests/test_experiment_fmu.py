@@ -133,7 +133,7 @@ BAD_INPUT = [
     ({"inputs": {"pump_voltage": PRBS}}, ["--input", f"pump_voltage={PRBS}"], DataError, "multiple of Ts"),
     ({"scheduling_columns": {"p": "open('x')"}}, ["--scheduling", "p=open('x')"], DataError, "not allowed"),
     ({"Ts": None, "excitation": {"pump_voltage": "const:value=1"}},
-     ["--excitation", "pump_voltage=const:value=1"], DataError, "give the communication step"),
+     ["--excitation", "pump_voltage=const:value=1"], DataError, "no communication step"),
     ({"controller": "missing.json"}, ["--controller", "missing.json"], ModelError, "does not exist"),
 ]
 

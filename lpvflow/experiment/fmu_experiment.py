@@ -47,7 +47,7 @@ def run_fmu_experiment(
         controller = LtiController.from_statespace(controller)
     if Ts is None:
         if controller is None:
-            raise DataError("give the communication step Ts (seconds); only a controller can supply it")
+            raise DataError("no communication step: give --Ts in seconds (only a controller can supply it)")
         Ts = controller.Ts
     if output is not None:
         check_output_path(output, protected)

@@ -25,6 +25,7 @@ bounding ψ_1 … ψ_{nψ−1} for bases that are not affine in p (conservative)
 from __future__ import annotations
 
 import itertools
+import warnings
 
 import cvxpy as cp
 import numpy as np
@@ -63,8 +64,11 @@ def scheduling_vertices(ss: LPVSS, box: np.ndarray | None = None, psi_box: np.nd
 
 
 def _solve(problem: cp.Problem, what: str) -> None:
+    """Solve with Clarabel; "optimal_inaccurate" is accepted because every solution is verified after."""
     try:
-        problem.solve(solver=cp.CLARABEL)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Solution may be inaccurate")
+            problem.solve(solver=cp.CLARABEL)
         status = problem.status
     except cp.SolverError:
         status = "solver_error"

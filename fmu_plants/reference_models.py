@@ -110,3 +110,86 @@ def tanks_equilibrium(voltage: float, p: dict) -> np.ndarray:
     """h1 = (kp u / (a1 sqrt(2g)))^2 and h2 = (a1 / a2)^2 h1."""
     h1 = (p["pump_gain"] * voltage / p["upper_outlet_area"]) ** 2 / (2 * p["gravity"])
     return np.array([h1, h1 * (p["upper_outlet_area"] / p["lower_outlet_area"]) ** 2])
+
+
+# ---------------------------------------------------------------- maglev
+
+
+def maglev_forces(x: np.ndarray, u: np.ndarray, p: dict) -> tuple:
+    """(F11, F21, F22, F12, Fm): coil i on disk j as F_ij = i / (a (gap + b)^N), magnet repulsion Fm."""
+    y1, y2 = x[0], x[1]
+    top = p["coil_separation"] - p["disk_thickness"]
+    n = p["force_exponent"]
+
+    def coil(current, gap):
+        return current / (p["coil_a"] * (gap + p["coil_b"]) ** n)
+
+    magnet = p["magnet_c"] / (y2 - y1 - p["disk_thickness"] + p["magnet_d"]) ** n
+    return coil(u[0], y1), coil(u[1], top - y1), coil(u[1], top - y2), coil(u[0], y2), magnet
+
+
+def maglev_derivatives(x: np.ndarray, u: np.ndarray, p: dict) -> np.ndarray:
+    """Disk accelerations between the stops (the tests evaluate it there)."""
+    f11, f21, f22, f12, fm = maglev_forces(x, u, p)
+    m, g = p["disk_mass"], p["gravity"]
+    fc, vc = p["effect_coulomb"], p["coulomb_velocity"]
+    a1 = (f11 - f21 - fm - p["lower_friction"] * x[2] - fc * np.tanh(x[2] / vc)) / m - g
+    a2 = (f22 - f12 + fm - p["upper_friction"] * x[3] - fc * np.tanh(x[3] / vc)) / m - g
+    return np.array([x[2], x[3], a1, a2])
+
+
+def maglev_outputs(x: np.ndarray, u: np.ndarray, p: dict) -> np.ndarray:
+    return np.asarray(x)[:2]
+
+
+def maglev_equilibrium_currents(y1: float, y2: float, p: dict) -> np.ndarray:
+    """Currents that hold the disks at rest at (y1, y2): the force balance is linear in (i1, i2)."""
+    x = np.array([y1, y2, 0.0, 0.0])
+    per_amp = np.array([maglev_forces(x, e, p)[:4] for e in np.eye(2)])  # rows: i1 = 1, i2 = 1
+    f11, f21, f22, f12 = per_amp.T
+    fm = maglev_forces(x, np.zeros(2), p)[4]
+    weight = p["disk_mass"] * p["gravity"]
+    balance = np.array([[f11[0] - f21[0], f11[1] - f21[1]], [f22[0] - f12[0], f22[1] - f12[1]]])
+    return np.linalg.solve(balance, np.array([weight + fm, weight - fm]))
+
+
+# --------------------------------------------------------------- airpath
+
+
+def airpath_flow_function(ratio, p: dict):
+    """Psi(p_m / p_a): choked below the critical ratio, linearised to 0 above linear_flow_ratio."""
+    k, linear = p["heat_capacity_ratio"], p["linear_flow_ratio"]
+    critical = (2 / (k + 1)) ** (k / (k - 1))
+
+    def unchoked(r):
+        return np.sqrt(2 * k / (k - 1) * (r ** (2 / k) - r ** ((k + 1) / k)))
+
+    if np.real(ratio) <= critical:
+        return unchoked(critical) + 0 * ratio
+    if np.real(ratio) < linear:
+        return unchoked(ratio)
+    return unchoked(linear) * (1 - ratio) / (1 - linear)
+
+
+def airpath_flows(x: np.ndarray, u: np.ndarray, p: dict) -> tuple:
+    """(throttle flow, cylinder flow) in kg/s for manifold pressure x[0] and inputs inside their ranges."""
+    r, t, pa = p["gas_constant"], p["ambient_temperature"], p["ambient_pressure"]
+    alpha = u[0] / 100 * np.pi / 2
+    area = p["throttle_leak_area"] + np.pi * p["throttle_diameter"] ** 2 / 4 * (1 - np.cos(alpha))
+    throttle = p["discharge_coefficient"] * area * pa / np.sqrt(r * t) * airpath_flow_function(x[0] / pa, p)
+    nk = u[2] / 1000
+    eta = (p["efficiency_e0"] + p["efficiency_e1"] * nk + p["efficiency_e2"] * nk**2) \
+        * (1 - np.exp(-u[1] / 100 / p["lift_constant"]))
+    cylinder = eta * x[0] * p["displacement"] * u[2] / (120 * r * t)
+    return throttle, cylinder
+
+
+def airpath_derivatives(x: np.ndarray, u: np.ndarray, p: dict) -> np.ndarray:
+    throttle, cylinder = airpath_flows(x, u, p)
+    gain = p["gas_constant"] * p["ambient_temperature"] / p["manifold_volume"]
+    return np.array([gain * (throttle - cylinder)])
+
+
+def airpath_outputs(x: np.ndarray, u: np.ndarray, p: dict) -> np.ndarray:
+    """Measured outputs in their FMU units: throttle air flow [g/s], manifold pressure [kPa]."""
+    return np.array([1000 * airpath_flows(x, u, p)[0], x[0] / 1000])

@@ -28,17 +28,22 @@ _spec.loader.exec_module(rm)
 
 STATES = {
     "adip": ["arm_angle", "pendulum_angle", "arm_rate", "pendulum_rate"],
+    "airpath": ["manifold_pressure"],
+    "maglev": ["lower_disk_position", "upper_disk_position", "lower_disk_velocity", "upper_disk_velocity"],
     "tanks": ["upper_level", "lower_level"],
 }
-MODELS = {"adip": (rm.adip_derivatives, rm.adip_outputs), "tanks": (rm.tanks_derivatives, rm.tanks_outputs)}
+MODELS = {name: (getattr(rm, f"{name}_derivatives"), getattr(rm, f"{name}_outputs")) for name in STATES}
 
 
-def _operating_points(plant: str, p: dict) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Two points per plant, off equilibrium so that every Jacobian entry is exercised."""
-    if plant == "adip":
-        return [(np.array([0.1, -0.05, 0.3, -0.2]), np.array([1.0])),
-                (np.array([1.1, 0.2, -1.0, 0.5]), np.array([-4.0]))]
-    return [(np.array([0.12, 0.08]), np.array([7.0])), (np.array([0.25, 0.02]), np.array([3.0]))]
+OPERATING_POINTS = {  # two per plant, off equilibrium so that every Jacobian entry is exercised
+    "adip": [(np.array([0.1, -0.05, 0.3, -0.2]), np.array([1.0])),
+             (np.array([1.1, 0.2, -1.0, 0.5]), np.array([-4.0]))],
+    "airpath": [(np.array([50e3]), np.array([20.0, 80.0, 2000.0])),  # choked throttle
+                (np.array([80e3]), np.array([35.0, 60.0, 3500.0]))],  # unchoked throttle
+    "maglev": [(np.array([0.015, 0.08, 0.01, -0.02]), np.array([0.9, 0.05])),
+               (np.array([0.02, 0.07, -0.03, 0.01]), np.array([1.2, -0.5]))],
+    "tanks": [(np.array([0.12, 0.08]), np.array([7.0])), (np.array([0.25, 0.02]), np.array([3.0]))],
+}
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +110,7 @@ def test_fd_linearization_through_fmu_matches_reference_jacobian(fmus, name):
     f, g = MODELS[name]
     with open_fmu(fmus[name]) as plant:
         p = rm.default_parameters(name)
-        for x, u in _operating_points(name, p):
+        for x, u in OPERATING_POINTS[name]:
             jac_x, jac_u, jac_y = _fd_jacobians(plant, x, u)
             exact_x, exact_u = rm.jacobians(f, x, u, p)
             exact_y, _ = rm.jacobians(g, x, u, p)
@@ -172,3 +177,44 @@ def test_adip_energy_is_conserved_without_friction(fmus):
     expected = rm.adip_energy(np.array([0.3, -0.2, 0.0, 0.0]), rm.default_parameters("adip"))
     assert abs(energy[0] - expected) < 1e-12
     assert np.max(np.abs(states[2:])) > 5.0  # the links really swung (large motion, not a trivial rest)
+
+
+def test_maglev_rests_on_the_lower_stop_with_the_upper_disk_floating(fmus):
+    p = rm.default_parameters("maglev")
+    with open_fmu(fmus["maglev"]) as plant:
+        y0 = plant.reset()
+        for _ in range(500):
+            y = plant.step([0.0, 0.0], 0.002)
+    np.testing.assert_array_equal(y0, [0.0, p["x0_upper_disk_position"]])
+    assert y[0] == 0.0
+    # the magnet repulsion alone carries the upper disk: c / (y2 - w + d)^N = m g
+    gap = (p["magnet_c"] / (p["disk_mass"] * p["gravity"])) ** (1 / p["force_exponent"])
+    np.testing.assert_allclose(y[1], p["disk_thickness"] - p["magnet_d"] + gap, rtol=1e-9)
+
+
+@pytest.mark.parametrize("upper", [0.07, 0.08, 0.09])
+def test_maglev_levitates_where_the_force_balance_puts_it(fmus, upper):
+    p = rm.default_parameters("maglev")
+    currents = rm.maglev_equilibrium_currents(0.015, upper, p)
+    with open_fmu(fmus["maglev"]) as plant:
+        derivative, _ = _derivative_at(plant, np.array([0.015, upper, 0.0, 0.0]), currents)
+        assert np.max(np.abs(derivative)) < 1e-9
+        plant.set_parameters({"x0_lower_disk_position": 0.016, "x0_upper_disk_position": upper - 0.001})
+        for _ in range(5000):  # 10 s from 1 mm off: lightly damped (decay rate c/2m = 0.83/s), locally stable
+            y = plant.step(currents, 0.002)
+    np.testing.assert_allclose(y, [0.015, upper], atol=1e-6)
+
+
+def test_airpath_settles_where_throttle_and_cylinder_flows_balance(fmus):
+    from scipy.optimize import brentq
+
+    p = rm.default_parameters("airpath")
+    u = np.array([30.0, 70.0, 3000.0])
+    pressure = brentq(lambda q: rm.airpath_derivatives(np.array([q]), u, p)[0], 1e3,
+                      p["ambient_pressure"] - 1)
+    with open_fmu(fmus["airpath"]) as plant:
+        for _ in range(300):
+            y = plant.step(u, 0.01)
+        cylinder = plant.get(["diag_cylinder_air_flow"])[0]
+    np.testing.assert_allclose(y, rm.airpath_outputs(np.array([pressure]), u, p), rtol=1e-7)
+    np.testing.assert_allclose(cylinder, y[0], rtol=1e-7)  # at rest the cylinders take the throttle flow

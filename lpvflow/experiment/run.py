@@ -86,6 +86,15 @@ def _check_names(kind: str, names: list[str] | tuple[str, ...], available: list[
         )
 
 
+def _check_finite(y: np.ndarray, start: int, stop: int, names: list[str], Ts: float) -> None:
+    """Raise at the first non-finite output in rows start..stop-1 (checked per block, not per step)."""
+    bad = ~np.isfinite(y[start:stop])
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        t = (start + k) * Ts
+        raise ModelError(f"plant output {names[j]} is non-finite at t={t:g} s; the run diverged")
+
+
 def run_experiment(
     plant: Plant,
     Ts: float,
@@ -139,24 +148,26 @@ def run_experiment(
     if controller is not None:
         y_index = [plant.output_names.index(name) for name in controller.inputs]
         u_index = [plant.input_names.index(name) for name in controller.outputs]
+        nx = controller.A.shape[0]
+        # one product per step: [xc(k+1); u_K(k) - u_op - r(k)] = [[A, B], [C, D]] [xc(k); y_K(k) - y_op]
+        law = np.block([[controller.A, controller.B], [controller.C, controller.D]])
         r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in controller.outputs])
-        xc = np.zeros(controller.A.shape[0])
+        u_offset = controller.u_op + r_matrix
+        w = np.zeros(nx + len(y_index))
     show = None if progress is None else not progress
     bar = tqdm(total=n, unit="step", desc=f"experiment {model}", disable=show)
     try:
         for k in range(n):
             y[k] = plant.outputs()
-            if not np.all(np.isfinite(y[k])):
-                bad = plant.output_names[int(np.flatnonzero(~np.isfinite(y[k]))[0])]
-                raise ModelError(f"plant output {bad} is non-finite at t={k * Ts:g} s; the run diverged")
             if controller is not None:
-                e = y[k, y_index] - controller.y_op
-                u[k, u_index] = controller.u_op + controller.C @ xc + controller.D @ e + r_matrix[k]
-                xc = controller.A @ xc + controller.B @ e
+                np.subtract(y[k, y_index], controller.y_op, out=w[nx:])
+                z = law @ w
+                u[k, u_index] = z[nx:] + u_offset[k]
+                w[:nx] = z[:nx]
             plant.step(u[k], k * Ts, Ts)
-            if k % 1000 == 999:
-                bar.update(1000)
-        bar.update(n - bar.n)
+            if k % 1000 == 999 or k == n - 1:
+                _check_finite(y, k - k % 1000, k + 1, plant.output_names, Ts)
+                bar.update(k + 1 - bar.n)
     finally:
         bar.close()
 

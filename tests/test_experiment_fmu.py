@@ -182,3 +182,21 @@ def test_output_never_overwrites_the_fmu_or_controller(adip, tmp_path, capsys):
         status, _, err = _cli(capsys, *argv)
         assert status == 2 and "would overwrite the input" in err
     assert (fmu_copy.read_bytes(), controller_copy.read_bytes()) == before
+
+
+def test_airpath_with_exogenous_speed_trajectory(tmp_path):
+    rec = run_fmu_experiment(
+        _fmu("airpath"), 0.01, 20,
+        inputs={"engine_speed": "levels:lo=1000,hi=5000,min_hold=1,max_hold=3,ramp=0.5",
+                "throttle_position": "multisine:f_lo=0.1,f_hi=10,rms=3"},
+        seed=2, output=tmp_path / "air.csv")
+    speed = rec.columns["engine_speed"]
+    assert speed.min() >= 1000 and speed.max() <= 5000
+    assert np.max(np.abs(np.diff(speed))) <= 4000 / 50 + 1e-9  # ramp of 0.5 s = 50 samples
+    np.testing.assert_array_equal(rec.columns["speed"], speed)  # the default scheduling column
+    np.testing.assert_array_equal(rec.columns["valve_lift"], 80.0)  # undriven input at its start value
+    assert abs(np.mean(rec.columns["throttle_position"]) - 20.0) < 0.5  # multisine around the start value
+    assert np.all(np.isfinite(rec.columns["air_mass_flow"])) and np.ptp(rec.columns["manifold_pressure"]) > 0
+    header = (tmp_path / "air.csv").read_text().splitlines()[0].split(",")
+    assert header == ["time", "throttle_position", "valve_lift", "engine_speed", "air_mass_flow",
+                      "manifold_pressure", "speed"]

@@ -25,11 +25,13 @@ _BINARY = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
 _UNARY = {ast.USub: operator.neg, ast.UAdd: operator.pos}
 
 #: Default scheduling columns per FMU model name, used when the user names none (issue 4, item 2):
-#: computed from measured signals, as a real experiment would (the FMU's ``diag_scheduling`` is the
-#: noise-free value).
+#: computed from recorded signals, as a real experiment would (the FMU's ``diag_scheduling`` is the
+#: noise-free value), and written even when they copy a signal so every plant's CSV has its p column.
 PLANT_DEFAULTS: dict[str, dict[str, str]] = {
     "adip": {"sin_arm": "sin(arm_angle)"},
     "tanks": {"level": "lower_level"},
+    "maglev": {"upper_position": "upper_disk_position"},
+    "airpath": {"speed": "engine_speed"},
 }
 
 

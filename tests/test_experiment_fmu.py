@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import control
 import numpy as np
 import pytest
 
@@ -200,3 +201,16 @@ def test_airpath_with_exogenous_speed_trajectory(tmp_path):
     header = (tmp_path / "air.csv").read_text().splitlines()[0].split(",")
     assert header == ["time", "throttle_position", "valve_lift", "engine_speed", "air_mass_flow",
                       "manifold_pressure", "speed"]
+
+
+def test_python_control_controller_gives_the_same_run_as_its_file(adip):
+    doc = json.loads(ADIP_CONTROLLER.read_text())
+    assert not any(doc["y_operating_point"]) and not any(doc["u_operating_point"])  # zero, as from_statespace
+    sys_k = control.ss(doc["A"], doc["B"], doc["C"], doc["D"], doc["Ts"], inputs=doc["inputs"],
+                       outputs=doc["outputs"])
+    excitation = {"voltage": "prbs:order=7,clock=0.02,amp=0.3"}
+    from_file = run_fmu_experiment(adip, None, 2.0, controller=ADIP_CONTROLLER, excitation=excitation)
+    from_object = run_fmu_experiment(adip, None, 2.0, controller=sys_k, excitation=excitation)
+    for name, values in from_file.columns.items():
+        np.testing.assert_array_equal(from_object.columns[name], values)
+    assert "controller_file" not in from_object.metadata and from_object.metadata["mode"] == "closed-loop"

@@ -69,6 +69,7 @@ class FmuPlant:
         self._get_real = self._slave._functions["fmi2GetReal"]
         self._input_vr, self._input_values, self._inputs = self._buffers(self.input_names)
         self._output_vr, self._output_values, self._outputs = self._buffers(self.output_names)
+        self._n_inputs, self._n_outputs = len(self.input_names), len(self.output_names)
         self.time = 0.0
         self.reset()
 
@@ -131,11 +132,17 @@ class FmuPlant:
         """Hold `inputs` (by name or in `input_names` order) for `dt` seconds; returns the next outputs."""
         if not dt > 0.0:
             raise DataError(f"{self.name}: communication step dt = {dt} must be > 0")
-        self._inputs[:] = self._input_vector(inputs)
+        if type(inputs) in (list, tuple, np.ndarray) and len(inputs) == self._n_inputs:
+            try:  # fast path: no intermediate array
+                self._inputs[:] = inputs
+            except (TypeError, ValueError):
+                self._inputs[:] = self._input_vector(inputs)
+        else:
+            self._inputs[:] = self._input_vector(inputs)
         component = self._component
-        if (self._set_real(component, self._input_vr, len(self._inputs), self._input_values)
+        if (self._set_real(component, self._input_vr, self._n_inputs, self._input_values)
                 or self._do_step(component, self.time, dt, 1)
-                or self._get_real(component, self._output_vr, len(self._outputs), self._output_values)):
+                or self._get_real(component, self._output_vr, self._n_outputs, self._output_values)):
             raise self._fail(f"step at t = {self.time:g} s failed")
         self.time += dt
         return self._outputs.copy()
@@ -146,7 +153,10 @@ class FmuPlant:
                 raise DataError(f"{self.name}: inputs must be exactly {', '.join(self.input_names)}; "
                                 f"got {', '.join(inputs)}")
             inputs = [inputs[n] for n in self.input_names]
-        vector = np.asarray(inputs, dtype=float).reshape(-1)
+        try:
+            vector = np.asarray(inputs, dtype=float).reshape(-1)
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"{self.name}: inputs must be numbers for {', '.join(self.input_names)}") from exc
         if vector.shape != (len(self.input_names),):
             raise DataError(f"{self.name}: expected {len(self.input_names)} input values "
                             f"({', '.join(self.input_names)}), got shape {np.shape(inputs)}")

@@ -46,7 +46,7 @@ def sha256_of(path: str | Path) -> str:
     return digest.hexdigest()
 
 
-class FmuPlant:
+class FmuExperimentPlant:
     """An FMU instance initialised with ``parameters``; outputs are all FMU outputs, diag_* included."""
 
     def __init__(self, path: str | Path, parameters: Mapping[str, float]) -> None:
@@ -97,4 +97,4 @@ class FmuPlant:
 
 def open_plant(path: str | Path, parameters: Mapping[str, float] | None = None) -> Plant:
     """Open an FMU for a fixed-step experiment with the given parameters (effect_* and physical)."""
-    return FmuPlant(path, dict(parameters or {}))
+    return FmuExperimentPlant(path, dict(parameters or {}))

@@ -87,6 +87,30 @@ def test_noise_is_white_with_the_given_std_and_reproducible_by_seed(fmus):
     assert abs(np.corrcoef(noise[:-1], noise[1:])[0, 1]) < 0.05
 
 
+@pytest.mark.parametrize("name", PLANTS)
+def test_same_inputs_and_seed_give_identical_output_bytes_on_every_plant(fmus, name):
+    def run(seed: int) -> bytes:
+        with open_fmu(fmus[name]) as plant:
+            plant.set_parameters({"effect_noise_std": 1e-3, "effect_noise_seed": seed})
+            u0 = np.array([plant.start_value(n) for n in plant.input_names])
+            return np.array([plant.step(u0 * (1 + 0.01 * np.sin(k)), 0.01) for k in range(300)]).tobytes()
+
+    assert run(3) == run(3)
+    assert run(3) != run(4)
+
+
+def test_airpath_effects_act_on_the_actuators_but_never_on_the_engine_speed(fmus):
+    inputs = np.c_[np.r_[np.full(5, 20.0), np.full(20, 30.0)], np.full(25, 80.0),
+                   np.r_[np.full(5, 2000.0), np.full(20, 3000.0)]]
+    names = ["diag_applied_throttle_position", "diag_applied_valve_lift", "diag_applied_engine_speed"]
+    with open_fmu(fmus["airpath"], outputs=names) as plant:
+        plant.set_parameters({"effect_input_delay": 0.03, "effect_deadzone": 1.0, "effect_saturation": 25.0})
+        applied = np.array([plant.step(u, 0.01) for u in inputs])
+    np.testing.assert_array_equal(applied[:, 2], inputs[:, 2])  # speed: no delay, no dead zone, no clip
+    np.testing.assert_array_equal(applied[3:, 0], np.minimum(inputs[:-3, 0] - 1.0, 25.0))
+    np.testing.assert_array_equal(applied[:, 1], 25.0)  # 80 % lift: dead zone to 79 %, clipped to 25 %
+
+
 def test_coulomb_friction_opposes_the_arm_motion(fmus):
     with open_fmu(fmus["adip"], outputs=["diag_der_arm_rate"]) as plant:
         plant.set_parameters({"x0_arm_rate": 1.0})

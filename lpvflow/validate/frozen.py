@@ -1,0 +1,111 @@
+"""Frozen-point validation of an LPV model over its scheduling box (thesis §6.1, notes_002 §6.2).
+
+For LPV models the ν-gap test is applied to frozen LTI models: at each scheduling point p of a grid
+over the box, δν(G_ref(p), Ĝ(p)) is compared with b(Ĝ(p), K) (criterion (6.4): δν < b). There is
+no LPV ν-gap; this is the thesis's (ad hoc) frozen-point procedure.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import control
+import numpy as np
+
+from lpvflow.errors import ModelError
+from lpvflow.validate.margins import loop_margins, stability_margin
+from lpvflow.validate.nugap import nugap
+
+
+@dataclass(frozen=True)
+class FrozenPoint:
+    """One grid point: scheduling value p, where it lies in the box, and the frozen LTI model."""
+
+    p: np.ndarray
+    kind: str
+    system: control.StateSpace
+
+
+def scheduling_grid(box: object, n: int) -> list[tuple[np.ndarray, str]]:
+    """Tensor grid with `n` ≥ 2 points per scheduling signal, each tagged by where it lies.
+
+    Tags: "vertex" (every coordinate at a bound), "edge" (one coordinate free), "interior" (all
+    free), "face" (otherwise, for three or more signals). With one signal the two ends are vertices.
+    """
+    box = _as_box(box)
+    if n < 2:
+        raise ModelError(f"a frozen grid needs at least 2 points per scheduling signal, got n = {n}")
+    axes = [np.linspace(lo, hi, n) for lo, hi in box]
+    grid = []
+    for point in itertools.product(*axes):
+        p = np.array(point)
+        free = int(np.sum((p > box[:, 0]) & (p < box[:, 1])))
+        kind = "vertex" if free == 0 else "interior" if free == len(p) else "edge" if free == 1 else "face"
+        grid.append((p, kind))
+    return grid
+
+
+def frozen_grid(model: object, n: int, box: object = None) -> list[FrozenPoint]:
+    """Frozen LTI models `model.frozen(p)` on `scheduling_grid(box, n)`; box defaults to the model's range."""
+    box = _model_box(model) if box is None else _as_box(box)
+    return [FrozenPoint(p, kind, model.frozen(p)) for p, kind in scheduling_grid(box, n)]
+
+
+def compare_frozen(
+    model: object, reference: object, n: int, controller: object = None, box: object = None
+) -> list[dict]:
+    """Frozen ν-gap table: one row per grid point, with b(Ĝ(p), K) and δν < b when a controller is given.
+
+    `reference`: another LPV model (anything with `frozen(p)`) or a callable p ↦ LTI system (e.g. a
+    local model identified at a frozen operating point). `controller`: an LTI K or an LPV controller
+    with `frozen(p)`, in negative feedback u = −K y (see margins.py). SISO loops also get the
+    classical and disk margins.
+    """
+    reference_at = _frozen_getter(reference, "reference")
+    controller_at = None if controller is None else _frozen_getter(controller, "controller")
+    rows = []
+    for point in frozen_grid(model, n, box):
+        gap = nugap(reference_at(point.p), point.system)
+        row = {
+            "p": point.p.tolist(),
+            "kind": point.kind,
+            "nugap": gap.value,
+            "nugap_frequency_rad_s": gap.frequency,
+            "winding_condition_held": gap.winding_condition_held,
+        }
+        if controller_at is not None:
+            K = controller_at(point.p)
+            margin = stability_margin(point.system, K)
+            row.update({"stability_margin_b": margin, "passes": bool(gap.value < margin)})
+            if point.system.ninputs == 1 and point.system.noutputs == 1:
+                row["margins"] = loop_margins(point.system, K)
+        rows.append(row)
+    return rows
+
+
+def _frozen_getter(thing: object, name: str) -> Callable[[np.ndarray], object]:
+    if hasattr(thing, "frozen"):
+        return thing.frozen
+    if isinstance(thing, control.LTI):
+        return lambda p: thing
+    if callable(thing):
+        return thing
+    raise ModelError(f"the {name} must be an LPV model with frozen(p), an LTI system or a callable p -> LTI")
+
+
+def _model_box(model: object) -> np.ndarray:
+    basis = getattr(model, "basis", None)
+    if basis is None or basis.p_min is None:
+        raise ModelError("the model has no recorded scheduling range; pass box=[[min, max], ...]")
+    return _as_box(np.column_stack([basis.p_min, basis.p_max]))
+
+
+def _as_box(box: object) -> np.ndarray:
+    box = np.asarray(box, dtype=float)
+    if box.ndim == 1 and box.size == 2:
+        box = box.reshape(1, 2)
+    if box.ndim != 2 or box.shape[1] != 2 or not np.all(np.isfinite(box)) or np.any(box[:, 1] <= box[:, 0]):
+        raise ModelError(f"the scheduling box must be [[min, max], ...] with min < max, got {box.tolist()}")
+    return box

@@ -158,20 +158,30 @@ class Dataset:
              time: str | None = "auto", Ts: float | None = None) -> Dataset:
         """Read CSV (header row), Parquet or .mat; ``time="auto"`` uses a ``time``/``t`` column if present."""
         path = Path(path)
-        if not path.exists():
-            raise DataError(f"data file {str(path)!r} does not exist")
-        suffix = path.suffix.lower()
-        if suffix in (".csv", ".txt"):
-            table = _read_csv(path)
-        elif suffix in (".parquet", ".pq"):
-            table = _read_parquet(path)
-        elif suffix == ".mat":
-            table = _read_mat(path)
-        else:
-            raise DataError(f"{path.name}: unknown data format {suffix!r}; use .csv, .parquet or .mat")
+        table = read_columns(path)
         if time == "auto":
-            time = next((c for c in ("time", "t", "Time") if c in table), None)
+            time = time_column(table)
         return cls.from_columns(table, path.name, u, y, p, time=time, Ts=Ts)
+
+
+def read_columns(path: str | Path) -> dict[str, np.ndarray]:
+    """Every numeric column of a CSV (header row), Parquet or .mat file, by name."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"data file {str(path)!r} does not exist")
+    suffix = path.suffix.lower()
+    if suffix in (".csv", ".txt"):
+        return _read_csv(path)
+    if suffix in (".parquet", ".pq"):
+        return _read_parquet(path)
+    if suffix == ".mat":
+        return _read_mat(path)
+    raise DataError(f"{path.name}: unknown data format {suffix!r}; use .csv, .parquet or .mat")
+
+
+def time_column(table: dict[str, np.ndarray]) -> str | None:
+    """The conventional time column of a table (``time``, ``t`` or ``Time``), if any."""
+    return next((c for c in ("time", "t", "Time") if c in table), None)
 
 
 def _uniform_step(t: np.ndarray, name: str) -> float:

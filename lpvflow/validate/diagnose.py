@@ -1,0 +1,227 @@
+"""Diagnosis: what a model's simulation gets wrong, why, and how much an extension gains.
+
+Protocol (every choice made on the estimation split, every score on the validation split):
+
+1. Fit the user's structure (LPV-ARX, :func:`identify_arx`) and simulate it on validation data:
+   BFR/VAF per output, and *where* the error lives (spectrum, RMS against scheduling value, input
+   amplitude and time).
+2. Residual tests on the one-step residuals of the estimation data: Ljung–Box whiteness,
+   cross-correlation with inputs at lags −5 … 30, correlation with candidate features (99 % bands).
+3. One extension per cause (:mod:`lpvflow.validate.extensions`), scored by its validation BFR gain,
+   the p-value of a signed-rank test on block means of its squared simulation errors against
+   the nominal ones (:func:`residuals.block_signed_rank`), and the
+   change of BIC/AIC on estimation data.
+   A cause whose extension cannot be fitted (e.g. IV-OE diverges, no candidate channel) is listed
+   as ``untested`` and can never be named.
+4. Decision. A cause is *significant* when its gain ≥ ``min_gain`` BFR points and p < ``alpha``.
+   Among the significant ones, the best by gain competes with every candidate it does not beat
+   significantly (p ≥ 0.05) or beats by less than 5 % of its gain (practically equivalent):
+   the one with the fewest added parameters wins; a tie between
+   different causes is ``none`` (the data cannot tell them apart). No significant cause → ``none``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lpvflow.basis import SchedulingRangeWarning
+from lpvflow.data import Dataset
+from lpvflow.errors import DataError
+from lpvflow.validate import residuals
+from lpvflow.validate.extensions import EXTENSIONS, Candidate, Context, Structure, fit
+from lpvflow.validate.metrics import bfr, vaf
+
+#: Smallest validation split the diagnosis accepts, in samples.
+MIN_VALIDATION = 200
+#: Gains within this fraction of the best one count as practically equivalent.
+EQUIVALENCE = 0.05
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`diagnose`; :meth:`to_dict` is the JSON the CLI writes."""
+
+    bfr_before: list[float]
+    bfr_after: list[float]
+    vaf_before: list[float]
+    vaf_after: list[float]
+    cause: str
+    parameters: dict
+    evidence: list[dict]
+    ranking: list[dict]
+    summary: str
+    where: dict
+    untested: list[str] = field(default_factory=list)
+    winner: Candidate | None = field(default=None, repr=False)
+    nominal_y_val: np.ndarray | None = field(default=None, repr=False)
+    error_spectrum: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict:
+        hidden = ("winner", "nominal_y_val", "error_spectrum")
+        return {k: v for k, v in self.__dict__.items() if k not in hidden}
+
+
+def _normalised_sq_error(y: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
+    return np.sum((y - y_sim) ** 2 / np.var(y, axis=0), axis=1)
+
+
+def _where(val: Dataset, error: np.ndarray) -> dict:
+    """Where the nominal validation simulation error lives, per output."""
+    out = []
+    for i in range(error.shape[1]):
+        e = error[:, i]
+        f, pxx = residuals.error_spectrum(e, val.Ts)
+        cum = np.cumsum(pxx) / np.sum(pxx)
+        p_centres, p_rms = residuals.binned_rms(e, val.p[:, 0])
+        a_centres, a_rms = residuals.binned_rms(e, np.abs(val.u[:, 0]))
+        slope, p_drift = residuals.drift(e)
+        out.append({
+            "output": val.y_names[i],
+            "spectrum_peak_hz": float(f[np.argmax(pxx)]),
+            "spectrum_half_power_below_hz": float(f[np.searchsorted(cum, 0.5)]),
+            "rms_vs_scheduling": {"p": p_centres.tolist(), "rms": p_rms.tolist()},
+            "rms_vs_input_amplitude": {"abs_u": a_centres.tolist(), "rms": a_rms.tolist()},
+            "drift_slope": slope,
+            "drift_p_value": p_drift,
+        })
+    return {"outputs": out}
+
+
+def _evidence(est: Dataset, nominal_residuals: np.ndarray, channels: dict) -> list[dict]:
+    """Residual tests on the nominal model's one-step residuals (estimation data), 99 % bands."""
+    items = []
+    n = len(nominal_residuals)
+    band = residuals.band99(n)
+    start = est.N - n
+    for i, name in enumerate(est.y_names):
+        e = nominal_residuals[:, i]
+        q, p_lb = residuals.ljung_box(e)
+        items.append({"test": "ljung_box", "output": name, "Q": q, "p_value": p_lb,
+                      "text": f"{name}: one-step residuals {'are not' if p_lb < 0.01 else 'look'} white "
+                              f"(Ljung–Box Q={q:.1f}, p={p_lb:.2g})"})
+        for j, u_name in enumerate(est.u_names):
+            lags = range(-5, 31)
+            r = residuals.cross_correlation(e, est.u[start:, j], lags)
+            k = int(np.argmax(np.abs(r)))
+            items.append({"test": "cross_correlation", "output": name, "input": u_name,
+                          "peak_lag": lags[k], "peak": float(r[k]), "band99": band,
+                          "lags_outside_band": [lags[m] for m in np.flatnonzero(np.abs(r) > band)],
+                          "text": f"{name} residual vs {u_name}: peak correlation {r[k]:.3f} at lag "
+                                  f"{lags[k]} (99 % band ±{band:.3f})"})
+        features = {"|u| (input amplitude)": np.abs(est.u[start:, 0]),
+                    "sign of velocity": np.sign(np.diff(est.y[:, i]))[start - 1 :],
+                    "trend": np.linspace(0, 1, n),
+                    f"{est.p_names[0]}^2 * {est.y_names[i]}(k-1)": (est.p[start - 1 : -1, 0] ** 2
+                                                                     * est.y[start - 1 : -1, i])}
+        features |= {f"channel {c}": values[0][start:] for c, values in channels.items()}
+        for label, x in features.items():
+            if np.std(x) == 0:
+                continue
+            r = float(np.corrcoef(e, x)[0, 1])
+            items.append({"test": "feature_correlation", "output": name, "feature": label, "r": r,
+                          "band99": band, "text": f"{name} residual vs {label}: r = {r:.3f}"})
+    return items
+
+
+def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[str, np.ndarray],
+            alpha: float, min_gain: float) -> str:
+    significant = [r for r in ranked if r["significant"]]
+    if not significant:
+        return "none"
+    top, top_gain = significant[0]["cause"], significant[0]["bfr_gain"]
+    peers = [top] + [r["cause"] for r in ranked if r["cause"] != top and r["bfr_gain"] > 0 and (
+        r["bfr_gain"] >= (1 - EQUIVALENCE) * top_gain
+        or residuals.block_signed_rank(losses[r["cause"]], losses[top])[1] >= 0.05)]
+    fewest = min(candidates[c].fit.n_params for c in peers)
+    simplest = [c for c in peers if candidates[c].fit.n_params == fewest]
+    if len(simplest) > 1:
+        return "none"
+    winner = simplest[0]
+    entry = next(r for r in ranked if r["cause"] == winner)
+    return winner if entry["significant"] else "none"
+
+
+def diagnose(
+    data: Dataset, structure: Structure, channels: dict[str, np.ndarray] | None = None,
+    split: float = 0.5, alpha: float = 1e-3, min_gain: float = 1.0, causes: list[str] | None = None,
+) -> Diagnosis:
+    """Fit ``structure`` on the first ``split`` of ``data``, diagnose its validation simulation.
+
+    Args:
+        channels: other recorded signals (full length) that may be scheduling variables.
+        alpha: significance level of the validation-error test; min_gain: smallest BFR gain (points)
+            that counts.
+        causes: restrict the extensions tried (default: all of the vocabulary).
+    """
+    channels = channels or {}
+    for name, values in channels.items():
+        if len(values) != data.N or not np.all(np.isfinite(values)):
+            raise DataError(f"candidate channel {name!r} must have {data.N} finite samples")
+    est, val = data.split(split)
+    if val.N < MIN_VALIDATION:
+        raise DataError(f"the validation part has {val.N} samples; diagnosis needs at least "
+                        f"{MIN_VALIDATION}: record longer data or change the split")
+    unknown = sorted(set(causes or []) - set(EXTENSIONS))
+    if unknown:
+        raise DataError(f"unknown cause(s) {unknown}; choose from {sorted(EXTENSIONS)}")
+    k = est.N
+    split_channels = {c: (np.asarray(v, float)[:k], np.asarray(v, float)[k:]) for c, v in channels.items()}
+    nominal = fit(est, val, structure.na, structure.nb, structure.nk, structure.basis_for(data.p.shape[1]),
+                  structure.form)
+    ctx = Context(est, val, structure, nominal, split_channels)
+    from lpvflow.identify.arx import prediction_residuals
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        candidates = {}
+        tried = list(causes or EXTENSIONS)
+        for cause in tried:
+            cand = EXTENSIONS[cause](ctx)
+            if cand is not None:
+                candidates[cause] = cand
+    base_loss = _normalised_sq_error(val.y, nominal.y_val)
+    bfr_nom = bfr(val.y, nominal.y_val)
+    losses, ranked = {}, []
+    for cause, cand in candidates.items():
+        losses[cause] = _normalised_sq_error(val.y, cand.fit.y_val)
+        gain = float(np.mean(bfr(val.y, cand.fit.y_val) - bfr_nom))
+        _, p_value = residuals.block_signed_rank(base_loss, losses[cause])
+        n_eff = est.N - cand.fit.model.max_lag
+        ranked.append({
+            "cause": cause, "bfr_gain": gain, "p_value": p_value,
+            "bic_change": cand.fit.bic - nominal.bic,
+            "aic_change": n_eff * (cand.fit.loss - nominal.loss) + 2 * (cand.fit.n_params - nominal.n_params),
+            "extra_parameters": cand.fit.n_params - nominal.n_params,
+            "parameters": cand.parameters,
+            "diverged": cand.fit.diverged,
+            "significant": bool(gain >= min_gain and p_value < alpha and not cand.fit.diverged),
+        })
+    ranked.sort(key=lambda r: -r["bfr_gain"])
+    cause = _choose(ranked, candidates, losses, alpha, min_gain)
+    winner = candidates.get(cause)
+    after = winner.fit.y_val if winner else nominal.y_val
+    result = Diagnosis(
+        bfr_before=bfr_nom.tolist(), bfr_after=bfr(val.y, after).tolist(),
+        vaf_before=vaf(val.y, nominal.y_val).tolist(), vaf_after=vaf(val.y, after).tolist(),
+        cause=cause, parameters=winner.parameters if winner else {},
+        evidence=_evidence(est, prediction_residuals(nominal.model, est), split_channels),
+        ranking=ranked, summary="", where=_where(val, val.y - nominal.y_val), winner=winner,
+        untested=[c for c in tried if c not in candidates],
+        nominal_y_val=nominal.y_val,
+        error_spectrum=residuals.error_spectrum(val.y[:, 0] - nominal.y_val[:, 0], val.Ts),
+    )
+    result.summary = _summary(result, winner)
+    return result
+
+
+def _summary(result: Diagnosis, winner: Candidate | None) -> str:
+    before, after = np.mean(result.bfr_before), np.mean(result.bfr_after)
+    if winner is None:
+        tested = ", ".join(r["cause"] for r in result.ranking) or "nothing"
+        return (f"validation BFR {before:.1f} %; no extension gives a significant, unambiguous gain "
+                f"(tested: {tested}): cause none")
+    return (f"{winner.description} raises validation BFR from {before:.1f} % to {after:.1f} % "
+            f"(cause: {winner.cause})")

@@ -1,0 +1,49 @@
+"""The figure behind a diagnosis verdict: where the nominal simulation misses, and what fixed it."""
+
+from __future__ import annotations
+
+import matplotlib
+import numpy as np
+
+from lpvflow.data import Dataset
+from lpvflow.validate.diagnose import Diagnosis
+
+
+def plot_diagnosis(result: Diagnosis, data: Dataset, path: str, split: float = 0.5) -> None:
+    """Four panels for the first output: validation time series (measured / nominal / extended),
+    error spectrum, error RMS against scheduling and input amplitude, and the ranked BFR gains."""
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    _, val = data.split(split)
+    where = result.where["outputs"][0]
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
+    t = np.arange(val.N) * val.Ts
+    ax = axes[0, 0]
+    ax.plot(t, val.y[:, 0], lw=0.8, label="measured")
+    if result.nominal_y_val is not None:
+        ax.plot(t, result.nominal_y_val[:, 0], lw=0.8, label=f"nominal (BFR {result.bfr_before[0]:.1f} %)")
+    if result.winner is not None:
+        ax.plot(t, result.winner.fit.y_val[:, 0], lw=0.8, ls="--",
+                label=f"{result.cause} (BFR {result.bfr_after[0]:.1f} %)")
+    ax.set(xlabel="time [s]", ylabel=val.y_names[0], title="validation simulation")
+    ax.legend(fontsize=8)
+    ax = axes[0, 1]
+    ax.plot(where["rms_vs_scheduling"]["p"], where["rms_vs_scheduling"]["rms"], "o-", label=val.p_names[0])
+    ax.plot(where["rms_vs_input_amplitude"]["abs_u"], where["rms_vs_input_amplitude"]["rms"], "s-",
+            label=f"|{val.u_names[0]}|")
+    ax.set(xlabel="value", ylabel="nominal error RMS", title="where the error lives")
+    ax.legend(fontsize=8)
+    ax = axes[1, 0]
+    f, pxx = result.error_spectrum
+    ax.semilogy(f, pxx)
+    ax.set(xlabel="frequency [Hz]", ylabel="PSD", title="nominal simulation error spectrum")
+    ax = axes[1, 1]
+    ranking = result.ranking
+    colours = ["tab:green" if r["significant"] else "tab:gray" for r in ranking]
+    ax.barh([r["cause"] for r in ranking], [r["bfr_gain"] for r in ranking], color=colours)
+    ax.invert_yaxis()
+    ax.set(xlabel="validation BFR gain [points] (green: significant)", title=f"verdict: {result.cause}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -1,0 +1,368 @@
+"""Model extensions, one per cause the diagnosis can name.
+
+Each extension is fitted on the estimation split (its own free choice — a delay, a degree, a width
+— selected by the one-step loss or BIC on the estimation data only) and simulated on the
+validation split, where :mod:`lpvflow.validate.diagnose` scores it against the nominal model.
+
+Static input maps (Hammerstein extension, applied before the LPV dynamics):
+
+    dead zone   f_w(u) = sign(u) · max(|u| − w, 0)
+    saturation  f_s(u) = clip(u, −s, s)
+
+Coulomb friction enters as an extra input sign(v(k)), v(k) = y(k) − y(k−1), with the input's
+lags; its validation simulation takes v from the model's *own* simulated output (fixed-point
+iterations starting from the nominal simulation), never from the measured output.
+Offset adds the inputs 1 and t/N with a lag-0 constant coefficient: c₀ + c₁·t/N.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import scipy.optimize
+
+from lpvflow.basis import Basis, SchedulingRangeWarning
+from lpvflow.data import Dataset
+from lpvflow.errors import LpvflowError
+from lpvflow.identify.arx import identify_arx
+from lpvflow.models import LPVIO
+
+CAUSES = (
+    "input_delay", "model_order", "scheduling_dependence", "scheduling_variable",
+    "input_nonlinearity", "friction", "colored_noise", "offset", "none",
+)
+FRICTION_ITERATIONS = 6
+
+
+@dataclass(frozen=True)
+class Structure:
+    """The user's model structure: orders, delay, basis, form (see :func:`identify_arx`)."""
+
+    na: int | np.ndarray
+    nb: int | np.ndarray
+    nk: int | np.ndarray
+    basis: str | Basis = "affine"
+    form: str = "shifted"
+
+    def orders(self, ny: int, nu: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """na (ny, ny), nb and nk (ny, nu) as integer matrices."""
+        return (np.broadcast_to(np.asarray(self.na, int), (ny, ny)).copy(),
+                np.broadcast_to(np.asarray(self.nb, int), (ny, nu)).copy(),
+                np.broadcast_to(np.asarray(self.nk, int), (ny, nu)).copy())
+
+    def basis_for(self, n_p: int) -> Basis:
+        return Basis.from_spec(self.basis, n_p) if isinstance(self.basis, str) else self.basis
+
+
+@dataclass
+class Fit:
+    """A fitted model and its scores: one-step loss and BIC on estimation data, validation simulation."""
+
+    model: LPVIO
+    y_val: np.ndarray
+    loss: float  # log det of the one-step residual covariance (estimation data)
+    n_params: int
+    bic: float
+    diverged: bool = False  # the validation simulation blew up (bounded copy kept in y_val)
+
+
+@dataclass
+class Candidate:
+    """An extension addressing one cause."""
+
+    cause: str
+    parameters: dict
+    fit: Fit
+    description: str
+    inputs_added: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Context:
+    """Everything an extension needs: splits, structure, nominal fit, candidate channels."""
+
+    est: Dataset
+    val: Dataset
+    structure: Structure
+    nominal: Fit
+    channels: dict[str, tuple[np.ndarray, np.ndarray]]  # name → (estimation, validation) values
+
+    @property
+    def ny(self) -> int:
+        return self.est.y.shape[1]
+
+    @property
+    def nu(self) -> int:
+        return self.est.u.shape[1]
+
+
+def fit(est: Dataset, val: Dataset, na, nb, nk, basis: Basis | str, form: str = "shifted",
+        simulate: Callable[[LPVIO], np.ndarray] | None = None) -> Fit:
+    """Fit LPV-ARX on ``est``; simulate on ``val`` (or with ``simulate``); one-step loss and BIC."""
+    model = identify_arx(est, na, nb, nk, basis, form=form)
+    with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        y_val = simulate(model) if simulate else model.simulate(val.u, val.p)
+    y_val, diverged = bounded(y_val, val.y)
+    sign, logdet = np.linalg.slogdet(model.noise_cov)
+    loss = logdet if sign > 0 else -np.inf
+    n_params = int(sum(c.shape[0] for c in model.param_cov))
+    n_eff = est.N - model.max_lag
+    return Fit(model, y_val, float(loss), n_params, float(n_eff * loss + n_params * np.log(n_eff)),
+               diverged)
+
+
+def bounded(y_sim: np.ndarray, y: np.ndarray, factor: float = 10.0) -> tuple[np.ndarray, bool]:
+    """Clip a simulation to ``factor`` times the data's extent around its mean; report if it had to.
+
+    An unstable model's simulation overflows; its bounded copy still scores (badly) without inf/NaN.
+    """
+    centre = y.mean(axis=0)
+    extent = factor * np.maximum(np.abs(y - centre).max(axis=0), 1e-12)
+    finite = np.nan_to_num(y_sim, nan=np.inf)
+    diverged = bool(np.any(np.abs(finite - centre) > extent))
+    return np.clip(finite, centre - extent, centre + extent), diverged
+
+
+def _with_inputs(data: Dataset, extra: np.ndarray, names: list[str]) -> Dataset:
+    return replace(data, u=np.hstack([data.u, extra]), u_names=[*data.u_names, *names])
+
+
+def _extend_orders(nb: np.ndarray, nk: np.ndarray, nb_new: int, nk_new: int, count: int):
+    ny = nb.shape[0]
+    return (np.hstack([nb, np.full((ny, count), nb_new)]), np.hstack([nk, np.full((ny, count), nk_new)]))
+
+
+# ------------------------------------------------------------------------------------- causes
+def input_delay(ctx: Context) -> Candidate | None:
+    """Dead time differing from nk: nk' chosen per input by the estimation loss (same parameter count)."""
+    na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
+    basis = ctx.structure.basis_for(ctx.est.p.shape[1])
+    best_nk = nk.copy()
+    best: Fit | None = None
+    for j in range(ctx.nu):
+        scores = {}
+        for d in range(max(0, int(nk[0, j]) - 3), int(nk[0, j]) + 11):
+            trial = best_nk.copy()
+            trial[:, j] = d
+            try:
+                scores[d] = fit(ctx.est, ctx.val, na, nb, trial, basis, ctx.structure.form)
+            except LpvflowError:
+                continue
+        d_best = min(scores, key=lambda d: scores[d].loss)
+        best_nk[:, j] = d_best
+        best = scores[d_best]
+    if best is None or np.array_equal(best_nk, nk):
+        return None
+    found = best_nk[0].tolist() if ctx.nu > 1 else int(best_nk[0, 0])
+    modelled = nk[0].tolist() if ctx.nu > 1 else int(nk[0, 0])
+    return Candidate("input_delay", {"nk": found, "modelled_nk": modelled}, best,
+                     f"modelled dead time {modelled}, data says {found}; extending nk to {found}")
+
+
+def model_order(ctx: Context) -> Candidate | None:
+    """Orders too low: na/nb raised by 1–2, the variant with the best estimation BIC."""
+    na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
+    basis = ctx.structure.basis_for(ctx.est.p.shape[1])
+    trials = {(da, db): fit(ctx.est, ctx.val, na + da, nb + db, nk, basis, ctx.structure.form)
+              for da, db in ((1, 0), (0, 1), (1, 1), (2, 1), (2, 2))}
+    (da, db), best = min(trials.items(), key=lambda item: item[1].bic)
+    new = {"na": int(na.max() + da), "nb": int(nb.max() + db)}
+    return Candidate("model_order", new, best, f"raising na to {new['na']} and nb to {new['nb']}")
+
+
+def scheduling_dependence(ctx: Context) -> Candidate | None:
+    """Coefficients need a richer basis in the given p: polynomial degree +1/+2, or a cubic spline."""
+    base = ctx.structure.basis_for(ctx.est.p.shape[1])
+    na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
+    options: dict[str, Basis] = {}
+    if base.kind in ("affine", "poly"):
+        for extra in (1, 2):
+            deg = base.degree + extra
+            options[f"poly:{deg}"] = Basis.poly(deg, base.n_p, cross=base.cross)
+    if base.n_p == 1:
+        for n_knots in (1, 2, 3):
+            knots = np.quantile(ctx.est.p[:, 0], np.linspace(0, 1, n_knots + 2)[1:-1]).round(6).tolist()
+            options["spline:" + ",".join(f"{k:g}" for k in knots)] = Basis.spline(knots)
+    trials = {}
+    for spec, basis in options.items():
+        try:
+            trials[spec] = fit(ctx.est, ctx.val, na, nb, nk, basis, ctx.structure.form)
+        except LpvflowError:
+            continue
+    if not trials:
+        return None
+    spec, best = min(trials.items(), key=lambda item: item[1].bic)
+    params: dict = {"basis": spec}
+    if spec.startswith("poly"):
+        params["degree"] = int(spec.split(":")[1])
+    return Candidate("scheduling_dependence", params, best, f"using the basis {spec}")
+
+
+def scheduling_variable(ctx: Context) -> Candidate | None:
+    """Another recorded channel as an additional scheduling signal (same basis family)."""
+    base = ctx.structure.basis_for(ctx.est.p.shape[1])
+    if base.kind == "spline" or not ctx.channels:
+        return None
+    na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
+    trials = {}
+    for name, (c_est, c_val) in ctx.channels.items():
+        est = replace(ctx.est, p=np.column_stack([ctx.est.p, c_est]), p_names=[*ctx.est.p_names, name])
+        val = replace(ctx.val, p=np.column_stack([ctx.val.p, c_val]), p_names=[*ctx.val.p_names, name])
+        basis = Basis(base.kind, base.n_p + 1, degree=base.degree, cross=base.cross)
+        try:
+            trials[name] = fit(est, val, na, nb, nk, basis, ctx.structure.form)
+        except LpvflowError:
+            continue
+    if not trials:
+        return None
+    name, best = min(trials.items(), key=lambda item: item[1].bic)
+    return Candidate("scheduling_variable", {"channel": name}, best,
+                     f"scheduling also on the recorded channel {name!r}")
+
+
+def dead_zone(u: np.ndarray, width: float) -> np.ndarray:
+    return np.sign(u) * np.maximum(np.abs(u) - width, 0.0)
+
+
+def saturation(u: np.ndarray, limit: float) -> np.ndarray:
+    return np.clip(u, -limit, limit)
+
+
+def input_nonlinearity(ctx: Context) -> Candidate | None:
+    """Dead zone or saturation at one actuator: width/limit by grid + bounded refinement of the loss.
+
+    Backlash is not tested (it needs a state of the map); the diagnosis never names it.
+    """
+    na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
+    basis = ctx.structure.basis_for(ctx.est.p.shape[1])
+    results = []
+    for j in range(ctx.nu):
+        mag = np.abs(ctx.est.u[:, j])
+        for kind, nonlin, grid in (("dead_zone", dead_zone, np.quantile(mag, np.linspace(0.02, 0.6, 15))),
+                                   ("saturation", saturation, np.quantile(mag, np.linspace(0.4, 0.98, 15)))):
+            def trial(level: float, j=j, nonlin=nonlin) -> Fit:
+                est, val = ctx.est, ctx.val
+                u_e, u_v = est.u.copy(), val.u.copy()
+                u_e[:, j], u_v[:, j] = nonlin(u_e[:, j], level), nonlin(u_v[:, j], level)
+                return fit(replace(est, u=u_e), replace(val, u=u_v), na, nb, nk, basis, ctx.structure.form)
+
+            losses = []
+            for level in grid:
+                try:
+                    losses.append(trial(level).loss)
+                except LpvflowError:
+                    losses.append(np.inf)
+            i = int(np.argmin(losses))
+            lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+            if hi > lo:
+                res = scipy.optimize.minimize_scalar(lambda w: trial(w).loss, bounds=(lo, hi),
+                                                     method="bounded", options={"xatol": 1e-4 * hi})
+                level = float(res.x)
+            else:
+                level = float(grid[i])
+            results.append((trial(level), kind, level, j))
+    best, kind, level, j = min(results, key=lambda r: r[0].loss)
+    what = "width" if kind == "dead_zone" else "limit"
+    channel = ctx.est.u_names[j]
+    return Candidate("input_nonlinearity", {"kind": kind, what: level, "channel": channel}, best,
+                     f"a {kind.replace('_', ' ')} of {what} {level:.4g} on {channel}")
+
+
+def friction(ctx: Context) -> Candidate | None:
+    """Coulomb friction: extra input sign(v), v the backward difference of one output (a position)."""
+    na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
+    basis = ctx.structure.basis_for(ctx.est.p.shape[1])
+    nb_f, nk_f = _extend_orders(nb, nk, int(nb[:, 0].max()), max(int(nk[:, 0].min()), 1), 1)
+    trials = []
+    for i in range(ctx.ny):
+        def velocity_sign(y: np.ndarray, i=i) -> np.ndarray:
+            return np.sign(np.diff(y[:, i], prepend=y[0, i]))[:, None]
+
+        est = _with_inputs(ctx.est, velocity_sign(ctx.est.y), [f"sign_d{ctx.est.y_names[i]}"])
+
+        def simulate_own(model: LPVIO, i=i) -> np.ndarray:
+            y = ctx.nominal.y_val
+            for _ in range(FRICTION_ITERATIONS):  # velocity sign from the model's own output
+                y = bounded(model.simulate(np.hstack([ctx.val.u, velocity_sign(y, i)]), ctx.val.p),
+                            ctx.val.y)[0]
+            return y
+
+        try:
+            trials.append((fit(est, ctx.val, na, nb_f, nk_f, basis, ctx.structure.form, simulate_own), i))
+        except LpvflowError:
+            continue
+    if not trials:
+        return None
+    best, i = min(trials, key=lambda t: t[0].loss)
+    b = best.model.B[:, 0]  # ψ_0 components, (lags, ny, nu+1)
+    level = float(-np.sum(b[:, :, -1]) / np.sum(b[:, :, 0])) if np.sum(b[:, :, 0]) else float("nan")
+    name = ctx.est.y_names[i]
+    return Candidate("friction", {"output": name, "coulomb_level_input_units": level}, best,
+                     f"Coulomb friction against the motion of {name} (about {level:.3g} in input units)",
+                     [f"sign_d{name}"])
+
+
+def offset(ctx: Context) -> Candidate | None:
+    """Constant or drifting bias: extra inputs 1 and t/N with a lag-0 constant coefficient."""
+    na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
+    basis = ctx.structure.basis_for(ctx.est.p.shape[1])
+    n_total = ctx.est.N + ctx.val.N
+    t_est = np.arange(ctx.est.N) / n_total
+    t_val = np.arange(ctx.est.N, n_total) / n_total
+    est = _with_inputs(ctx.est, np.column_stack([np.ones(ctx.est.N), t_est]), ["const", "trend"])
+    val = _with_inputs(ctx.val, np.column_stack([np.ones(ctx.val.N), t_val]), ["const", "trend"])
+    nb_o, nk_o = _extend_orders(nb, nk, 1, 0, 2)
+    try:
+        best = fit(est, val, na, nb_o, nk_o, basis, ctx.structure.form)
+    except LpvflowError:
+        return None
+    const, trend = best.model.B[0, 0, :, -2], best.model.B[0, 0, :, -1]
+    # Output-equivalent bias o = A(1, ψ̄)⁻¹ c with A(1, ψ̄) = I + Σ_i A_i(ψ̄) at the mean scheduling.
+    psi_mean = best.model.basis.eval(ctx.est.p, check_range=False).mean(axis=0)
+    a_sum = np.eye(ctx.ny) + np.einsum("l,ilrc->rc", psi_mean, best.model.A)
+    output_bias = np.linalg.solve(a_sum, const)
+    params = {"constant": const.tolist(), "trend": trend.tolist(), "output_offset": output_bias.tolist()}
+    if ctx.ny == 1:
+        params = {k: v[0] for k, v in params.items()}
+    return Candidate("offset", params, best,
+                     f"adding a bias (output-equivalent {np.round(output_bias, 4).tolist()}) and a trend",
+                     ["const", "trend"])
+
+
+def colored_noise(ctx: Context) -> Candidate | None:
+    """Estimates biased by coloured noise: the same structure estimated by IV-OE (thesis Alg. 4.1)."""
+    from lpvflow.identify.iv import identify_iv_oe
+
+    na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
+    basis = ctx.structure.basis_for(ctx.est.p.shape[1])
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            model = identify_iv_oe(ctx.est, na, nb, nk, basis, form=ctx.structure.form)
+    except (LpvflowError, np.linalg.LinAlgError):  # IV-OE did not converge: the cause stays untested
+        return None
+    if not (np.all(np.isfinite(model.A)) and np.all(np.isfinite(model.B))):
+        return None
+    with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        y_val, diverged = bounded(model.simulate(ctx.val.u, ctx.val.p), ctx.val.y)
+    n_params = ctx.nominal.n_params
+    refit = Fit(model, y_val, ctx.nominal.loss, n_params, ctx.nominal.bic, diverged)
+    return Candidate("colored_noise", {"estimator": "iv-oe"}, refit,
+                     "re-estimating the same structure by IV-OE (instruments from an OE model)")
+
+
+EXTENSIONS: dict[str, Callable[[Context], Candidate | None]] = {
+    "input_delay": input_delay,
+    "model_order": model_order,
+    "scheduling_dependence": scheduling_dependence,
+    "scheduling_variable": scheduling_variable,
+    "input_nonlinearity": input_nonlinearity,
+    "friction": friction,
+    "colored_noise": colored_noise,
+    "offset": offset,
+}

@@ -212,6 +212,16 @@ def identify_pbsid(
         An innovation-form :class:`LPVSS` (A, B, K depend on ψ; C, D constant). ``.reduction``
         records the singular values, the order and how it was chosen, windows, form, λ and rows.
     """
+    return identify_pbsid_orders(data, [order], past, future, basis, form, regularization,
+                                 periodic_rows, feedthrough)[0]
+
+
+def identify_pbsid_orders(
+    data: Dataset, orders: list[int | None], past: int | None = None, future: int | None = None,
+    basis: Basis | str | None = None, form: str = "primal", regularization: str | float | None = None,
+    periodic_rows: bool | int = False, feedthrough: bool = True,
+) -> list[LPVSS]:
+    """:func:`identify_pbsid` for several orders, sharing the regression and the SVD of Γ^f K^p Z."""
     basis = Basis.from_spec(basis, data.p.shape[1]) if isinstance(basis, str) else basis
     basis = (basis or Basis.affine(data.p.shape[1]))
     if basis.n_p != data.p.shape[1]:
@@ -219,36 +229,42 @@ def identify_pbsid(
     basis = basis.with_range(data.p)
     mu = basis.eval(data.p)
     ny = data.y.shape[1]
-    past = default_past(ny, order) if past is None else int(past)
+    given = [o for o in orders if o is not None]
+    past = default_past(ny, max(given, default=None)) if past is None else int(past)
     future = past if future is None else int(future)
-    _check(data, order, past, future, form, regularization, periodic_rows, mu.shape[1])
+    for order in orders or [None]:
+        _check(data, order, past, future, form, regularization, periodic_rows, mu.shape[1])
 
     Y, U = data.y[past:].T, data.u[past:].T
     gkz, info = state_matrix(data, mu, past, future, form, regularization, periodic_rows, feedthrough)
     _, s, Vt = scipy.linalg.svd(gkz, full_matrices=False)
-    max_order = min(future * ny, len(s) - 1)
-    n = gap_order(s, max_order) if order is None else int(order)
-    if s[n - 1] <= RANK_TOL * s[0]:
-        raise ModelError(f"Γ K Z has numerical rank below the order {n}: the data do not excite "
-                         f"{n} states; lower the order (singular values {np.round(s[:n + 1], 6).tolist()})")
-    X = s[:n, None] * Vt[:n]
-    A, B, C, D, K = _system_matrices(X, Y, U, mu[past:].T, feedthrough)
-    record = {
-        "method": "pbsid",
-        "form": form,
-        "singular_values": s.tolist(),
-        "order": n,
-        "order_rule": ("given" if order is not None
-                       else f"largest gap of log10 singular values above {ORDER_FLOOR:g} of the first"),
-        "past": past,
-        "future": future,
-        "regularization": regularization if isinstance(regularization, str | None) else float(regularization),
-        "lambda": info["lambda"],
-        "gcv": info["gcv"],
-        "kernel_rows" if form == "kernel" else "regression_rows": info["rows"],
-    }
-    return LPVSS(A, B, C, D, basis, data.Ts, K=K, u_names=list(data.u_names),
-                 y_names=list(data.y_names), p_names=list(data.p_names), reduction=record)
+    models = []
+    for order in orders:
+        n = gap_order(s, min(future * ny, len(s) - 1)) if order is None else int(order)
+        if s[n - 1] <= RANK_TOL * s[0]:
+            shown = np.round(s[: n + 1], 6).tolist()
+            raise ModelError(f"Γ K Z has numerical rank below the order {n}: the data do not excite "
+                             f"{n} states; lower the order (singular values {shown})")
+        X = s[:n, None] * Vt[:n]
+        A, B, C, D, K = _system_matrices(X, Y, U, mu[past:].T, feedthrough)
+        record = {
+            "method": "pbsid",
+            "form": form,
+            "singular_values": s.tolist(),
+            "order": n,
+            "order_rule": ("given" if order is not None
+                           else f"largest gap of log10 singular values above {ORDER_FLOOR:g} of the first"),
+            "past": past,
+            "future": future,
+            "regularization": regularization if isinstance(regularization, str | None) else float(
+                regularization),
+            "lambda": info["lambda"],
+            "gcv": info["gcv"],
+            "kernel_rows" if form == "kernel" else "regression_rows": info["rows"],
+        }
+        models.append(LPVSS(A, B, C, D, basis, data.Ts, K=K, u_names=list(data.u_names),
+                            y_names=list(data.y_names), p_names=list(data.p_names), reduction=record))
+    return models
 
 
 def regression_rows(nu: int, ny: int, m: int, past: int) -> int:

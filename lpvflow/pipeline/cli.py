@@ -18,6 +18,8 @@ STAGE_MODULES = [
     "lpvflow.pipeline.cli_identify",
     "lpvflow.pipeline.cli_diagnose",
     "lpvflow.pipeline.cli_experiment",
+    "lpvflow.pipeline.cli_verify",
+    "lpvflow.pipeline.cli_export",
 ]
 
 

@@ -44,7 +44,8 @@ import numpy as np
 import scipy.io
 from fmpy.validation import validate_fmu
 
-from lpvflow.errors import DataError, ModelError
+from lpvflow.errors import DataError, LpvflowError, ModelError
+from lpvflow.models import load
 from lpvflow.synth.controller import LPVController
 
 FORMATS = ("fmu", "json", "mat")
@@ -93,6 +94,19 @@ def controller_signals(
     if len(set(every)) != len(every):
         raise DataError(f"controller signal names must be distinct, got {every}")
     return ControllerSignals(chosen["input_names"], chosen["scheduling_names"], chosen["output_names"])
+
+
+def load_lpv_controller(path: str | Path) -> LPVController:
+    """Read an ``lpvflow/lpv-controller`` JSON file; any defect is one ModelError line."""
+    try:
+        controller = load(path)
+    except LpvflowError:
+        raise
+    except (ValueError, TypeError) as exc:
+        raise ModelError(f"controller file {path} has malformed matrices ({exc})") from None
+    if not isinstance(controller, LPVController):
+        raise ModelError(f"{path} is a {type(controller).__name__}, not an lpvflow/lpv-controller file")
+    return controller
 
 
 def check_output_path(output: str | Path, inputs: Sequence[str | Path]) -> Path:

@@ -1,0 +1,33 @@
+"""``lpvflow export CONTROLLER.json --format fmu|json|mat -o PATH``: the controller for other tools."""
+
+from __future__ import annotations
+
+import argparse
+
+from lpvflow.pipeline.export import FORMATS, check_output_path, export_controller, load_lpv_controller
+
+
+def run(args: argparse.Namespace) -> int:
+    output = check_output_path(args.output, [args.controller])
+    controller = load_lpv_controller(args.controller)
+    path = export_controller(controller, output, args.format)
+    print(
+        f"wrote {path} ({args.format}: {controller.order} states, {controller.n_in} inputs, "
+        f"{controller.basis.n_p} scheduling, {controller.n_out} outputs, "
+        f"{controller.polytope.n_vertices} vertices)"
+    )
+    return 0
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "export",
+        help="export a controller as an FMI 2.0 Co-Simulation FMU, MATLAB .mat or JSON",
+        description="fmu: inputs e (r - y) and p, outputs u, step = Ts, binary and sources inside, validated "
+        "with fmpy; mat: Ak (n,n,N), Bk, Ck, Dk, psi_vertices, polytope, basis, Ts, names; json: the "
+        "controller file, re-validated. Layouts: lpvflow/pipeline/export.py.",
+    )
+    parser.add_argument("controller", help="lpvflow/lpv-controller JSON file")
+    parser.add_argument("--format", required=True, choices=FORMATS)
+    parser.add_argument("-o", "--output", required=True, metavar="PATH")
+    parser.set_defaults(func=run)

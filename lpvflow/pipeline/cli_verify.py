@@ -1,0 +1,69 @@
+"""``lpvflow verify CTRL --plant PLANT.fmu --scenario SCEN.toml --json OUT.json``: closed-loop check."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from lpvflow.errors import DataError
+from lpvflow.models import _atomic_write_json
+from lpvflow.pipeline.export import check_output_path
+from lpvflow.pipeline.scenarios import load_scenarios
+from lpvflow.pipeline.verify import load_controller_file, plot_runs, run_verification
+
+
+def _summary(name: str, metrics: dict) -> str:
+    parts = []
+    for output, m in metrics["outputs"].items():
+        settling = "not settled" if m["settling_time"] is None else f"settles in {m['settling_time']:.3g} s"
+        overshoot = "" if m["overshoot_percent"] is None else f", overshoot {m['overshoot_percent']:.3g} %"
+        parts.append(f"{output} {settling}{overshoot}")
+    verdict = "stable" if metrics["stable"] else f"FAILED ({metrics['reason']})"
+    return f"  {name} [{metrics['controller']}]: {verdict}; " + "; ".join(parts)
+
+
+def run(args: argparse.Namespace) -> int:
+    inputs = [args.controller, args.plant, args.scenario] + ([args.baseline] if args.baseline else [])
+    check_output_path(args.json, inputs)
+    scenario_file = load_scenarios(args.scenario)
+    if scenario_file.loop is None:
+        raise DataError(f"{args.scenario} has no [loop] table saying which plant signals the controller uses")
+    controller = load_controller_file(args.controller)
+    baseline = load_controller_file(args.baseline) if args.baseline else None
+    verification = run_verification(
+        controller, args.plant, scenario_file.scenarios, scenario_file.loop, baseline
+    )
+    if args.figures:
+        for i, result in enumerate(verification.results):
+            plot_runs(result.runs, Path(args.figures) / f"scenario_{i + 1}.png", result.scenario.name)
+    _atomic_write_json(args.json, verification.to_dict())
+    for result in verification.results:
+        for metrics in result.metrics:
+            print(_summary(result.scenario.name, metrics))
+    print(f"wrote {args.json}" + (f" and figures in {args.figures}" if args.figures else ""))
+    return 0 if verification.stable else 1
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "verify",
+        help="co-simulate a controller with a plant FMU on scenarios; metrics and stability verdicts",
+        description="Run the controller (and an optional LTI baseline) in closed loop with the plant FMU "
+        "on every [[scenario]] of the TOML file (layout: lpvflow/pipeline/scenarios.py); exit 1 when "
+        "the controller fails a scenario's stability verdict.",
+    )
+    parser.add_argument("controller", help="lpvflow/lpv-controller JSON (or an exported controller .fmu)")
+    parser.add_argument("--plant", required=True, help="FMI 2.0 Co-Simulation FMU of the plant")
+    parser.add_argument(
+        "--scenario", required=True, metavar="SCEN.toml", help="[loop] and [[scenario]] tables"
+    )
+    parser.add_argument("--json", required=True, metavar="OUT.json", help="metrics and verdicts")
+    parser.add_argument(
+        "--baseline",
+        metavar="CTRL.json",
+        help="baseline controller: lpvflow/lti-controller or lpv-controller JSON, or .fmu",
+    )
+    parser.add_argument(
+        "--figures", metavar="DIR", help="write one PNG per scenario (controller vs baseline)"
+    )
+    parser.set_defaults(func=run)

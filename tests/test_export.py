@@ -1,0 +1,222 @@
+"""Controller export: the FMU steps like LPVController (open and closed loop), MAT, JSON, CLI."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.io
+from fmpy.validation import validate_fmu
+
+from lpvflow.basis import Basis
+from lpvflow.experiment.controller import load_controller
+from lpvflow.models import load
+from lpvflow.pipeline.cli import main
+from lpvflow.pipeline.export import export_fmu, export_json, export_mat
+from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
+from lpvflow.pipeline.verify import FmuController, simulate_loop
+from lpvflow.synth.controller import LPVController
+from lpvflow.synth.polytope import Polytope, _corners
+
+ROOT = Path(__file__).resolve().parents[1]
+ADIP = ROOT / "fmu_plants" / "build" / "adip.fmu"
+
+
+def _random_controller(
+    poly: Polytope, basis: Basis, seed: int, n: int = 3, ny: int = 2, nu: int = 2
+) -> LPVController:
+    rng = np.random.default_rng(seed)
+    N = poly.n_vertices
+    A = 0.6 * rng.standard_normal((N, n, n)) / np.sqrt(n)
+    return LPVController(
+        A,
+        rng.standard_normal((N, n, ny)),
+        rng.standard_normal((N, nu, n)),
+        rng.standard_normal((N, nu, ny)),
+        poly,
+        basis,
+        0.01,
+    )
+
+
+def _box_controller() -> LPVController:
+    box = np.array([[-1.0, 1.0], [0.0, 2.0]])
+    poly = Polytope("box", box, np.column_stack([np.ones(4), _corners(box)]))
+    return _random_controller(poly, Basis("affine", 2, p_min=(-1.0, 0.0), p_max=(1.0, 2.0)), 1)
+
+
+def _parabola_controller() -> LPVController:
+    a, b = -0.5, 1.5
+    verts = np.array([[1.0, a, a * a], [1.0, 0.5 * (a + b), a * b], [1.0, b, b * b]])
+    poly = Polytope("parabola-triangle", np.array([[a, b]]), verts)
+    return _random_controller(poly, Basis("poly", 1, degree=2, p_min=(a,), p_max=(b,)), 2)
+
+
+def _term_box_controller() -> LPVController:
+    basis = Basis.spline([0.2], 1)  # ψ = [1, p, |p − 0.2|³] on p ∈ [−1, 1]
+    term_box = np.array([[-1.0, 1.0], [0.0, 1.2**3]])
+    poly = Polytope(
+        "term-box", np.array([[-1.0, 1.0]]), np.column_stack([np.ones(4), _corners(term_box)]), term_box
+    )
+    return _random_controller(poly, basis, 3, n=2, ny=1, nu=1)
+
+
+CONTROLLERS = {
+    "box": _box_controller,
+    "parabola-triangle": _parabola_controller,
+    "term-box": _term_box_controller,
+}
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[LPVController, Path]]:
+    folder = tmp_path_factory.mktemp("fmus")
+    return {
+        kind: (make(), export_fmu(make(), folder / f"K_{kind.replace('-', '_')}.fmu"))
+        for kind, make in CONTROLLERS.items()
+    }
+
+
+@pytest.mark.parametrize("kind", list(CONTROLLERS))
+def test_exported_fmu_steps_like_the_python_controller(exported: dict, kind: str) -> None:
+    controller, path = exported[kind]
+    rng = np.random.default_rng(7)
+    lo, hi = controller.polytope.box[:, 0], controller.polytope.box[:, 1]
+    p = rng.uniform(lo - 0.3 * (hi - lo), hi + 0.3 * (hi - lo), (400, len(lo)))  # also outside: clipped λ
+    e = rng.standard_normal((400, controller.n_in))
+    u_python = controller.simulate(e, p)
+    fmu = FmuController(path)
+    try:
+        for _ in range(2):  # a reset restarts from x = 0
+            fmu.reset()
+            u_fmu = np.array([fmu.step(ek, pk) for ek, pk in zip(e, p, strict=True)])
+            assert np.max(np.abs(u_fmu - u_python)) <= 1e-9 * max(1.0, np.max(np.abs(u_python)))
+    finally:
+        fmu.close()
+    assert np.std(u_python) > 0.1  # the comparison is not between zeros
+
+
+def test_exported_fmu_validates_and_carries_binary_and_sources(exported: dict) -> None:
+    controller, path = exported["box"]
+    assert validate_fmu(str(path)) == []
+    names = zipfile.ZipFile(path).namelist()
+    assert any(n.startswith("binaries/") and n.endswith(".so") for n in names)
+    for source in ("controller_fmu.c", "controller_data.h", "fmi2Functions.h"):
+        assert f"sources/{source}" in names
+    description = zipfile.ZipFile(path).read("modelDescription.xml").decode()
+    assert f'stepSize="{controller.Ts!r}"' in description
+    assert all(f'name="{n}"' in description for n in ("e1", "e2", "p1", "p2", "u1", "u2"))
+
+
+def _adip_lpv_controller() -> LPVController:
+    """The ADIP's stabilizing LTI controller in the LPV convention e = r − y, a second vertex 5 % stronger."""
+    lti = load_controller(ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json")
+    poly = Polytope("box", np.array([[-0.96, 0.96]]), np.array([[1.0, -0.96], [1.0, 0.96]]))
+    scale = np.array([1.0, 1.05])[:, None, None]
+    stack = lambda M: np.array([M, M])  # noqa: E731
+    return LPVController(
+        stack(lti.A),
+        -stack(lti.B),
+        scale * stack(lti.C),
+        -scale * stack(lti.D),
+        poly,
+        Basis("affine", 1, p_min=(-0.96,), p_max=(0.96,)),
+        lti.Ts,
+    )
+
+
+def test_exported_fmu_with_the_plant_fmu_reproduces_the_python_closed_loop(tmp_path: Path) -> None:
+    controller = _adip_lpv_controller()
+    path = export_fmu(controller, tmp_path / "adip_K.fmu")
+    loop = Loop(
+        ("arm_angle", "pendulum_angle"),
+        ("voltage",),
+        ("sin(arm_angle)",),
+        actuator_limits={"voltage": (-10.0, 10.0)},
+    )
+    scenario = Scenario(
+        "step",
+        2.0,
+        reference={"arm_angle": Signal(steps=((0.2, 0.3),))},
+        plant_parameters={"x0_pendulum_angle": 0.02},
+        settling_band={"pendulum_angle": 0.02},
+    )
+    python = simulate_loop(controller, ADIP, scenario, loop)
+    fmu = FmuController(path)
+    try:
+        exported_run = simulate_loop(fmu, ADIP, scenario, loop)
+    finally:
+        fmu.close()
+    assert python.failure is None and exported_run.failure is None
+    assert np.ptp(python.scheduling) > 0.1  # λ really varies along the run
+    np.testing.assert_allclose(exported_run.outputs, python.outputs, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(exported_run.control, python.control, rtol=0, atol=1e-9)
+
+
+def test_mat_round_trip_gives_matlab_layout(tmp_path: Path) -> None:
+    controller = _parabola_controller()
+    path = export_mat(controller, tmp_path / "K.mat", names={"input_names": ["r_minus_y1", "r_minus_y2"]})
+    mat = scipy.io.loadmat(path)
+    N, n = controller.polytope.n_vertices, controller.order
+    assert mat["Ak"].shape == (n, n, N) and mat["Bk"].shape == (n, 2, N)
+    assert mat["Ck"].shape == (2, n, N) and mat["Dk"].shape == (2, 2, N)
+    for i in range(N):
+        for name in ("Ak", "Bk", "Ck", "Dk"):
+            np.testing.assert_array_equal(mat[name][:, :, i], getattr(controller, name)[i])
+    np.testing.assert_array_equal(mat["psi_vertices"], controller.polytope.psi_vertices)
+    np.testing.assert_array_equal(mat["scheduling_box"], controller.polytope.box)
+    assert mat["Ts"].item() == controller.Ts and str(mat["polytope_kind"][0]) == "parabola-triangle"
+    assert [str(c[0]) for c in mat["input_names"][0]] == ["r_minus_y1", "r_minus_y2"]
+    assert [str(c[0]) for c in mat["output_names"][0]] == ["u1", "u2"]
+    exponents = mat["basis"]["exponents"][0, 0]
+    np.testing.assert_array_equal(exponents, [[0], [1], [2]])
+    # a MATLAB user's interpolation Σ λ_i Ak(:,:,i) gives the controller's frozen matrices
+    p = 0.7
+    lam = controller.coordinates(np.array([p]))
+    np.testing.assert_allclose(mat["Ak"] @ lam, controller.matrices(np.array([p]))[0], atol=1e-14)
+
+
+def test_json_export_round_trips(tmp_path: Path) -> None:
+    controller = _term_box_controller()
+    loaded = load(export_json(controller, tmp_path / "K.json"))
+    for name in ("Ak", "Bk", "Ck", "Dk"):
+        np.testing.assert_array_equal(getattr(loaded, name), getattr(controller, name))
+    assert loaded.polytope.kind == "term-box" and loaded.Ts == controller.Ts
+
+
+def _error_line(capsys: pytest.CaptureFixture, argv: list[str]) -> str:
+    try:
+        status = main(argv)
+    except SystemExit as exc:  # argparse usage errors
+        status = exc.code
+    assert status == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    return err
+
+
+def test_export_cli_writes_each_format_and_refuses_bad_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    source = tmp_path / "K.json"
+    _box_controller().save(source)
+    original = source.read_bytes()
+    assert main(["export", str(source), "--format", "mat", "-o", str(tmp_path / "K.mat")]) == 0
+    assert main(["export", str(source), "--format", "json", "-o", str(tmp_path / "K2.json")]) == 0
+    assert json.loads((tmp_path / "K2.json").read_text())["format"] == "lpvflow/lpv-controller"
+    assert "input file" in _error_line(capsys, ["export", str(source), "--format", "json", "-o", str(source)])
+    assert source.read_bytes() == original
+    assert "does not exist" in _error_line(
+        capsys, ["export", str(tmp_path / "none.json"), "--format", "mat", "-o", str(tmp_path / "x.mat")]
+    )
+    _error_line(capsys, ["export", str(source), "--format", "xls", "-o", str(tmp_path / "x.xls")])
+    broken = json.loads(original)
+    broken["Bk"] = broken["Bk"][:1]
+    (tmp_path / "bad.json").write_text(json.dumps(broken))
+    assert "Bk" in _error_line(
+        capsys, ["export", str(tmp_path / "bad.json"), "--format", "fmu", "-o", str(tmp_path / "bad.fmu")]
+    )
+    assert not (tmp_path / "bad.fmu").exists()

@@ -111,7 +111,8 @@ class Structure:
         """
         n, pad = len(y), self.max_lag
         cols = list(self.columns[r])
-        out = np.empty((n, len(cols)))
+        # F order: contiguous columns (numpy 2.4 in-place negative on strided views is wrong)
+        out = np.empty((n, len(cols)), order="F")
         if not cols:
             return out
         ypad = np.vstack([np.zeros((pad, y.shape[1])), y])

@@ -107,3 +107,13 @@ def test_bad_shapes_are_refused():
         LPVLFR(np.eye(2), np.zeros((2, 1)), np.zeros((2, 1)), np.zeros((1, 2)), np.zeros((2, 2)),
                np.zeros((1, 1)), np.zeros((1, 2)), np.zeros((1, 1)), np.zeros((1, 1)),
                np.zeros((2, 1, 1)), Basis.affine(1), 1.0)
+
+
+def test_frozen_lfr_models_go_through_the_nu_gap_validation():
+    from lpvflow.validate.nugap import nugap
+
+    rational, affine = example_lfr(-0.5), example_lfr(0.0)
+    assert nugap(rational.frozen([0.5]), rational.frozen([0.5])).value < 1e-6
+    # at p = 0 the loop is open (Δ = 0) and D11 does not matter; elsewhere it does
+    assert nugap(rational.frozen([0.0]), affine.frozen([0.0])).value < 1e-6
+    assert nugap(rational.frozen([0.9]), affine.frozen([0.9])).value > 0.01

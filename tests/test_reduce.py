@@ -318,3 +318,14 @@ def test_bad_arguments_raise_one_line_model_errors(kwargs, fragment):
     with pytest.raises(ModelError, match=fragment) as info:
         reduce(example2_ss(), **kwargs)
     assert "\n" not in str(info.value)
+
+
+def test_model_without_input_path_is_refused():
+    ss = example2_ss()
+    ss.B[:] = 0.0
+    with pytest.raises(ModelError, match="no input-to-output path"):
+        reduce(ss)
+    ss = example2_ss()
+    ss.C[:] = 0.0
+    with pytest.raises(ModelError, match="C is zero"):
+        reduce(ss)

@@ -102,7 +102,7 @@ def load_lpv_controller(path: str | Path) -> LPVController:
         controller = load(path)
     except LpvflowError:
         raise
-    except (ValueError, TypeError) as exc:
+    except (ValueError, TypeError, IndexError) as exc:
         raise ModelError(f"controller file {path} has malformed matrices ({exc})") from None
     if not isinstance(controller, LPVController):
         raise ModelError(f"{path} is a {type(controller).__name__}, not an lpvflow/lpv-controller file")

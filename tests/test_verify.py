@@ -1,0 +1,287 @@
+"""Closed-loop verification: metrics against analytic answers, baselines, verdicts, scenario files, CLI.
+
+The analytic plant is a first-order discrete system y(k+1) = a y(k) + b u(k), built as an FMU through
+the export path; with a static controller u = kp e the loop is y(k+1) = c y(k) + b kp r, c = a − b kp,
+so after a unit step at t_s (a = 1): y = 1 − c^j, j samples after the step.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import control
+import numpy as np
+import pytest
+
+from lpvflow.basis import Basis
+from lpvflow.errors import DataError
+from lpvflow.experiment.controller import LtiController
+from lpvflow.pipeline.cli import main
+from lpvflow.pipeline.export import export_fmu
+from lpvflow.pipeline.scenarios import Loop, Scenario, Signal, load_scenarios
+from lpvflow.pipeline.verify import plot_runs, run_verification, verify
+from lpvflow.synth.controller import LPVController
+from lpvflow.synth.polytope import Polytope
+from tests.test_export import _adip_lpv_controller
+
+ROOT = Path(__file__).resolve().parents[1]
+ADIP = ROOT / "fmu_plants" / "build" / "adip.fmu"
+TS, B = 0.01, 0.5
+POLY = Polytope("box", np.array([[-1.0, 1.0]]), np.array([[1.0, -1.0], [1.0, 1.0]]))
+BASIS = Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,))
+LOOP = Loop(("y",), ("u",), ("y",))
+
+
+def _constant(A: float | list, B_: float | list, C: float | list, D: float | list) -> LPVController:
+    """An LPVController with the same matrices at both vertices (LTI in LPV form)."""
+    mats = [np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, B_, C, D)]
+    return LPVController(*(np.array([M, M]) for M in mats), POLY, BASIS, TS)
+
+
+def _gain(kp: float) -> LPVController:
+    """Static law u = kp e, as a one-state controller whose state stays zero."""
+    return _constant(0.0, 0.0, 0.0, kp)
+
+
+@pytest.fixture(scope="module")
+def plants(tmp_path_factory: pytest.TempPathFactory) -> dict[float, Path]:
+    """First-order plant FMUs y(k+1) = a y + B u for a = 1 (integrator) and a = 0.8."""
+    folder = tmp_path_factory.mktemp("plants")
+    names = {"input_names": ["u"], "scheduling_names": ["q"], "output_names": ["y"]}
+    return {
+        a: export_fmu(_constant(a, B, 1.0, 0.0), folder / f"plant_{int(10 * a)}.fmu", names)
+        for a in (1.0, 0.8)
+    }
+
+
+def _step(duration: float = 1.0, at: float = 0.1, **kwargs: object) -> Scenario:
+    return Scenario("step", duration, reference={"y": Signal(steps=((at, 1.0),))}, **kwargs)
+
+
+@pytest.mark.parametrize(("c", "settle_samples", "overshoot"), [(0.9, 38, 0.0), (-0.5, 6, 0.5)])
+def test_settling_time_and_overshoot_match_the_analytic_loop(
+    plants: dict, c: float, settle_samples: int, overshoot: float
+) -> None:
+    kp = (1.0 - c) / B
+    # |y − 1| = |c|^j ≤ 0.02 from j = ceil(ln 0.02 / ln |c|) on: 38 for c = 0.9, 6 for c = −0.5
+    assert settle_samples == math.ceil(math.log(0.02) / math.log(abs(c)))
+    result = verify(_gain(kp), plants[1.0], [_step()], LOOP)["scenarios"][0]["controller"]
+    metrics = result["outputs"]["y"]
+    assert result["stable"] and metrics["settled"]
+    assert metrics["settling_time"] == pytest.approx(settle_samples * TS, abs=1e-12)
+    assert metrics["overshoot"] == pytest.approx(overshoot, abs=1e-12)
+    assert metrics["overshoot_percent"] == pytest.approx(100 * overshoot, abs=1e-9)
+    assert metrics["band"] == pytest.approx(0.02) and metrics["change_time"] == pytest.approx(0.1)
+    j = np.arange(90, 100) - 10  # final window: the last 10 of 100 samples, j samples after the step
+    assert metrics["steady_state_error"] == pytest.approx(abs(np.mean(c**j)), rel=1e-6, abs=1e-15)
+    assert result["controls"]["u"]["peak_control"] == pytest.approx(kp)  # kp·e at the step
+    assert result["controls"]["u"]["saturation_time"] == 0.0
+
+
+def test_steady_state_error_of_a_proportional_loop(plants: dict) -> None:
+    kp = 0.4  # a = 0.8: y_ss = B kp / (1 − a + B kp) = 0.5, error 0.5
+    metrics = verify(_gain(kp), plants[0.8], [_step(duration=2.0)], LOOP)["scenarios"][0]["controller"]
+    y_ss = B * kp / (1 - 0.8 + B * kp)
+    assert metrics["outputs"]["y"]["steady_state_error"] == pytest.approx(1 - y_ss, abs=1e-9)
+    assert not metrics["stable"] and metrics["reason"] == "not settled: y"
+
+
+def test_saturation_time_counts_the_clipped_samples(plants: dict) -> None:
+    # kp = 1, |u| ≤ 0.25: y grows by B·0.25 = 0.125 per sample while kp (1 − y) > 0.25, i.e. for 6 samples
+    loop = Loop(("y",), ("u",), ("y",), actuator_limits={"u": (-0.25, 0.25)})
+    result = verify(_gain(1.0), plants[1.0], [_step()], loop)["scenarios"][0]["controller"]
+    assert result["controls"]["u"]["saturation_time"] == pytest.approx(6 * TS)
+    assert result["controls"]["u"]["peak_control"] == pytest.approx(0.25)
+    assert result["stable"]
+
+
+def test_unstable_loop_fails_its_verdict(plants: dict) -> None:
+    kp = 2.5 / B  # c = −1.5
+    bounded = _step(output_bounds={"y": (-100.0, 100.0)})
+    result = verify(_gain(kp), plants[1.0], [_step(), bounded], LOOP)
+    free, stopped = (s["controller"] for s in result["scenarios"])
+    assert not result["stable"] and not free["stable"] and free["reason"] == "not settled: y"
+    assert not stopped["stable"] and stopped["reason"].startswith("unbounded: y left its output_bounds")
+
+
+def test_lti_baselines_run_with_the_same_loop_convention(plants: dict) -> None:
+    kp = 0.2 / B
+    verification = run_verification(
+        _gain(kp), plants[1.0], [_step()], LOOP, baseline=control.ss([], [], [], [[kp]], TS)
+    )
+    lpv, base = verification.results[0].runs
+    np.testing.assert_allclose(base.outputs, lpv.outputs, atol=1e-12)
+    # an lpvflow/lti-controller file reads y − r: D = −kp is the same law; its u_op offsets u
+    lti = LtiController(
+        np.zeros((0, 0)),
+        np.zeros((0, 1)),
+        np.zeros((1, 0)),
+        np.array([[-kp]]),
+        TS,
+        ("y",),
+        ("u",),
+        np.zeros(1),
+        np.zeros(1),
+    )
+    verification = run_verification(_gain(kp), plants[1.0], [_step()], LOOP, baseline=lti)
+    np.testing.assert_allclose(verification.results[0].runs[1].control, lpv.control, atol=1e-12)
+    assert verification.to_dict()["scenarios"][0]["baseline"]["stable"]
+
+
+def test_disturbances_act_where_the_scenario_says(plants: dict) -> None:
+    # integrator plant with an integral-free P loop: an input step d is cancelled only with error
+    # e_ss = −d/kp (u = kp e + d = 0); an output step is rejected completely (integrator plant)
+    kp = 0.5 / B
+    scenario = Scenario(
+        "dist", 2.0, input_disturbance={"u": Signal(steps=((0.5, 0.05),))}, settling_band={"y": 1e-3}
+    )
+    metrics = verify(_gain(kp), plants[1.0], [scenario], LOOP)["scenarios"][0]["controller"]["outputs"]["y"]
+    assert metrics["steady_state_error"] == pytest.approx(0.05 / kp, rel=1e-6)
+    scenario = Scenario(
+        "dist", 2.0, output_disturbance={"y": Signal(steps=((0.5, 0.3),))}, settling_band={"y": 1e-3}
+    )
+    metrics = verify(_gain(kp), plants[1.0], [scenario], LOOP)["scenarios"][0]["controller"]["outputs"]["y"]
+    assert metrics["steady_state_error"] < 1e-9 and metrics["peak_deviation"] == pytest.approx(0.3)
+
+
+def test_adip_lpv_loop_with_noise_is_stable_and_plotted(tmp_path: Path) -> None:
+    loop = Loop(
+        ("arm_angle", "pendulum_angle"),
+        ("voltage",),
+        ("sin(arm_angle)",),
+        actuator_limits={"voltage": (-10.0, 10.0)},
+        plant_parameters={"effect_noise_std": 1e-4, "effect_noise_seed": 3},
+    )
+    scenario = Scenario(
+        "pendulum offset",
+        2.5,
+        plant_parameters={"x0_pendulum_angle": 0.03},
+        settling_band={"pendulum_angle": 0.005, "arm_angle": 0.01},
+    )
+    verification = run_verification(_adip_lpv_controller(), ADIP, [scenario], loop)
+    assert verification.stable
+    run = verification.results[0].runs[0]
+    assert np.std(np.diff(run.outputs[-50:, 1])) > 1e-5  # the FMU's measurement noise is on
+    png = plot_runs(verification.results[0].runs, tmp_path / "adip.png", "ADIP")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+SCENARIO_TOML = """
+[loop]
+measured = ["y"]
+actuated = ["u"]
+scheduling = ["y"]
+actuator_limits = { u = [-5.0, 5.0] }
+
+[[scenario]]
+name = "step"
+duration = 1.0
+reference = { y = { steps = [[0.1, 1.0]] } }
+
+[[scenario]]
+name = "ramp"
+duration = 1.5
+reference = { y = { initial = 0.5, ramps = [[0.1, 0.3, 1.0]] } }
+"""
+
+
+def test_signal_samples_steps_and_ramps() -> None:
+    signal = Signal(initial=0.5, ramps=((0.1, 0.3, 1.0),), steps=((1.0, -0.2),))
+    np.testing.assert_allclose(signal.sample(np.array([0.0, 0.2, 0.5, 1.0])), [0.5, 1.0, 1.5, 1.3])
+
+
+def test_scenario_file_round_trip(tmp_path: Path) -> None:
+    path = tmp_path / "s.toml"
+    path.write_text(SCENARIO_TOML)
+    parsed = load_scenarios(path)
+    assert parsed.loop.measured == ("y",) and parsed.loop.actuator_limits == {"u": (-5.0, 5.0)}
+    assert [s.name for s in parsed.scenarios] == ["step", "ramp"]
+    assert parsed.scenarios[1].reference["y"] == Signal(0.5, (), ((0.1, 0.3, 1.0),))
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[[scenario]\n", "not valid TOML"),
+        ("[[scenario]]\nname = 'a'\n", "lacks duration"),
+        ("[[scenario]]\nduration = 1.0\ncolour = 2\n", "unknown key 'colour'"),
+        ("[[scenario]]\nduration = 1.0\nreference = { y = { ramps = [[0.5, 0.2, 1.0]] } }\n", "t_stop"),
+        ("[[scenario]]\nduration = 'long'\n", "must be a finite number"),
+        ("[loop]\nmeasured = ['y']\n[[scenario]]\nduration = 1.0\n", "[loop] lacks 'actuated'"),
+        ("x = 1\n", "unknown key 'x'"),
+    ],
+)
+def test_bad_scenario_files_give_one_line(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(DataError) as info:
+        load_scenarios(path)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def _cli(capsys: pytest.CaptureFixture, argv: list[str]) -> tuple[int, str]:
+    status = main(argv)
+    err = capsys.readouterr().err
+    return status, err
+
+
+def test_verify_cli_exit_codes_and_one_line_errors(
+    plants: dict, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    stable, unstable = tmp_path / "K.json", tmp_path / "K_bad.json"
+    _gain(0.2 / B).save(stable)
+    _gain(2.5 / B).save(unstable)
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(SCENARIO_TOML)
+    plant, out = str(plants[1.0]), tmp_path / "out.json"
+    base = ["verify", "--plant", plant, "--scenario", str(scenario), "--json", str(out)]
+    status, _ = _cli(
+        capsys, [*base, str(stable), "--baseline", str(stable), "--figures", str(tmp_path / "fig")]
+    )
+    report = json.loads(out.read_text())
+    assert status == 0 and report["stable"] and len(report["scenarios"]) == 2
+    assert report["scenarios"][1]["controller"]["outputs"]["y"]["change_time"] == pytest.approx(0.1)
+    assert (tmp_path / "fig" / "scenario_2.png").exists()
+    assert _cli(capsys, [*base, str(unstable)])[0] == 1
+
+    def one_line(argv: list[str], fragment: str) -> None:
+        status, err = _cli(capsys, argv)
+        assert status == 2 and err.count("\n") == 1 and fragment in err, err
+
+    one_line(
+        [
+            "verify",
+            str(stable),
+            "--plant",
+            str(tmp_path / "none.fmu"),
+            "--scenario",
+            str(scenario),
+            "--json",
+            str(out),
+        ],
+        "not found",
+    )
+    one_line([*base[:-2], "--json", str(scenario), str(stable)], "is the input file")
+    renamed = tmp_path / "renamed.toml"
+    renamed.write_text(SCENARIO_TOML.replace('measured = ["y"]', 'measured = ["z"]'))
+    one_line(
+        ["verify", str(stable), "--plant", plant, "--scenario", str(renamed), "--json", str(out)],
+        "unknown measured plant output 'z'",
+    )
+    renamed.write_text(SCENARIO_TOML.replace('scheduling = ["y"]', 'scheduling = ["speed"]'))
+    one_line(
+        ["verify", str(stable), "--plant", plant, "--scenario", str(renamed), "--json", str(out)],
+        "unknown name 'speed'",
+    )
+    two_inputs = tmp_path / "K2.json"
+    LPVController(
+        np.zeros((2, 1, 1)), np.zeros((2, 1, 2)), np.zeros((2, 1, 1)), np.ones((2, 1, 2)), POLY, BASIS, TS
+    ).save(two_inputs)
+    one_line([*base, str(two_inputs)], "2 input(s)")
+    renamed.write_text("[[scenario]\n")
+    one_line(
+        ["verify", str(stable), "--plant", plant, "--scenario", str(renamed), "--json", str(out)],
+        "not valid TOML",
+    )

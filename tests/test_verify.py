@@ -146,6 +146,15 @@ def test_disturbances_act_where_the_scenario_says(plants: dict) -> None:
     assert metrics["steady_state_error"] < 1e-9 and metrics["peak_deviation"] == pytest.approx(0.3)
 
 
+def test_exogenous_inputs_follow_their_signal_and_can_schedule(plants: dict) -> None:
+    # the plant FMU's input q is not driven by the controller: it is exogenous, and p = 2 q here
+    loop = Loop(("y",), ("u",), ("2 * q",))
+    ramp = Signal(initial=-0.5, ramps=((0.2, 0.6, 1.0),))
+    scenario = _step(exogenous={"q": ramp})
+    run = run_verification(_gain(1.0), plants[1.0], [scenario], loop).results[0].runs[0]
+    np.testing.assert_allclose(run.scheduling[:, 0], 2 * ramp.sample(run.time), atol=1e-12)
+
+
 def test_adip_lpv_loop_with_noise_is_stable_and_plotted(tmp_path: Path) -> None:
     loop = Loop(
         ("arm_angle", "pendulum_angle"),

@@ -208,19 +208,20 @@ def quasi_scheduling(y: np.ndarray) -> np.ndarray:
     return 0.5 * np.cos(np.concatenate([[0.0], y[:-1]]))[:, None]
 
 
-def ch4_data(rng: np.random.Generator, snr_db: float, noise: str = "white", n: int = 5000) -> Dataset:
+def ch4_data(rng: np.random.Generator, snr_db: float, noise: str = "white", n: int = 5000,
+             omega: float = CH4_OMEGA) -> Dataset:
     """One realization: u ~ U[−1, 1], output noise scaled to SNR = 10 log₁₀(P_x / P_v) (4.33).
 
     ``noise``: ``"white"`` (Table 4.1), ``"coloured"`` (v = H e, Table 4.4) or ``"quasi"`` (the
     quasi-LPV system with white noise, Table 4.8; the true θ uses the noise-free output, the
-    identifier sees θ computed from the noisy y).
+    identifier sees θ computed from the noisy y). ``omega``: θ(k) = 0.5 sin(ω k) + 0.5.
     """
     u = rng.uniform(-1.0, 1.0, n)
     e = rng.standard_normal(n)
     if noise == "quasi":
         x = _quasi_lpv_output(u, CH4_QUASI_P0)
     elif noise in ("white", "coloured"):
-        theta = 0.5 * np.sin(CH4_OMEGA * np.arange(n)) + 0.5
+        theta = 0.5 * np.sin(omega * np.arange(n)) + 0.5
         x = ch4_model().simulate(u[:, None], theta[:, None])[:, 0]
         if noise == "coloured":
             e = scipy.signal.lfilter([1.0], CH4_NOISE_DEN, e)
@@ -249,9 +250,9 @@ def _ch4_estimators(quasi: bool) -> dict[str, Callable[[Dataset], LPVIO]]:
 
 
 def ch4_trial(rng: np.random.Generator, snr_db: float, noise: str = "white", n: int = 5000,
-              methods: tuple[str, ...] = ("LS", "IV-OE")) -> dict[str, np.ndarray]:
+              methods: tuple[str, ...] = ("LS", "IV-OE"), omega: float = CH4_OMEGA) -> dict[str, np.ndarray]:
     """One Chapter 4 realization identified by ``methods`` (static form); NaNs where a method fails."""
-    data = ch4_data(rng, snr_db, noise, n)
+    data = ch4_data(rng, snr_db, noise, n, omega)
     estimators = _ch4_estimators(noise == "quasi")
     out = {}
     for name in methods:
@@ -259,4 +260,15 @@ def ch4_trial(rng: np.random.Generator, snr_db: float, noise: str = "white", n: 
             out[name] = parameter_vector(estimators[name](data))
         except LpvflowError:
             out[name] = np.full(CH4_P0.size, np.nan)
+    return out
+
+
+def ch4_table_trial(rng: np.random.Generator, snrs: tuple[float, ...], noise: str = "white",
+                    n: int = 5000, methods: tuple[str, ...] = ("LS", "IV-OE"),
+                    omega: float = CH4_OMEGA) -> dict[str, np.ndarray]:
+    """One realization per SNR (drawn in turn from ``rng``): keys ``"<method>@<snr>"``."""
+    out = {}
+    for snr in snrs:
+        for name, value in ch4_trial(rng, snr, noise, n, methods, omega).items():
+            out[f"{name}@{snr:g}"] = value
     return out

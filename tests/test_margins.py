@@ -150,6 +150,49 @@ def test_bad_loops_raise_one_line_model_error(P, K, words):
     assert "\n" not in str(info.value)
 
 
-def test_mimo_loop_margins_refused():
-    with pytest.raises(ModelError, match="SISO"):
-        loop_margins(ct.ss(-np.eye(2), np.eye(2), np.eye(2), 0), gain(np.eye(2)))
+def _mu_two_scalar_blocks(M):
+    """μ of a 2×2 matrix for two complex scalar blocks: exactly inf_d σ̄(diag(d, 1) M diag(1/d, 1))
+    (the D-scaled bound is exact for up to three complex blocks; Packard & Doyle 1993)."""
+    from scipy.optimize import minimize_scalar
+
+    def scaled(log_d):
+        d = np.exp(log_d)
+        return np.linalg.svd(np.diag([d, 1.0]) @ M @ np.diag([1 / d, 1.0]), compute_uv=False)[0]
+
+    return minimize_scalar(scaled, bounds=(-12, 12), method="bounded", options={"xatol": 1e-10}).fun
+
+
+def test_mimo_disk_margins_equal_independent_mu_of_balanced_sensitivity():
+    """Multiloop disk margin α = 1/max_ω μ(S − I/2) at plant input (L = KP) and output (L = PK)."""
+    P = ct.c2d(ct.ss(np.array([[-1.0, 0.4], [0.0, -2.0]]), np.array([[1.0, 0.3], [0.2, 1.0]]),
+                     np.array([[1.0, 0.5], [-0.3, 1.0]]), np.zeros((2, 2))), 0.1)
+    K = ct.ss([], [], [], np.array([[2.0, 0.5], [-0.4, 1.5]]), 0.1)
+    omega = np.logspace(-3, np.log10(np.pi / 0.1) - 1e-9, 300)
+    margins = loop_margins(P, K, omega)
+    for prefix, L in (("input_", K * P), ("output_", P * K)):
+        G = np.moveaxis(ct.frequency_response(L, omega).complex, -1, 0)
+        S = np.linalg.inv(np.eye(2) + G)
+        alpha = 1 / max(_mu_two_scalar_blocks(Sk - 0.5 * np.eye(2)) for Sk in S)
+        assert margins[prefix + "disk_margin"] == pytest.approx(alpha, rel=1e-3)
+        # balanced disk: gain margin (2 + α)/(2 − α), phase margin 2 arctan(α/2)
+        assert margins[prefix + "disk_gain_margin_db"] == pytest.approx(20 * np.log10((2 + alpha) / (2 - alpha)),
+                                                                         rel=2e-3)
+        assert margins[prefix + "disk_phase_margin_deg"] == pytest.approx(np.degrees(2 * np.arctan(alpha / 2)),
+                                                                           rel=2e-3)
+    assert "phase_margin_deg" not in margins
+    assert margins["stability_margin_b"] == pytest.approx(stability_margin(P, K))
+
+
+def test_decoupled_mimo_disk_margin_is_the_worst_siso_one():
+    P1, P2 = ct.ss(5 / ((s + 1) * (s + 2))), ct.ss(3 / (s + 0.5))
+    P = ct.append(P1, P2)
+    mimo = loop_margins(P, gain(np.eye(2)))
+    siso = [loop_margins(Pi, gain(1.0))["disk_margin"] for Pi in (P1, P2)]
+    assert mimo["input_disk_margin"] == pytest.approx(min(siso), rel=1e-4)
+    assert mimo["output_disk_margin"] == pytest.approx(min(siso), rel=1e-4)
+
+
+def test_unstable_loop_has_zero_disk_margins():
+    P = ct.ss(4 / (s - 0.001))
+    margins = loop_margins(P, gain(-1.0))
+    assert margins["disk_margin"] == 0.0 and margins["stability_margin_b"] == 0.0

@@ -60,8 +60,8 @@ def compare_frozen(
 
     `reference`: another LPV model (anything with `frozen(p)`) or a callable p ↦ LTI system (e.g. a
     local model identified at a frozen operating point). `controller`: an LTI K or an LPV controller
-    with `frozen(p)`, in negative feedback u = −K y (see margins.py). SISO loops also get the
-    classical and disk margins.
+    with `frozen(p)`, in negative feedback u = −K y (see margins.py). Rows with a controller also
+    get `loop_margins` (classical and disk margins for SISO, multiloop disk margins for MIMO).
     """
     reference_at = _frozen_getter(reference, "reference")
     controller_at = None if controller is None else _frozen_getter(controller, "controller")
@@ -78,9 +78,8 @@ def compare_frozen(
         if controller_at is not None:
             K = controller_at(point.p)
             margin = stability_margin(point.system, K)
-            row.update({"stability_margin_b": margin, "passes": bool(gap.value < margin)})
-            if point.system.ninputs == 1 and point.system.noutputs == 1:
-                row["margins"] = loop_margins(point.system, K)
+            row.update({"stability_margin_b": margin, "passes": bool(gap.value < margin),
+                        "margins": loop_margins(point.system, K)})
         rows.append(row)
     return rows
 

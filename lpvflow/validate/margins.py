@@ -78,39 +78,52 @@ def stability_margin(P: object, K: object) -> float:
 
 
 def loop_margins(P: object, K: object, omega: np.ndarray | None = None) -> dict[str, float]:
-    """Classical and disk margins of the SISO loop L = P K (negative feedback), plus b(P, K).
+    """Classical (SISO) and disk margins of the loop u = −K y, plus b(P, K).
 
-    Classical gain/phase margins and crossover frequencies from `control.stability_margins`;
-    balanced (skew 0) disk margin with its gain (dB) and phase (deg) margins from
-    `control.disk_margins` on `omega` (default: 2000 log points up to the Nyquist frequency).
-    Frequencies are in rad/s. MIMO loops are refused (python-control's MIMO disk margin needs slycot).
+    SISO: classical gain/phase margins and crossover frequencies of L = P K from
+    `control.stability_margins`, and the balanced (skew 0) disk margin α = 1/max_ω |(S − T)/2|,
+    S = (1 + L)⁻¹, T = L S, with its gain (dB) and phase (deg) margins, from `control.disk_margins`.
+
+    MIMO (square loops): multiloop disk margins from `control.disk_margins` (slycot's AB13MD upper
+    bound of μ((S − T)/2) for independent complex perturbations in every channel), once with the
+    loop broken at the plant inputs (L = K P, keys `input_disk_*`) and once at the plant outputs
+    (L = P K, keys `output_disk_*`); classical one-loop margins are not reported.
+
+    Disk margins are 0 when the loop is not internally stable (no margin to speak of). `omega` is
+    the frequency grid in rad/s (default: 2000 log points up to the Nyquist frequency).
     """
     P, K = _checked_loop(P, K)
-    if P.ninputs != 1 or P.noutputs != 1:
-        raise ModelError(
-            f"classical and disk margins need a SISO loop but the plant is {P.noutputs}x{P.ninputs}; "
-            "use stability_margin for MIMO loops"
-        )
-    L = P * K
-    with warnings.catch_warnings():  # "falling back to 'frd' method" is informational
-        warnings.filterwarnings("ignore", message=".*Falling back to 'frd'", category=UserWarning)
-        gm, pm, sm, w_phase, w_gain, _ = control.stability_margins(L)
     if omega is None:
-        top = np.pi / (1.0 if L.dt is True else L.dt) if is_discrete(L) else 1e4
+        top = np.pi / (1.0 if P.dt is True else P.dt) if is_discrete(P) else 1e4
         omega = np.logspace(-4, np.log10(top) - 1e-9, 2000)
-    disk, disk_gain_db, disk_phase = control.disk_margins(L, omega, skew=0.0)
-    return {
-        "gain_margin": float(gm),
-        "gain_margin_db": float(20 * np.log10(gm)) if np.isfinite(gm) and gm > 0 else float("inf"),
-        "phase_margin_deg": float(pm),
-        "phase_crossover_rad_s": float(w_phase),
-        "gain_crossover_rad_s": float(w_gain),
-        "sensitivity_margin": float(sm),
-        "disk_margin": float(disk),
-        "disk_gain_margin_db": float(disk_gain_db),
-        "disk_phase_margin_deg": float(disk_phase),
-        "stability_margin_b": stability_margin(P, K),
-    }
+    b = stability_margin(P, K)
+    stable = is_internally_stable(P, K)
+    if P.ninputs == 1 and P.noutputs == 1:
+        L = P * K
+        with warnings.catch_warnings():  # "falling back to 'frd' method" is informational
+            warnings.filterwarnings("ignore", message=".*Falling back to 'frd'", category=UserWarning)
+            gm, pm, sm, w_phase, w_gain, _ = control.stability_margins(L)
+        return {
+            "gain_margin": float(gm),
+            "gain_margin_db": float(20 * np.log10(gm)) if np.isfinite(gm) and gm > 0 else float("inf"),
+            "phase_margin_deg": float(pm),
+            "phase_crossover_rad_s": float(w_phase),
+            "gain_crossover_rad_s": float(w_gain),
+            "sensitivity_margin": float(sm),
+            **_disk(L, omega, stable, ""),
+            "stability_margin_b": b,
+        }
+    return {**_disk(K * P, omega, stable, "input_"), **_disk(P * K, omega, stable, "output_"),
+            "stability_margin_b": b}
+
+
+def _disk(L: control.StateSpace, omega: np.ndarray, stable: bool, prefix: str) -> dict[str, float]:
+    """Balanced disk margin of the loop L (negative feedback) and its gain/phase margins."""
+    names = [f"{prefix}disk_margin", f"{prefix}disk_gain_margin_db", f"{prefix}disk_phase_margin_deg"]
+    if not stable:
+        return dict.fromkeys(names, 0.0)
+    values = control.disk_margins(L, omega, skew=0.0)
+    return {name: float(value) for name, value in zip(names, values, strict=True)}
 
 
 def _checked_loop(P: object, K: object) -> tuple[control.StateSpace, control.StateSpace]:

@@ -323,6 +323,16 @@ def fit_spline_knots(
     return KnotFit(knots, best[1], iterations, tuple(costs))
 
 
+def free_knot_count(spec: str) -> int | None:
+    """K from a basis spec ``spline:free:K`` (knots to estimate), or None for any other spec."""
+    head, _, rest = spec.partition(":free:")
+    if head != "spline" or not _:
+        return None
+    if not rest.isdigit() or int(rest) < 1:
+        raise DataError(f"bad basis spec {spec!r}: use spline:free:K with a whole number K >= 1 of knots")
+    return int(rest)
+
+
 def identify_spline_sls(
     data: Dataset, na, nb, nk, n_knots: int, form: str = "shifted", starts: int = 5, seed: int = 0,
     recursive: bool = False, forgetting: float = 0.999,

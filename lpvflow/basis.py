@@ -125,6 +125,11 @@ class Basis:
         return ()
 
     @property
+    def exponents(self) -> tuple[tuple[int, ...], ...]:
+        """Monomial exponents of ``affine``/``poly`` bases, one tuple per basis function (ψ_0: zeros)."""
+        return self._exponents
+
+    @property
     def n_psi(self) -> int:
         """Number of basis functions, including ψ_0 = 1."""
         if self.kind == "spline":

@@ -30,7 +30,7 @@ def check_parameter(cause, parameters, expected):
         assert parameters["kind"] == "dead_zone"
         assert parameters["width"] == pytest.approx(expected, rel=0.2)
     elif cause == "friction":
-        assert parameters["coulomb_level_input_units"] == pytest.approx(expected, rel=0.3)
+        assert parameters["coulomb_level_input_units"] == pytest.approx(expected, rel=0.1)
     elif cause == "offset":
         assert parameters["output_offset"] == pytest.approx(expected, rel=0.2)
 

@@ -172,7 +172,7 @@ def export_mat(
         "n_p": basis.n_p,
         "degree": basis.degree,
         "cross": int(basis.cross),
-        "exponents": np.array(basis._exponents, dtype=float).reshape(-1, basis.n_p),
+        "exponents": np.array(basis.exponents, dtype=float).reshape(-1, basis.n_p),
         "knots": _cell([json.dumps(list(k)) for k in basis.knots]),
         "term_names": _cell(basis.term_names),
         "p_min": np.array(basis.p_min if basis.p_min is not None else [], dtype=float),
@@ -229,7 +229,7 @@ def _basis_code(controller: LPVController) -> str:
                 lines.append(f"    psi[{j}] = pow(fabs(p[{i}] - ({_c_number(knot)})), 3.0);")
                 j += 1
     else:
-        for j, exponents in enumerate(basis._exponents):
+        for j, exponents in enumerate(basis.exponents):
             factors = []
             for i, v in enumerate(exponents):
                 if v == 1:

@@ -282,45 +282,73 @@ def friction(ctx: Context) -> Candidate | None:
         def velocity_sign(y: np.ndarray, i=i) -> np.ndarray:
             return np.sign(np.diff(y[:, i], prepend=y[0, i]))[:, None]
 
-        est = _with_inputs(ctx.est, velocity_sign(ctx.est.y), [f"sign_d{ctx.est.y_names[i]}"])
-
-        def simulate_own(model: LPVIO, i=i) -> np.ndarray:
-            y = ctx.nominal.y_val
+        def simulate_own(model: LPVIO, data: Dataset, y_start: np.ndarray, i=i) -> np.ndarray:
+            y = y_start
             for _ in range(FRICTION_ITERATIONS):  # velocity sign from the model's own output
-                y = bounded(model.simulate(np.hstack([ctx.val.u, velocity_sign(y, i)]), ctx.val.p),
-                            ctx.val.y)[0]
+                y = bounded(model.simulate(np.hstack([data.u, velocity_sign(y, i)]), data.p), data.y)[0]
             return y
 
+        # Extension (scored and saved): the velocity sign in the estimation data is taken from the
+        # model's own simulation, refitted twice from the nominal model; it simulates best. Its level
+        # is attenuated (the simulated sign is wrong near zero speed), so the reported level comes
+        # from a second fit on the measured velocity sign, which is the signal friction acted on.
+        with np.errstate(over="ignore", invalid="ignore"):
+            y_est = bounded(ctx.nominal.model.simulate(ctx.est.u, ctx.est.p), ctx.est.y)[0]
+        name = f"sign_d{ctx.est.y_names[i]}"
         try:
-            trials.append((fit(est, ctx.val, na, nb_f, nk_f, basis, ctx.structure.form, simulate_own), i))
+            for _ in range(2):
+                est = _with_inputs(ctx.est, velocity_sign(y_est, i), [name])
+                result = fit(est, ctx.val, na, nb_f, nk_f, basis, ctx.structure.form,
+                             lambda m: simulate_own(m, ctx.val, ctx.nominal.y_val))
+                with np.errstate(over="ignore", invalid="ignore"):
+                    y_est = simulate_own(result.model, ctx.est, y_est)
+            measured = identify_arx(_with_inputs(ctx.est, velocity_sign(ctx.est.y, i), [name]),
+                                    na, nb_f, nk_f, basis, form=ctx.structure.form)
+            trials.append((result, i, measured))
         except LpvflowError:
             continue
     if not trials:
         return None
-    best, i = min(trials, key=lambda t: t[0].loss)
-    b = best.model.B[:, 0]  # ψ_0 components, (lags, ny, nu+1)
-    level = float(-np.sum(b[:, :, -1]) / np.sum(b[:, :, 0])) if np.sum(b[:, :, 0]) else float("nan")
+    best, i, measured = min(trials, key=lambda t: t[0].loss)
     name = ctx.est.y_names[i]
-    return Candidate("friction", {"output": name, "coulomb_level_input_units": level}, best,
+    level, model_level = _coulomb_level(measured), _coulomb_level(best.model)
+    return Candidate("friction", {"output": name, "coulomb_level_input_units": level,
+                                  "level_in_extended_model": model_level}, best,
                      f"Coulomb friction against the motion of {name} (about {level:.3g} in input units)",
                      [f"sign_d{name}"])
 
 
+def _coulomb_level(model: LPVIO) -> float:
+    """F = −Σ_j b_f,j / Σ_j b_u,j at ψ_0: the friction input's coefficients are −F times the input's."""
+    b = model.B[:, 0]  # ψ_0 components, (lags, ny, nu+1)
+    return float(-np.sum(b[:, :, -1]) / np.sum(b[:, :, 0])) if np.sum(b[:, :, 0]) else float("nan")
+
+
 def offset(ctx: Context) -> Candidate | None:
-    """Constant or drifting bias: extra inputs 1 and t/N with a lag-0 constant coefficient."""
+    """Constant or drifting bias: extra inputs 1 (and t/N) with a lag-0 constant coefficient.
+
+    The constant-only and constant-plus-trend variants compete by estimation BIC, so a trend is kept
+    only when the estimation data support it (a spurious one would be extrapolated into validation).
+    """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
     n_total = ctx.est.N + ctx.val.N
-    t_est = np.arange(ctx.est.N) / n_total
-    t_val = np.arange(ctx.est.N, n_total) / n_total
-    est = _with_inputs(ctx.est, np.column_stack([np.ones(ctx.est.N), t_est]), ["const", "trend"])
-    val = _with_inputs(ctx.val, np.column_stack([np.ones(ctx.val.N), t_val]), ["const", "trend"])
-    nb_o, nk_o = _extend_orders(nb, nk, 1, 0, 2)
-    try:
-        best = fit(est, val, na, nb_o, nk_o, basis, ctx.structure.form)
-    except LpvflowError:
+    features = {"const": (np.ones(ctx.est.N), np.ones(ctx.val.N)),
+                "trend": (np.arange(ctx.est.N) / n_total, np.arange(ctx.est.N, n_total) / n_total)}
+    trials = {}
+    for names in (["const"], ["const", "trend"]):
+        est = _with_inputs(ctx.est, np.column_stack([features[f][0] for f in names]), names)
+        val = _with_inputs(ctx.val, np.column_stack([features[f][1] for f in names]), names)
+        nb_o, nk_o = _extend_orders(nb, nk, 1, 0, len(names))
+        try:
+            trials[tuple(names)] = fit(est, val, na, nb_o, nk_o, basis, ctx.structure.form)
+        except LpvflowError:
+            continue
+    if not trials:
         return None
-    const, trend = best.model.B[0, 0, :, -2], best.model.B[0, 0, :, -1]
+    names, best = min(trials.items(), key=lambda item: item[1].bic)
+    const = best.model.B[0, 0, :, ctx.nu]
+    trend = best.model.B[0, 0, :, ctx.nu + 1] if "trend" in names else np.zeros(ctx.ny)
     # Output-equivalent bias o = A(1, ψ̄)⁻¹ c with A(1, ψ̄) = I + Σ_i A_i(ψ̄) at the mean scheduling.
     psi_mean = best.model.basis.eval(ctx.est.p, check_range=False).mean(axis=0)
     a_sum = np.eye(ctx.ny) + np.einsum("l,ilrc->rc", psi_mean, best.model.A)
@@ -328,9 +356,9 @@ def offset(ctx: Context) -> Candidate | None:
     params = {"constant": const.tolist(), "trend": trend.tolist(), "output_offset": output_bias.tolist()}
     if ctx.ny == 1:
         params = {k: v[0] for k, v in params.items()}
+    what = "a bias and a trend" if "trend" in names else "a constant bias"
     return Candidate("offset", params, best,
-                     f"adding a bias (output-equivalent {np.round(output_bias, 4).tolist()}) and a trend",
-                     ["const", "trend"])
+                     f"adding {what} (output-equivalent {np.round(output_bias, 4).tolist()})", list(names))
 
 
 def colored_noise(ctx: Context) -> Candidate | None:

@@ -2,7 +2,8 @@
 
 Base plant (shifted form, affine in p):  y(k) + a₁(p(k−1)) y(k−1) + a₂(p(k−2)) y(k−2)
   = b₁(p(k−1)) u(k−1) + b₂(p(k−2)) u(k−2),  a₁ = −1.3 + 0.25p, a₂ = 0.55 − 0.1p, b₁ = 1 + 0.3p,
-b₂ = 0.4 − 0.2p (frozen pole radius ≤ 0.81); p random levels in [−1, 1] held 10–40 samples; u uniform in [−1, 1] held 1–5 samples.
+b₂ = 0.4 − 0.2p (frozen pole radius ≤ 0.81); p random levels in [−1, 1] held 10–40 samples;
+u uniform in [−1, 1] held 1–5 samples.
 The effect is applied to that plant; the diagnosis always gets the nominal structure na=nb=2, nk=1,
 affine basis. Noise: equation (ARX) noise e(k) entering like y(k) = … + e(k), scaled so that the
 noise-free-to-noise output power ratio is ``snr_db`` — inside the model set, so that without an effect

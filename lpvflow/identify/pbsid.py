@@ -201,7 +201,8 @@ def identify_pbsid(
         past: past window p (default :func:`default_past`).
         future: number of block rows f ≤ p of Γ (default p, as in the paper).
         basis: scheduling basis ψ giving μ_k = ψ(p_k) (default affine, μ = [1, pᵀ]ᵀ).
-        form: ``"primal"`` (Algorithm 1) or ``"kernel"`` (Algorithm 2, cost independent of p).
+        form: ``"primal"`` (Algorithm 1, (r+ℓ)Σ_j m^j regression rows: exponential in p) or
+            ``"kernel"`` (Algorithm 2, O(p² N̄² + N̄³) time and O(N̄²) memory, not exponential in p).
         regularization: None (minimum norm), ``"gcv"`` (Tikhonov, λ by generalized
             cross-validation) or a fixed Tikhonov weight λ ≥ 0 on ‖[CK^p D]‖_F².
         periodic_rows: kernel only: True keeps the independent kernel rows (Algorithm 3), an

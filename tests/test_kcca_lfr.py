@@ -48,12 +48,8 @@ def example_bfr(d11: float, seed: int) -> float:
     return float(bfr(y_val, model.simulate(val.u, val.p))[0])
 
 
-def test_stage1_solves_the_generalized_eigenproblem_16():
-    # (16) solved literally with a dense non-symmetric generalized eigensolver on a small record
-    rng = np.random.default_rng(0)
-    data, _, _ = seed003_data(seed003_system(-0.5), 60, rng, 0.05)
-    d, gp, gf = 3, 500.0, 500.0
-    states = kcca_states(data, 2, d, 2.0, 10.5, gp, gf)
+def eq16_matrices(data: Dataset, d: int, gamma: float) -> tuple[np.ndarray, ...]:
+    """L and R of eq. (16) built literally from the kernels (17), and K_ff, K_pp."""
     k = np.arange(d, data.N - d + 1)
     w = kcca_lfr._windows
     K_pp = kcca_lfr._kernel(np.hstack([w(data.u, k - d, d), w(data.y, k - d, d)]), w(data.p, k - d, d),
@@ -61,7 +57,16 @@ def test_stage1_solves_the_generalized_eigenproblem_16():
     K_ff = kcca_lfr._kernel(np.hstack([w(data.u, k, d), w(data.y, k, d)]), w(data.p, k, d), 2.0, 10.5)
     m = len(k)
     L = np.block([[np.zeros((m, m)), K_pp], [K_ff, np.zeros((m, m))]])
-    R = scipy.linalg.block_diag(gf * K_ff + np.eye(m), gp * K_pp + np.eye(m))
+    R = scipy.linalg.block_diag(gamma * K_ff + np.eye(m), gamma * K_pp + np.eye(m))
+    return L, R, K_ff, K_pp
+
+
+def test_stage1_solves_the_generalized_eigenproblem_16():
+    # (16) solved literally with a dense non-symmetric generalized eigensolver on a small record
+    data, _, _ = seed003_data(seed003_system(-0.5), 60, np.random.default_rng(0), 0.05)
+    states = kcca_states(data, 2, 3, 2.0, 10.5, 500.0, 500.0)
+    L, R, K_ff, K_pp = eq16_matrices(data, 3, 500.0)
+    m = len(K_ff)
     lam, vec = scipy.linalg.eig(L, R)
     order = np.argsort(-lam.real)[:2]
     np.testing.assert_allclose(states.eigenvalues, lam.real[order], rtol=1e-6)
@@ -70,6 +75,18 @@ def test_stage1_solves_the_generalized_eigenproblem_16():
         x_ref = (K_ff @ eta + K_pp @ kappa) / 2  # eqs. (18)-(19) averaged
         cos = abs(x_ref @ states.x[:, j]) / np.linalg.norm(x_ref) / np.linalg.norm(states.x[:, j])
         assert cos > 1 - 1e-6
+
+
+def test_the_literal_eq20_svd_loses_one_of_the_two_state_estimates():
+    # why Stage 1 does not use eq. (20): R⁻¹L is block anti-diagonal, so every right singular vector
+    # [V1; V2] has V1 or V2 equal to zero and (18) or (19) would give a zero state (notes_003 §6.2)
+    data, _, _ = seed003_data(seed003_system(-0.5), 60, np.random.default_rng(0), 0.05)
+    L, R, K_ff, _ = eq16_matrices(data, 3, 500.0)
+    m = len(K_ff)
+    V = np.linalg.svd(np.linalg.solve(R, L))[2].T
+    for j in range(4):
+        blocks = sorted([np.linalg.norm(V[:m, j]), np.linalg.norm(V[m:, j])])
+        assert blocks[0] < 1e-8 * blocks[1]
 
 
 def test_affine_stage2_recovers_the_system_from_true_states():

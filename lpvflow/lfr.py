@@ -41,8 +41,8 @@ from lpvflow.models import (
 
 #: Smallest singular value of I − D11 Δ(p), relative to its largest, that still counts as well posed.
 WELL_POSED_TOL = 1e-8
-#: Grid points per scheduling axis in :meth:`LPVLFR.check_well_posed`.
-GRID_POINTS = 101
+#: Grid points in :meth:`LPVLFR.check_well_posed`: at most this many in total, at least 5 per axis.
+GRID_BUDGET = 20_000
 
 _BLOCKS = ("A", "B1", "B2", "C1", "D11", "D12", "C2", "D21", "D22")
 
@@ -187,10 +187,11 @@ class LPVLFR:
         return (y, x) if return_states else y
 
     # ------------------------------------------------------------------------- well-posedness
-    def check_well_posed(self, box: np.ndarray | None = None, points: int = GRID_POINTS) -> None:
+    def check_well_posed(self, box: np.ndarray | None = None, points: int | None = None) -> None:
         """Raise ModelError unless I − D11 Δ(p) is invertible on the scheduling box (assumption A2).
 
-        The box (default: the basis's recorded range) is gridded with ``points`` per axis; a point
+        The box (default: the basis's recorded range) is gridded with ``points`` per axis (default:
+        GRID_BUDGET^(1/n_p), at least 5); a point
         fails if the smallest singular value is tiny, and a sign change of det(I − D11 Δ(p)) between
         neighbouring grid points reveals a singularity the grid stepped over (det is continuous).
         """
@@ -199,6 +200,7 @@ class LPVLFR:
                 raise ModelError("no scheduling range recorded; pass box=[[min, max], ...]")
             box = np.column_stack([self.basis.p_min, self.basis.p_max])
         box = np.asarray(box, dtype=float).reshape(self.basis.n_p, 2)
+        points = points or max(5, int(GRID_BUDGET ** (1 / self.basis.n_p)))
         axes = [np.linspace(lo, hi, points) for lo, hi in box]
         mesh = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
         flat = mesh.reshape(-1, self.basis.n_p)

@@ -139,6 +139,9 @@ def test_bad_settings_raise_one_line_errors():
         kcca_states(data, 2, sigma=0.0)
     with pytest.raises(DataError, match="too few"):
         kcca_states(data.select(slice(0, 8)), 2)
+    long = Dataset(np.zeros((9000, 1)), np.zeros((9000, 1)), np.zeros((9000, 1)), 1.0)
+    with pytest.raises(DataError, match="use at most 8005 samples"):
+        kcca_states(long, 2)
 
 
 def test_mimo_lfr_with_two_scheduling_signals():

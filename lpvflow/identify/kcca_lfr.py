@@ -53,6 +53,8 @@ from lpvflow.lfr import LPVLFR
 
 #: Kernel eigenvalues below this fraction of the largest are treated as zero.
 KERNEL_RANK_TOL = 1e-12
+#: Largest number of KCCA windows: the kernels are dense M×M matrices and Stage 1 costs O(M³).
+MAX_WINDOWS = 8000
 
 
 @dataclass(frozen=True)
@@ -100,6 +102,9 @@ def kcca_states(data: Dataset, order: int, horizon: int = 3, c: float = 2.0, sig
         raise DataError("kernel scale c, width sigma and regularisation gamma_p, gamma_f must be > 0")
     n_win = data.N - 2 * d + 1
     data.require_samples(2 * d + 2 * order, f"KCCA windows of length {d} and state order {order}")
+    if n_win > MAX_WINDOWS:
+        raise DataError(f"KCCA builds dense {n_win}x{n_win} kernels; use at most {MAX_WINDOWS + 2 * d - 1} "
+                        "samples (Dataset.select or Dataset.decimate)")
     k = np.arange(d, d + n_win)
     z_p = np.hstack([_windows(data.u, k - d, d), _windows(data.y, k - d, d)])
     z_f = np.hstack([_windows(data.u, k, d), _windows(data.y, k, d)])

@@ -8,6 +8,7 @@ from lpvflow.basis import Basis
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
 from lpvflow.validate.frozen import compare_frozen, frozen_grid, scheduling_grid
+from lpvflow.validate.margins import stability_margin
 from lpvflow.validate.nugap import nugap
 
 Ts = 0.1
@@ -78,3 +79,14 @@ def test_bad_box_and_grid_size_raise_model_error():
         scheduling_grid([[0.0, 1.0]], 1)
     with pytest.raises(ModelError, match="reference"):
         compare_frozen(lpv_model(), "not a model", 2)
+
+
+def test_without_reference_rows_carry_margins_only():
+    model = lpv_model()
+    K = ct.ss([], [], [], [[0.3]], Ts)
+    rows = compare_frozen(model, None, 3, controller=K)
+    for row in rows:
+        assert "nugap" not in row and "passes" not in row
+        system = model.frozen(np.array(row["p"]))
+        assert row["stability_margin_b"] == pytest.approx(stability_margin(system, K))
+        assert row["margins"]["disk_margin"] > 0

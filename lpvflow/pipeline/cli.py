@@ -20,6 +20,7 @@ STAGE_MODULES = [
     "lpvflow.pipeline.cli_experiment",
     "lpvflow.pipeline.cli_verify",
     "lpvflow.pipeline.cli_export",
+    "lpvflow.pipeline.cli_validate",
 ]
 
 

@@ -58,28 +58,27 @@ def compare_frozen(
 ) -> list[dict]:
     """Frozen ν-gap table: one row per grid point, with b(Ĝ(p), K) and δν < b when a controller is given.
 
-    `reference`: another LPV model (anything with `frozen(p)`) or a callable p ↦ LTI system (e.g. a
-    local model identified at a frozen operating point). `controller`: an LTI K or an LPV controller
-    with `frozen(p)`, in negative feedback u = −K y (see margins.py). Rows with a controller also
-    get `loop_margins` (classical and disk margins for SISO, multiloop disk margins for MIMO).
+    `reference`: another LPV model (anything with `frozen(p)`), a callable p ↦ LTI system (e.g. a
+    local model identified at a frozen operating point), or None (no ν-gap; b and margins only).
+    `controller`: an LTI K or an LPV controller with `frozen(p)`, in negative feedback u = −K y (see
+    margins.py). Rows with a controller also get `loop_margins` (classical and disk margins for
+    SISO, multiloop disk margins for MIMO); `passes` needs both a reference and a controller.
     """
-    reference_at = _frozen_getter(reference, "reference")
+    reference_at = None if reference is None else _frozen_getter(reference, "reference")
     controller_at = None if controller is None else _frozen_getter(controller, "controller")
     rows = []
     for point in frozen_grid(model, n, box):
-        gap = nugap(reference_at(point.p), point.system)
-        row = {
-            "p": point.p.tolist(),
-            "kind": point.kind,
-            "nugap": gap.value,
-            "nugap_frequency_rad_s": gap.frequency,
-            "winding_condition_held": gap.winding_condition_held,
-        }
+        row: dict = {"p": point.p.tolist(), "kind": point.kind}
+        if reference_at is not None:
+            gap = nugap(reference_at(point.p), point.system)
+            row.update({"nugap": gap.value, "nugap_frequency_rad_s": gap.frequency,
+                        "winding_condition_held": gap.winding_condition_held})
         if controller_at is not None:
             K = controller_at(point.p)
-            margin = stability_margin(point.system, K)
-            row.update({"stability_margin_b": margin, "passes": bool(gap.value < margin),
-                        "margins": loop_margins(point.system, K)})
+            row["stability_margin_b"] = stability_margin(point.system, K)
+            if reference_at is not None:
+                row["passes"] = bool(row["nugap"] < row["stability_margin_b"])
+            row["margins"] = loop_margins(point.system, K)
         rows.append(row)
     return rows
 

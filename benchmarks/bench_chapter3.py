@@ -6,8 +6,10 @@ closed-loop bias that the two-step method removes (issue 10; notes_002 §5.1, §
    (linear) / 2 (LPV) as in the thesis; estimation 1200 s, validation 600 s from a fresh run;
    simulated-output MSE (with the 1/2 of (3.31)), BFR, VAF.
 2. ADIP (closed loop, unstable plant): the stabilizing LQR of fmu_plants/adip re-designed at
-   Ts = 20 ms (same weights), multisine excitation on the voltage, 3 mrad angle noise fed back.
-   Models identified by the two-step method (step 1 removes the noise, as the thesis's NNARX
+   Ts = 10 ms (the thesis's Ts; same weights), 120 s random-phase multisine (0.05–5 Hz, 1 V rms)
+   added to the voltage, 3 mrad angle noise fed back; na = nb = 2, nk = 1; linear, poly:3 and a
+   2-knot spline (4 basis functions each, as the thesis's ψ). Models identified by the two-step
+   method (step 1: Laguerre pole 0.97, 24 filters; it removes the noise, as the thesis's NNARX
    filter) and, for comparison, directly on the measured signals. Validation: the identified model
    in closed loop with the same controller, driven by the validation excitation, scheduling
    sin(φ1) recomputed from the simulated arm angle; BFR against the measured angles.

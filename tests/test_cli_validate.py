@@ -194,3 +194,17 @@ def test_mismatched_data_columns_exit_2(files, tmp_path, capsys):
     status = run(files / "model.json", files / "data.csv", "--u", "volt", "theta", "--y", "level",
                  "--p", "theta", "--json", tmp_path / "r.json")
     assert status == 2 and "the model is 1x1" in capsys.readouterr().err
+
+
+def test_fmu_local_arx_reference_is_within_its_gap_to_the_linearization(tanks_model, tmp_path):
+    """δν is a metric: |δν(local, Ĝ) − δν(lin, Ĝ)| ≤ δν(local, lin), below 1e-4 for 1 % swings
+    (test_fmu_reference.py)."""
+    fmu, folder = tanks_model
+    gaps = {}
+    for kind in ("linearization", "local-arx"):
+        out = tmp_path / f"{kind}.json"
+        assert run(folder / "model.json", folder / "data.csv", "--u", "pump_voltage", "--y", "lower_level",
+                   "--p", "level", "--reference", fmu, "--fmu-scheduling", "diag_scheduling",
+                   "--fmu-reference", kind, "--grid", 2, "--json", out) == 0
+        gaps[kind] = np.array([row["nugap"] for row in json.loads(out.read_text())["frozen"]["rows"]])
+    assert np.all(np.abs(gaps["local-arx"] - gaps["linearization"]) < 1e-4)

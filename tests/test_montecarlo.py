@@ -56,3 +56,12 @@ def test_bad_arguments_are_refused():
         mc.run_monte_carlo(TRIAL, runs=0)
     with pytest.raises(DataError, match="noise"):
         mc.ch4_data(np.random.default_rng(0), 10, noise="pink")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("noise", "thesis"), [("white", 1.2212), ("coloured", 2.3108)])
+def test_ls_bias_reproduces_the_thesis_benchmark_setup(noise, thesis):
+    """LS bias at 15 dB within ±15 % of thesis Tables 4.1/4.4: confirms system, SNR and scheduling."""
+    trial = partial(mc.ch4_trial, snr_db=15, noise=noise, methods=("LS",))
+    est = mc.run_monte_carlo(trial, runs=40, seed=5, workers=1, progress=False)
+    assert mc.summarize(est["LS"], mc.CH4_P0)["bias"] == pytest.approx(thesis, rel=0.15)

@@ -345,7 +345,8 @@ def oe_pseudolinear(struct: Structure, data: Dataset, psi: np.ndarray, iteration
     The fixed point satisfies Φ̃(ŷ)ᵀ(y − ŷ) = 0 with Φ̃ built from u only (through ŷ), the batch
     counterpart of the PAA's stationary point (thesis §4.4.1). Starts from IV-ARX by default
     (LS-ARX models of noisy data are often unstable in simulation); an iterate whose simulation
-    diverges ends the iteration and the last stable one is returned.
+    diverges ends the iteration. The iteration need not converge (it has the same stability
+    condition as the PAA), so the iterate with the smallest simulation error is returned.
     """
     start = struct.max_lag
     if init is None:
@@ -354,6 +355,7 @@ def oe_pseudolinear(struct: Structure, data: Dataset, psi: np.ndarray, iteration
         init = iv_thetas(struct, data, y_aux, psi)
     thetas = init
     y_sim = simulate_psi(struct.model(thetas), data.u, psi)
+    best = (np.sum((data.y - y_sim)[start:] ** 2), thetas)
     for _ in range(iterations):
         if not _is_bounded(y_sim, data):
             break
@@ -366,9 +368,10 @@ def oe_pseudolinear(struct: Structure, data: Dataset, psi: np.ndarray, iteration
         step = max(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300)
                    for a, b in zip(new, thetas, strict=True))
         thetas, y_sim = new, y_new
+        best = min(best, (np.sum((data.y - y_sim)[start:] ** 2), thetas), key=lambda b: b[0])
         if step < tol:
             break
-    return struct.model(thetas)
+    return struct.model(best[1])
 
 
 # ================================================================================== IV-OE
@@ -426,7 +429,9 @@ def identify_riv(data: Dataset, na: int, nb: int, nk: int, basis: Basis | str = 
     prefiltered by L(q) = D̂(q)/Â₀(q) (SRIV: 1/Â₀(q)), with D̂ the AR(noise_order) LS fit of
     y − χ̂, and θ̂_{j+1} = (Σ ζ_f φ_fᵀ)⁻¹ Σ ζ_f y_f with ζ built from χ̂ alone. Starts from IV-OE
     (or ``init``); stops when the relative change of θ̂ is below ``tol``, or before an iterate
-    whose simulation diverges.
+    whose simulation diverges. The LTI prefilter only approximates the LPV filter A⁻¹(q, θ) that
+    the fixed point needs, so the iteration can drift instead of settling; the iterate with the
+    smallest simulation error ‖y − χ̂‖ is returned.
     """
     struct = Structure.from_data(data, na, nb, nk, basis, form)
     if struct.ny != 1:
@@ -442,6 +447,7 @@ def identify_riv(data: Dataset, na: int, nb: int, nk: int, basis: Basis | str = 
     lti_cols = [i for i, c in enumerate(struct.columns[0]) if c.signal == "y" and c.psi == 0]
     a0_lags = [struct.columns[0][i].lag for i in lti_cols]
     phi_y = struct.regressor(0, data.y, data.u, psi)
+    best = (np.sum((y[start:] - chi[start:, 0]) ** 2), theta)
     for _ in range(iterations):
         zeta = struct.regressor(0, chi, data.u, psi)
         phi = zeta.copy()
@@ -458,9 +464,10 @@ def identify_riv(data: Dataset, na: int, nb: int, nk: int, basis: Basis | str = 
             break  # keep the last iterate whose simulation stayed bounded
         step = np.linalg.norm(new - theta) / max(np.linalg.norm(theta), 1e-300)
         theta, chi = new, chi_new
+        best = min(best, (np.sum((y[start:] - chi[start:, 0]) ** 2), theta), key=lambda b: b[0])
         if step < tol:
             break
-    return struct.model([theta])
+    return struct.model([best[1]])
 
 
 def _ar_noise_model(v: np.ndarray, order: int) -> np.ndarray:

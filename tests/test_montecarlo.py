@@ -28,9 +28,13 @@ def test_process_pool_and_dask_return_identical_numbers():
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster, distributed.Client(cluster) as client:
         dasked = mc.run_monte_carlo(TRIAL, runs=4, seed=11, client=client, progress=False)
+        # a scheduler address, as `--dask tcp://…` passes it
+        by_address = mc.run_monte_carlo(TRIAL, runs=4, seed=11, client=cluster.scheduler_address,
+                                        progress=False)
     for name in serial:
         np.testing.assert_array_equal(pooled[name], serial[name])
         np.testing.assert_array_equal(dasked[name], serial[name])
+        np.testing.assert_array_equal(by_address[name], serial[name])
 
 
 def test_bias_and_variance_follow_thesis_definitions():

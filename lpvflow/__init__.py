@@ -4,8 +4,9 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, LpvflowError, ModelError
 from lpvflow.identify.arx import identify_arx
+from lpvflow.lfr import LPVLFR
 from lpvflow.models import LPVIO, LPVSS, load
 
-__all__ = ["LPVIO", "LPVSS", "Basis", "DataError", "Dataset", "LpvflowError", "ModelError", "identify_arx",
-           "load"]
+__all__ = ["LPVIO", "LPVLFR", "LPVSS", "Basis", "DataError", "Dataset", "LpvflowError", "ModelError",
+           "identify_arx", "load"]
 __version__ = "0.1.0"

@@ -63,3 +63,56 @@ def test_simulate_refuses_a_model_data_mismatch(tmp_path, lpr_csv, capsys):
                  "--p", "theta"]) == 2
     err = capsys.readouterr().err
     assert "1x1 with 1 scheduling" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(("method", "extra"), [
+    ("iv-oe", []), ("oe", []), ("pbsid", ["--order", "2"]),
+    ("lpr-arx", ["--order", "2"]), ("cva", []), ("kcca-lfr-affine", ["--order", "2"]),
+])
+def test_every_method_writes_a_loadable_model_that_fits(tmp_path, lpr_csv, capsys, method, extra):
+    """Noise-free data of a 2-state shifted-form model: each method's model reloads and simulates it.
+
+    The bounds are loose where a method's model class does not contain the system exactly
+    (subspace and LFR approximations); the exact IO estimators must be near-perfect.
+    """
+    path, _ = lpr_csv
+    model = tmp_path / f"{method}.json"
+    cols = ["--u", "volt", "--y", "angle", "--p", "theta"]
+    basis = ["--basis", "poly:2"] if method not in ("pbsid", "cva", "kcca-lfr-affine") else []
+    assert main(["identify", str(path), *cols, *basis, "--method", method, *extra, "-o", str(model)]) == 0
+    out = capsys.readouterr().out
+    bfr_value = float(out.split("BFR angle ")[1].split(" %")[0])
+    assert bfr_value > (99.0 if method in ("iv-oe", "oe", "lpr-arx") else 60.0), out
+    loaded = lpvflow.load(model)
+    assert loaded.simulate(np.zeros((5, 1)), np.zeros((5, 1))).shape == (5, 1)
+
+
+def test_two_step_needs_its_excitation_column(tmp_path, lpr_csv, capsys):
+    path, _ = lpr_csv
+    assert main(["identify", str(path), "--u", "volt", "--y", "angle", "--p", "theta", "--method", "two-step",
+                 "-o", str(tmp_path / "m.json")]) == 2
+    assert "needs --excitation" in capsys.readouterr().err
+
+
+def test_armax_on_data_with_innovation_noise(tmp_path, capsys):
+    """ARMAX needs noise: on noise-free data its C polynomial is unidentifiable (and refused)."""
+    rng = np.random.default_rng(8)
+    n = 3000
+    A = np.zeros((1, 2, 1, 1))
+    A[0, :, 0, 0] = [-0.7, 0.1]
+    B = np.zeros((2, 2, 1, 1))
+    B[1, :, 0, 0] = [1.0, 0.3]
+    C = np.zeros((1, 2, 1, 1))
+    C[0, 0, 0, 0] = 0.5
+    true = LPVIO(A, B, Basis.affine(), 0.1, C=C)
+    u, p = rng.normal(size=(n, 1)), rng.uniform(-1, 1, size=(n, 1))
+    y = true.simulate(u, p, e=0.1 * rng.normal(size=(n, 1)))
+    path = tmp_path / "d.csv"
+    np.savetxt(path, np.column_stack([np.arange(n) * 0.1, u, p, y]), delimiter=",", header="time,u,p,y",
+               comments="")
+    model = tmp_path / "armax.json"
+    assert main(["identify", str(path), "--u", "u", "--y", "y", "--p", "p", "--na", "1", "--nb", "1",
+                 "--method", "armax", "--nc", "1", "-o", str(model)]) == 0
+    loaded = lpvflow.load(model)
+    assert loaded.K is not None  # the innovation gain of Schulz eq. (4)
+    assert loaded.io.C[0, 0, 0, 0] == pytest.approx(0.5, abs=0.05)

@@ -69,12 +69,12 @@ def _fill_regressor(out: np.ndarray, cols: list[_Column], y: np.ndarray, u: np.n
                     k0: int, k1: int, w0: int, shifted: bool) -> None:
     """Write the regressor rows k0..k1-1 into ``out`` (rows, len(cols)); psi covers samples w0..k1-1."""
     for idx, col in enumerate(cols):
-        src = y if col.signal == "y" else u
-        sig = src[k0 - col.lag : k1 - col.lag, col.channel]
+        sig = y[k0 - col.lag : k1 - col.lag, col.channel] if col.signal == "y" else \
+            u[k0 - col.lag : k1 - col.lag, col.channel]
+        if col.signal == "y":
+            sig = -sig  # a fresh array: no in-place update of a possibly strided view of ``out``
         t0 = (k0 - col.lag if shifted else k0) - w0
         np.multiply(sig, psi[t0 : t0 + (k1 - k0), col.psi], out=out[:, idx])
-        if col.signal == "y":
-            np.negative(out[:, idx], out=out[:, idx])
 
 
 def _tsqr(cols: list[_Column], outputs: list[int], data: Dataset, basis: Basis, first: int,

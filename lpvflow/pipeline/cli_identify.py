@@ -4,18 +4,28 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from lpvflow.data import Dataset
+from lpvflow.basis import SchedulingRangeWarning
+from lpvflow.data import Dataset, read_columns
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.arx import identify_arx
+from lpvflow.lfr import LPVLFR
 from lpvflow.models import LPVIO, LPVSS, _atomic_write_json, load
 from lpvflow.validate.metrics import fit_report
 
-METHODS = {"lpr-arx": "shifted", "static-arx": "static"}
-
+#: IO methods: name → (estimator kind, form). The state-space and LFR methods are handled apart.
+IO_METHODS = {
+    "lpr-arx": ("arx", "shifted"), "static-arx": ("arx", "static"), "iv-arx": ("iv-arx", "shifted"),
+    "iv-oe": ("iv-oe", "shifted"), "oe-paa": ("oe-paa", "shifted"), "oe": ("oe", "shifted"),
+    "armax": ("armax", "shifted"), "riv": ("riv", "shifted"), "sriv": ("sriv", "shifted"),
+    "two-step": ("two-step", "shifted"),
+}
+SS_METHODS = ("pbsid", "cva", "kcca-lfr", "kcca-lfr-affine")
+METHODS = sorted([*IO_METHODS, *SS_METHODS])
 
 def parse_order(text: str) -> int | np.ndarray:
     """``"2"`` → 2; ``"2,2;1,1"`` → [[2, 2], [1, 1]] (rows separated by ';', as in MATLAB)."""
@@ -44,10 +54,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--nb", default="2", help="number of input lags: N or a matrix (default 2)")
     p.add_argument("--nk", default="1", help="input delay in samples: N or a matrix (default 1)")
     p.add_argument("--basis", default="affine", help="affine | poly:D | poly:D:nocross | spline:K1,K2,..")
-    p.add_argument("--method", default="lpr-arx", choices=sorted(METHODS),
-                   help="lpr-arx: shifted form, realizable (default); static-arx: Bamieh–Giarré form")
-    p.add_argument("--ridge", type=float, default=0.0, help="Tikhonov weight (default 0)")
-    p.add_argument("--order", type=int, help="reduce the realization to this state order")
+    p.add_argument("--method", default="lpr-arx", choices=METHODS,
+                   help="lpr-arx: shifted form, realizable (default); static-arx: Bamieh–Giarré form; "
+                        "iv-arx, iv-oe, oe-paa, oe, armax, riv, sriv: unbiased estimators (thesis Ch. 4); "
+                        "two-step: closed-loop data (needs --excitation); pbsid, cva: subspace; "
+                        "kcca-lfr[-affine]: LFR model")
+    p.add_argument("--ridge", type=float, default=0.0, help="Tikhonov weight for lpr/static-arx (default 0)")
+    p.add_argument("--nc", type=int, help="noise polynomial order for armax (default na)")
+    p.add_argument("--excitation", metavar="COL", help="external excitation column for two-step")
+    p.add_argument("--past", type=int, help="past window for pbsid (default chosen from the order)")
+    p.add_argument("--order", type=int,
+                   help="state order: reduce the realization to it (IO methods) or the model order "
+                        "(pbsid, cva, kcca-lfr)")
     p.add_argument("-o", "--output", required=True, help="model file to write (JSON)")
     p.set_defaults(func=run_identify)
 
@@ -66,33 +84,92 @@ def _refuse_overwrite(output: str, *inputs: str) -> None:
             raise DataError(f"output {output!r} is also an input file; choose another output path")
 
 
+def _identify_io(args: argparse.Namespace, data: Dataset) -> LPVIO:
+    """The IO estimator chosen by --method (spline:free:K bases estimate their knots)."""
+    from lpvflow.identify.spline_sls import free_knot_count
+
+    kind, form = IO_METHODS[args.method]
+    na, nb, nk = parse_order(args.na), parse_order(args.nb), parse_order(args.nk)
+    n_knots = free_knot_count(args.basis)
+    if kind == "two-step":
+        from lpvflow.identify.two_step import identify_two_step
+
+        if not args.excitation:
+            raise DataError("--method two-step needs --excitation COL (the external excitation signal)")
+        r = read_columns(args.data).get(args.excitation)
+        if r is None:
+            raise DataError(f"excitation column {args.excitation!r} not found in {args.data}")
+        return identify_two_step(data, r, na, nb, nk, args.basis, form=form)
+    if n_knots is not None:
+        if kind != "arx":
+            raise DataError("free spline knots (spline:free:K) are estimated with --method lpr-arx "
+                            "or static-arx")
+        from lpvflow.identify.spline_sls import identify_spline_sls
+
+        return identify_spline_sls(data, na, nb, nk, n_knots, form=form)
+    if kind == "arx":
+        return identify_arx(data, na, nb, nk, args.basis, form=form, ridge=args.ridge)
+    from lpvflow.identify import armax, iv, oe
+
+    if kind == "armax":
+        return armax.identify_armax(data, na, nb, nk, args.nc or int(np.max(na)), args.basis, form=form)
+    if kind in ("riv", "sriv"):
+        return iv.identify_riv(data, na, nb, nk, args.basis, form=form, simplified=kind == "sriv")
+    estimator = {"iv-arx": iv.identify_iv_arx, "iv-oe": iv.identify_iv_oe, "oe-paa": iv.identify_oe_paa,
+                 "oe": oe.identify_oe}[kind]
+    return estimator(data, na, nb, nk, args.basis, form=form)
+
+
+def _identify_state_space(args: argparse.Namespace, data: Dataset):
+    """Subspace (pbsid, cva) and LFR (kcca-lfr) methods: they return a state-space model directly."""
+    if args.method == "pbsid":
+        from lpvflow.identify.pbsid import identify_pbsid
+
+        return identify_pbsid(data, order=args.order, past=args.past, basis=args.basis, form="kernel",
+                              regularization="gcv")
+    if args.method == "cva":
+        from lpvflow.identify.cva import identify_cva
+
+        return identify_cva(data, args.basis, state_order=args.order,
+                            feedthrough=bool(np.all(parse_order(args.nk) == 0)))
+    from lpvflow.identify.kcca_lfr import identify_kcca_lfr
+
+    return identify_kcca_lfr(data, args.order or 2, affine=args.method == "kcca-lfr-affine")
+
+
 def run_identify(args: argparse.Namespace) -> int:
     _refuse_overwrite(args.output, args.data)
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
-    io = identify_arx(data, parse_order(args.na), parse_order(args.nb), parse_order(args.nk),
-                      args.basis, form=METHODS[args.method], ridge=args.ridge)
-    if io.form == "static":
+    if args.method in SS_METHODS:
+        model = _identify_state_space(args, data)
+        description = f"state order {getattr(model, 'nx', '?')}"
+    else:
+        io = _identify_io(args, data)
+        if io.form == "static":
+            if args.order is not None:
+                raise DataError("--order needs a realizable model; use --method lpr-arx")
+            io.save(args.output)
+            print(f"static-dependence LPV-ARX written to {args.output} (no static state-space realization "
+                  "exists for this form; use --method lpr-arx for one)")
+            return 0
+        model = io.to_ss()
         if args.order is not None:
-            raise DataError("--order needs a realizable model; use --method lpr-arx")
-        io.save(args.output)
-        print(f"static-dependence LPV-ARX written to {args.output} (no static state-space realization "
-              "exists for this form; use --method lpr-arx for one)")
-        return 0
-    ss = io.to_ss()
-    if args.order is not None:
-        from lpvflow.identify.reduce import reduce
+            from lpvflow.identify.reduce import reduce
 
-        ss = reduce(ss, order=args.order)
-    fit = fit_report(data.y, ss.simulate(data.u, data.p), data.y_names)
-    ss.save(args.output)
-    print(f"{args.method}: {ss.ny}x{ss.nu}, basis {io.basis.kind} ({io.basis.n_psi} functions), "
-          f"state order {ss.nx}; estimation-data simulation BFR "
+            model = reduce(model, order=args.order)
+        description = f"basis {io.basis.kind} ({io.basis.n_psi} functions), state order {model.nx}"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        fit = fit_report(data.y, model.simulate(data.u, data.p), data.y_names)
+    model.save(args.output)
+    print(f"{args.method}: {data.y.shape[1]}x{data.u.shape[1]}, {description}; "
+          "estimation-data simulation BFR "
           + ", ".join(f"{n} {v:.2f} %" for n, v in zip(fit["outputs"], fit["bfr"], strict=True))
           + f"; written to {args.output}")
     return 0
 
 
-def _simulate_any(model: LPVSS | LPVIO, data: Dataset) -> np.ndarray:
+def _simulate_any(model: LPVSS | LPVIO | LPVLFR, data: Dataset) -> np.ndarray:
     if model.nu != data.u.shape[1] or model.ny != data.y.shape[1] or model.basis.n_p != data.p.shape[1]:
         raise DataError(
             f"the model is {model.ny}x{model.nu} with {model.basis.n_p} scheduling signal(s); the data "
@@ -106,7 +183,7 @@ def run_simulate(args: argparse.Namespace) -> int:
         if out:
             _refuse_overwrite(out, args.data, args.model)
     model = load(args.model)
-    if not isinstance(model, LPVSS | LPVIO):
+    if not isinstance(model, LPVSS | LPVIO | LPVLFR):
         raise ModelError(f"{args.model} holds no LPV model (it is a {type(model).__name__})")
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
     y_sim = _simulate_any(model, data)
@@ -116,11 +193,13 @@ def run_simulate(args: argparse.Namespace) -> int:
     if args.json_out:
         _atomic_write_json(args.json_out, {"model": args.model, "data": args.data, **report})
     if args.plot:
-        _plot_fit(args.plot, data, y_sim)
+        plot_fit(args.plot, data, y_sim)
+        print(f"plot written to {args.plot}", file=sys.stderr)
     return 0
 
 
-def _plot_fit(path: str, data: Dataset, y_sim: np.ndarray) -> None:
+def plot_fit(path: str | Path, data: Dataset, y_sim: np.ndarray) -> None:
+    """Measured and simulated outputs over time, one panel per output (PNG)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -137,5 +216,4 @@ def _plot_fit(path: str, data: Dataset, y_sim: np.ndarray) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    print(f"plot written to {path}", file=sys.stderr)
 

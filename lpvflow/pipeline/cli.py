@@ -17,6 +17,7 @@ from lpvflow.errors import LpvflowError
 STAGE_MODULES = [
     "lpvflow.pipeline.cli_identify",
     "lpvflow.pipeline.cli_diagnose",
+    "lpvflow.pipeline.cli_design",
     "lpvflow.pipeline.cli_experiment",
     "lpvflow.pipeline.cli_verify",
     "lpvflow.pipeline.cli_export",

@@ -1,0 +1,69 @@
+"""Design configuration (TOML): one table per stage, checked on load.
+
+Relative paths are taken relative to the directory `lpvflow design` runs in (the repository root for
+`make design`). Unknown tables or keys are errors, so that a typo never silently falls back to a
+default. The bundled default is ``lpvflow/pipeline/examples/adip.toml``.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import tomllib
+
+from lpvflow.errors import DataError
+
+#: Allowed keys per table, with defaults (``REQUIRED`` marks keys without one).
+REQUIRED = object()
+SCHEMA: dict[str, dict[str, Any]] = {
+    "design": {"name": REQUIRED, "plant": REQUIRED, "output_dir": "build/design"},
+    "experiment": {"Ts": REQUIRED, "duration": REQUIRED, "controller": None, "inputs": {}, "excitation": {},
+                   "parameters": {}, "scheduling": {}, "seed": 0},
+    "identify": {"u": REQUIRED, "y": REQUIRED, "p": REQUIRED, "na": 2, "nb": 2, "nk": 1, "basis": "affine",
+                 "split": 0.7, "ridge": 0.0},
+    "reduce": {"order": None},
+    "validate": {"grid": 7, "reference": "none", "operating_point": {}},
+    "synth": {"method": "dilated", "weights": REQUIRED, "box": None, "solver": "CLARABEL",
+              "baseline_at": None},
+    "verify": {"loop": REQUIRED, "scenario": REQUIRED},
+    "export": {"formats": ["fmu", "json", "mat"]},
+}
+
+BUNDLED = "adip"
+
+
+def bundled_config(name: str = BUNDLED) -> Path:
+    """Path of a bundled example configuration (``adip``, ``maglev``, ``airpath``)."""
+    path = Path(str(resources.files("lpvflow.pipeline") / "examples" / f"{name}.toml"))
+    if not path.exists():
+        raise DataError(f"no bundled design {name!r}; bundled: adip, maglev, airpath")
+    return path
+
+
+def load_config(path: str | Path) -> dict[str, dict[str, Any]]:
+    """Read and check a design TOML; returns every table with its defaults filled in."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"design file {str(path)!r} does not exist")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise DataError(f"{path.name} is not valid TOML: {exc}") from None
+    unknown = sorted(set(raw) - set(SCHEMA))
+    if unknown:
+        raise DataError(f"{path.name}: unknown table(s) {unknown}; known: {sorted(SCHEMA)}")
+    config: dict[str, dict[str, Any]] = {}
+    for table, keys in SCHEMA.items():
+        given = raw.get(table, {})
+        if not isinstance(given, dict):
+            raise DataError(f"{path.name}: [{table}] must be a table")
+        extra = sorted(set(given) - set(keys))
+        if extra:
+            raise DataError(f"{path.name}: [{table}] has unknown key(s) {extra}; known: {sorted(keys)}")
+        missing = [k for k, v in keys.items() if v is REQUIRED and k not in given]
+        if missing:
+            raise DataError(f"{path.name}: [{table}] lacks {missing}")
+        config[table] = {k: given.get(k, v) for k, v in keys.items()}
+    return config

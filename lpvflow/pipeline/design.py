@@ -1,0 +1,88 @@
+"""`lpvflow design`: experiment → identify → reduce → validate → synth → verify → export → report.
+
+Each stage runs only when its cache key changed (:mod:`lpvflow.pipeline.cache`); artifacts live in
+``<output_dir>/<name>/``. A stage that fails with an lpvflow error ends the run there: the report is
+still written, with the error, and the run counts as a failed finding (exit status 1).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from lpvflow.errors import LpvflowError
+from lpvflow.models import _atomic_write_json
+from lpvflow.pipeline import cache, stages
+from lpvflow.pipeline.config import load_config
+
+
+@dataclass(frozen=True)
+class Stage:
+    name: str
+    run: object  # Callable[[StageContext], tuple[dict, list[str]]]
+    tables: tuple[str, ...]  # config tables the stage reads
+    upstream: tuple[str, ...]  # stages whose artifacts it reads
+    file_keys: tuple[tuple[str, str], ...] = ()  # (table, key) of files whose bytes it reads
+
+
+STAGES = (
+    Stage("experiment", stages.experiment, ("design", "experiment"), (),
+          (("design", "plant"), ("experiment", "controller"))),
+    Stage("identify", stages.identify, ("identify",), ("experiment",)),
+    Stage("reduce", stages.reduce_model, ("reduce",), ("identify",)),
+    Stage("validate", stages.validate, ("validate", "identify", "experiment"), ("reduce",),
+          (("experiment", "controller"),)),
+    Stage("synth", stages.synth, ("synth",), ("reduce",)),
+    Stage("verify", stages.verify, ("design", "verify"), ("synth",), (("design", "plant"),)),
+    Stage("export", stages.export, ("export",), ("synth",)),
+)
+
+
+def run_design(config_path: str | Path, log=print) -> dict:
+    """Run (or reuse) every stage, write ``summary.json`` and ``report.html``; return the summary."""
+    from lpvflow.pipeline.report import write_report
+
+    config = load_config(config_path)
+    folder = Path(config["design"]["output_dir"]) / config["design"]["name"]
+    folder.mkdir(parents=True, exist_ok=True)
+    ctx = stages.StageContext(folder, config)
+    keys: dict[str, str] = {}
+    summary: dict = {"name": config["design"]["name"], "config": str(config_path), "stages": {}}
+    failed = None
+    for i, stage in enumerate(STAGES, 1):
+        files = [config[t][k] for t, k in stage.file_keys if config[t][k]]
+        key = cache.stage_key({t: config[t] for t in stage.tables}, [keys[u] for u in stage.upstream], files)
+        keys[stage.name] = key
+        record = cache.load_record(folder, stage.name, key)
+        if record is not None:
+            log(f"[{i}/{len(STAGES)}] {stage.name}: unchanged, reused ({record['seconds']:.1f} s when run)")
+            status = "cached"
+        else:
+            log(f"[{i}/{len(STAGES)}] {stage.name} …")
+            t0 = time.perf_counter()
+            try:
+                outputs, artifacts = stage.run(ctx)
+            except LpvflowError as exc:
+                failed = {"stage": stage.name, "error": str(exc)}
+                summary["stages"][stage.name] = {"status": "failed", "error": str(exc)}
+                log(f"[{i}/{len(STAGES)}] {stage.name} failed: {exc}")
+                break
+            record = cache.save_record(folder, stage.name, key, outputs, artifacts, time.perf_counter() - t0)
+            log(f"[{i}/{len(STAGES)}] {stage.name}: done in {record['seconds']:.1f} s")
+            status = "ran"
+        ctx.outputs[stage.name] = record["outputs"]
+        summary["stages"][stage.name] = {"status": status, "seconds": record["seconds"],
+                                         "outputs": record["outputs"], "artifacts": record["artifacts"]}
+    summary["failed"] = failed
+    summary["stage_seconds"] = {n: s.get("seconds") for n, s in summary["stages"].items()}
+    _atomic_write_json(folder / "summary.json", summary)
+    write_report(folder, summary)
+    log(f"report: {folder / 'report.html'}")
+    return summary
+
+
+def main_design(config_path: str | Path) -> int:
+    summary = run_design(config_path, log=lambda line: print(line, file=sys.stderr, flush=True))
+    return 1 if summary["failed"] else 0

@@ -1,0 +1,101 @@
+"""The design report: one self-contained HTML page (figures embedded) over ``summary.json``."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+from pathlib import Path
+
+FIGURE_CAPTIONS = {
+    "data.png": "Identification experiment: inputs, outputs and scheduling.",
+    "fit.png": "Validation: measured outputs and the model simulated in the identification loop.",
+    "singular_values.png": "Singular values of the LPV Ho-Kalman reduction (order chosen: marked).",
+    "margins.png": "Generalized stability margin b(P(θ), K_id) of frozen models over the scheduling range.",
+}
+
+
+def _embed(path: Path) -> str:
+    data = base64.b64encode(path.read_bytes()).decode()
+    caption = FIGURE_CAPTIONS.get(path.name, path.stem.replace("_", " "))
+    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(path.name)}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def _table(rows: list[tuple[str, str]]) -> str:
+    body = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
+    return f"<table>{body}</table>"
+
+
+def _fmt(value) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, list) and value and all(isinstance(v, float) for v in value):
+        return ", ".join(f"{v:.4g}" for v in value)
+    return json.dumps(value) if isinstance(value, dict | list) else str(value)
+
+
+def _figures(folder: Path) -> None:
+    """Data, fit and margin figures from the stored artifacts (matplotlib, Agg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from lpvflow.data import read_columns
+
+    data_csv = folder / "data.csv"
+    if data_csv.exists():
+        table = read_columns(data_csv)
+        names = [n for n in table if n != "time" and not n.startswith("diag_")]
+        fig, axes = plt.subplots(len(names), 1, figsize=(10, 1.6 * len(names)), sharex=True, squeeze=False)
+        for ax, name in zip(axes[:, 0], names, strict=True):
+            ax.plot(table["time"], table[name], lw=0.6)
+            ax.set_ylabel(name, fontsize=8)
+        axes[-1, 0].set_xlabel("time [s]")
+        fig.tight_layout()
+        fig.savefig(folder / "data.png", dpi=90)
+        plt.close(fig)
+    validate = folder / "validate.json"
+    if validate.exists():
+        out = json.loads(validate.read_text())["outputs"]
+        if out.get("b_P_Kid"):
+            fig, ax = plt.subplots(figsize=(6, 3))
+            ax.plot(out["theta"], out["b_P_Kid"], "o-")
+            ax.set(xlabel="θ", ylabel="b(P(θ), K_id)", ylim=(0, None))
+            ax.grid(alpha=0.3)
+            fig.tight_layout()
+            fig.savefig(folder / "margins.png", dpi=90)
+            plt.close(fig)
+
+
+def write_report(folder: Path, summary: dict) -> Path:
+    """``report.html`` in ``folder``: summary tables per stage and every figure, embedded."""
+    _figures(folder)
+    sections = [f"<h1>lpvflow design: {html.escape(summary['name'])}</h1>"]
+    if summary.get("failed"):
+        f = summary["failed"]
+        sections.append(f'<p class="fail">Stopped at stage <b>{html.escape(f["stage"])}</b>: '
+                        f"{html.escape(f['error'])}</p>")
+    times = [(n, f"{s.get('seconds', float('nan')):.1f} s ({s['status']})" if "seconds" in s else s["status"])
+             for n, s in summary["stages"].items()]
+    sections.append("<h2>Stages</h2>" + _table(times))
+    for name, stage in summary["stages"].items():
+        rows = [(k, _fmt(v)) for k, v in stage.get("outputs", {}).items()
+                if not isinstance(v, list) or len(v) <= 12]
+        sections.append(f"<h2>{html.escape(name)}</h2>" + (_table(rows) if rows else ""))
+        for artifact in stage.get("artifacts", []):
+            if artifact.endswith(".png"):
+                sections.append(_embed(folder / artifact))
+        extra = {"experiment": ["data.png"], "validate": ["margins.png"]}.get(name, [])
+        sections += [_embed(folder / f) for f in extra if (folder / f).exists()]
+    style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
+             "table{border-collapse:collapse;margin:0.5em 0}th,td{border:1px solid #ccc;padding:3px 8px;"
+             "text-align:left;font-size:13px;vertical-align:top}th{background:#f4f4f4}"
+             "img{max-width:100%}figcaption{font-size:12px;color:#555}.fail{color:#b00}")
+    page = (f"<!doctype html><html><head><meta charset='utf-8'><title>lpvflow design {summary['name']}"
+            f"</title><style>{style}</style></head><body>{''.join(sections)}</body></html>")
+    path = folder / "report.html"
+    path.write_text(page)
+    return path
+

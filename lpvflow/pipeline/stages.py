@@ -1,0 +1,231 @@
+"""The design stages: each reads its config table and upstream artifacts, writes its own artifacts.
+
+Every stage returns ``(outputs, artifacts)``: a JSON-ready dict of the numbers it produced and the
+file names (relative to the design folder) it wrote. :mod:`lpvflow.pipeline.design` wires them,
+caches them (:mod:`lpvflow.pipeline.cache`) and reports them.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lpvflow.basis import SchedulingRangeWarning
+from lpvflow.data import Dataset
+from lpvflow.errors import DataError
+from lpvflow.models import LPVSS, load
+
+
+@dataclass
+class StageContext:
+    """The design folder, the whole configuration and the outputs of the stages run so far."""
+
+    folder: Path
+    config: dict[str, dict[str, Any]]
+    outputs: dict[str, dict] = field(default_factory=dict)
+
+    def path(self, name: str) -> Path:
+        return self.folder / name
+
+
+# ------------------------------------------------------------------------------------- experiment
+def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
+    """Identification experiment on the plant FMU (closed loop when a controller is given)."""
+    from lpvflow.experiment.fmu_experiment import run_fmu_experiment
+
+    cfg = ctx.config["experiment"]
+    record = run_fmu_experiment(
+        ctx.config["design"]["plant"], cfg["Ts"], cfg["duration"], inputs=cfg["inputs"] or None,
+        controller=cfg["controller"], excitation=cfg["excitation"] or None,
+        parameters=cfg["parameters"] or None, scheduling_columns=cfg["scheduling"] or None,
+        seed=cfg["seed"], output=ctx.path("data.csv"), progress=None,
+    )
+    ranges = {name: [float(np.min(v)), float(np.max(v))]
+              for name, v in record.columns.items() if name != "time"}
+    return {"samples": len(record.time), "Ts": record.Ts, "ranges": ranges}, ["data.csv"]
+
+
+def read_data(ctx: StageContext) -> tuple[Dataset, Dataset]:
+    cfg = ctx.config["identify"]
+    data = Dataset.read(ctx.path("data.csv"), cfg["u"], cfg["y"], cfg["p"])
+    return data.split(cfg["split"])
+
+
+# -------------------------------------------------------------------------------------- identify
+def identify(ctx: StageContext) -> tuple[dict, list[str]]:
+    """LPR-ARX on the estimation part, realized exactly; fit on the validation part."""
+    from lpvflow.identify.arx import identify_arx, prediction_residuals
+
+    cfg = ctx.config["identify"]
+    est, val = read_data(ctx)
+    io = identify_arx(est, cfg["na"], cfg["nb"], cfg["nk"], cfg["basis"], ridge=cfg["ridge"])
+    ss = io.to_ss()
+    ss.save(ctx.path("model_full.json"))
+    residuals = prediction_residuals(io, val)
+    one_step = 100 * (1 - np.linalg.norm(residuals, axis=0)
+                      / np.linalg.norm(val.y[io.max_lag:] - val.y[io.max_lag:].mean(axis=0), axis=0))
+    return {"nx": ss.nx, "one_step_bfr_validation": one_step.tolist(),
+            "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)]}, ["model_full.json"]
+
+
+# ---------------------------------------------------------------------------------------- reduce
+def reduce_model(ctx: StageContext) -> tuple[dict, list[str]]:
+    """LPV Ho-Kalman-like reduction (Schulz et al. Lemma 1); order from the config or automatic."""
+    from lpvflow.identify.reduce import plot_singular_values, reduce
+
+    ss = load(ctx.path("model_full.json"))
+    reduced = reduce(ss, order=ctx.config["reduce"]["order"])
+    reduced.save(ctx.path("model.json"))
+    plot_singular_values(reduced.reduction, ctx.path("singular_values.png"))
+    return ({"order": reduced.nx, "full_order": ss.nx,
+             "singular_values": reduced.reduction["singular_values"]},
+            ["model.json", "singular_values.png"])
+
+
+# -------------------------------------------------------------------------------------- validate
+def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np.ndarray:
+    """Simulate the model in the experiment's loop: the identification controller and its excitation.
+
+    An unstable plant's model cannot be simulated open loop; the thesis validates the ADIP model by
+    the closed loop T(Ĝ, K_id) (notes_002 §6.4). The scheduling p(k) is recomputed from the simulated
+    outputs with the experiment's scheduling expressions (quasi-LPV, as on the plant); y(k) uses C at
+    p(k−1), which is exact for the observable-form realizations (C independent of p).
+    """
+    from lpvflow.data import read_columns
+    from lpvflow.experiment.controller import load_controller
+    from lpvflow.experiment.scheduling import evaluate
+
+    cfg = ctx.config["experiment"]
+    if not cfg["controller"]:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SchedulingRangeWarning)
+            return model.simulate(data.u, data.p)
+    K = load_controller(cfg["controller"])
+    table = read_columns(ctx.path("data.csv"))
+    start = len(table["time"]) - data.N
+    zero = np.zeros(len(table["time"]))
+    excitation = np.column_stack([table.get(f"{n}_excitation", zero)[start:] for n in K.outputs])
+    u_index = [data.u_names.index(n) for n in K.outputs]
+    y_index = [data.y_names.index(n) for n in K.inputs]
+    expressions = [cfg["scheduling"][name] for name in data.p_names]
+    x, xc, p = np.zeros(model.nx), np.zeros(K.A.shape[0]), data.p[0]
+    y_sim = np.zeros_like(data.y)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        for k in range(data.N):
+            A, B, C, _ = model.matrices(p)
+            y = C @ x
+            y_sim[k] = y
+            signals = {n: np.array([v]) for n, v in zip(data.y_names, y, strict=True)}
+            p = np.array([float(evaluate(e, signals)[0]) for e in expressions])
+            A, B, _, _ = model.matrices(p)
+            dy = y[y_index] - K.y_op
+            u = np.zeros(model.nu)
+            u[u_index] = K.u_op + K.C @ xc + K.D @ dy + excitation[k]
+            xc = K.A @ xc + K.B @ dy
+            x = A @ x + B @ u
+            if not np.all(np.abs(x) < 1e12):
+                raise DataError(f"the identified model's closed loop diverges at sample {k}: it does not "
+                                "describe the plant under the identification controller")
+    return y_sim
+
+
+def validate(ctx: StageContext) -> tuple[dict, list[str]]:
+    """Fit on validation data (closed-loop simulation under the experiment's controller) and the
+    generalized stability margin b(P(θ), K_id) of frozen models over the scheduling range."""
+    from lpvflow.pipeline.cli_identify import plot_fit
+    from lpvflow.validate.margins import stability_margin
+    from lpvflow.validate.metrics import fit_report
+
+    model = load(ctx.path("model.json"))
+    _, val = read_data(ctx)
+    y_sim = closed_loop_simulation(model, val, ctx)
+    fit = fit_report(val.y, y_sim, val.y_names)
+    plot_fit(ctx.path("fit.png"), val, y_sim)
+    grid = np.linspace(model.basis.p_min[0], model.basis.p_max[0], ctx.config["validate"]["grid"])
+    margins = []
+    controller = ctx.config["experiment"]["controller"]
+    if controller and model.basis.n_p == 1:
+        K = _negative_feedback_lti(controller, model)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SchedulingRangeWarning)
+            margins = [float(stability_margin(model.frozen([t]), K)) for t in grid]
+    return {"fit": fit, "theta": grid.tolist(), "b_P_Kid": margins}, ["fit.png"]
+
+
+def _negative_feedback_lti(path: str, model: LPVSS):
+    """The experiment's LTI controller as K in u = −K y over the model's outputs (python-control)."""
+    import control
+
+    from lpvflow.experiment.controller import load_controller
+
+    K = load_controller(path)
+    B = np.zeros((K.A.shape[0], model.ny))
+    D = np.zeros((model.nu, model.ny))
+    cols = [model.y_names.index(n) for n in K.inputs]
+    rows = [model.u_names.index(n) for n in K.outputs]
+    B[:, cols] = K.B
+    D[np.ix_(rows, cols)] = K.D
+    C = np.zeros((model.nu, K.A.shape[0]))
+    C[rows] = K.C
+    return control.ss(K.A, B, -C, -D, K.Ts)
+
+
+# ----------------------------------------------------------------------------------------- synth
+def synth(ctx: StageContext) -> tuple[dict, list[str]]:
+    """Polytopic H∞ controller (dilated LMIs) and the LTI baseline designed at one frozen point."""
+    from lpvflow.synth.certify import certify
+    from lpvflow.synth.lmi_hinf import synthesize
+    from lpvflow.synth.plant import generalized_plant
+
+    cfg = ctx.config["synth"]
+    model = load(ctx.path("model.json"))
+    box = cfg["box"]
+    result = synthesize(generalized_plant(model, cfg["weights"], box), cfg["method"], cfg["solver"])
+    certificate = certify(result, model, cfg["weights"])
+    result.controller.save(ctx.path("controller.json"))
+    at = cfg["baseline_at"] if cfg["baseline_at"] is not None else [0.0] * model.basis.n_p
+    nominal = [[v, v] for v in at]
+    baseline = synthesize(generalized_plant(model, cfg["weights"], nominal), cfg["method"], cfg["solver"])
+    baseline.controller.save(ctx.path("baseline.json"))
+    return ({"gamma": result.gamma, "baseline_gamma": baseline.gamma, "baseline_at": at,
+             "certificate": certificate.lines(), "certificate_ok": bool(certificate.ok),
+             "solve_seconds": result.report.seconds, "order": result.controller.order,
+             "polytope": result.plant.polytope.kind},
+            ["controller.json", "baseline.json"])
+
+
+# ---------------------------------------------------------------------------------------- verify
+def verify(ctx: StageContext) -> tuple[dict, list[str]]:
+    """Closed loop on the plant FMU: the LPV controller and the LTI baseline on the same scenarios."""
+    from lpvflow.pipeline.scenarios import parse_loop, parse_scenario
+    from lpvflow.pipeline.verify import plot_runs, run_verification
+
+    cfg = ctx.config["verify"]
+    loop = parse_loop(cfg["loop"])
+    scenarios = [parse_scenario(doc, i) for i, doc in enumerate(cfg["scenario"])]
+    controller, baseline = load(ctx.path("controller.json")), load(ctx.path("baseline.json"))
+    result = run_verification(controller, ctx.config["design"]["plant"], scenarios, loop, baseline)
+    artifacts = []
+    for i, scenario_result in enumerate(result.results):
+        name = f"verify_{i}.png"
+        plot_runs(scenario_result.runs, ctx.path(name), title=scenarios[i].name)
+        artifacts.append(name)
+    return result.to_dict(), artifacts
+
+
+# ---------------------------------------------------------------------------------------- export
+def export(ctx: StageContext) -> tuple[dict, list[str]]:
+    """The controller as FMU / JSON / MAT."""
+    from lpvflow.pipeline.export import export_controller
+
+    controller = load(ctx.path("controller.json"))
+    written = []
+    for fmt in ctx.config["export"]["formats"]:
+        path = export_controller(controller, ctx.path(f"exported_controller.{fmt}"), fmt)
+        written.append(path.name)
+    return {"files": written}, written

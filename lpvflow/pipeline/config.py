@@ -31,6 +31,9 @@ SCHEMA: dict[str, dict[str, Any]] = {
     "export": {"formats": ["fmu", "json", "mat"]},
 }
 
+#: Tables a design may leave out: without [synth] the run ends after validation (identification only).
+OPTIONAL = ("synth", "verify", "export")
+
 BUNDLED = "adip"
 
 
@@ -42,8 +45,8 @@ def bundled_config(name: str = BUNDLED) -> Path:
     return path
 
 
-def load_config(path: str | Path) -> dict[str, dict[str, Any]]:
-    """Read and check a design TOML; returns every table with its defaults filled in."""
+def load_config(path: str | Path) -> dict[str, dict[str, Any] | None]:
+    """Read and check a design TOML; every table with its defaults filled in (None: optional, absent)."""
     path = Path(path)
     if not path.exists():
         raise DataError(f"design file {str(path)!r} does not exist")
@@ -54,8 +57,11 @@ def load_config(path: str | Path) -> dict[str, dict[str, Any]]:
     unknown = sorted(set(raw) - set(SCHEMA))
     if unknown:
         raise DataError(f"{path.name}: unknown table(s) {unknown}; known: {sorted(SCHEMA)}")
-    config: dict[str, dict[str, Any]] = {}
+    config: dict[str, dict[str, Any] | None] = {}
     for table, keys in SCHEMA.items():
+        if table in OPTIONAL and table not in raw:
+            config[table] = None
+            continue
         given = raw.get(table, {})
         if not isinstance(given, dict):
             raise DataError(f"{path.name}: [{table}] must be a table")
@@ -66,4 +72,11 @@ def load_config(path: str | Path) -> dict[str, dict[str, Any]]:
         if missing:
             raise DataError(f"{path.name}: [{table}] lacks {missing}")
         config[table] = {k: given.get(k, v) for k, v in keys.items()}
+    if config["synth"] is None and (config["verify"] or config["export"]):
+        raise DataError(f"{path.name}: [verify] and [export] need a [synth] table (a controller to use)")
+    for where, value in (("[design] plant", config["design"]["plant"]),
+                         ("[experiment] controller", config["experiment"]["controller"])):
+        if value and not Path(value).exists():
+            raise DataError(f"{path.name}: {where} {value!r} does not exist (paths are relative to "
+                            "the directory lpvflow design runs in; run `make fmus` to build the plants)")
     return config

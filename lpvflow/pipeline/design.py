@@ -2,7 +2,9 @@
 
 Each stage runs only when its cache key changed (:mod:`lpvflow.pipeline.cache`); artifacts live in
 ``<output_dir>/<name>/``. A stage that fails with an lpvflow error ends the run there: the report is
-still written, with the error, and the run counts as a failed finding (exit status 1).
+still written, with the error, and the run counts as a failed finding (exit status 1). Bad input
+(the design file, missing plant or controller files) is refused before any stage runs (exit 2).
+Without a [synth] table the run ends after validation.
 """
 
 from __future__ import annotations
@@ -52,6 +54,9 @@ def run_design(config_path: str | Path, log=print) -> dict:
     summary: dict = {"name": config["design"]["name"], "config": str(config_path), "stages": {}}
     failed = None
     for i, stage in enumerate(STAGES, 1):
+        if any(config[t] is None for t in stage.tables):
+            summary["stages"][stage.name] = {"status": "not configured"}
+            continue
         files = [config[t][k] for t, k in stage.file_keys if config[t][k]]
         key = cache.stage_key({t: config[t] for t in stage.tables}, [keys[u] for u in stage.upstream], files)
         keys[stage.name] = key

@@ -1,0 +1,120 @@
+"""`lpvflow design`: stage cache (unchanged stages skipped, a changed table reruns exactly the affected
+stages), report and summary, and one clear line for every bad design input.
+
+A small identification-only design on the stable `tanks` FMU keeps this fast (no [synth] table: the
+run ends after validation).
+"""
+
+import json
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import pytest
+
+import lpvflow
+from lpvflow.basis import SchedulingRangeWarning
+from lpvflow.data import Dataset
+from lpvflow.pipeline.cli import main
+from lpvflow.pipeline.design import run_design
+from lpvflow.validate.metrics import bfr
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TANKS = """
+[design]
+name = "tanks"
+plant = "{plant}"
+output_dir = "{out}"
+
+[experiment]
+Ts = 1.0
+duration = 1500.0
+inputs = {{ pump_voltage = "levels:lo=4,hi=11,min_hold=5,max_hold=40" }}
+scheduling = {{ level = "lower_level" }}
+seed = 3
+
+[identify]
+u = ["pump_voltage"]
+y = ["lower_level"]
+p = ["level"]
+na = {na}
+nb = 2
+nk = 1
+basis = "poly:2"
+split = 0.6
+
+[reduce]
+order = 2
+
+[validate]
+grid = 3
+"""
+
+
+@pytest.fixture(scope="module")
+def tanks_fmu() -> Path:
+    subprocess.run([sys.executable, str(ROOT / "fmu_plants" / "build.py")], check=True, capture_output=True)
+    return ROOT / "fmu_plants" / "build" / "tanks.fmu"
+
+
+def write(tmp_path: Path, fmu: Path, na: int = 2) -> Path:
+    path = tmp_path / "design.toml"
+    path.write_text(TANKS.format(plant=fmu, out=tmp_path / "out", na=na))
+    return path
+
+
+def test_rerun_skips_unchanged_stages_and_a_change_reruns_the_affected_ones(tmp_path, tanks_fmu):
+    lines: list[str] = []
+    config = write(tmp_path, tanks_fmu)
+    first = run_design(config, log=lines.append)
+    statuses = {n: s["status"] for n, s in first["stages"].items()}
+    assert statuses == {"experiment": "ran", "identify": "ran", "reduce": "ran", "validate": "ran",
+                        "synth": "not configured", "verify": "not configured", "export": "not configured"}
+    assert first["failed"] is None
+    # The validation fit is the stage's model simulated on the held-out part of the stage's data.
+    folder = tmp_path / "out" / "tanks"
+    data = Dataset.read(folder / "data.csv", ["pump_voltage"], ["lower_level"], ["level"])
+    val = data.split(0.6)[1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        expected = bfr(val.y, lpvflow.load(folder / "model.json").simulate(val.u, val.p))[0]
+    assert first["stages"]["validate"]["outputs"]["fit"]["bfr"][0] == pytest.approx(expected, rel=1e-12)
+
+    again = run_design(config, log=lines.append)
+    assert {n: s["status"] for n, s in again["stages"].items() if s["status"] != "not configured"} == {
+        "experiment": "cached", "identify": "cached", "reduce": "cached", "validate": "cached"}
+    assert again["stages"]["identify"]["outputs"] == first["stages"]["identify"]["outputs"]
+
+    changed = run_design(write(tmp_path, tanks_fmu, na=3), log=lines.append)
+    assert {n: s["status"] for n, s in changed["stages"].items() if s["status"] != "not configured"} == {
+        "experiment": "cached", "identify": "ran", "reduce": "ran", "validate": "ran"}
+
+    summary = json.loads((folder / "summary.json").read_text())
+    assert set(summary["stage_seconds"]) >= {"experiment", "identify", "reduce", "validate"}
+    report = (folder / "report.html").read_text()
+    assert report.count("data:image/png;base64,") >= 3  # data, singular values, fit: embedded
+    assert any("unchanged, reused" in line for line in lines)
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda t: t.replace('[reduce]', '[reduse]'), "unknown table(s) ['reduse']"),
+    (lambda t: t.replace('grid = 3', 'grid = 3\ncolour = 1'), "[validate] has unknown key(s) ['colour']"),
+    (lambda t: t.replace('u = ["pump_voltage"]\n', ''), "[identify] lacks ['u']"),
+    (lambda t: t.replace('tanks.fmu', 'nowhere.fmu'), "does not exist"),
+    (lambda t: t.replace('[design]', '[design'), "is not valid TOML"),
+    (lambda t: t + '\n[verify]\nloop = {}\nscenario = []\n', "need a [synth] table"),
+])
+def test_bad_design_input_exit_2_one_line(tmp_path, tanks_fmu, capsys, edit, message):
+    path = write(tmp_path, tanks_fmu)
+    path.write_text(edit(path.read_text()))
+    assert main(["design", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_design_file(capsys, tmp_path):
+    assert main(["design", str(tmp_path / "none.toml")]) == 2
+    assert "does not exist" in capsys.readouterr().err

@@ -36,6 +36,7 @@ from lpvflow.models import (
     _atomic_write_json,
     _check_format,
     _check_width,
+    default_names,
     register_format,
 )
 
@@ -104,9 +105,7 @@ class LPVLFR:
             raise ModelError("LPVLFR matrices contain NaN or inf; re-identify the model")
         if self.Ts <= 0:
             raise ModelError(f"sampling time must be positive, got Ts={self.Ts}")
-        self.u_names = self.u_names or [f"u{i}" for i in range(nu)]
-        self.y_names = self.y_names or [f"y{i}" for i in range(ny)]
-        self.p_names = self.p_names or [f"p{i}" for i in range(self.basis.n_p)]
+        default_names(self, nu, ny, self.basis.n_p)
 
     @property
     def nx(self) -> int:

@@ -58,6 +58,13 @@ def _check_width(name: str, a: np.ndarray, n: int) -> None:
         raise DataError(f"{name} has {a.shape[1]} column(s) but the model expects {n}")
 
 
+def default_names(model: Any, nu: int, ny: int, n_p: int) -> None:
+    """Fill empty ``u_names``/``y_names``/``p_names`` of a model with u0…, y0…, p0…."""
+    model.u_names = model.u_names or [f"u{i}" for i in range(nu)]
+    model.y_names = model.y_names or [f"y{i}" for i in range(ny)]
+    model.p_names = model.p_names or [f"p{i}" for i in range(n_p)]
+
+
 def _lagged_sum(psi: np.ndarray, coeffs: np.ndarray, signal: np.ndarray, shifted: bool) -> np.ndarray:
     """Σ_j M_j(ψ(k−j) or ψ(k)) s(k−j) for coefficient stack ``coeffs`` (n_lag, n_psi, ny, ns)."""
     n = len(signal)
@@ -138,9 +145,7 @@ class LPVIO:
             raise ModelError(f"LPVIO form must be 'shifted' or 'static', got {self.form!r}")
         if self.Ts <= 0:
             raise ModelError(f"sampling time must be positive, got Ts={self.Ts}")
-        self.u_names = self.u_names or [f"u{i}" for i in range(nu)]
-        self.y_names = self.y_names or [f"y{i}" for i in range(ny)]
-        self.p_names = self.p_names or [f"p{i}" for i in range(self.basis.n_p)]
+        default_names(self, nu, ny, self.basis.n_p)
 
     @property
     def ny(self) -> int:
@@ -262,9 +267,7 @@ class LPVSS:
                 raise ModelError(f"LPVSS {name} has shape {getattr(self, name).shape}; expected {shape}")
         if self.Ts <= 0:
             raise ModelError(f"sampling time must be positive, got Ts={self.Ts}")
-        self.u_names = self.u_names or [f"u{i}" for i in range(nu)]
-        self.y_names = self.y_names or [f"y{i}" for i in range(ny)]
-        self.p_names = self.p_names or [f"p{i}" for i in range(self.basis.n_p)]
+        default_names(self, nu, ny, self.basis.n_p)
 
     @property
     def nx(self) -> int:

@@ -13,20 +13,13 @@ import json
 from pathlib import Path
 from typing import Any
 
+from lpvflow.experiment.plant import sha256_of
 from lpvflow.models import _atomic_write_json
-
-
-def file_digest(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def stage_key(section: Any, upstream: list[str], files: list[str | Path]) -> str:
     payload = json.dumps({"config": section, "upstream": upstream,
-                          "files": [file_digest(f) for f in files]}, sort_keys=True, default=str)
+                          "files": [sha256_of(f) for f in files]}, sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()
 
 

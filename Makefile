@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 fmus: $(STAMP)
-	@if [ -f fmu_plants/build.py ]; then $(PY) fmu_plants/build.py; fi
+	$(PY) fmu_plants/build.py
 
 test: $(STAMP) fmus
 	$(PY) -m pytest -q -m "not slow"

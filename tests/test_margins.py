@@ -175,10 +175,10 @@ def test_mimo_disk_margins_equal_independent_mu_of_balanced_sensitivity():
         alpha = 1 / max(_mu_two_scalar_blocks(Sk - 0.5 * np.eye(2)) for Sk in S)
         assert margins[prefix + "disk_margin"] == pytest.approx(alpha, rel=1e-3)
         # balanced disk: gain margin (2 + α)/(2 − α), phase margin 2 arctan(α/2)
-        assert margins[prefix + "disk_gain_margin_db"] == pytest.approx(20 * np.log10((2 + alpha) / (2 - alpha)),
-                                                                         rel=2e-3)
-        assert margins[prefix + "disk_phase_margin_deg"] == pytest.approx(np.degrees(2 * np.arctan(alpha / 2)),
-                                                                           rel=2e-3)
+        gain_db = 20 * np.log10((2 + alpha) / (2 - alpha))
+        phase_deg = np.degrees(2 * np.arctan(alpha / 2))
+        assert margins[prefix + "disk_gain_margin_db"] == pytest.approx(gain_db, rel=2e-3)
+        assert margins[prefix + "disk_phase_margin_deg"] == pytest.approx(phase_deg, rel=2e-3)
     assert "phase_margin_deg" not in margins
     assert margins["stability_margin_b"] == pytest.approx(stability_margin(P, K))
 

@@ -1,0 +1,162 @@
+"""Output-feedback polytopic H∞ synthesis: independent certificates, LTI sanity, dilated ≤ common, errors."""
+
+import dataclasses
+import subprocess
+import sys
+
+import control
+import numpy as np
+import pytest
+
+from lpvflow.basis import Basis
+from lpvflow.models import LPVSS, load
+from lpvflow.synth.certify import certify, vertex_lmi_max_eig
+from lpvflow.synth.controller import LPVController
+from lpvflow.synth.examples import adip_like, maglev_like, random_lpv
+from lpvflow.synth.lmi_hinf import synthesize
+from lpvflow.synth.plant import generalized_plant
+from lpvflow.synth.sdp import SynthesisError
+
+WEIGHTS = {"S": {"num": [0.1, 0.1], "den": [1, -1]}, "K": {"num": [0.01], "den": [1]},
+           "B": {"num": [0, 0.5], "den": [1, -0.5]}}
+
+
+def _plant_model():
+    basis = Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,))
+    A = np.array([[[0.9, 0.1], [0.0, 0.8]], [[0.05, 0.0], [0.0, 0.02]]])
+    B = np.array([[[0.0], [1.0]], [[0.0], [0.3]]])
+    C = np.array([[[1.0, 0.0]], [[0.0, 0.0]]])
+    return LPVSS(A, B, C, np.zeros((2, 1, 1)), basis, 0.01)
+
+
+@pytest.fixture(scope="module")
+def designs():
+    model = _plant_model()
+    gp = generalized_plant(model, WEIGHTS)
+    return model, {m: synthesize(gp, m) for m in ("common", "dilated")}
+
+
+@pytest.mark.parametrize("method", ["common", "dilated"])
+def test_every_controller_passes_the_independent_recheck(designs, method):
+    model, results = designs
+    cert = certify(results[method], model, WEIGHTS, per_axis=15)
+    assert cert.lmi_max_eig < -1e-12
+    assert cert.frozen_hinf_max <= cert.gamma * (1 + 1e-3)
+    assert cert.switching_peak < 1e3 and cert.switching_final < 1e-2
+    if method == "common":
+        assert cert.quadratically_stable
+
+
+def test_recheck_catches_a_tampered_controller(designs):
+    _, results = designs
+    bad = dataclasses.replace(results["common"])
+    Ak, Bk, Ck, Dk = bad.K_vertices[0]
+    bad.K_vertices = [(Ak, Bk, 1.5 * Ck, Dk), *bad.K_vertices[1:]]
+    assert vertex_lmi_max_eig(bad) > 0
+
+
+def test_dilated_is_never_worse_than_common(designs):
+    _, results = designs
+    assert results["dilated"].gamma <= results["common"].gamma * (1 + 1e-6)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_dilated_not_worse_on_random_polytopes(seed):
+    model = random_lpv(seed, nx=2)
+    gp = generalized_plant(model, WEIGHTS)
+    try:  # the issue asks for polytopes "where both are feasible" (and solvable accurately)
+        g_common = synthesize(gp, "common").gamma
+        g_dilated = synthesize(gp, "dilated").gamma
+    except SynthesisError as exc:
+        pytest.skip(f"seed {seed}: {exc}")
+    assert g_dilated <= g_common * (1 + 1e-6)
+
+
+def _d2c_bilinear(P: control.StateSpace) -> control.StateSpace:
+    """Inverse of z = (1 + s)/(1 − s): preserves the H∞ norm of every closed loop."""
+    A, B, C, D = P.A, P.B, P.C, P.D
+    M = np.linalg.inv(np.eye(A.shape[0]) + A)
+    return control.ss(M @ (A - np.eye(A.shape[0])), np.sqrt(2) * M @ B, np.sqrt(2) * C @ M, D - C @ M @ B)
+
+
+def _lti(gp, vertex):
+    return dataclasses.replace(gp, vertices=[gp.vertices[vertex]] * len(gp.vertices))
+
+
+def test_one_vertex_gamma_equals_hinfsyn_and_polytope_is_not_below_frozen_optima(designs):
+    model, results = designs
+    gp = results["common"].plant
+    frozen = []
+    for vertex in range(len(gp.vertices)):
+        lti = _lti(gp, vertex)
+        gamma_lmi = synthesize(lti, "common").gamma
+        Pc = _d2c_bilinear(lti.vertices[0].ss(model.Ts))
+        _, _, gamma_ric, _ = control.hinfsyn(Pc, 1, 1)
+        assert abs(gamma_lmi - gamma_ric) <= 0.01 * gamma_ric
+        frozen.append(gamma_lmi)
+    assert results["common"].gamma >= max(frozen) * (1 - 1e-4)
+    assert results["dilated"].gamma >= max(frozen) * (1 - 1e-4)
+
+
+def test_infeasible_spec_names_the_reason():
+    model = _plant_model()
+    gp = generalized_plant(model, WEIGHTS)
+    with pytest.raises(SynthesisError, match=r"infeasible.*γ ≤ 0.01.*vertex poles"):
+        synthesize(gp, "common", gamma_max=0.01)
+
+
+def test_numerical_failure_is_an_error_not_a_controller():
+    model, weights = adip_like()
+    with pytest.raises(SynthesisError, match="no solver reached an accurate optimum"):
+        synthesize(generalized_plant(model, weights), "common")
+
+
+def test_parameter_dependent_input_matrix_without_filter_is_refused():
+    weights = {k: v for k, v in WEIGHTS.items() if k != "B"}
+    with pytest.raises(Exception, match="B2 of the generalized plant depends"):
+        generalized_plant(_plant_model(), weights)
+
+
+def test_controller_round_trip_and_online_step(designs, tmp_path):
+    _, results = designs
+    K = results["dilated"].controller
+    path = tmp_path / "k.json"
+    K.save(path)
+    K2 = load(path)
+    assert isinstance(K2, LPVController)
+    rng = np.random.default_rng(0)
+    e, p = rng.standard_normal((50, 1)), rng.uniform(-1, 1, (50, 1))
+    u1 = K.simulate(e, p)
+    u2 = K2.simulate(e, p)
+    np.testing.assert_allclose(u1, u2, atol=1e-12)
+    K.reset()
+    pc = np.full((50, 1), 0.3)
+    _, y_frozen = control.forced_response(K.frozen([0.3]), U=e[:, 0])
+    np.testing.assert_allclose(K.simulate(e, pc)[:, 0], y_frozen, atol=1e-9)
+
+
+def test_cli_synth_writes_controller_and_keeps_model(tmp_path):
+    model = _plant_model()
+    mpath, cpath, kpath = tmp_path / "m.json", tmp_path / "d.toml", tmp_path / "k.json"
+    model.save(mpath)
+    before = mpath.read_bytes()
+    cpath.write_text('[synth]\nmethod = "common"\n[weights]\nS = {num = [0.1, 0.1], den = [1, -1]}\n'
+                     'K = {num = [0.01], den = [1]}\nB = {num = [0, 0.5], den = [1, -0.5]}\n')
+    run = subprocess.run([sys.executable, "-m", "lpvflow.pipeline.cli", "synth", str(mpath), "--config",
+                          str(cpath), "-o", str(kpath)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "gamma =" in run.stdout and "max eigenvalue" in run.stdout
+    assert isinstance(load(kpath), LPVController) and mpath.read_bytes() == before
+    cpath.write_text("[weights]\nS = {num = [0.1], den = [1]}\n")
+    run = subprocess.run([sys.executable, "-m", "lpvflow.pipeline.cli", "synth", str(mpath), "--config",
+                          str(cpath), "-o", str(kpath)], capture_output=True, text=True)
+    assert run.returncode == 2 and "W_K" in run.stderr and len(run.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_maglev_like_dilated_not_worse_than_common():
+    model, weights = maglev_like()
+    gp = generalized_plant(model, weights)
+    common, dilated = synthesize(gp, "common"), synthesize(gp, "dilated")
+    assert dilated.gamma <= common.gamma * (1 + 1e-6)
+    assert certify(dilated, model, weights, per_axis=11).ok

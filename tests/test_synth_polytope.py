@@ -1,0 +1,53 @@
+"""Polytope of an LPVSS: convex coordinates reproduce ψ(p) and the vertex systems interpolate the model."""
+
+import numpy as np
+
+from lpvflow.basis import Basis
+from lpvflow.models import LPVSS
+from lpvflow.synth.polytope import polytope_of, vertex_matrices
+from lpvflow.synth.weights import siso_weight
+
+
+def _model(basis: Basis, seed: int = 0) -> LPVSS:
+    rng = np.random.default_rng(seed)
+    n_psi = basis.n_psi
+    return LPVSS(rng.standard_normal((n_psi, 3, 3)), rng.standard_normal((n_psi, 3, 1)),
+                 rng.standard_normal((n_psi, 1, 3)), np.zeros((n_psi, 1, 1)), basis, 0.01)
+
+
+def test_box_coordinates_interpolate_the_model_exactly():
+    model = _model(Basis("affine", 2, p_min=(-1.0, 0.0), p_max=(2.0, 5.0)))
+    poly = polytope_of(model)
+    assert poly.kind == "box" and poly.n_vertices == 4
+    verts = vertex_matrices(model, poly)
+    for p in np.random.default_rng(1).uniform([-1, 0], [2, 5], size=(20, 2)):
+        lam = poly.coordinates_of_p(model, p)
+        assert lam.min() >= 0 and abs(lam.sum() - 1) < 1e-12
+        A_interp = sum(w * v[0] for w, v in zip(lam, verts, strict=True))
+        np.testing.assert_allclose(A_interp, model.matrices(p)[0], atol=1e-12)
+
+
+def test_parabola_triangle_contains_the_curve_and_is_tighter_than_the_box():
+    model = _model(Basis("poly", 1, degree=2, p_min=(-1.0,), p_max=(3.0,)))
+    poly = polytope_of(model)
+    assert poly.kind == "parabola-triangle" and poly.n_vertices == 3
+    verts = vertex_matrices(model, poly)
+    for p in np.linspace(-1, 3, 41):
+        psi = model.basis.eval(np.array([[p]]))[0]
+        lam = np.linalg.solve(poly.psi_vertices.T, psi)
+        assert lam.min() >= -1e-12  # inside the triangle, no clipping needed
+        np.testing.assert_allclose(poly.coordinates(psi) @ poly.psi_vertices, psi, atol=1e-12)
+        B_interp = sum(w * v[1] for w, v in zip(poly.coordinates(psi), verts, strict=True))
+        np.testing.assert_allclose(B_interp, model.matrices(p)[1], atol=1e-10)
+    a, b = -1.0, 3.0
+    triangle_area = 0.5 * abs((b - a) * (a * b - a * a) - ((a + b) / 2 - a) * (b * b - a * a))
+    box_area = (b - a) * (max(a * a, b * b) - 0.0)
+    assert triangle_area < 0.5 * box_area
+
+
+def test_integrator_is_shifted_inside_the_unit_circle_by_eps():
+    W = siso_weight({"num": [0.02, 0.02], "den": [1, -1]}, 0.002, "W_S", eps=1e-3)
+    np.testing.assert_allclose(np.abs(W.poles()), [1 - 1e-3], atol=1e-12)
+    Wb = siso_weight({"bandwidth": 10.0, "hf_gain": 0.5}, 0.01, "W_S", eps=1e-3)
+    assert np.all(np.abs(Wb.poles()) <= 1 - 1e-3 + 1e-12)
+    assert abs(abs(Wb(-1.0)) - 0.5) < 1e-3  # Tustin maps s = ∞ to z = −1 (shift changes it by ε/2)

@@ -16,6 +16,7 @@ from lpvflow.errors import LpvflowError
 #: Modules that register subcommands, in the order they appear in ``lpvflow --help``.
 STAGE_MODULES = [
     "lpvflow.pipeline.cli_identify",
+    "lpvflow.pipeline.cli_synth",
     "lpvflow.pipeline.cli_diagnose",
     "lpvflow.pipeline.cli_design",
     "lpvflow.pipeline.cli_experiment",

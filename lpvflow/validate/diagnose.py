@@ -14,10 +14,10 @@ Protocol (every choice made on the estimation split, every score on the validati
    A cause whose extension cannot be fitted (e.g. IV-OE diverges, no candidate channel) is listed
    as ``untested`` and can never be named.
 4. Decision. A cause is *significant* when its gain ≥ ``min_gain`` BFR points and p < ``alpha``.
-   Among the significant ones, the best by gain competes with every candidate it does not beat
-   significantly (p ≥ 0.05) or beats by less than 5 % of its gain (practically equivalent):
-   the one with the fewest added parameters wins; a tie between
-   different causes is ``none`` (the data cannot tell them apart). No significant cause → ``none``.
+   The best significant cause is named when it beats the runner-up clearly: its block test against
+   the runner-up gives p < 0.05. When other causes reach practically the same gain (within 5 % of it),
+   the extension with the fewest added parameters is named (a dead time explained by extra input
+   lags is still a dead time); a tie between different causes is ``none``. Otherwise ``none``.
 """
 
 from __future__ import annotations
@@ -126,22 +126,25 @@ def _evidence(est: Dataset, nominal_residuals: np.ndarray, channels: dict) -> li
     return items
 
 
-def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[str, np.ndarray],
-            alpha: float, min_gain: float) -> str:
+def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[str, np.ndarray]) -> str:
+    """The verdict (module docstring, step 4) from the ranking, best gain first."""
     significant = [r for r in ranked if r["significant"]]
     if not significant:
         return "none"
     top, top_gain = significant[0]["cause"], significant[0]["bfr_gain"]
-    peers = [top] + [r["cause"] for r in ranked if r["cause"] != top and r["bfr_gain"] > 0 and (
-        r["bfr_gain"] >= (1 - EQUIVALENCE) * top_gain
-        or residuals.block_signed_rank(losses[r["cause"]], losses[top])[1] >= 0.05)]
-    fewest = min(candidates[c].fit.n_params for c in peers)
-    simplest = [c for c in peers if candidates[c].fit.n_params == fewest]
-    if len(simplest) > 1:
-        return "none"
-    winner = simplest[0]
-    entry = next(r for r in ranked if r["cause"] == winner)
-    return winner if entry["significant"] else "none"
+    others = [r for r in ranked if r["cause"] != top and r["bfr_gain"] > 0]
+    equivalent = [r["cause"] for r in others if r["bfr_gain"] >= (1 - EQUIVALENCE) * top_gain]
+    if equivalent:  # practically the same gain: the extension with the fewest parameters explains it
+        peers = [top, *equivalent]
+        fewest = min(candidates[c].fit.n_params for c in peers)
+        simplest = [c for c in peers if candidates[c].fit.n_params == fewest]
+        if len(simplest) > 1:
+            return "none"
+        winner = simplest[0]
+        return winner if next(r for r in ranked if r["cause"] == winner)["significant"] else "none"
+    if others and residuals.block_signed_rank(losses[others[0]["cause"]], losses[top])[1] >= 0.05:
+        return "none"  # not clearly better than the runner-up
+    return top
 
 
 def diagnose(
@@ -200,7 +203,7 @@ def diagnose(
             "significant": bool(gain >= min_gain and p_value < alpha and not cand.fit.diverged),
         })
     ranked.sort(key=lambda r: -r["bfr_gain"])
-    cause = _choose(ranked, candidates, losses, alpha, min_gain)
+    cause = _choose(ranked, candidates, losses)
     winner = candidates.get(cause)
     after = winner.fit.y_val if winner else nominal.y_val
     result = Diagnosis(

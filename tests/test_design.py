@@ -59,9 +59,9 @@ def tanks_fmu() -> Path:
     return ROOT / "fmu_plants" / "build" / "tanks.fmu"
 
 
-def write(tmp_path: Path, fmu: Path, na: int = 2) -> Path:
+def write(tmp_path: Path, fmu: Path, na: int = 2, extra: str = "") -> Path:
     path = tmp_path / "design.toml"
-    path.write_text(TANKS.format(plant=fmu, out=tmp_path / "out", na=na))
+    path.write_text(TANKS.format(plant=fmu, out=tmp_path / "out", na=na) + extra)
     return path
 
 
@@ -70,8 +70,9 @@ def test_rerun_skips_unchanged_stages_and_a_change_reruns_the_affected_ones(tmp_
     config = write(tmp_path, tanks_fmu)
     first = run_design(config, log=lines.append)
     statuses = {n: s["status"] for n, s in first["stages"].items()}
-    assert statuses == {"experiment": "ran", "identify": "ran", "reduce": "ran", "validate": "ran",
-                        "synth": "not configured", "verify": "not configured", "export": "not configured"}
+    assert statuses == {"experiment": "ran", "identify": "ran", "diagnose": "not configured", "reduce": "ran",
+                        "validate": "ran", "synth": "not configured", "verify": "not configured",
+                        "export": "not configured"}
     assert first["failed"] is None
     # The validation fit is the stage's model simulated on the held-out part of the stage's data.
     folder = tmp_path / "out" / "tanks"
@@ -118,3 +119,25 @@ def test_bad_design_input_exit_2_one_line(tmp_path, tanks_fmu, capsys, edit, mes
 def test_missing_design_file(capsys, tmp_path):
     assert main(["design", str(tmp_path / "none.toml")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_diagnosed_dead_time_is_adopted_and_improves_the_validation_fit(tmp_path, tanks_fmu):
+    """A 3 s pump dead time hidden in the plant: the diagnose stage names it (nk 1 → 4), the extended
+    model replaces the identified one, and the closed validation fit improves; the report shows it."""
+    hidden = "\nparameters = { effect_input_delay = 3.0 }"
+    text = write(tmp_path, tanks_fmu).read_text().replace("seed = 3", "seed = 3" + hidden)
+    text = text.replace("duration = 1500.0", "duration = 4000.0").replace("order = 2\n", "")
+    plain = tmp_path / "plain.toml"
+    plain.write_text(text.replace('name = "tanks"', 'name = "plain"'))
+    adopted = tmp_path / "adopted.toml"
+    adopted.write_text(text.replace('name = "tanks"', 'name = "adopted"') + "\n[diagnose]\nadopt = true\n")
+    before = run_design(plain, log=lambda _: None)
+    after = run_design(adopted, log=lambda _: None)
+    diag = after["stages"]["diagnose"]["outputs"]
+    assert diag["cause"] == "input_delay" and diag["parameters"]["nk"] == 4 and diag["adopted"]
+    reduced = lpvflow.load(tmp_path / "out" / "adopted" / "model.json")
+    assert reduced.io.nk.tolist() == [[4]]
+    fit_before = before["stages"]["validate"]["outputs"]["fit"]["bfr"][0]
+    fit_after = after["stages"]["validate"]["outputs"]["fit"]["bfr"][0]
+    assert fit_after > fit_before + 1.0
+    assert "diagnosis.png" in (tmp_path / "out" / "adopted" / "report.html").read_text()

@@ -23,6 +23,7 @@ SCHEMA: dict[str, dict[str, Any]] = {
                    "parameters": {}, "scheduling": {}, "seed": 0},
     "identify": {"u": REQUIRED, "y": REQUIRED, "p": REQUIRED, "na": 2, "nb": 2, "nk": 1, "basis": "affine",
                  "split": 0.7, "ridge": 0.0},
+    "diagnose": {"adopt": False, "candidates": [], "split": 0.5},
     "reduce": {"order": None},
     "validate": {"grid": 7, "reference": "none", "operating_point": {}},
     "synth": {"method": "dilated", "weights": REQUIRED, "box": None, "solver": "CLARABEL",
@@ -31,8 +32,9 @@ SCHEMA: dict[str, dict[str, Any]] = {
     "export": {"formats": ["fmu", "json", "mat"]},
 }
 
-#: Tables a design may leave out: without [synth] the run ends after validation (identification only).
-OPTIONAL = ("synth", "verify", "export")
+#: Tables a design may leave out: without [diagnose] the identified model goes straight to reduction;
+#: without [synth] the run ends after validation (identification only).
+OPTIONAL = ("diagnose", "synth", "verify", "export")
 
 BUNDLED = "adip"
 

@@ -1,4 +1,5 @@
-"""`lpvflow design`: experiment → identify → reduce → validate → synth → verify → export → report.
+"""`lpvflow design`: experiment → identify → [diagnose] → reduce → validate → synth → verify → export
+→ report.
 
 Each stage runs only when its cache key changed (:mod:`lpvflow.pipeline.cache`); artifacts live in
 ``<output_dir>/<name>/``. A stage that fails with an lpvflow error ends the run there: the report is
@@ -33,7 +34,8 @@ STAGES = (
     Stage("experiment", stages.experiment, ("design", "experiment"), (),
           (("design", "plant"), ("experiment", "controller"))),
     Stage("identify", stages.identify, ("identify",), ("experiment",)),
-    Stage("reduce", stages.reduce_model, ("reduce",), ("identify",)),
+    Stage("diagnose", stages.diagnose, ("diagnose", "identify"), ("identify",)),
+    Stage("reduce", stages.reduce_model, ("reduce",), ("identify", "diagnose")),
     Stage("validate", stages.validate, ("validate", "identify", "experiment"), ("reduce",),
           (("experiment", "controller"),)),
     Stage("synth", stages.synth, ("synth",), ("reduce",)),
@@ -58,7 +60,8 @@ def run_design(config_path: str | Path, log=print) -> dict:
             summary["stages"][stage.name] = {"status": "not configured"}
             continue
         files = [config[t][k] for t, k in stage.file_keys if config[t][k]]
-        key = cache.stage_key({t: config[t] for t in stage.tables}, [keys[u] for u in stage.upstream], files)
+        upstream = [keys.get(u, "not configured") for u in stage.upstream]
+        key = cache.stage_key({t: config[t] for t in stage.tables}, upstream, files)
         keys[stage.name] = key
         record = cache.load_record(folder, stage.name, key)
         if record is not None:

@@ -12,6 +12,8 @@ FIGURE_CAPTIONS = {
     "fit.png": "Validation: measured outputs and the model simulated in the identification loop.",
     "singular_values.png": "Singular values of the LPV Ho-Kalman reduction (order chosen: marked).",
     "margins.png": "Generalized stability margin b(P(θ), K_id) of frozen models over the scheduling range.",
+    "diagnosis.png": "Diagnosis: where the nominal simulation misses, and the validation gain of each "
+                     "extension (green: significant).",
 }
 
 

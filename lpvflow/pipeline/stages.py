@@ -72,12 +72,51 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
             "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)]}, ["model_full.json"]
 
 
+# -------------------------------------------------------------------------------------- diagnose
+def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
+    """Diagnosis of the identify structure on the experiment data (issue 8); with ``adopt`` the
+    extended model replaces the identified one for the rest of the design.
+
+    Only extensions that keep the model's inputs can be adopted (a dead time, orders, a richer
+    basis, another estimator): offset, friction and actuator-map extensions add inputs or a static
+    map a controller design model cannot carry, so they are reported but not adopted.
+    """
+    from lpvflow.data import read_columns
+    from lpvflow.validate.diagnose import diagnose as run_diagnosis
+    from lpvflow.validate.diagnose_plot import plot_diagnosis
+    from lpvflow.validate.extensions import Structure
+
+    cfg, ident = ctx.config["diagnose"], ctx.config["identify"]
+    data = Dataset.read(ctx.path("data.csv"), ident["u"], ident["y"], ident["p"])
+    table = read_columns(ctx.path("data.csv"))
+    missing = [c for c in cfg["candidates"] if c not in table]
+    if missing:
+        raise DataError(f"[diagnose] candidate column(s) {missing} are not in the experiment data")
+    structure = Structure(ident["na"], ident["nb"], ident["nk"], ident["basis"])
+    result = run_diagnosis(data, structure, {c: table[c] for c in cfg["candidates"]}, split=cfg["split"])
+    plot_diagnosis(result, data, ctx.path("diagnosis.png"), cfg["split"])
+    outputs = {"cause": result.cause, "parameters": result.parameters, "summary": result.summary,
+               "bfr_before": result.bfr_before, "bfr_after": result.bfr_after,
+               "ranking": [{k: r[k] for k in ("cause", "bfr_gain", "p_value")} for r in result.ranking],
+               "adopted": False, "model": "model_full.json"}
+    if cfg["adopt"] and result.winner is not None:
+        model = result.winner.fit.model
+        if result.winner.inputs_added or result.cause == "input_nonlinearity" or model.form != "shifted":
+            outputs["adoption_refused"] = (f"the {result.cause} extension changes the model's inputs or "
+                                           "adds a static input map; the design model stays as identified")
+        else:
+            model.to_ss().save(ctx.path("model_extended.json"))
+            outputs.update(adopted=True, model="model_extended.json")
+    artifacts = ["diagnosis.png"] + (["model_extended.json"] if outputs["adopted"] else [])
+    return outputs, artifacts
+
+
 # ---------------------------------------------------------------------------------------- reduce
 def reduce_model(ctx: StageContext) -> tuple[dict, list[str]]:
     """LPV Ho-Kalman-like reduction (Schulz et al. Lemma 1); order from the config or automatic."""
     from lpvflow.identify.reduce import plot_singular_values, reduce
 
-    ss = load(ctx.path("model_full.json"))
+    ss = load(ctx.path(ctx.outputs.get("diagnose", {}).get("model", "model_full.json")))
     reduced = reduce(ss, order=ctx.config["reduce"]["order"])
     reduced.save(ctx.path("model.json"))
     plot_singular_values(reduced.reduction, ctx.path("singular_values.png"))

@@ -1,9 +1,10 @@
 """Stage cache: a stage is skipped when its key — a hash of everything it depends on — is unchanged.
 
-key(stage) = sha256(JSON of its config section, the keys of the stages it reads from, the bytes of
-the files it reads). A stage's record (``<stage>.json`` in the design folder) stores the key and the
-stage's outputs; it is reused only when the key matches and every artifact it lists still exists.
-Because downstream keys contain upstream keys, a config change reruns exactly the stages it affects.
+key(stage) = sha256(JSON of its config section, the lpvflow version and the stage function's
+source, the keys of the stages it reads from, the bytes of the files it reads). A stage's record
+(``<stage>.json`` in the design folder) stores the key and the stage's outputs; it is reused only
+when the key matches and every artifact it lists still exists. Because downstream keys contain
+upstream keys, a config change reruns exactly the stages it affects.
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ SCHEMA: dict[str, dict[str, Any]] = {
     "experiment": {"Ts": REQUIRED, "duration": REQUIRED, "controller": None, "inputs": {}, "excitation": {},
                    "parameters": {}, "scheduling": {}, "seed": 0},
     "identify": {"u": REQUIRED, "y": REQUIRED, "p": REQUIRED, "na": 2, "nb": 2, "nk": 1, "basis": "affine",
-                 "split": 0.7, "ridge": 0.0},
+                 "split": 0.7, "ridge": 0.0, "remove_offsets": False},
     "diagnose": {"adopt": False, "candidates": [], "split": 0.5},
     "reduce": {"order": None},
     "validate": {"grid": 7, "reference": "none", "operating_point": {}},

@@ -10,11 +10,13 @@ Without a [synth] table the run ends after validation.
 
 from __future__ import annotations
 
+import inspect
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from lpvflow import __version__
 from lpvflow.errors import LpvflowError
 from lpvflow.models import _atomic_write_json
 from lpvflow.pipeline import cache, stages
@@ -61,7 +63,8 @@ def run_design(config_path: str | Path, log=print) -> dict:
             continue
         files = [config[t][k] for t, k in stage.file_keys if config[t][k]]
         upstream = [keys.get(u, "not configured") for u in stage.upstream]
-        key = cache.stage_key({t: config[t] for t in stage.tables}, upstream, files)
+        code = f"{__version__}\n{inspect.getsource(stage.run)}"  # an edited stage reruns
+        key = cache.stage_key({"code": code, **{t: config[t] for t in stage.tables}}, upstream, files)
         keys[stage.name] = key
         record = cache.load_record(folder, stage.name, key)
         if record is not None:

@@ -8,7 +8,7 @@ caches them (:mod:`lpvflow.pipeline.cache`) and reports them.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -50,9 +50,16 @@ def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
 
 
 def read_data(ctx: StageContext) -> tuple[Dataset, Dataset]:
+    """Estimation and validation parts; with ``remove_offsets`` both have the estimation part's mean
+    inputs and outputs subtracted (the model then works in deviations from that operating point)."""
     cfg = ctx.config["identify"]
-    data = Dataset.read(ctx.path("data.csv"), cfg["u"], cfg["y"], cfg["p"])
-    return data.split(cfg["split"])
+    est, val = Dataset.read(ctx.path("data.csv"), cfg["u"], cfg["y"], cfg["p"]).split(cfg["split"])
+    if not cfg["remove_offsets"]:
+        return est, val
+    u0, y0 = est.u.mean(axis=0), est.y.mean(axis=0)
+    offsets = {"u": u0.tolist(), "y": y0.tolist()}
+    return (replace(est, u=est.u - u0, y=est.y - y0, offsets=offsets),
+            replace(val, u=val.u - u0, y=val.y - y0, offsets=offsets))
 
 
 # -------------------------------------------------------------------------------------- identify
@@ -68,7 +75,7 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     residuals = prediction_residuals(io, val)
     one_step = 100 * (1 - np.linalg.norm(residuals, axis=0)
                       / np.linalg.norm(val.y[io.max_lag:] - val.y[io.max_lag:].mean(axis=0), axis=0))
-    return {"nx": ss.nx, "one_step_bfr_validation": one_step.tolist(),
+    return {"nx": ss.nx, "one_step_bfr_validation": one_step.tolist(), "offsets": est.offsets,
             "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)]}, ["model_full.json"]
 
 
@@ -113,16 +120,41 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
 
 # ---------------------------------------------------------------------------------------- reduce
 def reduce_model(ctx: StageContext) -> tuple[dict, list[str]]:
-    """LPV Ho-Kalman-like reduction (Schulz et al. Lemma 1); order from the config or automatic."""
+    """LPV Ho-Kalman-like reduction (Schulz et al. Lemma 1); order from the config or automatic.
+
+    The reduction does not preserve stability. With an automatic order, the order is raised from the
+    singular-value choice until the reduced model's largest frozen spectral radius over the scheduling
+    range exceeds the full model's by at most ``RADIUS_TOLERANCE`` (so no spurious unstable mode).
+    """
     from lpvflow.identify.reduce import plot_singular_values, reduce
 
     ss = load(ctx.path(ctx.outputs.get("diagnose", {}).get("model", "model_full.json")))
-    reduced = reduce(ss, order=ctx.config["reduce"]["order"])
+    order = ctx.config["reduce"]["order"]
+    reduced = reduce(ss, order=order)
+    rule = "given" if order is not None else "singular values"
+    if order is None:
+        limit = _max_frozen_radius(ss) + RADIUS_TOLERANCE
+        while reduced.nx < ss.nx and _max_frozen_radius(reduced) > limit:
+            reduced = reduce(ss, order=reduced.nx + 1)
+            rule = "raised until the frozen spectral radius matches the full model's"
     reduced.save(ctx.path("model.json"))
     plot_singular_values(reduced.reduction, ctx.path("singular_values.png"))
-    return ({"order": reduced.nx, "full_order": ss.nx,
+    return ({"order": reduced.nx, "full_order": ss.nx, "order_rule": rule,
+             "max_frozen_radius": _max_frozen_radius(reduced),
+             "full_max_frozen_radius": _max_frozen_radius(ss),
              "singular_values": reduced.reduction["singular_values"]},
             ["model.json", "singular_values.png"])
+
+
+#: How much a reduced model's frozen spectral radius may exceed the full model's.
+RADIUS_TOLERANCE = 1e-3
+
+
+def _max_frozen_radius(model: LPVSS, points: int = 9) -> float:
+    """Largest spectral radius of A(θ) on a grid over the recorded scheduling box."""
+    lo, hi = np.asarray(model.basis.p_min), np.asarray(model.basis.p_max)
+    grid = lo + np.linspace(0, 1, points)[:, None] * (hi - lo)
+    return float(max(np.max(np.abs(np.linalg.eigvals(model.matrices(p)[0]))) for p in grid))
 
 
 # -------------------------------------------------------------------------------------- validate

@@ -30,6 +30,9 @@ def _table(rows: list[tuple[str, str]]) -> str:
 
 
 def _fmt(value) -> str:
+    if isinstance(value, dict) and {"outputs", "bfr", "vaf"} <= set(value):  # a fit report
+        return "; ".join(f"{n}: BFR {b:.1f} %, VAF {v:.1f} %"
+                         for n, b, v in zip(value["outputs"], value["bfr"], value["vaf"], strict=True))
     if isinstance(value, float):
         return f"{value:.4g}"
     if isinstance(value, list) and value and all(isinstance(v, float) for v in value):
@@ -83,6 +86,8 @@ def write_report(folder: Path, summary: dict) -> Path:
              for n, s in summary["stages"].items()]
     sections.append("<h2>Stages</h2>" + _table(times))
     for name, stage in summary["stages"].items():
+        if stage["status"] == "not configured":
+            continue
         rows = [(k, _fmt(v)) for k, v in stage.get("outputs", {}).items()
                 if not isinstance(v, list) or len(v) <= 12]
         sections.append(f"<h2>{html.escape(name)}</h2>" + (_table(rows) if rows else ""))

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import scipy.io
-import scipy.signal
 
 from lpvflow.errors import DataError
 
@@ -114,6 +113,8 @@ class Dataset:
         """
         if int(factor) != factor or factor < 1:
             raise DataError(f"decimation factor must be a whole number >= 1, got {factor}")
+        import scipy.signal  # slow to import; only decimation needs it
+
         factor = int(factor)
         if factor == 1:
             return self

@@ -118,3 +118,20 @@ def test_cli_writes_the_diagnosis_and_the_extended_model(tmp_path, capsys):
 def test_structure_orders_broadcast():
     na, nb, nk = Structure(2, 3, 1).orders(2, 1)
     assert na.tolist() == [[2, 2], [2, 2]] and nb.tolist() == [[3], [3]] and nk.tolist() == [[1], [1]]
+
+
+def test_an_extension_the_data_cannot_identify_is_untested_not_fatal(monkeypatch):
+    """A failing extension (here: a rank-deficient richer structure) leaves its cause untested, with
+    the reason, and never names it; the other causes are still diagnosed."""
+    from lpvflow.errors import DataError as DE
+    from lpvflow.validate import extensions
+
+    def rank_deficient(ctx):
+        raise DE("the regressor is rank deficient (rank 41 of 42)")
+
+    monkeypatch.setitem(extensions.EXTENSIONS, "model_order", rank_deficient)
+    data, channels, _ = make_case("input_delay", seed=15)
+    result = diagnose(data, NOMINAL, channels)
+    assert result.cause == "input_delay"
+    assert "model_order" in result.untested and "rank deficient" in result.untested_reasons["model_order"]
+    assert all(r["cause"] != "model_order" for r in result.ranking)

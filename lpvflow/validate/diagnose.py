@@ -29,7 +29,7 @@ import numpy as np
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
-from lpvflow.errors import DataError
+from lpvflow.errors import DataError, LpvflowError
 from lpvflow.validate import residuals
 from lpvflow.validate.extensions import EXTENSIONS, Candidate, Context, Structure, fit
 from lpvflow.validate.metrics import bfr, vaf
@@ -55,6 +55,7 @@ class Diagnosis:
     summary: str
     where: dict
     untested: list[str] = field(default_factory=list)
+    untested_reasons: dict[str, str] = field(default_factory=dict)
     winner: Candidate | None = field(default=None, repr=False)
     nominal_y_val: np.ndarray | None = field(default=None, repr=False)
     error_spectrum: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
@@ -181,8 +182,13 @@ def diagnose(
         warnings.simplefilter("ignore", SchedulingRangeWarning)
         candidates = {}
         tried = list(causes or EXTENSIONS)
+        untested_reasons: dict[str, str] = {}
         for cause in tried:
-            cand = EXTENSIONS[cause](ctx)
+            try:
+                cand = EXTENSIONS[cause](ctx)
+            except LpvflowError as exc:  # e.g. a richer structure the data cannot identify
+                untested_reasons[cause] = str(exc)
+                continue
             if cand is not None:
                 candidates[cause] = cand
     base_loss = _normalised_sq_error(val.y, nominal.y_val)
@@ -212,7 +218,7 @@ def diagnose(
         cause=cause, parameters=winner.parameters if winner else {},
         evidence=_evidence(est, prediction_residuals(nominal.model, est), split_channels),
         ranking=ranked, summary="", where=_where(val, val.y - nominal.y_val), winner=winner,
-        untested=[c for c in tried if c not in candidates],
+        untested=[c for c in tried if c not in candidates], untested_reasons=untested_reasons,
         nominal_y_val=nominal.y_val,
         error_spectrum=residuals.error_spectrum(val.y[:, 0] - nominal.y_val[:, 0], val.Ts),
     )

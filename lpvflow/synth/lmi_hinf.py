@@ -66,6 +66,7 @@ from lpvflow.synth.plant import GeneralizedPlant, VertexPlant
 from lpvflow.synth.sdp import SolveReport, SynthesisError, psd, solve
 
 METHODS = ("common", "dilated")
+_BOUND = 1e6  # P̄_i, sym 𝒢 ⪯ β·I in the scaled coordinates (synthesize, step 1 and 2)
 
 
 @dataclass
@@ -74,6 +75,7 @@ class HinfResult:
 
     Attributes:
         K_vertices: (Ak_i, Bk_i, Ck_i, Dk_i) from e to u (before the input filter W_B).
+        gamma: the γ the returned controller is certified for; gamma_opt: the minimum found by the SDP.
         P: closed-loop Lyapunov matrices 𝒫_i (one, repeated, for ``"common"``); G: slack 𝒢.
         controller: the implementable controller (W_B in series when the design has one).
     """
@@ -85,19 +87,39 @@ class HinfResult:
     G: np.ndarray
     report: SolveReport
     plant: GeneralizedPlant
+    gamma_opt: float = float("nan")
+    lmi_max_eig: float = float("nan")
     controller: LPVController | None = None
 
 
-def _state_scaling(vertices: list[VertexPlant]) -> np.ndarray:
-    """Diagonal s with diag(s)⁻¹ A diag(s) balanced (Parlett–Reinsch) for the mean |A_i|."""
+def _scalings(vertices: list[VertexPlant]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Diagonal state, control and measurement scalings (s, d_u, d_y) of the generalized plant.
+
+    s balances the mean |A_i| (Parlett–Reinsch), clipped to [1e-6, 1e6]; then d_u makes every column
+    of [S⁻¹B2; D12 d_u] and d_y every row of d_y⁻¹[C2 S, D21] have unit largest entry. The exogenous w
+    and performance z are not scaled per channel: that would change ‖T_zw‖∞ (a common scalar
+    would only rescale γ).
+    """
     mean_abs = np.mean([np.abs(v.A) for v in vertices], axis=0)
     _, (s, _) = scipy.linalg.matrix_balance(mean_abs, permute=False, separate=True)
-    return s
+    s = np.clip(s, 1e-6, 1e6)
+    v = vertices[0]
+    du = 1.0 / np.maximum(np.max(np.abs(np.vstack([v.B2 / s[:, None], v.D12])), axis=0), 1e-12)
+    dy = np.maximum(np.max(np.abs(np.hstack([v.C2 * s[None, :], v.D21])), axis=1), 1e-12)
+    return s, du, dy
 
 
-def _scaled(v: VertexPlant, s: np.ndarray) -> VertexPlant:
-    return VertexPlant(v.A * s[None, :] / s[:, None], v.B1 / s[:, None], v.B2 / s[:, None],
-                       v.C1 * s[None, :], v.C2 * s[None, :], v.D11, v.D12, v.D21, v.D22)
+def _scaled(v: VertexPlant, s: np.ndarray, du: np.ndarray, dy: np.ndarray) -> VertexPlant:
+    """The plant in x̃ = S⁻¹x, ũ = D_u⁻¹u, ỹ = D_y⁻¹y (S = diag s, D_u = diag du, D_y = diag dy)."""
+    return VertexPlant(v.A * s[None, :] / s[:, None], v.B1 / s[:, None], v.B2 / s[:, None] * du[None, :],
+                       v.C1 * s[None, :], v.C2 * s[None, :] / dy[:, None], v.D11, v.D12 * du[None, :],
+                       v.D21 / dy[:, None], v.D22 * du[None, :] / dy[:, None])
+
+
+def _unscaled_controller(K: tuple[np.ndarray, ...], du: np.ndarray, dy: np.ndarray) -> tuple[np.ndarray, ...]:
+    """K from y to u given K̃ from ỹ to ũ: Bk = B̃k D_y⁻¹, Ck = D_u C̃k, Dk = D_u D̃k D_y⁻¹ (exact)."""
+    Ak, Bk, Ck, Dk = K
+    return Ak, Bk / dy[None, :], du[:, None] * Ck, du[:, None] * Dk / dy[None, :]
 
 
 def _vertex_blocks(v, X, Y, Qi, Li, Fi, Ri):
@@ -115,7 +137,7 @@ def _lmi(Pnext, Phi, Pcur_block, Psi, Omega, Delta, g, nw, nz):
     return cp.bmat([
         [Pnext, Phi, Psi, np.zeros((n2, nz))],
         [Phi.T, Pcur_block, np.zeros((n2, nw)), Omega.T],
-        [Psi.T, np.zeros((nw, n2)), np.eye(nw), Delta.T],
+        [Psi.T, np.zeros((nw, n2)), g * np.eye(nw), Delta.T],
         [np.zeros((nz, n2)), Omega, Delta, g * np.eye(nz)],
     ])
 
@@ -130,24 +152,24 @@ def reconstruct(v: VertexPlant, X, Y, S, Q, L, F, R, U, Vt) -> tuple[np.ndarray,
     return Ak, Bk, Ck, Dk
 
 
-def synthesize(
-    plant: GeneralizedPlant, method: str = "dilated", solver: str = "CLARABEL", margin: float = 1e-7,
-    gamma_max: float | None = None,
-) -> HinfResult:
-    """Minimise γ² subject to the vertex LMIs of ``method`` (``"common"`` or ``"dilated"``).
+@dataclass
+class _Lmis:
+    """cvxpy variables and vertex LMIs of one method (module docstring), before a margin is chosen."""
 
-    Args:
-        margin: strictness, every LMI ⪰ margin·I (the plant is state-balanced first).
-        gamma_max: demand γ ≤ gamma_max (a design spec ‖·‖∞ ≤ 1 is gamma_max = 1); infeasible then means
-            the weights ask for more than the plant allows.
+    X: cp.Variable
+    Y: cp.Variable
+    S: cp.Variable | np.ndarray
+    Q: list[cp.Variable]
+    L: list[cp.Variable]
+    F: list[cp.Variable]
+    R: list[cp.Variable]
+    Pbar: list
+    matrices: list
+    bounds: list[cp.Expression]
 
-    Raises:
-        SynthesisError: infeasible LMIs (with the reason) or an inaccurate solve.
-    """
-    if method not in METHODS:
-        raise ModelError(f"unknown output-feedback method {method!r}; use one of {', '.join(METHODS)}")
-    s = _state_scaling(plant.vertices)
-    verts = [_scaled(v, s) for v in plant.vertices]
+
+def _lmis(verts: list[VertexPlant], method: str, g: cp.Expression) -> _Lmis:
+    """The vertex LMI matrices (E_ij) with γ² = g, and the blocks bounded by ``_BOUND`` (P̄_i, 𝒢 sym)."""
     n, nw, nu, nz, ny = verts[0].dims
     N = len(verts)
     dilated = method == "dilated"
@@ -158,49 +180,188 @@ def synthesize(
     L = [cp.Variable((nu, n)) for _ in range(N)]
     F = [cp.Variable((n, ny)) for _ in range(N)]
     R = [cp.Variable((nu, ny)) for _ in range(N)]
-    g = cp.Variable(nonneg=True)
     I = np.eye(n)
     if dilated:
         Pbar = [cp.Variable((2 * n, 2 * n), symmetric=True) for _ in range(N)]
         Gsym = cp.bmat([[X + X.T, I + S.T], [I + S, Y + Y.T]])
+        bounds = [*Pbar, 0.5 * Gsym]
     else:
         Pbar = [cp.bmat([[X, I], [I, Y]])] * N
-    constraints = []
+        bounds = [Pbar[0]]
+    matrices = []
     for i, v in enumerate(verts):
         Phi, Psi, Omega, Delta = _vertex_blocks(v, X, Y, Q[i], L[i], F[i], R[i])
         for j in range(N) if dilated else (i,):
             cur = Gsym - Pbar[i] if dilated else Pbar[i]
-            constraints.append(psd(_lmi(Pbar[j], Phi, cur, Psi, Omega, Delta, g, nw, nz), margin))
-    if gamma_max is not None:
-        constraints.append(g <= gamma_max**2)
-    problem = cp.Problem(cp.Minimize(g), constraints)
-    what = f"{method} output-feedback H∞ LMIs at {N} vertices" + (
-        f" with γ ≤ {gamma_max:g}" if gamma_max is not None else "")
-    try:
-        report = solve(problem, solver, what)
-    except SynthesisError as exc:
-        raise SynthesisError(f"{exc}: {_infeasibility_hint(plant, gamma_max)}") from None
+            matrices.append(_lmi(Pbar[j], Phi, cur, Psi, Omega, Delta, g, nw, nz))
+    return _Lmis(X, Y, S, Q, L, F, R, Pbar, matrices, bounds)
 
-    Xv, Yv = np.asarray(X.value), np.asarray(Y.value)
-    Sv = np.asarray(S.value) if dilated else I
+
+def _bounded(lmis: _Lmis) -> list[cp.Constraint]:
+    n2 = lmis.bounds[0].shape[0]
+    return [0.5 * (B + B.T) << _BOUND * np.eye(n2) for B in lmis.bounds]
+
+
+def _values(lmis: _Lmis) -> dict:
+    """The numbers of a solved LMI set (copied: the variables are overwritten by the next solve)."""
+    val = {k: np.array(getattr(lmis, k).value, dtype=float) for k in ("X", "Y")}
+    val["S"] = np.array(lmis.S.value, dtype=float) if isinstance(lmis.S, cp.Variable) else lmis.S
+    for k in ("Q", "L", "F", "R"):
+        val[k] = [np.array(v.value, dtype=float) for v in getattr(lmis, k)]
+    val["Pbar"] = [np.array(P.value, dtype=float) for P in lmis.Pbar]
+    return val
+
+
+class _MarginProblem:
+    """max t s.t. every vertex LMI ⪰ t·I at a fixed γ (a cvxpy Parameter: compiled once)."""
+
+    def __init__(self, verts: list[VertexPlant], method: str, solver: str, what: str) -> None:
+        self.gamma = cp.Parameter(pos=True)
+        self.t = cp.Variable()
+        self.lmis = _lmis(verts, method, self.gamma)
+        constraints = [psd(M, self.t) for M in self.lmis.matrices] + _bounded(self.lmis)
+        self.problem = cp.Problem(cp.Maximize(self.t), constraints)
+        self.solver, self.what = solver, what
+        self.reports: list[SolveReport] = []
+
+    def margin(self, gamma: float) -> tuple[float, dict | None]:
+        """(t, numbers) at γ; t = −inf when no solver returned a point."""
+        self.gamma.value = gamma
+        try:
+            self.reports.append(solve(self.problem, self.solver, f"{self.what} at γ = {gamma:.6g}"))
+        except SynthesisError:
+            return -np.inf, None
+        return float(self.t.value), _values(self.lmis)
+
+
+def _bisect(
+    mp: _MarginProblem, start: float, rel_tol: float, gamma_max: float | None,
+) -> tuple[float, float, dict]:
+    """Smallest γ with a positive margin, by geometric bisection: (lower estimate, γ, numbers at γ)."""
+    lo, hi, best = None, start, None
+    for _ in range(6):  # up to 4⁶ ≈ 4000·start: beyond that the margin only tends to 0⁻ (infeasible)
+        t, val = mp.margin(hi)
+        if t > 0:
+            best = val
+            break
+        lo, hi = hi, 4.0 * hi
+        if gamma_max is not None and lo >= gamma_max:
+            break
+    if best is None:
+        raise SynthesisError(f"{mp.what}: no strictly feasible point up to γ = {lo:.6g}")
+    while lo is None:
+        t, val = mp.margin(hi / 4.0)
+        if t > 0:
+            hi, best = hi / 4.0, val
+        else:
+            lo = hi / 4.0
+    while hi / lo > 1.0 + rel_tol:
+        mid = np.sqrt(lo * hi)
+        t, val = mp.margin(mid)
+        if t > 0:
+            hi, best = mid, val
+        else:
+            lo = mid
+    return lo, hi, best
+
+
+def synthesize(
+    plant: GeneralizedPlant, method: str = "dilated", solver: str = "CLARABEL", margin: float = 1e-7,
+    gamma_max: float | None = None, suboptimality: float = 1e-2,
+) -> HinfResult:
+    """γ-optimal vertex controllers of ``method`` (``"common"`` or ``"dilated"``).
+
+    1. minimise γ subject to the vertex LMIs ⪰ margin·I, with P̄_i (and sym 𝒢) ⪯ β·I (β = 1e6 in the
+       scaled coordinates, which keeps the near-singular H∞ optimum bounded): γ_opt;
+    2. fix γ = (1 + suboptimality)·γ_opt and maximise the common margin t of every LMI ⪰ t·I under the
+       same bounds: a strictly feasible, well-conditioned point (the controller's certified γ).
+    When step 1 fails (H∞-optimal LMIs are degenerate at the optimum, e.g. weights with poles near
+    z = 1) or step 2 finds no positive margin, γ_opt is found by geometric bisection on the margin of
+    step 2 to a relative width suboptimality/2 instead. Both run on the scaled plant (:func:`_scalings`);
+    the controller is unscaled exactly. Whatever the solver status (optimal or optimal_inaccurate),
+    the vertex LMIs are re-evaluated in closed-loop coordinates with the returned numbers
+    (:func:`lpvflow.synth.certify.vertex_lmi_max_eig`) and the result is refused unless every one is
+    negative definite.
+
+    Args:
+        margin: strictness of step 1, every LMI ⪰ margin·I.
+        gamma_max: demand γ ≤ gamma_max (a design spec ‖·‖∞ ≤ 1 is gamma_max = 1); infeasible then means
+            the weights ask for more than the plant allows.
+        suboptimality: relative distance of the returned controller's γ from γ_opt.
+
+    Raises:
+        SynthesisError: infeasible LMIs (with the reason), a failed solve or a failed re-check.
+    """
+    if method not in METHODS:
+        raise ModelError(f"unknown output-feedback method {method!r}; use one of {', '.join(METHODS)}")
+    s, du, dy = _scalings(plant.vertices)
+    verts = [_scaled(v, s, du, dy) for v in plant.vertices]
+    what = f"{method} output-feedback H∞ LMIs at {len(verts)} vertices" + (
+        f" with γ ≤ {gamma_max:g}" if gamma_max is not None else "")
+    g = cp.Variable(nonneg=True)
+    first = _lmis(verts, method, g)
+    constraints = [psd(M, margin) for M in first.matrices] + _bounded(first)
+    if gamma_max is not None:
+        constraints.append(g <= gamma_max)
+    gamma_opt = None
+    try:
+        report1 = solve(cp.Problem(cp.Minimize(g), constraints), solver, what)
+        gamma_opt = float(g.value)
+    except SynthesisError as exc:
+        if "infeasible" in str(exc):
+            raise SynthesisError(f"{exc}: {_infeasibility_hint(plant, gamma_max)}") from None
+        report1 = SolveReport(solver, str(exc), 0.0, [])
+    mp = _MarginProblem(verts, method, solver, what)
+    result = None
+    if gamma_opt is not None:
+        gamma = gamma_opt * (1.0 + suboptimality)
+        t, val = mp.margin(gamma)
+        result = _result(plant, method, verts, s, du, dy, gamma, gamma_opt, val) if t > 0 else None
+    if result is None or not result.lmi_max_eig < 0:
+        try:
+            lo, gamma, val = _bisect(mp, gamma_opt or 1.0, 0.5 * suboptimality, gamma_max)
+        except SynthesisError as exc:
+            raise SynthesisError(f"{exc}: {_infeasibility_hint(plant, gamma_max)}") from None
+        result = _result(plant, method, verts, s, du, dy, gamma, lo, val)
+    attempts = report1.attempts + [a for r in mp.reports for a in r.attempts]
+    status = mp.reports[-1].status
+    if report1.status != cp.OPTIMAL or result.gamma_opt != gamma_opt:
+        status += f"; γ minimisation: {report1.status[:60]}" + (
+            ", bisection used" if result.gamma_opt != gamma_opt else "")
+    result.report = SolveReport(mp.reports[-1].solver, status, sum(a[2] for a in attempts), attempts)
+    if not result.lmi_max_eig < 0:
+        raise SynthesisError(f"{what}: the solver's point ({status}) fails the independent vertex-LMI "
+                             f"re-check (max eigenvalue {result.lmi_max_eig:.3g} ≥ 0); "
+                             "increase suboptimality")
+    result.controller = implementable_controller(result)
+    return result
+
+
+def _result(plant: GeneralizedPlant, method: str, verts: list[VertexPlant], s: np.ndarray, du: np.ndarray,
+            dy: np.ndarray, gamma: float, gamma_opt: float, val: dict) -> HinfResult:
+    """Controller reconstruction, certificate in the original closed-loop coordinates, LMI re-check.
+
+    The LMIs hold γ·I in both the w and z blocks; the congruence diag(√γ I, √γ I, I/√γ, √γ I) turns
+    them into (E) with I and γ²I, so the returned 𝒫_i, 𝒢 are γ times the solved ones.
+    """
+    from lpvflow.synth.certify import vertex_lmi_max_eig
+
+    n = verts[0].dims[0]
+    I = np.eye(n)
+    Xv, Yv, Sv = val["X"], val["Y"], val["S"]
     W, sig, Zt = np.linalg.svd(Sv - Yv @ Xv)
-    Vt, U = W * np.sqrt(sig), np.sqrt(sig)[:, None] * Zt
     if sig[-1] <= 1e-12 * sig[0]:
         raise SynthesisError(f"controller reconstruction is ill-conditioned (S − YX has condition "
-                             f"{sig[0] / max(sig[-1], 1e-300):.2g}); increase the margin")
-    K_scaled = [reconstruct(v, Xv, Yv, Sv, Q[i].value, L[i].value, F[i].value, R[i].value, U, Vt)
-                for i, v in enumerate(verts)]
+                             f"{sig[0] / max(sig[-1], 1e-300):.2g}); increase suboptimality")
+    Vt, U = W * np.sqrt(sig), np.sqrt(sig)[:, None] * Zt
+    K = [_unscaled_controller(reconstruct(v, Xv, Yv, Sv, val["Q"][i], val["L"][i], val["F"][i], val["R"][i],
+                                          U, Vt), du, dy) for i, v in enumerate(verts)]
     T = np.block([[I, Yv.T], [np.zeros((n, n)), Vt.T]])
-    Tinv = np.linalg.inv(T)
-    Tscale = np.diag(np.concatenate([s, np.ones(n)]))  # ξ = Tscale ξ_balanced
-    back = Tscale @ Tinv.T
-    Gbar = np.block([[Xv, I], [Sv, Yv]])
-    G = back @ Gbar @ back.T
-    P = [back @ np.asarray(Pb.value) @ back.T for Pb in Pbar]
-    gamma = float(np.sqrt(g.value))
-    # plant-state scaling does not change the controller: its input/output are e and u
-    result = HinfResult(method, gamma, K_scaled, P, G, report, plant)
-    result.controller = implementable_controller(result)
+    back = np.diag(np.concatenate([s, np.ones(n)])) @ np.linalg.inv(T).T  # ξ = diag(s, I) ξ̃
+    G = gamma * back @ np.block([[Xv, I], [Sv, Yv]]) @ back.T
+    P = [gamma * back @ Pb @ back.T for Pb in val["Pbar"]]
+    result = HinfResult(method, gamma, K, P, G, SolveReport("", "", 0.0), plant, gamma_opt=gamma_opt)
+    result.lmi_max_eig = vertex_lmi_max_eig(result)
     return result
 
 
@@ -211,7 +372,8 @@ def implementable_controller(result: HinfResult) -> LPVController:
     if plant.input_filter is not None:
         K = [series_input_filter(k, plant.input_filter) for k in K]
     stacks = [np.array([k[m] for k in K]) for m in range(4)]
-    info = {"method": result.method, "gamma": result.gamma, "solver": result.report.solver,
+    info = {"method": result.method, "gamma": result.gamma, "gamma_opt": result.gamma_opt,
+            "solver": result.report.solver, "status": result.report.status,
             "solve_seconds": result.report.seconds, "polytope": plant.polytope.kind}
     return LPVController(*stacks, plant.polytope, plant.basis, plant.Ts, info=info)
 

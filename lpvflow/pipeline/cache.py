@@ -1,7 +1,7 @@
 """Stage cache: a stage is skipped when its key — a hash of everything it depends on — is unchanged.
 
-key(stage) = sha256(JSON of its config section, the lpvflow version and the stage function's
-source, the keys of the stages it reads from, the bytes of the files it reads). A stage's record
+key(stage) = sha256(JSON of its config section, a digest of lpvflow's own source code, the keys of
+the stages it reads from, the bytes of the files it reads). A stage's record
 (``<stage>.json`` in the design folder) stores the key and the stage's outputs; it is reused only
 when the key matches and every artifact it lists still exists. Because downstream keys contain
 upstream keys, a config change reruns exactly the stages it affects.
@@ -16,6 +16,16 @@ from typing import Any
 
 from lpvflow.experiment.plant import sha256_of
 from lpvflow.models import _atomic_write_json
+
+
+def code_digest() -> str:
+    """sha256 over lpvflow's Python sources and package data: a code change invalidates every stage."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".c", ".h", ".xml", ".toml")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
 
 
 def stage_key(section: Any, upstream: list[str], files: list[str | Path]) -> str:

@@ -10,13 +10,11 @@ Without a [synth] table the run ends after validation.
 
 from __future__ import annotations
 
-import inspect
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from lpvflow import __version__
 from lpvflow.errors import LpvflowError
 from lpvflow.models import _atomic_write_json
 from lpvflow.pipeline import cache, stages
@@ -55,6 +53,7 @@ def run_design(config_path: str | Path, log=print) -> dict:
     folder.mkdir(parents=True, exist_ok=True)
     ctx = stages.StageContext(folder, config)
     keys: dict[str, str] = {}
+    code = cache.code_digest()  # any change to lpvflow's code reruns every stage
     summary: dict = {"name": config["design"]["name"], "config": str(config_path), "stages": {}}
     failed = None
     for i, stage in enumerate(STAGES, 1):
@@ -63,7 +62,6 @@ def run_design(config_path: str | Path, log=print) -> dict:
             continue
         files = [config[t][k] for t, k in stage.file_keys if config[t][k]]
         upstream = [keys.get(u, "not configured") for u in stage.upstream]
-        code = f"{__version__}\n{inspect.getsource(stage.run)}"  # an edited stage reruns
         key = cache.stage_key({"code": code, **{t: config[t] for t in stage.tables}}, upstream, files)
         keys[stage.name] = key
         record = cache.load_record(folder, stage.name, key)

@@ -119,10 +119,17 @@ class LPVController:
             pd = d["polytope"]
             poly = Polytope(pd["kind"], np.asarray(pd["box"], float), np.asarray(pd["psi_vertices"], float),
                             None if pd.get("term_box") is None else np.asarray(pd["term_box"], float))
-            return cls(d["Ak"], d["Bk"], d["Ck"], d["Dk"], poly, Basis.from_dict(d["basis"]), float(d["Ts"]),
-                       info=d.get("info", {}))
+            Dk = np.asarray(d["Dk"], float)
+            N, nu, ny = Dk.shape
+            # JSON drops the empty dimensions of a controller without states: n from the size of Ak
+            n = round(np.asarray(d["Ak"], float).reshape(N, -1).shape[1] ** 0.5)
+            mats = (np.asarray(d["Ak"], float).reshape(N, n, n), np.asarray(d["Bk"], float).reshape(N, n, ny),
+                    np.asarray(d["Ck"], float).reshape(N, nu, n), Dk)
+            return cls(*mats, poly, Basis.from_dict(d["basis"]), float(d["Ts"]), info=d.get("info", {}))
         except KeyError as exc:
             raise ModelError(f"controller file lacks the field {exc.args[0]!r}") from None
+        except ValueError as exc:
+            raise ModelError(f"controller file has inconsistent matrix sizes ({exc})") from None
 
     def save(self, path: str | os.PathLike) -> None:
         _atomic_write_json(path, self.to_dict())

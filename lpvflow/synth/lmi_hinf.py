@@ -319,9 +319,11 @@ def synthesize(
         result = _result(plant, method, verts, s, du, dy, gamma, gamma_opt, val) if t > 0 else None
     if result is None or not result.lmi_max_eig < 0:
         try:
-            lo, gamma, val = _bisect(mp, gamma_opt or 1.0, 0.5 * suboptimality, gamma_max)
+            lo, hi, val = _bisect(mp, gamma_opt or 1.0, 0.5 * suboptimality, gamma_max)
         except SynthesisError as exc:
             raise SynthesisError(f"{exc}: {_infeasibility_hint(plant, gamma_max)}") from None
+        t, val_final = mp.margin(hi * (1.0 + suboptimality))  # room for a margin, as in step 2
+        gamma, val = (hi * (1.0 + suboptimality), val_final) if t > 0 else (hi, val)
         result = _result(plant, method, verts, s, du, dy, gamma, lo, val)
     attempts = report1.attempts + [a for r in mp.reports for a in r.attempts]
     status = mp.reports[-1].status

@@ -2,7 +2,8 @@
 
 Signals (1-DOF loop, reference r, control u from the controller, plant input u_p):
 
-    u_p = W_B u   (u_p = u without input filter),   y = G(θ) u_p,   e = r − y,
+    u_p = W_B u   (u_p = u without input filter),   y = G(θ) u_p,   e = r − y,   r = W_R w (r = w without
+    reference weight: W_R = diag(1, 0.01) says the second output's "reference" is only small noise),
     z = [W_S e ; W_K u ; W_T y (optional)],          measured output of the generalized plant: e.
 
 With state x = [x_G; x_weights] this is the discrete-time LFT plant of Apkarian, Gahinet & Becker
@@ -114,7 +115,7 @@ def _named_ss(M: control.StateSpace, inp: str, out: str, name: str) -> control.S
 
 
 def weight_systems(weights: dict, ny: int, nu: int, Ts: float) -> dict[str, control.StateSpace]:
-    """The diagonal weights W_S, W_K and the optional W_B, W_T of a ``[weights]`` table."""
+    """The diagonal weights W_S, W_K and the optional W_B, W_T, W_R of a ``[weights]`` table."""
     for key in ("S", "K"):
         if key not in weights:
             raise ModelError(f"design spec lacks the weight [weights.{key}] "
@@ -122,7 +123,7 @@ def weight_systems(weights: dict, ny: int, nu: int, Ts: float) -> dict[str, cont
     eps = float(weights.get("integrator_shift", DEFAULT_INTEGRATOR_SHIFT))
     if not 0.0 < eps < 0.5:
         raise ModelError(f"integrator_shift must be in (0, 0.5), got {eps}")
-    sizes = {"S": ny, "K": nu, "B": nu, "T": ny}
+    sizes = {"S": ny, "K": nu, "B": nu, "T": ny, "R": ny}
     return {k: diagonal_weight(weights[k], sizes[k], Ts, f"W_{k}", eps) for k in sizes if k in weights}
 
 
@@ -136,12 +137,15 @@ def augment(G: control.StateSpace, W: dict[str, control.StateSpace], Ts: float) 
         control.summing_junction(inputs=["r", "-y"], output="e", dimension=ny, name="sum"),
     ]
     outputs = ["zS", "zK"]
+    if "R" in W:
+        blocks.append(_named_ss(W["R"], "w", "r", "WR"))
     if "B" in W:
         blocks.append(_named_ss(W["B"], "u", "up", "WB"))
     if "T" in W:
         blocks.append(_named_ss(W["T"], "y", "zT", "WT"))
         outputs.append("zT")
-    return control.interconnect(blocks, inplist=["r", "u"], outlist=[*outputs, "e"], dt=Ts)
+    exogenous = "w" if "R" in W else "r"
+    return control.interconnect(blocks, inplist=[exogenous, "u"], outlist=[*outputs, "e"], dt=Ts)
 
 
 def generalized_plant(model: LPVSS, weights: dict, box: np.ndarray | list | None = None) -> GeneralizedPlant:

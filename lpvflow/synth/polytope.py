@@ -16,6 +16,8 @@ Three polytopes, the tightest that applies is chosen and named in :attr:`Polytop
   chord and the tangents at a and b, vertices (a, a²), ((a+b)/2, ab), (b, b²); barycentric
   coordinates. It contains the parabola segment (the parabola is convex, so it lies above its
   tangents and below its chord) and is much tighter than the box [a, b] × [min p², max p²].
+* ``"point"`` — a degenerate box (min = max for every signal): one vertex ψ(p₀), λ = [1]; the
+  polytopic design is then the LTI design at p₀ (the pipeline's LTI baseline).
 * ``"term-box"`` — any other basis: the bounding box of the term values over a grid of the scheduling
   box (conservative; vertex count 2^m), multilinear coordinates in the term values.
 """
@@ -60,6 +62,8 @@ class Polytope:
         projected onto it by clipping: λ is always a valid convex combination.
         """
         psi = np.asarray(psi, dtype=float).reshape(-1)
+        if self.kind == "point":
+            return np.ones(1)
         if self.kind == "parabola-triangle":
             lam = np.linalg.solve(self.psi_vertices.T, psi)
             lam = np.clip(lam, 0.0, None)
@@ -92,9 +96,10 @@ def scheduling_box(model: LPVSS, box: np.ndarray | list | None = None) -> np.nda
                              "give box = [[min, max], ...] in [polytope]")
         box = np.column_stack([model.basis.p_min, model.basis.p_max])
     box = np.asarray(box, dtype=float)
-    if box.shape != (model.basis.n_p, 2) or not np.all(box[:, 1] > box[:, 0]):
-        raise ModelError(f"scheduling box must be {model.basis.n_p} rows of [min, max] with min < max, got "
-                         f"{box.tolist()}")
+    point = box.shape == (model.basis.n_p, 2) and np.all(box[:, 1] == box[:, 0])
+    if box.shape != (model.basis.n_p, 2) or not (point or np.all(box[:, 1] > box[:, 0])):
+        raise ModelError(f"scheduling box must be {model.basis.n_p} rows of [min, max] with min < max "
+                         f"(or min = max in every row for an LTI design), got {box.tolist()}")
     return box
 
 
@@ -102,6 +107,8 @@ def polytope_of(model: LPVSS, box: np.ndarray | list | None = None) -> Polytope:
     """The tightest supported polytope (module docstring) around θ(p) for p in the scheduling box."""
     box = scheduling_box(model, box)
     basis = model.basis
+    if np.all(box[:, 1] == box[:, 0]):
+        return Polytope("point", box, basis.eval(box[:, 0].reshape(1, -1), check_range=False))
     if basis.is_affine:
         psi_v = np.column_stack([np.ones(2**basis.n_p), _corners(box)])
         return Polytope("box", box, psi_v)

@@ -123,9 +123,16 @@ class LPVController:
             N, nu, ny = Dk.shape
             # JSON drops the empty dimensions of a controller without states: n from the size of Ak
             n = round(np.asarray(d["Ak"], float).reshape(N, -1).shape[1] ** 0.5)
-            mats = (np.asarray(d["Ak"], float).reshape(N, n, n), np.asarray(d["Bk"], float).reshape(N, n, ny),
-                    np.asarray(d["Ck"], float).reshape(N, nu, n), Dk)
-            return cls(*mats, poly, Basis.from_dict(d["basis"]), float(d["Ts"]), info=d.get("info", {}))
+            shapes = {"Ak": (N, n, n), "Bk": (N, n, ny), "Ck": (N, nu, n)}
+            mats = {}
+            for name, shape in shapes.items():
+                value = np.asarray(d[name], float)
+                if value.size != np.prod(shape):
+                    raise ModelError(f"controller {name} has {value.size} entries; {N} vertices with "
+                                     f"{n} states, {ny} inputs and {nu} outputs need shape {shape}")
+                mats[name] = value.reshape(shape)
+            return cls(mats["Ak"], mats["Bk"], mats["Ck"], Dk, poly, Basis.from_dict(d["basis"]),
+                       float(d["Ts"]), info=d.get("info", {}))
         except KeyError as exc:
             raise ModelError(f"controller file lacks the field {exc.args[0]!r}") from None
         except ValueError as exc:

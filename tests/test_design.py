@@ -74,6 +74,7 @@ def test_rerun_skips_unchanged_stages_and_a_change_reruns_the_affected_ones(tmp_
                         "validate": "ran", "synth": "not configured", "verify": "not configured",
                         "export": "not configured"}
     assert first["failed"] is None
+    assert first["verdict"]["pass"]  # identification-only: every configured stage ran
     # The validation fit is the stage's model simulated on the held-out part of the stage's data.
     folder = tmp_path / "out" / "tanks"
     data = Dataset.read(folder / "data.csv", ["pump_voltage"], ["lower_level"], ["level"])

@@ -85,6 +85,7 @@ def run_design(config_path: str | Path, log=print) -> dict:
         summary["stages"][stage.name] = {"status": status, "seconds": record["seconds"],
                                          "outputs": record["outputs"], "artifacts": record["artifacts"]}
     summary["failed"] = failed
+    summary["verdict"] = _verdict(summary)
     summary["stage_seconds"] = {n: s.get("seconds") for n, s in summary["stages"].items()}
     _atomic_write_json(folder / "summary.json", summary)
     write_report(folder, summary)
@@ -92,6 +93,20 @@ def run_design(config_path: str | Path, log=print) -> dict:
     return summary
 
 
+def _verdict(summary: dict) -> dict:
+    """Pass when no stage failed and the LPV controller met every verification scenario."""
+    if summary["failed"]:
+        return {"pass": False, "reason": f"stage {summary['failed']['stage']} failed"}
+    scenarios = summary["stages"].get("verify", {}).get("outputs", {}).get("scenarios", [])
+    failing = [f"{r['name']}: {r['controller']['reason']}"
+               for r in scenarios if not r["controller"]["stable"]]
+    if failing:
+        return {"pass": False, "reason": "; ".join(failing)}
+    return {"pass": True, "reason": "every configured stage ran and every scenario passed"}
+
+
 def main_design(config_path: str | Path) -> int:
     summary = run_design(config_path, log=lambda line: print(line, file=sys.stderr, flush=True))
-    return 1 if summary["failed"] else 0
+    if not summary["verdict"]["pass"]:
+        print(f"design did not pass: {summary['verdict']['reason']}", file=sys.stderr)
+    return 0 if summary["verdict"]["pass"] else 1

@@ -78,6 +78,11 @@ def write_report(folder: Path, summary: dict) -> Path:
     """``report.html`` in ``folder``: summary tables per stage and every figure, embedded."""
     _figures(folder)
     sections = [f"<h1>lpvflow design: {html.escape(summary['name'])}</h1>"]
+    verdict = summary.get("verdict")
+    if verdict:
+        css = "pass" if verdict["pass"] else "fail"
+        sections.append(f'<p class="{css}"><b>Verdict: {"pass" if verdict["pass"] else "did not pass"}</b> — '
+                        f"{html.escape(verdict['reason'])}</p>")
     if summary.get("failed"):
         f = summary["failed"]
         sections.append(f'<p class="fail">Stopped at stage <b>{html.escape(f["stage"])}</b>: '
@@ -99,7 +104,7 @@ def write_report(folder: Path, summary: dict) -> Path:
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
              "table{border-collapse:collapse;margin:0.5em 0}th,td{border:1px solid #ccc;padding:3px 8px;"
              "text-align:left;font-size:13px;vertical-align:top}th{background:#f4f4f4}"
-             "img{max-width:100%}figcaption{font-size:12px;color:#555}.fail{color:#b00}")
+             "img{max-width:100%}figcaption{font-size:12px;color:#555}.fail{color:#b00}.pass{color:#070}")
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>lpvflow design {summary['name']}"
             f"</title><style>{style}</style></head><body>{''.join(sections)}</body></html>")
     path = folder / "report.html"

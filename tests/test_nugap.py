@@ -7,23 +7,12 @@ from scipy.linalg import sqrtm
 
 from lpvflow.errors import ModelError
 from lpvflow.validate.nugap import nugap
+from tests.lti_helpers import gain as static
+from tests.lti_helpers import random_ss
 
 s = ct.tf("s")
 
 
-def static(k, dt=0):
-    return ct.ss([], [], [], np.atleast_2d(k), dt)
-
-
-def random_ss(rng, n, p, m, dt=0, spread=(0.2, 0.9)):
-    """Seeded random minimal system; stable with spectral radius (abscissa) drawn from `spread`."""
-    A = rng.standard_normal((n, n))
-    eig = np.linalg.eigvals(A)
-    if dt:
-        A = A * rng.uniform(*spread) / np.max(np.abs(eig))
-    else:
-        A = A - (np.max(eig.real) + rng.uniform(*spread)) * np.eye(n)
-    return ct.ss(A, rng.standard_normal((n, m)), rng.standard_normal((p, n)), rng.standard_normal((p, m)), dt)
 
 
 def random_pair(rng, n, p, m, dt, scale=0.05):

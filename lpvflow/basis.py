@@ -99,8 +99,10 @@ class Basis:
                 if len(groups) == 1 and n_p > 1:
                     groups = groups * n_p
                 return cls.spline(groups, n_p)
+        except ModelError:
+            raise  # a well-formed spec with a bad value (e.g. unordered knots): keep its own message
         except ValueError:
-            pass
+            pass  # a malformed number: the generic message below says what a spec looks like
         raise ModelError(
             f"bad basis spec {spec!r}; use affine, poly:D, poly:D:nocross or spline:K1,K2,... "
             "(one ';'-separated knot list per scheduling signal)"

@@ -62,5 +62,7 @@ def test_spec_parsing():
     for bad in ("poly", "poly:x", "quad:2", "affine:1", "poly:2:foo"):
         with pytest.raises(ModelError, match="bad basis spec"):
             Basis.from_spec(bad, 1)
+    with pytest.raises(ModelError, match="strictly increasing"):  # the specific reason survives
+        Basis.from_spec("spline:0.5,0.2", 1)
     with pytest.raises(ModelError, match="expects 2 scheduling"):
         Basis.affine(2).eval(np.zeros((3, 3)))

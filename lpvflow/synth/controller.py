@@ -135,6 +135,8 @@ class LPVController:
                        float(d["Ts"]), info=d.get("info", {}))
         except KeyError as exc:
             raise ModelError(f"controller file lacks the field {exc.args[0]!r}") from None
+        except ModelError:
+            raise  # already names what is wrong
         except ValueError as exc:
             raise ModelError(f"controller file has inconsistent matrix sizes ({exc})") from None
 

@@ -41,7 +41,7 @@ from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.spline_sls import identify_spline_sls
 from lpvflow.identify.two_step import identify_two_step, reconstruct_dataset
 from lpvflow.models import LPVIO
-from lpvflow.validate.metrics import bfr, mse, vaf
+from lpvflow.validate.metrics import bfr, frozen_response_error, mse, vaf
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "chapter3.json"
@@ -165,17 +165,6 @@ def bench_adip(Ts: float = 0.01, noise: float = 0.003, pole: float = 0.97, n_fil
 
 
 # ===================================================================== 3. closed-loop bias removal
-def frozen_response_error(model: LPVIO, reference: LPVIO, points=(-0.3, 0.0, 0.3)) -> float:
-    """Mean over frozen p of ‖G(e^{jω}) − G_ref(e^{jω})‖_F / ‖G_ref(e^{jω})‖_F on 0.1–5 Hz (30 points)."""
-    z = np.exp(2j * np.pi * np.logspace(-1, np.log10(5), 30) * model.Ts)
-    errors = []
-    for p in points:
-        g, g_ref = model.to_ss().frozen(np.array([p])), reference.to_ss().frozen(np.array([p]))
-        resp, resp_ref = np.array([g(s) for s in z]), np.array([g_ref(s) for s in z])
-        errors.append(np.linalg.norm(resp - resp_ref) / np.linalg.norm(resp_ref))
-    return float(np.mean(errors))
-
-
 def parameter_error(model: LPVIO, reference: LPVIO) -> float:
     """‖θ − θ_ref‖ / ‖θ_ref‖ over all A and B coefficients."""
     theta = np.concatenate([model.A.ravel(), model.B.ravel()])

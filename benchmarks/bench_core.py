@@ -12,26 +12,17 @@ Run: ``.venv/bin/python benchmarks/bench_core.py`` → benchmarks/results/core.j
 from __future__ import annotations
 
 import json
-import time
 import tracemalloc
 from functools import partial
 from pathlib import Path
 
 import numpy as np
+from timing import best_of
 
 from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.identify.arx import identify_arx
 from lpvflow.models import LPVSS
-
-
-def best_of(fn, repeats: int = 3) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def lpr_regressor(u: np.ndarray, y: np.ndarray, psi: np.ndarray) -> np.ndarray:

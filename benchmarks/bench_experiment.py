@@ -17,10 +17,10 @@ import io
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+from timing import best_of
 
 from lpvflow.experiment import run_fmu_experiment
 from lpvflow.experiment.record import csv_text
@@ -37,15 +37,6 @@ def fmu_path(name: str) -> Path:
     if not path.is_file():
         subprocess.run([sys.executable, str(ROOT / "fmu_plants" / "build.py"), name], check=True)
     return path
-
-
-def best_of(fn, repeats: int = 3) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def bare_loop(path: Path, u: np.ndarray, Ts: float) -> None:

@@ -26,13 +26,13 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 import json
-import time
 import tracemalloc
 import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from timing import best_of
 from tqdm import tqdm
 
 from lpvflow.basis import Basis, SchedulingRangeWarning
@@ -183,18 +183,9 @@ def orders_run(seed: int) -> dict:
     return fits
 
 
-def best_time(fn, repeats: int = 2) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
-
-
 def cost(fn) -> tuple[float, float]:
     """Best-of-3 wall time (s, untraced) and peak traced memory (MB, one traced call)."""
-    elapsed = best_time(fn, 3)
+    elapsed = best_of(fn, 3)
     tracemalloc.start()
     fn()
     peak = tracemalloc.get_traced_memory()[1] / 2**20
@@ -281,9 +272,9 @@ def bench_scaling() -> dict:
         data = scaling_data(n_mu, np.random.default_rng([n_mu, past]))
         q = regression_rows(2, 3, n_mu, past)
         row = {"n_mu": n_mu, "p": past, "primal_rows": q,
-               "io": best_time(lambda d=data, a=past: io_reduced(d, a)),
-               "kernel": best_time(lambda d=data, a=past: identify_pbsid(d, 4, a, form="kernel"), 1),
-               "primal": (best_time(lambda d=data, a=past: identify_pbsid(d, 4, a, form="primal"), 1)
+               "io": best_of(lambda d=data, a=past: io_reduced(d, a), 2),
+               "kernel": best_of(lambda d=data, a=past: identify_pbsid(d, 4, a, form="kernel"), 1),
+               "primal": (best_of(lambda d=data, a=past: identify_pbsid(d, 4, a, form="primal"), 1)
                           if q <= PRIMAL_ROW_LIMIT else None)}
         rows.append(row)
     payload = {"N": 1000, "rows": rows, "primal_row_limit": PRIMAL_ROW_LIMIT}

@@ -9,7 +9,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.two_step import identify_two_step, laguerre_bank, reconstruct_noise_free
-from lpvflow.models import LPVIO
+from lpvflow.validate.metrics import frozen_response_error
 
 pytestmark = pytest.mark.filterwarnings("ignore::lpvflow.basis.SchedulingRangeWarning")
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,17 +59,6 @@ def adip_closed_loop(noise: float, seed: int = 1, duration: float = 120.0, every
     data = Dataset(c["voltage"], y, c["sin_arm"], rec.Ts * every,
                    ["voltage"], ["arm", "pendulum"], ["sin_arm"])
     return data, c["voltage_excitation"]
-
-
-def frozen_response_error(model: LPVIO, reference: LPVIO, points=(-0.3, 0.0, 0.3)) -> float:
-    """Mean over frozen p of ‖G(e^{jω}) − G_ref(e^{jω})‖_F / ‖G_ref(e^{jω})‖_F on 0.1–5 Hz."""
-    z = np.exp(2j * np.pi * np.logspace(-1, np.log10(5), 30) * model.Ts)
-    errors = []
-    for p in points:
-        g, g_ref = model.to_ss().frozen(np.array([p])), reference.to_ss().frozen(np.array([p]))
-        resp, resp_ref = np.array([g(s) for s in z]), np.array([g_ref(s) for s in z])
-        errors.append(np.linalg.norm(resp - resp_ref) / np.linalg.norm(resp_ref))
-    return float(np.mean(errors))
 
 
 @pytest.mark.skipif(not ADIP_FMU.exists(), reason="adip FMU not built (make fmus)")

@@ -4,7 +4,8 @@
     BFR = 100 % · max(1 − ‖y − ŷ‖₂ / ‖y − ȳ‖₂, 0)          (MATLAB's "fit", thesis "BFT")
     VAF = 100 % · max(1 − var(y − ŷ) / var(y), 0)
 
-ŷ is normally the *simulated* output on validation data.
+ŷ is normally the *simulated* output on validation data. :func:`frozen_response_error` compares two
+models instead of a model and data.
 """
 
 from __future__ import annotations
@@ -52,3 +53,16 @@ def fit_report(y: np.ndarray, y_hat: np.ndarray, names: list[str] | None = None)
         "vaf": vaf(y, y_hat).tolist(),
         "mse": mse(y, y_hat).tolist(),
     }
+
+
+def frozen_response_error(model, reference, points=(-0.3, 0.0, 0.3), band_hz=(0.1, 5.0)) -> float:
+    """Mean over frozen scheduling points p of ‖G(e^{jωTs}) − G_ref(e^{jωTs})‖_F / ‖G_ref(e^{jωTs})‖_F,
+    the responses stacked over 30 log-spaced frequencies in ``band_hz``; ``model`` and ``reference``
+    are realizable LPV models (anything with ``to_ss()``, e.g. :class:`lpvflow.models.LPVIO`)."""
+    z = np.exp(2j * np.pi * np.logspace(np.log10(band_hz[0]), np.log10(band_hz[1]), 30) * model.Ts)
+    errors = []
+    for p in points:
+        g, g_ref = model.to_ss().frozen(np.array([p])), reference.to_ss().frozen(np.array([p]))
+        resp, resp_ref = np.array([g(s) for s in z]), np.array([g_ref(s) for s in z])
+        errors.append(np.linalg.norm(resp - resp_ref) / np.linalg.norm(resp_ref))
+    return float(np.mean(errors))

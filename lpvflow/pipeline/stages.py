@@ -183,17 +183,17 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     u_index = [data.u_names.index(n) for n in K.outputs]
     y_index = [data.y_names.index(n) for n in K.inputs]
     expressions = [cfg["scheduling"][name] for name in data.p_names]
-    x, xc, p = np.zeros(model.nx), np.zeros(K.A.shape[0]), data.p[0]
+    x, xc = np.zeros(model.nx), np.zeros(K.A.shape[0])
     y_sim = np.zeros_like(data.y)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)
+        C = model.matrices(data.p[0])[2]
         for k in range(data.N):
-            A, B, C, _ = model.matrices(p)
-            y = C @ x
+            y = C @ x  # C at p(k−1): one matrix evaluation per sample
             y_sim[k] = y
             signals = {n: np.array([v]) for n, v in zip(data.y_names, y, strict=True)}
             p = np.array([float(evaluate(e, signals)[0]) for e in expressions])
-            A, B, _, _ = model.matrices(p)
+            A, B, C, _ = model.matrices(p)
             dy = y[y_index] - K.y_op
             u = np.zeros(model.nu)
             u[u_index] = K.u_op + K.C @ xc + K.D @ dy + excitation[k]

@@ -2,7 +2,7 @@
 
 Open-loop experiment: pump voltage random levels in 4–11 V held 5–40 s, Ts = 1 s, 4000 s; the
 lower level is output and scheduling (quasi-LPV, thesis §5.1). Nominal structure: na = nb = 2,
-nk = 1, poly:2 (validation BFR ≈ 73 % without effect: the structure is adequate, not perfect).
+nk = 1, poly:2 (validation BFR ≈ 95 % without effect: the structure is adequate, not perfect).
 """
 
 import subprocess
@@ -35,8 +35,11 @@ def tanks_data(fmu: Path, parameters: dict) -> Dataset:
 
 
 def test_effect_free_tanks_gives_none(tanks_fmu):
+    """The validation part starts at a level of about 0.13 m with τ ≈ 15 s: simulated from a zero
+    past it would lose about 20 BFR points to the start transient (73 % instead of 95 %)."""
     result = diagnose(tanks_data(tanks_fmu, {}), NOMINAL)
     assert result.cause == "none", result.ranking
+    assert result.bfr_before[0] > 90
 
 
 def test_tanks_dead_time_is_found_exactly(tanks_fmu):

@@ -2,9 +2,10 @@
 
 Protocol (every choice made on the estimation split, every score on the validation split):
 
-1. Fit the user's structure (LPV-ARX, :func:`identify_arx`) and simulate it on validation data:
-   BFR/VAF per output, and *where* the error lives (spectrum, RMS against scheduling value, input
-   amplitude and time).
+1. Fit the user's structure (LPV-ARX, :func:`identify_arx`) and simulate it on validation data
+   (the whole record is simulated, the estimation split serving as warm-up, so that the validation
+   part does not start from a zero past): BFR/VAF per output, and *where* the error lives
+   (spectrum, RMS against scheduling value, input amplitude and time).
 2. Residual tests on the one-step residuals of the estimation data: Ljung–Box whiteness,
    cross-correlation with inputs at lags −5 … 30, correlation with candidate features (99 % bands).
 3. One extension per cause (:mod:`lpvflow.validate.extensions`), scored by its validation BFR gain,

@@ -3,6 +3,10 @@
 Each extension is fitted on the estimation split (its own free choice — a delay, a degree, a width
 — selected by the one-step loss or BIC on the estimation data only) and simulated on the
 validation split, where :mod:`lpvflow.validate.diagnose` scores it against the nominal model.
+Every simulation runs over the whole record from a zero past and is scored on its validation part
+(:func:`simulate_validation`): the estimation split is the warm-up, so the validation part starts
+from the model's own state instead of from zero (on a slow plant far from y = 0 the zero-start
+transient would dominate every validation error).
 
 Static input maps (Hammerstein extension, applied before the LPV dynamics):
 
@@ -105,7 +109,7 @@ def fit(est: Dataset, val: Dataset, na, nb, nk, basis: Basis | str, form: str = 
     model = identify_arx(est, na, nb, nk, basis, form=form)
     with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        y_val = simulate(model) if simulate else model.simulate(val.u, val.p)
+        y_val = simulate(model) if simulate else simulate_validation(model, est, val)
     y_val, diverged = bounded(y_val, val.y)
     sign, logdet = np.linalg.slogdet(model.noise_cov)
     loss = logdet if sign > 0 else -np.inf
@@ -113,6 +117,17 @@ def fit(est: Dataset, val: Dataset, na, nb, nk, basis: Basis | str, form: str = 
     n_eff = est.N - model.max_lag
     return Fit(model, y_val, float(loss), n_params, float(n_eff * loss + n_params * np.log(n_eff)),
                diverged)
+
+
+def joined(est: Dataset, val: Dataset) -> Dataset:
+    """The whole record: the estimation split followed by the validation split."""
+    return replace(est, u=np.vstack([est.u, val.u]), y=np.vstack([est.y, val.y]), p=np.vstack([est.p, val.p]))
+
+
+def simulate_validation(model: LPVIO, est: Dataset, val: Dataset) -> np.ndarray:
+    """Simulation of the whole record from a zero past, validation part (module docstring)."""
+    whole = joined(est, val)
+    return model.simulate(whole.u, whole.p)[est.N :]
 
 
 def bounded(y_sim: np.ndarray, y: np.ndarray, factor: float = 10.0) -> tuple[np.ndarray, bool]:
@@ -277,6 +292,9 @@ def friction(ctx: Context) -> Candidate | None:
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
     nb_f, nk_f = _extend_orders(nb, nk, int(nb[:, 0].max()), max(int(nk[:, 0].min()), 1), 1)
+    whole = joined(ctx.est, ctx.val)  # validation: the whole record simulated, its validation part scored
+    with np.errstate(over="ignore", invalid="ignore"):
+        y_whole = bounded(ctx.nominal.model.simulate(whole.u, whole.p), whole.y)[0]
     trials = []
     for i in range(ctx.ny):
         def velocity_sign(y: np.ndarray, i=i) -> np.ndarray:
@@ -292,14 +310,13 @@ def friction(ctx: Context) -> Candidate | None:
         # model's own simulation, refitted twice from the nominal model; it simulates best. Its level
         # is attenuated (the simulated sign is wrong near zero speed), so the reported level comes
         # from a second fit on the measured velocity sign, which is the signal friction acted on.
-        with np.errstate(over="ignore", invalid="ignore"):
-            y_est = bounded(ctx.nominal.model.simulate(ctx.est.u, ctx.est.p), ctx.est.y)[0]
+        y_est = y_whole[: ctx.est.N]
         name = f"sign_d{ctx.est.y_names[i]}"
         try:
             for _ in range(2):
                 est = _with_inputs(ctx.est, velocity_sign(y_est, i), [name])
                 result = fit(est, ctx.val, na, nb_f, nk_f, basis, ctx.structure.form,
-                             lambda m: simulate_own(m, ctx.val, ctx.nominal.y_val))
+                             lambda m: simulate_own(m, whole, y_whole)[ctx.est.N :])
                 with np.errstate(over="ignore", invalid="ignore"):
                     y_est = simulate_own(result.model, ctx.est, y_est)
             measured = identify_arx(_with_inputs(ctx.est, velocity_sign(ctx.est.y, i), [name]),
@@ -377,7 +394,7 @@ def colored_noise(ctx: Context) -> Candidate | None:
         return None
     with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        y_val, diverged = bounded(model.simulate(ctx.val.u, ctx.val.p), ctx.val.y)
+        y_val, diverged = bounded(simulate_validation(model, ctx.est, ctx.val), ctx.val.y)
     n_params = ctx.nominal.n_params
     refit = Fit(model, y_val, ctx.nominal.loss, n_params, ctx.nominal.bic, diverged)
     return Candidate("colored_noise", {"estimator": "iv-oe"}, refit,

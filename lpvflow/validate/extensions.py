@@ -178,13 +178,28 @@ def input_delay(ctx: Context) -> Candidate | None:
                      f"modelled dead time {modelled}, data says {found}; extending nk to {found}")
 
 
+def simulation_bic(ctx: Context, candidate: Fit) -> float:
+    """BIC of the estimation-data *simulation*: N log det(cov of the simulation error) + k log N."""
+    with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        y_sim = bounded(candidate.model.simulate(ctx.est.u, ctx.est.p), ctx.est.y)[0]
+    sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov((ctx.est.y - y_sim).T)))
+    n = ctx.est.N
+    return float(n * logdet if sign > 0 else -np.inf) + candidate.n_params * np.log(n)
+
+
 def model_order(ctx: Context) -> Candidate | None:
-    """Orders too low: na/nb raised by 1–2, the variant with the best estimation BIC."""
+    """Orders too low: na/nb raised by 1–2, the variant with the best :func:`simulation_bic`.
+
+    Not the one-step BIC: on nearly noise-free data it keeps rewarding more lags even when the
+    model's own simulation fails (tanks FMU, na = nb = 1 raised to 3/3: one-step BIC best, simulation
+    BFR 32 % on the estimation data, against 98 % for na = 3, nb = 2).
+    """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
     trials = {(da, db): fit(ctx.est, ctx.val, na + da, nb + db, nk, basis, ctx.structure.form)
               for da, db in ((1, 0), (0, 1), (1, 1), (2, 1), (2, 2))}
-    (da, db), best = min(trials.items(), key=lambda item: item[1].bic)
+    (da, db), best = min(trials.items(), key=lambda item: simulation_bic(ctx, item[1]))
     new = {"na": int(na.max() + da), "nb": int(nb.max() + db)}
     return Candidate("model_order", new, best, f"raising na to {new['na']} and nb to {new['nb']}")
 

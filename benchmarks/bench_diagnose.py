@@ -5,21 +5,33 @@ channel exact, dead-zone width within 20 %, friction level within 10 %, offset w
 model order: na ≥ the true order). Control: 'none' on data without an effect.
 Cost: one diagnosis of N = 20 000 samples (SISO, all candidates) and the time of each extension.
 
-Run: ``.venv/bin/python benchmarks/bench_diagnose.py [--seeds 10]`` → results/diagnose.json
+FMU section: the plants of fmu_plants/ with an effect parameter set (experiments and nominal
+structures of tests/test_diagnose_fmu.py), over experiment seeds (input signals and noise draw) and
+sensor-noise levels (effect_noise_std, in the output's unit). Same hit definition; model order:
+na ≥ 2 (two tanks); scheduling dependence: a polynomial degree ≥ 2 (the physical coefficient
+functions are not polynomials).
+
+Run: ``.venv/bin/python benchmarks/bench_diagnose.py [--seeds 10] [--fmu-seeds 5]``
+→ results/diagnose.json
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from lpvflow.validate import extensions
 from lpvflow.validate.diagnose import diagnose
+from lpvflow.validate.extensions import Structure
 from tests.diagnosis_cases import NOMINAL, make_case
+from tests.test_diagnose_fmu import AIRPATH, TANKS, airpath_data, tanks_data
 
 CAUSES = ["none", "input_delay", "model_order", "scheduling_dependence", "scheduling_variable",
           "input_nonlinearity", "friction", "offset", "colored_noise"]
@@ -63,6 +75,70 @@ def hit_rates(seeds: int, snrs: list[float]) -> dict:
     return table
 
 
+DEAD_ZONE_PUMP = "levels:lo=1,hi=9,min_hold=10,max_hold=60"
+#: label → (hidden cause, plant, effect parameters, nominal structure, check of the parameters,
+#: sensor-noise levels, keyword arguments of the data function).
+FMU_CASES = {
+    "tanks none": ("none", "tanks", {}, TANKS, None, [0.0, 5e-4], {}),
+    "tanks dead time 3 s": ("input_delay", "tanks", {"effect_input_delay": 3.0}, TANKS,
+                            lambda par: par["nk"] == 4, [0.0, 5e-4], {}),
+    "tanks na = nb = 1": ("model_order", "tanks", {}, Structure(1, 1, 1, "poly:2"),
+                          lambda par: par["na"] >= 2, [0.0, 5e-4], {}),
+    "tanks saturation 8 V": ("input_nonlinearity", "tanks", {"effect_saturation": 8.0}, TANKS,
+                             lambda par: par["kind"] == "saturation" and abs(par["limit"] - 8) <= 0.4,
+                             [0.0, 5e-4], {}),
+    "tanks dead zone 3 V": ("input_nonlinearity", "tanks", {"effect_deadzone": 3.0}, TANKS,
+                            lambda par: par["kind"] == "dead_zone" and abs(par["width"] - 3) <= 0.6,
+                            [0.0, 5e-4], {"pump": DEAD_ZONE_PUMP}),
+    "tanks offset 0.05 m": ("offset", "tanks", {"effect_sensor_offset": 0.05}, TANKS,
+                            lambda par: abs(par["output_offset"] - 0.05) <= 0.01, [0.0, 5e-4], {}),
+    "airpath none": ("none", "airpath", {}, AIRPATH, None, [0.0, 0.5], {}),
+    "airpath speed-only scheduling": ("scheduling_variable", "airpath", {}, AIRPATH,
+                                      lambda par: par["channel"] == "throttle", [0.0, 0.5],
+                                      {"throttle_scheduling": False}),
+    "airpath affine basis": ("scheduling_dependence", "airpath", {}, Structure(1, 1, 1, "affine"),
+                             lambda par: par.get("degree", 0) >= 2, [0.0, 0.5], {}),
+    "airpath pressure noise": ("colored_noise", "airpath", {}, AIRPATH, None, [2.0, 4.0, 6.0], {}),
+    "airpath offset 5 kPa": ("offset", "airpath", {"effect_sensor_offset": 5.0}, AIRPATH,
+                             lambda par: abs(par["output_offset"] - 5) <= 1, [0.0, 0.5], {}),
+}
+
+
+def fmu_hit_rates(seeds: int) -> dict:
+    root = Path(__file__).resolve().parents[1]
+    subprocess.run([sys.executable, str(root / "fmu_plants" / "build.py")], check=True, capture_output=True)
+    table = {}
+    for label, (cause, plant, effects, structure, check, noise_levels, kwargs) in FMU_CASES.items():
+        for noise in noise_levels:
+            named, hits, p_hits, before, after, seconds = [], 0, [], [], [], []
+            for seed in range(seeds):
+                parameters = {**effects, "effect_noise_std": noise, "effect_noise_seed": 100 + seed}
+                t0 = time.perf_counter()
+                if plant == "tanks":
+                    data, channels = tanks_data(parameters, seed=seed, **kwargs), {}
+                else:
+                    data, channels = airpath_data(parameters, seed=seed, **kwargs)
+                result = diagnose(data, structure, channels)
+                seconds.append(time.perf_counter() - t0)
+                hit = result.cause == cause and (check is None or check(result.parameters))
+                hits += hit
+                named.append(result.cause)
+                before.append(result.bfr_before[0])
+                after.append(result.bfr_after[0])
+                if hit and cause != "none":
+                    p_hits.append(next(r for r in result.ranking if r["cause"] == cause)["p_value"])
+            row = {"cause": cause, "noise_std": noise, "hits": hits, "runs": seeds,
+                   "named": {c: named.count(c) for c in set(named)},
+                   "bfr_before_median": float(np.median(before)), "bfr_after_median": float(np.median(after)),
+                   "largest_p_of_hits": max(p_hits, default=None),
+                   "seconds_per_run": float(np.mean(seconds))}
+            table[f"{label} @ noise {noise:g}"] = row
+            print(f"{label:32s} noise {noise:<6g}: {hits}/{seeds}  {row['named']}  BFR "
+                  f"{row['bfr_before_median']:.1f} → {row['bfr_after_median']:.1f}  "
+                  f"{row['seconds_per_run']:.1f} s/run", flush=True)
+    return table
+
+
 def cost(n: int = 20_000) -> dict:
     data, channels, _ = make_case("input_delay", seed=7, n=n)
     per = {}
@@ -86,8 +162,10 @@ def cost(n: int = 20_000) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--fmu-seeds", type=int, default=5)
     args = parser.parse_args()
-    results = {"cost": cost(), "hit_rates": hit_rates(args.seeds, [20.0, 30.0])}
+    results = {"cost": cost(), "hit_rates": hit_rates(args.seeds, [20.0, 30.0]),
+               "fmu_hit_rates": fmu_hit_rates(args.fmu_seeds)}
     out = Path(__file__).parent / "results" / "diagnose.json"
     out.write_text(json.dumps(results, indent=1))
     c = results["cost"]
@@ -99,6 +177,12 @@ def main() -> None:
         cause, snr = key.split("@")
         print(f"| {cause} | {snr} | {row['hits']}/{row['runs']} | "
               + ", ".join(f"{k} {v}" for k, v in sorted(row["named"].items())) + " |")
+    print("\n| FMU case | noise std | hits | named | BFR before → after (median) |\n|---|---|---|---|---|")
+    for key, row in results["fmu_hit_rates"].items():
+        label = key.split(" @ ")[0]
+        print(f"| {label} | {row['noise_std']:g} | {row['hits']}/{row['runs']} | "
+              + ", ".join(f"{k} {v}" for k, v in sorted(row["named"].items()))
+              + f" | {row['bfr_before_median']:.1f} → {row['bfr_after_median']:.1f} |")
 
 
 if __name__ == "__main__":

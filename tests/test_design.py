@@ -142,3 +142,35 @@ def test_diagnosed_dead_time_is_adopted_and_improves_the_validation_fit(tmp_path
     fit_after = after["stages"]["validate"]["outputs"]["fit"]["bfr"][0]
     assert fit_after > fit_before + 1.0
     assert "diagnosis.png" in (tmp_path / "out" / "adopted" / "report.html").read_text()
+
+
+def test_validate_against_the_fmu_linearization_reports_nugap_and_figures(tmp_path, tanks_fmu):
+    """reference = "linearization" on the bundled ADIP identification (60 s, no synthesis): the frozen model
+    is compared with the FMU linearized at the equilibrium with the same sin(arm angle). The identified
+    model is close (δν < 0.2, signals scaled by their standard deviation); a first-order ARX, which
+    cannot describe two coupled links, is at the maximal distance 1."""
+    bundled = (ROOT / "lpvflow" / "pipeline" / "examples" / "adip.toml").read_text()
+    text = bundled[: bundled.index("[synth]")].replace("duration = 120.0", "duration = 60.0")
+    text = text.replace('name = "adip"', f'name = "NAME"\noutput_dir = "{tmp_path / "out"}"')
+    text = text.replace("grid = 9", "grid = 5").replace("fmu_plants/", f"{ROOT}/fmu_plants/")
+    rows = {}
+    for name, edit in (("identified", text), ("first_order", text.replace("na = 2", "na = 1")
+                                                                 .replace("order = 4", "order = 2"))):
+        path = tmp_path / f"{name}.toml"
+        path.write_text(edit.replace("NAME", name))
+        rows[name] = run_design(path, log=lambda _: None)["stages"]["validate"]["outputs"]
+    good, poor = rows["identified"], rows["first_order"]
+    assert good["reference"] == "linearization" and good["scaling"] == "data" and len(good["nugap"]) == 5
+    assert max(good["nugap"]) < 0.2
+    assert min(poor["nugap"]) > 0.9
+    folder = tmp_path / "out" / "identified"
+    assert (folder / "bode.png").stat().st_size > 0 and (folder / "nugap.png").stat().st_size > 0
+    assert "nugap.png" in (folder / "report.html").read_text()
+
+
+def test_unknown_validate_reference_is_one_clear_line(tmp_path, tanks_fmu, capsys):
+    path = write(tmp_path, tanks_fmu)
+    path.write_text(path.read_text().replace("grid = 3", 'grid = 3\nreference = "bode"'))
+    assert main(["design", str(path)]) == 1
+    err = capsys.readouterr()
+    assert "[validate] reference = 'bode'" in err.out + err.err

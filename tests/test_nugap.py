@@ -1,5 +1,7 @@
 """Properties of the ν-gap (Vinnicombe 1993) checked against independent dense-grid evaluations."""
 
+import warnings
+
 import control as ct
 import numpy as np
 import pytest
@@ -171,6 +173,21 @@ def test_small_perturbation_matches_dense_grid(dt):
     assert 0 < result.value < 0.2
     assert result.value == pytest.approx(dense, abs=1e-4)
     assert result.value >= dense - 1e-12
+
+
+def test_added_sample_delays_keep_the_nugap_finite_and_match_the_dense_grid():
+    """Pure delays put zeros of det(I + P2~P1) at z = ∞ (w = 1 after the bilinear map): no warning, and
+    the value is the dense-grid maximum of the chordal distance."""
+    P = ct.ss(ct.tf([0.2], [1, -0.8], 0.5))
+    delayed = ct.ss(ct.tf([0.2], [1, -0.8, 0, 0], 0.5))  # two more samples of dead time
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        value = nugap(P, delayed).value
+    omega = np.linspace(1e-4, np.pi / 0.5, 20001)
+    g1, g2 = (dense_response(S, omega)[:, 0, 0] for S in (P, delayed))
+    chordal = np.abs(g1 - g2) / np.sqrt((1 + np.abs(g1) ** 2) * (1 + np.abs(g2) ** 2))
+    assert value == pytest.approx(chordal.max(), rel=1e-3)
+    assert value > 0.1
 
 
 @pytest.mark.parametrize("dt", [0, 0.1])

@@ -25,7 +25,7 @@ SCHEMA: dict[str, dict[str, Any]] = {
                  "split": 0.7, "ridge": 0.0, "remove_offsets": False},
     "diagnose": {"adopt": False, "candidates": [], "split": 0.5},
     "reduce": {"order": None},
-    "validate": {"grid": 7, "reference": "none", "operating_point": {}},
+    "validate": {"grid": 7, "reference": "none", "operating_point": {}, "scaling": "data"},
     "synth": {"method": "dilated", "weights": REQUIRED, "box": None, "solver": "CLARABEL",
               "baseline_at": None},
     "verify": {"loop": REQUIRED, "scenario": REQUIRED},

@@ -12,6 +12,11 @@ FIGURE_CAPTIONS = {
     "fit.png": "Validation: measured outputs and the model simulated in the identification loop.",
     "singular_values.png": "Singular values of the LPV Ho-Kalman reduction (order chosen: marked).",
     "margins.png": "Generalized stability margin b(P(θ), K_id) of frozen models over the scheduling range.",
+    "nugap.png": "ν-gap of the frozen model to the plant FMU at the same scheduling value, and the "
+                 "stability margin b(Ĝ(θ), K_id) of the identification loop: δν < b is the thesis' test.",
+    "bode.png": "Frozen Bode magnitude: identified model (solid) and plant FMU linearization (dashed).",
+    "residuals.png": "One-step prediction residuals on the validation part: time series and autocorrelation "
+                     "with the 99 % whiteness band.",
     "diagnosis.png": "Diagnosis: where the nominal simulation misses, and the validation gain of each "
                      "extension (green: significant).",
 }
@@ -64,14 +69,45 @@ def _figures(folder: Path) -> None:
     validate = folder / "validate.json"
     if validate.exists():
         out = json.loads(validate.read_text())["outputs"]
-        if out.get("b_P_Kid"):
+        if out.get("b_P_Kid") and "nugap" not in out and len(out["theta"][0]) == 1:
             fig, ax = plt.subplots(figsize=(6, 3))
-            ax.plot(out["theta"], out["b_P_Kid"], "o-")
+            ax.plot([p[0] for p in out["theta"]], out["b_P_Kid"], "o-")
             ax.set(xlabel="θ", ylabel="b(P(θ), K_id)", ylim=(0, None))
             ax.grid(alpha=0.3)
             fig.tight_layout()
             fig.savefig(folder / "margins.png", dpi=90)
             plt.close(fig)
+
+
+def _number(value: object, unit: str = "", digits: int = 3) -> str:
+    return "–" if value is None else f"{value:.{digits}g}{unit}"
+
+
+def _scenario_table(scenarios: list[dict]) -> str:
+    """One row per scenario and controller: verdict, and per tracked output and actuated input the
+    settling time, overshoot, steady-state error and peak control (:mod:`lpvflow.pipeline.verify`)."""
+    head = ["scenario", "controller", "stable", "output", "settling [s]", "overshoot", "steady-state error",
+            "peak control", "saturated [s]", "reason"]
+    body = []
+    for scenario in scenarios:
+        for key in ("controller", "baseline"):
+            run = scenario.get(key)
+            if not run:
+                continue
+            inputs = run.get("controls", {})
+            controls = "; ".join(f"{u} {_number(c['peak_control'])}" for u, c in inputs.items())
+            saturated = "; ".join(_number(c["saturation_time"]) for c in inputs.values())
+            tracked = run.get("outputs", {}) or {"–": {}}
+            for output, m in tracked.items():
+                overshoot = (f"{_number(m['overshoot'])} ({_number(m['overshoot_percent'], ' %', 2)})"
+                             if "overshoot" in m else "–")
+                cells = [scenario["name"], run["controller"], "yes" if run["stable"] else "no", output,
+                         _number(m.get("settling_time")), overshoot, _number(m.get("steady_state_error")),
+                         controls, saturated, run.get("reason", "")]
+                css = "" if run["stable"] else ' class="fail"'
+                body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells)
+                            + "</tr>")
+    return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(body) + "</table>")
 
 
 def write_report(folder: Path, summary: dict) -> Path:
@@ -93,9 +129,12 @@ def write_report(folder: Path, summary: dict) -> Path:
     for name, stage in summary["stages"].items():
         if stage["status"] == "not configured":
             continue
-        rows = [(k, _fmt(v)) for k, v in stage.get("outputs", {}).items()
-                if not isinstance(v, list) or len(v) <= 12]
+        outputs = stage.get("outputs", {})
+        rows = [(k, _fmt(v)) for k, v in outputs.items()
+                if (not isinstance(v, list) or len(v) <= 12) and not (name == "verify" and k == "scenarios")]
         sections.append(f"<h2>{html.escape(name)}</h2>" + (_table(rows) if rows else ""))
+        if name == "verify" and outputs.get("scenarios"):
+            sections.append(_scenario_table(outputs["scenarios"]))
         for artifact in stage.get("artifacts", []):
             if artifact.endswith(".png"):
                 sections.append(_embed(folder / artifact))

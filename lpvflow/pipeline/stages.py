@@ -75,8 +75,39 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     residuals = prediction_residuals(io, val)
     one_step = 100 * (1 - np.linalg.norm(residuals, axis=0)
                       / np.linalg.norm(val.y[io.max_lag:] - val.y[io.max_lag:].mean(axis=0), axis=0))
+    whiteness = plot_residuals(ctx.path("residuals.png"), residuals, val.Ts, val.y_names)
     return {"nx": ss.nx, "one_step_bfr_validation": one_step.tolist(), "offsets": est.offsets,
-            "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)]}, ["model_full.json"]
+            "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)],
+            "ljung_box_p_value": whiteness}, ["model_full.json", "residuals.png"]
+
+
+def plot_residuals(
+    path: Path, residuals: np.ndarray, Ts: float, names: list[str], lags: int = 50
+) -> list[float]:
+    """Residual time series and autocorrelation r̂_ee(τ), τ ≤ ``lags``, with the 99 % band ±2.58/√N of a
+    white sequence, one row per output (PNG); returns the Ljung–Box p-value (20 lags) per output."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from lpvflow.validate.residuals import autocorrelation, band99, ljung_box
+
+    t = np.arange(len(residuals)) * Ts
+    fig, axes = plt.subplots(len(names), 2, figsize=(10, 2.4 * len(names)), squeeze=False)
+    p_values = []
+    for (ax_t, ax_r), name, e in zip(axes, names, residuals.T, strict=True):
+        p_values.append(ljung_box(e)[1])
+        ax_t.plot(t, e, lw=0.5)
+        ax_t.set(xlabel="time [s]", ylabel=f"ε {name}")
+        band = band99(len(e))
+        ax_r.stem(np.arange(lags + 1), autocorrelation(e, lags), basefmt=" ")
+        ax_r.axhspan(-band, band, color="tab:green", alpha=0.2)
+        ax_r.set(xlabel="lag", ylabel="r̂_εε", title=f"Ljung–Box p = {p_values[-1]:.2g}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return p_values
 
 
 # -------------------------------------------------------------------------------------- diagnose
@@ -206,26 +237,148 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
 
 
 def validate(ctx: StageContext) -> tuple[dict, list[str]]:
-    """Fit on validation data (closed-loop simulation under the experiment's controller) and the
-    generalized stability margin b(P(θ), K_id) of frozen models over the scheduling range."""
+    """Fit on validation data (closed-loop simulation under the experiment's controller) and, on a grid
+    of frozen scheduling values, the generalized stability margin b(Ĝ(θ), K_id) and — with
+    ``reference = "linearization"`` or ``"local"`` — the ν-gap δν(G_FMU(θ), Ĝ(θ)) to the plant FMU at
+    its equilibrium with that scheduling value (thesis Fig. 6.11, notes_002 §6.4: δν < b over the range
+    means K_id stabilizes every frozen plant the model is that close to)."""
     from lpvflow.pipeline.cli_identify import plot_fit
-    from lpvflow.validate.margins import stability_margin
+    from lpvflow.validate.frozen import compare_frozen
     from lpvflow.validate.metrics import fit_report
+    from lpvflow.validate.plots import bode_overlay, gap_margin_plot
 
+    cfg = ctx.config["validate"]
     model = load(ctx.path("model.json"))
     _, val = read_data(ctx)
     y_sim = closed_loop_simulation(model, val, ctx)
     fit = fit_report(val.y, y_sim, val.y_names)
     plot_fit(ctx.path("fit.png"), val, y_sim)
-    grid = np.linspace(model.basis.p_min[0], model.basis.p_max[0], ctx.config["validate"]["grid"])
-    margins = []
+    artifacts = ["fit.png"]
     controller = ctx.config["experiment"]["controller"]
-    if controller and model.basis.n_p == 1:
-        K = _negative_feedback_lti(controller, model)
+    K = _negative_feedback_lti(controller, model) if controller else None
+    reference = _fmu_reference(ctx, model)
+    if cfg["scaling"] not in ("data", "none"):
+        raise DataError(f"[validate] scaling = {cfg['scaling']!r}; use \"data\" or \"none\"")
+    est, _ = read_data(ctx)
+    scale = _SignalScaling(est.u.std(axis=0), est.y.std(axis=0), enabled=cfg["scaling"] == "data")
+    box = np.column_stack([model.basis.p_min, model.basis.p_max])
+    try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SchedulingRangeWarning)
-            margins = [float(stability_margin(model.frozen([t]), K)) for t in grid]
-    return {"fit": fit, "theta": grid.tolist(), "b_P_Kid": margins}, ["fit.png"]
+            rows = compare_frozen(scale.model(model), scale.plant_at(reference), cfg["grid"],
+                                  scale.controller(K), box=box) if (K or reference) else []
+            if reference is not None:
+                points = [np.asarray(row["p"]) for row in rows]
+                shown = [points[i] for i in sorted({0, len(points) // 2, len(points) - 1})]
+                bode_overlay(ctx.path("bode.png"), model.frozen, reference, shown)
+                gap_margin_plot(ctx.path("nugap.png"), rows)
+                artifacts += ["bode.png", "nugap.png"]
+    finally:
+        if reference is not None:
+            reference.close()
+    outputs: dict[str, Any] = {"fit": fit, "scaling": cfg["scaling"], "theta": [row["p"] for row in rows],
+                               "b_P_Kid": [row["stability_margin_b"] for row in rows
+                                           if "stability_margin_b" in row]}
+    if reference is not None:
+        outputs["reference"] = cfg["reference"]
+        outputs["nugap"] = [row["nugap"] for row in rows]
+        if K is not None:
+            outputs["nugap_below_b_everywhere"] = all(row["passes"] for row in rows)
+    return outputs, artifacts
+
+
+class _SignalScaling:
+    """ν-gap and b(P, K) depend on the units of u and y; with ``scaling = "data"`` they are computed for
+    the scaled plant D_y⁻¹ G D_u and controller D_u⁻¹ K D_y, D_u, D_y the standard deviations of the
+    estimation data's inputs and outputs (Vinnicombe 2001, §2.6: scale signals to comparable sizes)."""
+
+    def __init__(self, u_std: np.ndarray, y_std: np.ndarray, enabled: bool) -> None:
+        self.enabled = enabled
+        self.Du = np.diag(np.where(u_std > 0, u_std, 1.0))
+        self.Dy_inv = np.diag(1.0 / np.where(y_std > 0, y_std, 1.0))
+
+    def plant(self, G):
+        import control
+
+        if not self.enabled:
+            return G
+        return control.ss(G.A, G.B @ self.Du, self.Dy_inv @ G.C, self.Dy_inv @ G.D @ self.Du, G.dt)
+
+    def controller(self, K):
+        import control
+
+        if K is None or not self.enabled:
+            return K
+        Du_inv, Dy = np.linalg.inv(self.Du), np.linalg.inv(self.Dy_inv)
+        return control.ss(K.A, K.B @ Dy, Du_inv @ K.C, Du_inv @ K.D @ Dy, K.dt)
+
+    def plant_at(self, reference):
+        return None if reference is None else (lambda p: self.plant(reference(p)))
+
+    def model(self, model: LPVSS) -> _ScaledModel:
+        return _ScaledModel(model, self)
+
+
+@dataclass
+class _ScaledModel:
+    """``frozen(p)`` of a model, scaled by :class:`_SignalScaling`."""
+
+    model: LPVSS
+    scaling: _SignalScaling
+
+    def frozen(self, p: np.ndarray):
+        return self.scaling.plant(self.model.frozen(p))
+
+
+def _fmu_reference(ctx: StageContext, model: LPVSS):
+    """The plant FMU as frozen reference p ↦ discrete LTI over the model's inputs and outputs, or None.
+
+    Scheduling expressions: the experiment's definition of each model scheduling column (e.g.
+    ``sin_arm = "sin(arm_angle)"``), else the column name itself (a plant signal). The FMU gets the
+    experiment's parameters except the measurement-noise effect (finite differences need exact outputs)."""
+    from lpvflow.validate.fmu_reference import FmuLinearization, FmuLocalModels
+
+    cfg = ctx.config["validate"]
+    kind = cfg["reference"]
+    if kind == "none":
+        return None
+    classes = {"linearization": FmuLinearization, "local": FmuLocalModels}
+    if kind not in classes:
+        raise DataError(f"[validate] reference = {kind!r}; use \"none\", \"linearization\" or \"local\"")
+    definitions = ctx.config["experiment"]["scheduling"]
+    expressions = [definitions.get(name, name) for name in model.p_names]
+    parameters = {name: value for name, value in ctx.config["experiment"]["parameters"].items()
+                  if not name.startswith("effect_noise")}
+    reference = classes[kind](ctx.config["design"]["plant"], model.Ts, expressions,
+                              start=cfg["operating_point"], parameters=parameters)
+    return _SelectedChannels(reference, model.u_names, model.y_names)
+
+
+class _SelectedChannels:
+    """A frozen FMU reference restricted to (and ordered like) the model's inputs and outputs."""
+
+    def __init__(self, reference, u_names: list[str], y_names: list[str]) -> None:
+        plant = reference.plant
+        missing = sorted(set(u_names) - set(plant.input_names))
+        missing += sorted(set(y_names) - set(plant.output_names))
+        if missing:
+            reference.close()
+            raise DataError(f"[validate] the model's signal(s) {', '.join(missing)} are not inputs/outputs "
+                            f"of {plant.name}; the FMU reference needs the model's names")
+        self.reference = reference
+        self.inputs = [list(plant.input_names).index(n) for n in u_names]
+        self.outputs = [list(plant.output_names).index(n) for n in y_names]
+        self.labels = (list(u_names), list(y_names))
+
+    def __call__(self, p: np.ndarray):
+        import control
+
+        G = self.reference(p)
+        return control.ss(G.A, G.B[:, self.inputs], G.C[self.outputs], G.D[np.ix_(self.outputs, self.inputs)],
+                          G.dt, inputs=self.labels[0], outputs=self.labels[1])
+
+    def close(self) -> None:
+        self.reference.close()
 
 
 def _negative_feedback_lti(path: str, model: LPVSS):

@@ -156,7 +156,8 @@ def _winding_condition(P1: control.StateSpace, P2: control.StateSpace) -> tuple[
         return True, "", np.empty(0)
     zeros = np.linalg.eigvals(A_H - B_H @ np.linalg.solve(I_plus_D, C_H))
     in_rhp = int(np.sum(zeros.real > BOUNDARY_TOL * np.maximum(1.0, np.abs(zeros))))
-    original = np.exp(1j * rotation) * (1.0 + zeros) / (1.0 - zeros) if discrete else zeros
+    with np.errstate(divide="ignore", invalid="ignore"):  # w = 1 is a zero at z = ∞ (pure delays in P2)
+        original = np.exp(1j * rotation) * (1.0 + zeros) / (1.0 - zeros) if discrete else zeros
     if in_rhp == n2:
         return True, "", original
     return (

@@ -54,6 +54,26 @@ def test_finite_difference_linearization_equals_analytic_one_after_zoh(tanks):
             assert np.all(G.D == 0)
 
 
+def test_the_fmu_input_dead_time_is_part_of_the_linearization(tanks):
+    """effect_input_delay = 3 samples: the reference is the delay-free ZOH model times z⁻³ (frequency
+    response at 50 points), and its step response is the delay-free one shifted by 3 samples."""
+    level = np.array([0.12])
+    with FmuLinearization(tanks, Ts, "diag_scheduling") as plain:
+        G = plain(level)
+    with FmuLinearization(tanks, Ts, "diag_scheduling", parameters={"effect_input_delay": 3 * Ts}) as delayed:
+        Gd = delayed(level)
+    assert Gd.nstates == G.nstates + 3
+    z = np.exp(1j * np.linspace(0.01, np.pi - 0.01, 50))
+    response, delayed_response = (np.array([complex(S(zk)) for zk in z]) for S in (G, Gd))
+    assert relative_error(delayed_response, response * z ** -3) < 1e-9
+    steps = [ct.step_response(S, T=np.arange(40) * Ts).outputs for S in (G, Gd)]
+    assert np.allclose(steps[1][3:], steps[0][:-3], atol=1e-12) and np.allclose(steps[1][:3], 0)
+    half_sample = {"effect_input_delay": 0.5 * Ts}
+    with FmuLinearization(tanks, Ts, "diag_scheduling", parameters=half_sample) as bad:
+        with pytest.raises(ModelError, match="not a whole number of samples"):
+            bad(level)
+
+
 def test_feedthrough_acts_one_sample_late_like_the_fmu_outputs():
     """y(k) = C x(k) + D u(k−1): impulse response 0, then C B_d + D, then C A_d B_d."""
     system = ct.ss([[-1.0]], [[2.0]], [[3.0]], [[0.5]])

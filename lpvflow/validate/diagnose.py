@@ -14,6 +14,14 @@ Protocol (every choice made on the estimation split, every score on the validati
    change of BIC/AIC on estimation data.
    A cause whose extension cannot be fitted (e.g. IV-OE diverges, no candidate channel) is listed
    as ``untested`` and can never be named.
+
+Closed-loop data (``controller`` given): every simulation above — nominal and extensions — runs in
+the identification loop (:mod:`lpvflow.validate.closed_loop`): the controller acts on the simulated
+outputs with the recorded excitation, the quasi-LPV scheduling is recomputed from the simulated
+outputs, and an extension's input map, dead time or velocity sign acts on the input the loop
+produces. An unstable plant's model cannot be scored by an open-loop simulation, and a model error
+that the loop hides or amplifies (an offset the controller fights, friction in a loop that keeps
+reversing) is scored as the plant ran.
 4. Decision. A cause is *significant* when its gain ≥ ``min_gain`` BFR points and p < ``alpha``.
    The best significant cause is named when it beats the runner-up clearly: its block test against
    the runner-up gives p < 0.05. When other causes reach practically the same gain (within 5 % of it),
@@ -24,6 +32,7 @@ Protocol (every choice made on the estimation split, every score on the validati
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,8 +40,10 @@ import numpy as np
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, LpvflowError
+from lpvflow.experiment.controller import LtiController
 from lpvflow.validate import residuals
-from lpvflow.validate.extensions import EXTENSIONS, Candidate, Context, Structure, fit
+from lpvflow.validate.closed_loop import Loop
+from lpvflow.validate.extensions import EXTENSIONS, Candidate, Context, Structure, fit, loop_simulator
 from lpvflow.validate.metrics import bfr, vaf
 
 #: Smallest validation split the diagnosis accepts, in samples.
@@ -55,6 +66,7 @@ class Diagnosis:
     ranking: list[dict]
     summary: str
     where: dict
+    simulation: str = "open loop"  # or "closed loop": in the identification loop (module docstring)
     untested: list[str] = field(default_factory=list)
     untested_reasons: dict[str, str] = field(default_factory=dict)
     winner: Candidate | None = field(default=None, repr=False)
@@ -152,6 +164,7 @@ def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[s
 def diagnose(
     data: Dataset, structure: Structure, channels: dict[str, np.ndarray] | None = None,
     split: float = 0.5, alpha: float = 1e-3, min_gain: float = 1.0, causes: list[str] | None = None,
+    controller: LtiController | None = None, scheduling: Mapping[str, str] | None = None,
 ) -> Diagnosis:
     """Fit ``structure`` on the first ``split`` of ``data``, diagnose its validation simulation.
 
@@ -160,6 +173,11 @@ def diagnose(
         alpha: significance level of the validation-error test; min_gain: smallest BFR gain (points)
             that counts.
         causes: restrict the extensions tried (default: all of the vocabulary).
+        controller: the LTI controller the data were recorded under: every model is then simulated
+            in that loop (module docstring), the excitation recovered as u − K(y).
+        scheduling: scheduling column → expression in the output names (the experiment's sidecar
+            ``scheduling``), recomputed from the simulated outputs in the loop; columns without an
+            expression are taken as recorded.
     """
     channels = channels or {}
     for name, values in channels.items():
@@ -174,9 +192,10 @@ def diagnose(
         raise DataError(f"unknown cause(s) {unknown}; choose from {sorted(EXTENSIONS)}")
     k = est.N
     split_channels = {c: (np.asarray(v, float)[:k], np.asarray(v, float)[k:]) for c, v in channels.items()}
+    loop = Loop.from_record(data, controller, scheduling) if controller is not None else None
     nominal = fit(est, val, structure.na, structure.nb, structure.nk, structure.basis_for(data.p.shape[1]),
-                  structure.form)
-    ctx = Context(est, val, structure, nominal, split_channels)
+                  structure.form, loop_simulator(est, val, loop))
+    ctx = Context(est, val, structure, nominal, split_channels, loop)
     from lpvflow.identify.arx import prediction_residuals
 
     with warnings.catch_warnings():
@@ -219,6 +238,7 @@ def diagnose(
         cause=cause, parameters=winner.parameters if winner else {},
         evidence=_evidence(est, prediction_residuals(nominal.model, est), split_channels),
         ranking=ranked, summary="", where=_where(val, val.y - nominal.y_val), winner=winner,
+        simulation="open loop" if loop is None else "closed loop",
         untested=[c for c in tried if c not in candidates], untested_reasons=untested_reasons,
         nominal_y_val=nominal.y_val,
         error_spectrum=residuals.error_spectrum(val.y[:, 0] - nominal.y_val[:, 0], val.Ts),

@@ -17,6 +17,13 @@ Coulomb friction enters as an extra input sign(v(k)), v(k) = y(k) − y(k−1), 
 lags; its validation simulation takes v from the model's *own* simulated output (fixed-point
 iterations starting from the nominal simulation), never from the measured output.
 Offset adds the inputs 1 and t/N with a lag-0 constant coefficient: c₀ + c₁·t/N.
+
+Closed-loop data (``Context.loop`` set, :mod:`lpvflow.validate.closed_loop`): every model is
+simulated in the identification loop instead, with the extension's input map, extra inputs and
+velocity sign applied to the input the loop produces; the choices made on estimation data stay the
+same (one-step loss and BIC), except the model order's simulation BIC, also run in the loop.
+Simulations run on first use of a fit's validation output (:class:`Fit`): a diagnosis fits about a
+hundred variants and scores one per cause.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 import scipy.optimize
@@ -33,6 +41,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import LpvflowError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.models import LPVIO
+from lpvflow.validate.closed_loop import Loop, simulate_in_loop, velocity_sign
 
 CAUSES = (
     "input_delay", "model_order", "scheduling_dependence", "scheduling_variable",
@@ -63,14 +72,34 @@ class Structure:
 
 @dataclass
 class Fit:
-    """A fitted model and its scores: one-step loss and BIC on estimation data, validation simulation."""
+    """A fitted model and its scores: one-step loss and BIC on estimation data, validation simulation.
+
+    ``simulate(model)`` gives the validation part of the model's simulation; it runs on first use of
+    :attr:`y_val` or :attr:`diverged` (only the variant an extension selects is ever simulated).
+    """
 
     model: LPVIO
-    y_val: np.ndarray
     loss: float  # log det of the one-step residual covariance (estimation data)
     n_params: int
     bic: float
-    diverged: bool = False  # the validation simulation blew up (bounded copy kept in y_val)
+    simulate: Callable[[LPVIO], np.ndarray] = field(repr=False)
+    reference: np.ndarray = field(repr=False)  # measured validation outputs, to bound the simulation
+
+    @cached_property
+    def _validation(self) -> tuple[np.ndarray, bool]:
+        with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
+            warnings.simplefilter("ignore", SchedulingRangeWarning)
+            return bounded(self.simulate(self.model), self.reference)
+
+    @property
+    def y_val(self) -> np.ndarray:
+        """Validation simulation (a bounded copy if it blew up)."""
+        return self._validation[0]
+
+    @property
+    def diverged(self) -> bool:
+        """The validation simulation blew up (:func:`bounded` had to clip it)."""
+        return self._validation[1]
 
 
 @dataclass
@@ -93,6 +122,7 @@ class Context:
     structure: Structure
     nominal: Fit
     channels: dict[str, tuple[np.ndarray, np.ndarray]]  # name → (estimation, validation) values
+    loop: Loop | None = None  # closed-loop data: the identification loop the models are simulated in
 
     @property
     def ny(self) -> int:
@@ -102,21 +132,38 @@ class Context:
     def nu(self) -> int:
         return self.est.u.shape[1]
 
+    def in_loop(self, **drive) -> Callable[[LPVIO], np.ndarray] | None:
+        """:func:`loop_simulator` of this context (None on open-loop data)."""
+        return loop_simulator(self.est, self.val, self.loop, **drive)
+
+
+def loop_simulator(est: Dataset, val: Dataset, loop: Loop | None, p: np.ndarray | None = None,
+                   p_names: list[str] | None = None, **drive) -> Callable[[LPVIO], np.ndarray] | None:
+    """Validation part of a model's whole-record simulation in ``loop`` (None without a loop).
+
+    ``p``/``p_names`` replace the scheduling of the whole record (an added scheduling channel);
+    ``drive`` holds the extension's ``input_map``, ``exogenous`` inputs or ``sign_of`` output
+    (:func:`~lpvflow.validate.closed_loop.simulate_in_loop`).
+    """
+    if loop is None:
+        return None
+    whole = joined(est, val)
+    if p is not None:
+        whole = replace(whole, p=p, p_names=p_names)
+    return lambda model: simulate_in_loop(model, whole, loop, **drive)[est.N :]
+
 
 def fit(est: Dataset, val: Dataset, na, nb, nk, basis: Basis | str, form: str = "shifted",
         simulate: Callable[[LPVIO], np.ndarray] | None = None) -> Fit:
-    """Fit LPV-ARX on ``est``; simulate on ``val`` (or with ``simulate``); one-step loss and BIC."""
+    """Fit LPV-ARX on ``est``; one-step loss and BIC; its simulation on ``val`` (open loop on the
+    whole record, or with ``simulate``) runs on first use."""
     model = identify_arx(est, na, nb, nk, basis, form=form)
-    with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
-        warnings.simplefilter("ignore", SchedulingRangeWarning)
-        y_val = simulate(model) if simulate else simulate_validation(model, est, val)
-    y_val, diverged = bounded(y_val, val.y)
     sign, logdet = np.linalg.slogdet(model.noise_cov)
     loss = logdet if sign > 0 else -np.inf
     n_params = int(sum(c.shape[0] for c in model.param_cov))
     n_eff = est.N - model.max_lag
-    return Fit(model, y_val, float(loss), n_params, float(n_eff * loss + n_params * np.log(n_eff)),
-               diverged)
+    return Fit(model, float(loss), n_params, float(n_eff * loss + n_params * np.log(n_eff)),
+               simulate or (lambda m: simulate_validation(m, est, val)), val.y)
 
 
 def joined(est: Dataset, val: Dataset) -> Dataset:
@@ -164,7 +211,7 @@ def input_delay(ctx: Context) -> Candidate | None:
             trial = best_nk.copy()
             trial[:, j] = d
             try:
-                scores[d] = fit(ctx.est, ctx.val, na, nb, trial, basis, ctx.structure.form)
+                scores[d] = fit(ctx.est, ctx.val, na, nb, trial, basis, ctx.structure.form, ctx.in_loop())
             except LpvflowError:
                 continue
         d_best = min(scores, key=lambda d: scores[d].loss)
@@ -179,10 +226,18 @@ def input_delay(ctx: Context) -> Candidate | None:
 
 
 def simulation_bic(ctx: Context, candidate: Fit) -> float:
-    """BIC of the estimation-data *simulation*: N log det(cov of the simulation error) + k log N."""
+    """BIC of the estimation-data *simulation*: N log det(cov of the simulation error) + k log N.
+
+    On closed-loop data the simulation runs in the identification loop (estimation part of the
+    whole-record simulation): an unstable plant's model cannot be simulated open loop.
+    """
     with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        y_sim = bounded(candidate.model.simulate(ctx.est.u, ctx.est.p), ctx.est.y)[0]
+        if ctx.loop is None:
+            y_sim = candidate.model.simulate(ctx.est.u, ctx.est.p)
+        else:
+            y_sim = simulate_in_loop(candidate.model, joined(ctx.est, ctx.val), ctx.loop)[: ctx.est.N]
+        y_sim = bounded(y_sim, ctx.est.y)[0]
     sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov((ctx.est.y - y_sim).T)))
     n = ctx.est.N
     return float(n * logdet if sign > 0 else -np.inf) + candidate.n_params * np.log(n)
@@ -197,7 +252,7 @@ def model_order(ctx: Context) -> Candidate | None:
     """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
-    trials = {(da, db): fit(ctx.est, ctx.val, na + da, nb + db, nk, basis, ctx.structure.form)
+    trials = {(da, db): fit(ctx.est, ctx.val, na + da, nb + db, nk, basis, ctx.structure.form, ctx.in_loop())
               for da, db in ((1, 0), (0, 1), (1, 1), (2, 1), (2, 2))}
     (da, db), best = min(trials.items(), key=lambda item: simulation_bic(ctx, item[1]))
     new = {"na": int(na.max() + da), "nb": int(nb.max() + db)}
@@ -220,7 +275,7 @@ def scheduling_dependence(ctx: Context) -> Candidate | None:
     trials = {}
     for spec, basis in options.items():
         try:
-            trials[spec] = fit(ctx.est, ctx.val, na, nb, nk, basis, ctx.structure.form)
+            trials[spec] = fit(ctx.est, ctx.val, na, nb, nk, basis, ctx.structure.form, ctx.in_loop())
         except LpvflowError:
             continue
     if not trials:
@@ -244,7 +299,9 @@ def scheduling_variable(ctx: Context) -> Candidate | None:
         val = replace(ctx.val, p=np.column_stack([ctx.val.p, c_val]), p_names=[*ctx.val.p_names, name])
         basis = Basis(base.kind, base.n_p + 1, degree=base.degree, cross=base.cross)
         try:
-            trials[name] = fit(est, val, na, nb, nk, basis, ctx.structure.form)
+            whole = joined(est, val)
+            trials[name] = fit(est, val, na, nb, nk, basis, ctx.structure.form,
+                               ctx.in_loop(p=whole.p, p_names=whole.p_names))
         except LpvflowError:
             continue
     if not trials:
@@ -278,7 +335,13 @@ def input_nonlinearity(ctx: Context) -> Candidate | None:
                 est, val = ctx.est, ctx.val
                 u_e, u_v = est.u.copy(), val.u.copy()
                 u_e[:, j], u_v[:, j] = nonlin(u_e[:, j], level), nonlin(u_v[:, j], level)
-                return fit(replace(est, u=u_e), replace(val, u=u_v), na, nb, nk, basis, ctx.structure.form)
+                def mapped(u: np.ndarray) -> np.ndarray:  # the map on the input the loop produces
+                    out = u.copy()
+                    out[j] = nonlin(u[j], level)
+                    return out
+
+                return fit(replace(est, u=u_e), replace(val, u=u_v), na, nb, nk, basis, ctx.structure.form,
+                           ctx.in_loop(input_map=mapped))
 
             losses = []
             for level in grid:
@@ -303,22 +366,40 @@ def input_nonlinearity(ctx: Context) -> Candidate | None:
 
 
 def friction(ctx: Context) -> Candidate | None:
-    """Coulomb friction: extra input sign(v), v the backward difference of one output (a position)."""
+    """Coulomb friction: extra input sign(v), v the backward difference of one output (a position).
+
+    Closed-loop data: the sign of the velocity over the next sample, extrapolated from the last three
+    outputs (:func:`~lpvflow.validate.closed_loop.velocity_sign`), fitted on the measured output and
+    simulated in the identification loop from the simulated output at each step (causal, no
+    iterations). Open-loop data keep the backward difference and the fixed-point simulation below.
+    """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
     nb_f, nk_f = _extend_orders(nb, nk, int(nb[:, 0].max()), max(int(nk[:, 0].min()), 1), 1)
     whole = joined(ctx.est, ctx.val)  # validation: the whole record simulated, its validation part scored
-    with np.errstate(over="ignore", invalid="ignore"):
-        y_whole = bounded(ctx.nominal.model.simulate(whole.u, whole.p), whole.y)[0]
+    if ctx.loop is None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            y_whole = bounded(ctx.nominal.model.simulate(whole.u, whole.p), whole.y)[0]
     trials = []
     for i in range(ctx.ny):
-        def velocity_sign(y: np.ndarray, i=i) -> np.ndarray:
+        def backward_sign(y: np.ndarray, i=i) -> np.ndarray:
             return np.sign(np.diff(y[:, i], prepend=y[0, i]))[:, None]
+
+        name = f"sign_d{ctx.est.y_names[i]}"
+        if ctx.loop is not None:
+            try:
+                result = fit(_with_inputs(ctx.est, velocity_sign(ctx.est.y[:, i])[:, None], [name]), ctx.val,
+                             na, nb_f, nk_f, basis, ctx.structure.form, ctx.in_loop(sign_of=i))
+            except LpvflowError:
+                continue
+            trials.append((result, i, result.model))
+            continue
+        measured_est = _with_inputs(ctx.est, backward_sign(ctx.est.y, i), [name])
 
         def simulate_own(model: LPVIO, data: Dataset, y_start: np.ndarray, i=i) -> np.ndarray:
             y = y_start
             for _ in range(FRICTION_ITERATIONS):  # velocity sign from the model's own output
-                y = bounded(model.simulate(np.hstack([data.u, velocity_sign(y, i)]), data.p), data.y)[0]
+                y = bounded(model.simulate(np.hstack([data.u, backward_sign(y, i)]), data.p), data.y)[0]
             return y
 
         # Extension (scored and saved): the velocity sign in the estimation data is taken from the
@@ -326,16 +407,14 @@ def friction(ctx: Context) -> Candidate | None:
         # is attenuated (the simulated sign is wrong near zero speed), so the reported level comes
         # from a second fit on the measured velocity sign, which is the signal friction acted on.
         y_est = y_whole[: ctx.est.N]
-        name = f"sign_d{ctx.est.y_names[i]}"
         try:
             for _ in range(2):
-                est = _with_inputs(ctx.est, velocity_sign(y_est, i), [name])
+                est = _with_inputs(ctx.est, backward_sign(y_est, i), [name])
                 result = fit(est, ctx.val, na, nb_f, nk_f, basis, ctx.structure.form,
                              lambda m: simulate_own(m, whole, y_whole)[ctx.est.N :])
                 with np.errstate(over="ignore", invalid="ignore"):
                     y_est = simulate_own(result.model, ctx.est, y_est)
-            measured = identify_arx(_with_inputs(ctx.est, velocity_sign(ctx.est.y, i), [name]),
-                                    na, nb_f, nk_f, basis, form=ctx.structure.form)
+            measured = identify_arx(measured_est, na, nb_f, nk_f, basis, form=ctx.structure.form)
             trials.append((result, i, measured))
         except LpvflowError:
             continue
@@ -343,17 +422,19 @@ def friction(ctx: Context) -> Candidate | None:
         return None
     best, i, measured = min(trials, key=lambda t: t[0].loss)
     name = ctx.est.y_names[i]
-    level, model_level = _coulomb_level(measured), _coulomb_level(best.model)
+    level, model_level = _coulomb_level(measured, i), _coulomb_level(best.model, i)
     return Candidate("friction", {"output": name, "coulomb_level_input_units": level,
                                   "level_in_extended_model": model_level}, best,
                      f"Coulomb friction against the motion of {name} (about {level:.3g} in input units)",
                      [f"sign_d{name}"])
 
 
-def _coulomb_level(model: LPVIO) -> float:
-    """F = −Σ_j b_f,j / Σ_j b_u,j at ψ_0: the friction input's coefficients are −F times the input's."""
-    b = model.B[:, 0]  # ψ_0 components, (lags, ny, nu+1)
-    return float(-np.sum(b[:, :, -1]) / np.sum(b[:, :, 0])) if np.sum(b[:, :, 0]) else float("nan")
+def _coulomb_level(model: LPVIO, i: int) -> float:
+    """F = −Σ_j b_f,j / Σ_j b_u,j at ψ_0 in the equation of output i (the moving one): the friction
+    input's coefficients are −F times the first input's. Other outputs' equations are left out: in
+    a MIMO model their gains differ (ADIP pendulum row), and summing over rows mixes them."""
+    b = model.B[:, 0, i]  # ψ_0 components, (lags, nu+1)
+    return float(-np.sum(b[:, -1]) / np.sum(b[:, 0])) if np.sum(b[:, 0]) else float("nan")
 
 
 def offset(ctx: Context) -> Candidate | None:
@@ -361,6 +442,11 @@ def offset(ctx: Context) -> Candidate | None:
 
     The constant-only and constant-plus-trend variants compete by estimation BIC, so a trend is kept
     only when the estimation data support it (a spurious one would be extrapolated into validation).
+    On closed-loop data only the constant is tried: a trend fitted on the estimation part is
+    extrapolated into the validation part of the loop, where the controller turns it into a drift.
+    On the ADIP with a 0.01 rad sensor offset both the one-step and the loop-simulation BIC keep the
+    trend, whose extrapolation walks the simulated arm to π (validation BFR 0 %); the constant
+    alone simulates at 44/77 % (arm/pendulum).
     """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
@@ -368,12 +454,13 @@ def offset(ctx: Context) -> Candidate | None:
     features = {"const": (np.ones(ctx.est.N), np.ones(ctx.val.N)),
                 "trend": (np.arange(ctx.est.N) / n_total, np.arange(ctx.est.N, n_total) / n_total)}
     trials = {}
-    for names in (["const"], ["const", "trend"]):
+    for names in (["const"],) if ctx.loop is not None else (["const"], ["const", "trend"]):
         est = _with_inputs(ctx.est, np.column_stack([features[f][0] for f in names]), names)
         val = _with_inputs(ctx.val, np.column_stack([features[f][1] for f in names]), names)
         nb_o, nk_o = _extend_orders(nb, nk, 1, 0, len(names))
         try:
-            trials[tuple(names)] = fit(est, val, na, nb_o, nk_o, basis, ctx.structure.form)
+            trials[tuple(names)] = fit(est, val, na, nb_o, nk_o, basis, ctx.structure.form,
+                                       ctx.in_loop(exogenous=joined(est, val).u[:, ctx.nu :]))
         except LpvflowError:
             continue
     if not trials:
@@ -407,11 +494,8 @@ def colored_noise(ctx: Context) -> Candidate | None:
         return None
     if not (np.all(np.isfinite(model.A)) and np.all(np.isfinite(model.B))):
         return None
-    with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
-        warnings.simplefilter("ignore", SchedulingRangeWarning)
-        y_val, diverged = bounded(simulate_validation(model, ctx.est, ctx.val), ctx.val.y)
-    n_params = ctx.nominal.n_params
-    refit = Fit(model, y_val, ctx.nominal.loss, n_params, ctx.nominal.bic, diverged)
+    refit = Fit(model, ctx.nominal.loss, ctx.nominal.n_params, ctx.nominal.bic,
+                ctx.in_loop() or (lambda m: simulate_validation(m, ctx.est, ctx.val)), ctx.val.y)
     return Candidate("colored_noise", {"estimator": "iv-oe"}, refit,
                      "re-estimating the same structure by IV-OE (instruments from an OE model)")
 

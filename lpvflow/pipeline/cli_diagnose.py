@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from lpvflow.data import Dataset, read_columns, time_column
 from lpvflow.errors import DataError
+from lpvflow.experiment.controller import load_controller
+from lpvflow.experiment.run import sidecar_path
+from lpvflow.experiment.scheduling import parse_assignment
 from lpvflow.models import _atomic_write_json
 from lpvflow.pipeline.cli_identify import _add_data_arguments, _refuse_overwrite, parse_order
 from lpvflow.validate.diagnose import MIN_VALIDATION, diagnose
@@ -24,6 +28,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="recorded channels that may be scheduling variables (default: all unused columns)")
     p.add_argument("--causes", nargs="+", choices=sorted(EXTENSIONS), help="test only these causes")
     p.add_argument("--split", type=float, default=0.5, help="estimation fraction (default 0.5)")
+    p.add_argument("--controller", metavar="CONTROLLER.json",
+                   help="the LTI controller the data were recorded under (lpvflow/lti-controller): every "
+                        "model is then simulated in that loop")
+    p.add_argument("--scheduling", nargs="+", metavar="NAME=EXPR",
+                   help="with --controller: scheduling columns computed from the outputs, recomputed from "
+                        "the simulated outputs in the loop (default: the sidecar's 'scheduling', if any)")
     p.add_argument("--json", dest="json_out", required=True, help="write the diagnosis here")
     p.add_argument("--model-out", help="where to save the extended model (default: next to --json)")
     p.add_argument("--plot", help="write the figure behind the verdict here (PNG)")
@@ -46,7 +56,9 @@ def run_diagnose(args: argparse.Namespace) -> int:
         raise DataError(f"{data.N} samples leave fewer than {MIN_VALIDATION} for validation at split "
                         f"{args.split}: record longer data or lower --split")
     structure = Structure(parse_order(args.na), parse_order(args.nb), parse_order(args.nk), args.basis)
-    result = diagnose(data, structure, {c: table[c] for c in names}, split=args.split, causes=args.causes)
+    controller = load_controller(args.controller) if args.controller else None
+    result = diagnose(data, structure, {c: table[c] for c in names}, split=args.split, causes=args.causes,
+                      controller=controller, scheduling=_scheduling(args) if controller else None)
     report = result.to_dict()
     report["extended_model"] = None
     if result.winner is not None:
@@ -60,3 +72,11 @@ def run_diagnose(args: argparse.Namespace) -> int:
         plot_diagnosis(result, data, args.plot, args.split)
     print(result.summary)
     return 0
+
+
+def _scheduling(args: argparse.Namespace) -> dict[str, str]:
+    """Scheduling expressions: ``--scheduling``, else the experiment sidecar's, else none."""
+    if args.scheduling:
+        return dict(parse_assignment(text) for text in args.scheduling)
+    side = sidecar_path(args.data)
+    return dict(json.loads(side.read_text()).get("scheduling", {})) if side.is_file() else {}

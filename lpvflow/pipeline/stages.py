@@ -118,8 +118,12 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     Only extensions that keep the model's inputs can be adopted (a dead time, orders, a richer
     basis, another estimator): offset, friction and actuator-map extensions add inputs or a static
     map a controller design model cannot carry, so they are reported but not adopted.
+
+    With an experiment controller (closed-loop data) every model is simulated in the identification
+    loop with the experiment's scheduling expressions (as :func:`closed_loop_simulation` does).
     """
     from lpvflow.data import read_columns
+    from lpvflow.experiment.controller import load_controller
     from lpvflow.validate.diagnose import diagnose as run_diagnosis
     from lpvflow.validate.diagnose_plot import plot_diagnosis
     from lpvflow.validate.extensions import Structure
@@ -131,7 +135,10 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     if missing:
         raise DataError(f"[diagnose] candidate column(s) {missing} are not in the experiment data")
     structure = Structure(ident["na"], ident["nb"], ident["nk"], ident["basis"])
-    result = run_diagnosis(data, structure, {c: table[c] for c in cfg["candidates"]}, split=cfg["split"])
+    experiment = ctx.config["experiment"]
+    controller = load_controller(experiment["controller"]) if experiment["controller"] else None
+    result = run_diagnosis(data, structure, {c: table[c] for c in cfg["candidates"]}, split=cfg["split"],
+                           controller=controller, scheduling=experiment["scheduling"])
     plot_diagnosis(result, data, ctx.path("diagnosis.png"), cfg["split"])
     outputs = {"cause": result.cause, "parameters": result.parameters, "summary": result.summary,
                "bfr_before": result.bfr_before, "bfr_after": result.bfr_after,

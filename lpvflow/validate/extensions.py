@@ -228,15 +228,15 @@ def input_delay(ctx: Context) -> Candidate | None:
 def simulation_bic(ctx: Context, candidate: Fit) -> float:
     """BIC of the estimation-data *simulation*: N log det(cov of the simulation error) + k log N.
 
-    On closed-loop data the simulation runs in the identification loop (estimation part of the
-    whole-record simulation): an unstable plant's model cannot be simulated open loop.
+    On closed-loop data the simulation runs in the identification loop over the estimation part:
+    an unstable plant's model cannot be simulated open loop.
     """
     with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", SchedulingRangeWarning)
         if ctx.loop is None:
             y_sim = candidate.model.simulate(ctx.est.u, ctx.est.p)
         else:
-            y_sim = simulate_in_loop(candidate.model, joined(ctx.est, ctx.val), ctx.loop)[: ctx.est.N]
+            y_sim = simulate_in_loop(candidate.model, ctx.est, ctx.loop)  # the loop's r starts with est
         y_sim = bounded(y_sim, ctx.est.y)[0]
     sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov((ctx.est.y - y_sim).T)))
     n = ctx.est.N

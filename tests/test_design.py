@@ -124,9 +124,11 @@ def test_missing_design_file(capsys, tmp_path):
 
 def test_diagnosed_dead_time_is_adopted_and_improves_the_validation_fit(tmp_path, tanks_fmu):
     """A 3 s pump dead time hidden in the plant: the diagnose stage names it (nk 1 → 4), the extended
-    model replaces the identified one, and the closed validation fit improves; the report shows it."""
+    model replaces the identified one, the validation fit improves and so does the frozen ν-gap to the
+    FMU linearization (which carries the dead time); the report shows it."""
     hidden = "\nparameters = { effect_input_delay = 3.0 }"
     text = write(tmp_path, tanks_fmu).read_text().replace("seed = 3", "seed = 3" + hidden)
+    text = text.replace("grid = 3", 'grid = 3\nreference = "linearization"')
     text = text.replace("duration = 1500.0", "duration = 4000.0").replace("order = 2\n", "")
     plain = tmp_path / "plain.toml"
     plain.write_text(text.replace('name = "tanks"', 'name = "plain"'))
@@ -141,6 +143,9 @@ def test_diagnosed_dead_time_is_adopted_and_improves_the_validation_fit(tmp_path
     fit_before = before["stages"]["validate"]["outputs"]["fit"]["bfr"][0]
     fit_after = after["stages"]["validate"]["outputs"]["fit"]["bfr"][0]
     assert fit_after > fit_before + 1.0
+    gap_before = before["stages"]["validate"]["outputs"]["nugap"]
+    gap_after = after["stages"]["validate"]["outputs"]["nugap"]
+    assert max(gap_after) < max(gap_before) - 0.05
     assert "diagnosis.png" in (tmp_path / "out" / "adopted" / "report.html").read_text()
 
 

@@ -1,0 +1,192 @@
+"""How far in arm angle can the ADIP be controlled with the bundled design's weights? (issue 7)
+
+Physical model of fmu_plants/adip (fmu_plants/reference_models.py), linearised at the upright
+equilibria φ1 = arccos θ, φ2 = 0 and discretised with zero-order hold at Ts = 5 ms. Only cos φ1 enters
+the linearisation, so θ = cos φ1 is the natural scheduling variable and ±φ1 give the same plant.
+
+1. Control authority: holding voltage V_eq(φ1) = −d1 sin φ1 / k_τ, unstable poles, and the voltage →
+   pendulum-acceleration entry of B (it scales like cos φ1 and vanishes at 90°).
+2. One LTI controller: the LQR + predictor observer of fmu_plants/adip/stabilizing_controller.py,
+   designed at φ1 = 0: the largest angle up to which the frozen closed loops stay stable.
+3. Polytopic H∞ synthesis (lpvflow.synth, common Lyapunov matrix, the weights of the bundled
+   lpvflow/pipeline/examples/adip.toml) on the affine-in-θ least-squares fit of the linearisations
+   over θ ∈ [θ_lo, 1], for decreasing θ_lo: γ or the reason it is infeasible, and the fit error.
+4. Whether *any* gain-scheduled state feedback can be certified on the two-vertex polytope spanned by
+   the exact linearisations at θ_lo and 1 (with the input filter W_B = 0.3/(z − 0.7) of assumption A3,
+   as the synthesis uses): the largest margin t of
+     quadratic (common X):       [[X, (A_iX + B W_i)ᵀ], [⋆, X]] ⪰ t I,  0 ⪯ X ⪯ I,
+     poly-quadratic (dilated):   [[P_j, A_iG + B W_i], [⋆, G + Gᵀ − P_i]] ⪰ t I for all i, j
+                                 (Daafouz & Bernussou 2001; de Oliveira et al. 1999), 0 ⪯ P_i ⪯ I,
+     frozen (rate 0, same G):    as poly-quadratic with i = j only.
+   t > 0 certifies; t ≤ 0 (to solver accuracy ~1e-8) means that family of Lyapunov functions
+   cannot certify that range whatever the controller. For scale: one frozen LTI point at 75° has
+   t ≈ 1e-6, at 0° t ≈ 2e-5.
+
+Run: .venv/bin/python benchmarks/bench_adip_reach.py   → results/adip_reach.json
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import tomllib
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import control
+import cvxpy as cp
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "fmu_plants"))
+sys.path.insert(0, str(ROOT / "fmu_plants" / "adip"))
+import reference_models as rm  # noqa: E402
+import stabilizing_controller  # noqa: E402
+
+from lpvflow.basis import Basis  # noqa: E402
+from lpvflow.models import LPVSS  # noqa: E402
+from lpvflow.synth.lmi_hinf import synthesize  # noqa: E402
+from lpvflow.synth.plant import generalized_plant  # noqa: E402
+from lpvflow.synth.sdp import SynthesisError  # noqa: E402
+
+TS = 0.005
+PARAMETERS = rm.default_parameters("adip")
+LOWER_BOUNDS = (0.85, 0.7, 0.6, 0.5, 0.25)  # θ_lo = cos φ1: 31.8°, 45.6°, 53.1°, 60°, 75.5°
+
+
+def linearised(phi1: float) -> control.StateSpace:
+    """ZOH discretisation of the linearisation at the upright equilibrium with the arm at φ1."""
+    x_op, u_op = rm.adip_equilibrium(phi1, PARAMETERS)
+    a, b = rm.jacobians(rm.adip_derivatives, x_op, u_op, PARAMETERS)
+    return control.c2d(control.ss(a, b, np.eye(2, 4), np.zeros((2, 1))), TS, method="zoh")
+
+
+def authority() -> list[dict]:
+    rows = []
+    for degrees in (0, 30, 45, 60, 75, 85):
+        phi1 = np.deg2rad(degrees)
+        x_op, u_op = rm.adip_equilibrium(phi1, PARAMETERS)
+        a, b = rm.jacobians(rm.adip_derivatives, x_op, u_op, PARAMETERS)
+        poles = np.linalg.eigvals(a)
+        rows.append({"arm_deg": degrees, "holding_voltage": float(u_op[0]),
+                     "unstable_poles_rad_s": sorted(float(s.real) for s in poles if s.real > 0),
+                     "pendulum_accel_per_volt": float(b[3, 0])})
+    return rows
+
+
+def lti_reach() -> dict:
+    """Largest φ1 (1° grid) up to which the φ1 = 0 LQR/observer controller keeps every frozen loop stable."""
+    doc = stabilizing_controller.design(PARAMETERS)
+    K = control.ss(*(np.array(doc[k]) for k in "ABCD"), TS)
+    radii = []
+    for degrees in range(0, 86):
+        loop = control.feedback(linearised(np.deg2rad(degrees)), K, sign=+1)  # u = K y
+        radii.append(float(np.max(np.abs(np.linalg.eigvals(loop.A)))))
+    unstable = [d for d, r in enumerate(radii) if r >= 1.0]
+    return {"stable_up_to_deg": (unstable[0] - 1) if unstable else 85,
+            "spectral_radius_at_75deg": radii[75]}
+
+
+def affine_model(theta_lo: float) -> tuple[LPVSS, float]:
+    """Least-squares fit M(θ) = M0 + θ M1 of the discretised A, B over 12 points of [θ_lo, 1]."""
+    thetas = np.linspace(theta_lo, 1.0, 12)
+    systems = [linearised(np.arccos(t)) for t in thetas]
+    regressor = np.column_stack([np.ones_like(thetas), thetas])
+    parts, errors = [], []
+    for key in ("A", "B"):
+        stacked = np.array([getattr(s, key) for s in systems])
+        coef, *_ = np.linalg.lstsq(regressor, stacked.reshape(len(thetas), -1), rcond=None)
+        residual = stacked.reshape(len(thetas), -1) - regressor @ coef
+        errors.append(np.abs(residual).max() / np.abs(stacked).max())
+        parts.append(coef.reshape((2, *stacked.shape[1:])))
+    C = np.array([np.eye(2, 4), np.zeros((2, 4))])
+    basis = Basis("affine", 1, p_min=(theta_lo,), p_max=(1.0,))
+    model = LPVSS(parts[0], parts[1], C, np.zeros((2, 2, 1)), basis, TS,
+                  u_names=["voltage"], y_names=["arm_angle", "pendulum_angle"], p_names=["cos_arm"])
+    return model, float(max(errors))
+
+
+def synthesis_reach(weights: dict) -> list[dict]:
+    rows = []
+    for theta_lo in LOWER_BOUNDS:
+        model, fit_error = affine_model(theta_lo)
+        row = {"theta_lo": theta_lo, "arm_deg": float(np.rad2deg(np.arccos(theta_lo))),
+               "affine_fit_rel_error": fit_error}
+        t0 = time.perf_counter()
+        try:
+            result = synthesize(generalized_plant(model, weights, [[theta_lo, 1.0]]), "common")
+            row["gamma"] = float(result.gamma)
+        except SynthesisError as exc:
+            row["gamma"] = None
+            row["reason"] = str(exc)
+        row["seconds"] = time.perf_counter() - t0
+        rows.append(row)
+        print(row, flush=True)
+    return rows
+
+
+def filtered_vertices(theta_lo: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Exact linearisations at θ_lo and 1 with the input filter x_f⁺ = 0.7 x_f + 0.3 v, u = x_f (A3)."""
+    vertices = []
+    for theta in (theta_lo, 1.0):
+        G = linearised(np.arccos(theta))
+        A = np.block([[G.A, G.B], [np.zeros((1, 4)), np.array([[0.7]])]])
+        vertices.append((A, np.vstack([np.zeros((4, 1)), [[0.3]]])))
+    return vertices
+
+
+def certifiable_margin(theta_lo: float, kind: str) -> float:
+    """Largest t of the state-feedback LMIs of item 4 (module docstring)."""
+    vertices = filtered_vertices(theta_lo)
+    n = vertices[0][0].shape[0]
+    t = cp.Variable()
+    W = [cp.Variable((1, n)) for _ in vertices]
+    constraints = [t <= 1]
+    if kind == "quadratic":
+        X = cp.Variable((n, n), symmetric=True)
+        constraints += [X >> 0, X << np.eye(n)]
+        for (A, B), Wi in zip(vertices, W, strict=True):
+            M = cp.bmat([[X, (A @ X + B @ Wi).T], [A @ X + B @ Wi, X]])
+            constraints.append((M + M.T) / 2 >> t * np.eye(2 * n))
+    else:
+        G = cp.Variable((n, n))
+        P = [cp.Variable((n, n), symmetric=True) for _ in vertices]
+        constraints += [c for Pi in P for c in (Pi >> 0, Pi << np.eye(n))]
+        for i, ((A, B), Wi) in enumerate(zip(vertices, W, strict=True)):
+            for j in (range(len(vertices)) if kind == "poly-quadratic" else [i]):
+                M = cp.bmat([[P[j], A @ G + B @ Wi], [(A @ G + B @ Wi).T, G + G.T - P[i]]])
+                constraints.append((M + M.T) / 2 >> t * np.eye(2 * n))
+    cp.Problem(cp.Maximize(t), constraints).solve(solver="CLARABEL")
+    return float(t.value)
+
+
+def lyapunov_reach() -> list[dict]:
+    rows = []
+    for theta_lo in LOWER_BOUNDS:
+        row = {"theta_lo": theta_lo, "arm_deg": float(np.rad2deg(np.arccos(theta_lo)))}
+        kinds = ("quadratic", "poly-quadratic", "frozen")
+        row |= {kind: certifiable_margin(theta_lo, kind) for kind in kinds}
+        rows.append(row)
+        print(row, flush=True)
+    return rows
+
+
+def main() -> None:
+    config = tomllib.loads((ROOT / "lpvflow" / "pipeline" / "examples" / "adip.toml").read_text())
+    results = {"authority": authority(), "lti_controller": lti_reach(),
+               "state_feedback_certifiable_margin": lyapunov_reach(),
+               "common_lyapunov_synthesis": synthesis_reach(config["synth"]["weights"])}
+    for row in results["authority"]:
+        print(row)
+    print(results["lti_controller"])
+    out = Path(__file__).parent / "results" / "adip_reach.json"
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

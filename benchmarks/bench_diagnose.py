@@ -9,10 +9,12 @@ FMU section: the plants of fmu_plants/ with an effect parameter set (experiments
 structures of tests/test_diagnose_fmu.py), over experiment seeds (input signals and noise draw) and
 sensor-noise levels (effect_noise_std, in the output's unit). Same hit definition; model order:
 na ≥ 2 (two tanks); scheduling dependence: a polynomial degree ≥ 2 (the physical coefficient
-functions are not polynomials).
+functions are not polynomials). The ADIP cases are closed-loop records (unstable plant, stabilizing
+controller): every model is simulated in the identification loop (``diagnose(..., controller=...)``);
+friction level within 10 % of F_c / 0.1284 N·m/V, offset within 20 % on both angles.
 
 Run: ``.venv/bin/python benchmarks/bench_diagnose.py [--seeds 10] [--fmu-seeds 5]``
-→ results/diagnose.json
+→ results/diagnose.json; ``--fmu-only adip`` runs the ADIP cases alone → results/diagnose_fmu_adip.json
 """
 
 from __future__ import annotations
@@ -31,7 +33,17 @@ from lpvflow.validate import extensions
 from lpvflow.validate.diagnose import diagnose
 from lpvflow.validate.extensions import Structure
 from tests.diagnosis_cases import NOMINAL, make_case
-from tests.test_diagnose_fmu import AIRPATH, TANKS, airpath_data, tanks_data
+from tests.test_diagnose_fmu import (
+    ADIP,
+    ADIP_SCHEDULING,
+    AIRPATH,
+    SRV02_TORQUE_PER_VOLT,
+    TANKS,
+    adip_controller,
+    adip_data,
+    airpath_data,
+    tanks_data,
+)
 
 CAUSES = ["none", "input_delay", "model_order", "scheduling_dependence", "scheduling_variable",
           "input_nonlinearity", "friction", "offset", "colored_noise"]
@@ -76,6 +88,14 @@ def hit_rates(seeds: int, snrs: list[float]) -> dict:
 
 
 DEAD_ZONE_PUMP = "levels:lo=1,hi=9,min_hold=10,max_hold=60"
+#: Angle-sensor noise levels [rad] of the ADIP cases.
+ADIP_NOISE = [0.0, 1e-4]
+
+
+def _friction_hit(par: dict, coulomb: float) -> bool:
+    """Friction against the arm, level within 10 % of the Coulomb torque in volts."""
+    expected = coulomb / SRV02_TORQUE_PER_VOLT
+    return par["output"] == "arm_angle" and abs(par["coulomb_level_input_units"] - expected) <= 0.1 * expected
 #: label → (hidden cause, plant, effect parameters, nominal structure, check of the parameters,
 #: sensor-noise levels, keyword arguments of the data function).
 FMU_CASES = {
@@ -101,30 +121,45 @@ FMU_CASES = {
     "airpath pressure noise": ("colored_noise", "airpath", {}, AIRPATH, None, [2.0, 4.0, 6.0], {}),
     "airpath offset 5 kPa": ("offset", "airpath", {"effect_sensor_offset": 5.0}, AIRPATH,
                              lambda par: abs(par["output_offset"] - 5) <= 1, [0.0, 0.5], {}),
+    "adip none (closed loop)": ("none", "adip", {}, ADIP, None, ADIP_NOISE, {}),
+    "adip Coulomb 0.04 N·m": ("friction", "adip", {"effect_coulomb": 0.04}, ADIP,
+                              lambda par: _friction_hit(par, 0.04), ADIP_NOISE, {}),
+    "adip Coulomb 0.02 N·m": ("friction", "adip", {"effect_coulomb": 0.02}, ADIP,
+                              lambda par: _friction_hit(par, 0.02), ADIP_NOISE, {}),
+    "adip sensor offset 0.01 rad": ("offset", "adip", {"effect_sensor_offset": 0.01}, ADIP,
+                                    lambda par: np.allclose(par["output_offset"], 0.01, rtol=0, atol=0.002),
+                                    ADIP_NOISE, {}),
 }
 
 
-def fmu_hit_rates(seeds: int) -> dict:
+def fmu_hit_rates(seeds: int, prefix: str = "") -> dict:
+    """Hit rates of the FMU cases whose label starts with ``prefix``; BFR is the mean over outputs."""
     root = Path(__file__).resolve().parents[1]
     subprocess.run([sys.executable, str(root / "fmu_plants" / "build.py")], check=True, capture_output=True)
     table = {}
     for label, (cause, plant, effects, structure, check, noise_levels, kwargs) in FMU_CASES.items():
+        if not label.startswith(prefix):
+            continue
         for noise in noise_levels:
             named, hits, p_hits, before, after, seconds = [], 0, [], [], [], []
             for seed in range(seeds):
                 parameters = {**effects, "effect_noise_std": noise, "effect_noise_seed": 100 + seed}
                 t0 = time.perf_counter()
+                loop = {}
                 if plant == "tanks":
                     data, channels = tanks_data(parameters, seed=seed, **kwargs), {}
-                else:
+                elif plant == "airpath":
                     data, channels = airpath_data(parameters, seed=seed, **kwargs)
-                result = diagnose(data, structure, channels)
+                else:
+                    data, channels = adip_data(parameters, seed=seed, **kwargs), {}
+                    loop = {"controller": adip_controller(), "scheduling": ADIP_SCHEDULING}
+                result = diagnose(data, structure, channels, **loop)
                 seconds.append(time.perf_counter() - t0)
                 hit = result.cause == cause and (check is None or check(result.parameters))
                 hits += hit
                 named.append(result.cause)
-                before.append(result.bfr_before[0])
-                after.append(result.bfr_after[0])
+                before.append(np.mean(result.bfr_before))
+                after.append(np.mean(result.bfr_after))
                 if hit and cause != "none":
                     p_hits.append(next(r for r in result.ranking if r["cause"] == cause)["p_value"])
             row = {"cause": cause, "noise_std": noise, "hits": hits, "runs": seeds,
@@ -163,11 +198,21 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--fmu-seeds", type=int, default=5)
+    parser.add_argument("--fmu-only", metavar="PREFIX",
+                        help="only the FMU cases whose label starts with PREFIX (e.g. adip) → "
+                             "results/diagnose_fmu_PREFIX.json")
     args = parser.parse_args()
-    results = {"cost": cost(), "hit_rates": hit_rates(args.seeds, [20.0, 30.0]),
-               "fmu_hit_rates": fmu_hit_rates(args.fmu_seeds)}
-    out = Path(__file__).parent / "results" / "diagnose.json"
+    if args.fmu_only:
+        results = {"fmu_hit_rates": fmu_hit_rates(args.fmu_seeds, args.fmu_only)}
+        out = Path(__file__).parent / "results" / f"diagnose_fmu_{args.fmu_only}.json"
+    else:
+        results = {"cost": cost(), "hit_rates": hit_rates(args.seeds, [20.0, 30.0]),
+                   "fmu_hit_rates": fmu_hit_rates(args.fmu_seeds)}
+        out = Path(__file__).parent / "results" / "diagnose.json"
     out.write_text(json.dumps(results, indent=1))
+    if args.fmu_only:
+        _print_fmu_table(results)
+        return
     c = results["cost"]
     print(f"\nN = {c['N']}: {c['total_s']:.1f} s in all; per extension: "
           + ", ".join(f"{k} {v:.2f} s" for k, v in sorted(c["per_extension_s"].items(),
@@ -177,6 +222,10 @@ def main() -> None:
         cause, snr = key.split("@")
         print(f"| {cause} | {snr} | {row['hits']}/{row['runs']} | "
               + ", ".join(f"{k} {v}" for k, v in sorted(row["named"].items())) + " |")
+    _print_fmu_table(results)
+
+
+def _print_fmu_table(results: dict) -> None:
     print("\n| FMU case | noise std | hits | named | BFR before → after (median) |\n|---|---|---|---|---|")
     for key, row in results["fmu_hit_rates"].items():
         label = key.split(" @ ")[0]

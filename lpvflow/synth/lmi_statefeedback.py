@@ -516,13 +516,14 @@ def infeasibility_reason(verts: list[SFVertex], disk: tuple[float, float] | None
                         f"|z − {disk[0]:g}| < {disk[1]:g}: no state feedback moves it; enlarge the disk")
     radius = max(np.max(np.abs(np.linalg.eigvals(v.A))) for v in verts)
     parts = [f"the plant has vertex poles up to |z| = {radius:.4g}"]
-    if gamma_max is not None:
+    if gamma_max is not None:  # the spec first: without it the LMIs may be feasible
         parts.append(f"no state feedback reaches γ ≤ {gamma_max:g}: relax the weights or drop gamma_max")
-    if disk is not None:
-        parts.append(f"the disk |z − {disk[0]:g}| < {disk[1]:g} may be too small for a gain common to the "
-                     "vertices")
-    parts.append("one constant gain must serve all vertices (B2 or D12 varies)" if not scheduled
-                 else "no common Lyapunov function found for all vertices: shrink the scheduling box")
+    else:
+        if disk is not None:
+            parts.append(f"the disk |z − {disk[0]:g}| < {disk[1]:g} may be too small for a gain common to "
+                         "the vertices")
+        parts.append("one constant gain must serve all vertices (B2 or D12 varies)" if not scheduled
+                     else "no common Lyapunov function found for all vertices: shrink the scheduling box")
     return "; ".join(parts)
 
 

@@ -24,6 +24,7 @@ y = [arm_angle, pendulum_angle], u = [voltage]. Every model is simulated in the 
 Hit rates over seeds and noise levels: benchmarks/bench_diagnose.py (FMU section).
 """
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -232,3 +233,26 @@ def test_adip_sensor_offset_is_found_in_the_loop(fmus):
     assert result.cause == "offset", result.ranking
     assert result.parameters["output_offset"] == pytest.approx([0.01, 0.01], rel=0.2)
     assert min(np.asarray(result.bfr_after) - result.bfr_before) > 30
+
+
+def test_cli_diagnoses_in_the_loop_with_the_sidecar_scheduling(fmus, tmp_path, capsys):
+    """``lpvflow diagnose --controller``: the scheduling expression comes from the experiment's
+    sidecar and the report says the models were simulated in the closed loop (offset case, offset
+    extension alone to keep it short)."""
+    from lpvflow.pipeline.cli import main
+
+    csv = tmp_path / "adip.csv"
+    run_fmu_experiment(
+        fmus / "adip.fmu", 0.005, 40.0, controller=adip_controller(), seed=1, output=csv,
+        excitation={"voltage": "multisine:f_lo=0.05,f_hi=20,rms=1.5,period=20,phases=random"},
+        parameters={"effect_sensor_offset": 0.01}, scheduling_columns=ADIP_SCHEDULING, progress=False)
+    out = tmp_path / "diag.json"
+    controller = ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json"
+    assert main(["diagnose", str(csv), "--u", "voltage", "--y", "arm_angle", "pendulum_angle",
+                 "--p", "sin_arm", "--causes", "offset", "--controller", str(controller),
+                 "--json", str(out)]) == 0
+    assert "cause: offset" in capsys.readouterr().out
+    report = json.loads(out.read_text())
+    assert report["simulation"] == "closed loop" and report["cause"] == "offset"
+    assert report["loop_scheduling"] == ADIP_SCHEDULING
+    assert min(np.subtract(report["bfr_after"], report["bfr_before"])) > 30

@@ -67,6 +67,7 @@ class Diagnosis:
     summary: str
     where: dict
     simulation: str = "open loop"  # or "closed loop": in the identification loop (module docstring)
+    loop_scheduling: dict[str, str] = field(default_factory=dict)  # recomputed in the loop
     untested: list[str] = field(default_factory=list)
     untested_reasons: dict[str, str] = field(default_factory=dict)
     winner: Candidate | None = field(default=None, repr=False)
@@ -239,6 +240,7 @@ def diagnose(
         evidence=_evidence(est, prediction_residuals(nominal.model, est), split_channels),
         ranking=ranked, summary="", where=_where(val, val.y - nominal.y_val), winner=winner,
         simulation="open loop" if loop is None else "closed loop",
+        loop_scheduling=dict(loop.scheduling) if loop is not None else {},
         untested=[c for c in tried if c not in candidates], untested_reasons=untested_reasons,
         nominal_y_val=nominal.y_val,
         error_spectrum=residuals.error_spectrum(val.y[:, 0] - nominal.y_val[:, 0], val.Ts),

@@ -151,8 +151,13 @@ def _constant(verts: list[SFVertex], name: str) -> bool:
 class StateFeedbackResult:
     """Vertex gains K_i (u = K(θ)x, K(θ) = Σ λ_i K_i) with the γ they are certified for.
 
+    For a GeneralizedPlant, x = [x_plant; x_weights] and u is its control input, i.e. the input of the
+    filter W_B when the design has one (W_B's state is part of x).
+
     Attributes:
-        gamma: the γ of the returned certificate; gamma_opt: the minimum of step 1.
+        gamma: the γ of the returned certificate; gamma_opt: the smallest γ of the γ minimisation (with
+            bisection: the largest γ at which no re-checked point was found).
+        report: solver, passes and statuses, total solve time.
         scheduled: False when B2 or D12 varies over the vertices: then every K_i is the same gain.
         P, G: Lyapunov matrices and slack of (H) in the original coordinates (P_i = G = X for
             ``"quadratic"``); Q: those of the disk LMI (None without a disk; Q_i = X for ``"quadratic"``).

@@ -86,7 +86,7 @@ from lpvflow.synth.certify import scheduling_grid
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, augment, weight_systems
 from lpvflow.synth.polytope import Polytope
 from lpvflow.synth.sdp import SolveReport, SynthesisError, psd, solve
-from lpvflow.validate.stability import quadratic_stability
+from lpvflow.validate.stability import check_common_lyapunov, quadratic_stability
 
 METHODS = ("quadratic", "dilated")
 _BOUND = 1e6  # Lyapunov matrices and sym G ⪯ β·I in the scaled coordinates
@@ -564,8 +564,8 @@ class StateFeedbackCertificate:
     Attributes:
         lmi_max_eig: :func:`vertex_lmi_max_eig` recomputed (must be ≤ −eps).
         quadratically_stable: common-Lyapunov certificate of the closed-loop vertices A_i + B2_iK_i
-            (:func:`lpvflow.validate.stability.quadratic_stability`); required for ``"quadratic"`` designs,
-            informative for ``"dilated"`` ones (they guarantee poly-quadratic stability only).
+            (:func:`_quadratic_stability`, ``stability_note`` says which); required for ``"quadratic"``
+            designs, informative for ``"dilated"`` ones (they guarantee poly-quadratic stability only).
         frozen_hinf_max: max over the θ grid of the python-control ‖T_zw‖∞ of the frozen closed loop.
         pole_max: max over the grid of max |eig − q| / r (the disk; q = 0, r = 1 without a disk).
         switching_peak, switching_final: ‖ξ‖/‖ξ(0)‖ in the random-switching simulation.
@@ -576,6 +576,7 @@ class StateFeedbackCertificate:
     eps: float
     lmi_max_eig: float
     quadratically_stable: bool
+    stability_note: str
     frozen_hinf_max: float
     pole_max: float
     switching_peak: float
@@ -591,7 +592,7 @@ class StateFeedbackCertificate:
     def lines(self) -> list[str]:
         return [
             f"vertex LMIs re-evaluated: max eigenvalue {self.lmi_max_eig:.3e} (must be ≤ −{self.eps:.1e})",
-            f"closed loop quadratically stable (common Lyapunov LMI): {self.quadratically_stable}",
+            f"closed loop quadratically stable: {self.quadratically_stable} ({self.stability_note})",
             f"frozen closed-loop H∞ max {self.frozen_hinf_max:.6g} vs γ = {self.gamma:.6g} "
             f"({self.n_grid} points)",
             f"frozen closed-loop poles: max |z − q|/r = {self.pole_max:.4f} (must be < 1)",
@@ -666,7 +667,7 @@ def certify_state_feedback(
     1. the vertex LMIs (H_ij), (D̃_i) evaluated in numpy with the returned K_i, P_i, G, Q_i, γ
        (:func:`vertex_lmi_max_eig`): max eigenvalue ≤ −eps;
     2. quadratic stability of the closed-loop vertices A_i + B2_iK_i (common Lyapunov LMI with its own
-       eigenvalue re-check, :func:`lpvflow.validate.stability.quadratic_stability`);
+       eigenvalue re-check, :func:`_quadratic_stability`);
     3. on a θ grid (``per_axis`` points per scheduling axis, from ``model.frozen(p)`` and ``weights``
        when given, else convex combinations of the vertices): the frozen closed-loop ‖T_zw‖∞ from
        ``control.norm`` ≤ γ(1 + 1e-3), and every closed-loop eigenvalue in the disk (unit disk without one);
@@ -682,6 +683,21 @@ def certify_state_feedback(
         poles.append(float(np.max(np.abs(np.linalg.eigvals(A) - q))) / r)
     A_cl = [v.closed_loop(K)[0] for v, K in zip(result.vertices, result.K_vertices, strict=True)]
     peak, final = switching_simulation(result, n_steps, seed)
-    return StateFeedbackCertificate(result.method, result.gamma, eps, vertex_lmi_max_eig(result),
-                                    quadratic_stability(A_cl).certified, max(norms), max(poles), peak, final,
-                                    len(frozen))
+    stable, note = _quadratic_stability(result, A_cl)
+    return StateFeedbackCertificate(result.method, result.gamma, eps, vertex_lmi_max_eig(result), stable,
+                                    note, max(norms), max(poles), peak, final, len(frozen))
+
+
+def _quadratic_stability(result: StateFeedbackResult, A_cl: list[np.ndarray]) -> tuple[bool, str]:
+    """Common Lyapunov function of the closed-loop vertices: a fresh LMI solve with its eigenvalue
+    re-check (:func:`lpvflow.validate.stability.quadratic_stability`); when that solve fails (it can
+    near the unit circle: adip_like over ±0.5, where Clarabel fails and SCS returns a wrong P), a
+    ``"quadratic"`` design's own P = X⁻¹, scaled to λ_min(P) = 1, through the same eigenvalue re-check
+    (:func:`~lpvflow.validate.stability.check_common_lyapunov`: A_iᵀPA_i − P ⪯ −1e-12·I)."""
+    fresh = quadratic_stability(A_cl)
+    if fresh.certified or result.method != "quadratic":
+        return fresh.certified, f"common Lyapunov LMI: {fresh.reason or 'certified'}"
+    P = np.linalg.inv(0.5 * (result.G + result.G.T))
+    check = check_common_lyapunov(A_cl, P / np.linalg.eigvalsh(P)[0], 1e-12)
+    return check.passed, (f"the design's P = X⁻¹: {check.reason or 'certified'} "
+                          f"(fresh LMI: {fresh.reason})")

@@ -371,8 +371,8 @@ def synthesize_state_feedback(
        point method returns a strictly feasible, centred point, the candidate certificate, which is
        unscaled and re-evaluated in numpy (:func:`vertex_lmi_max_eig`).
 
-    When step 1 fails numerically (the γ-optimal LMIs are singular at the optimum; Clarabel can stall at
-    a relative gap of 1e-4, e.g. on adip_like) or its candidate fails the re-check, γ is found by
+    When step 1 fails numerically (the γ-optimal LMIs are singular at the optimum; Clarabel stalls at a
+    relative gap of 4e-4 on an adip_like vertex) or its candidate fails the re-check, γ is found by
     geometric bisection on step 2 instead (to a relative width suboptimality/2; γ_opt is then the
     largest γ without a re-checked point).
 
@@ -447,6 +447,8 @@ def synthesize_state_feedback(
                 if best is None:
                     reason = infeasibility_reason(verts, disk, gamma_max, scheduled)
                     raise SynthesisError(f"{exc}: {reason}") from None
+                reports += step.reports  # a re-centred pass the solver calls infeasible: keep the best
+                notes.append(f"pass {k + 1}: stopped, the solver reports infeasible")
                 break
             gamma_opt, note = None, f"γ minimisation failed ({str(exc)[-60:]})"
         if candidate is None or not candidate.lmi_max_eig < 0:

@@ -23,7 +23,7 @@ diag(I, G⁻¹, I, I) then gives the dual bounded-real LMI in P; the congruence
 diag(√γ I, √γ I, I/√γ, √γ I) turns γI, γI into I, γ²I and multiplies P, G by γ.) With Z = KG,
 𝒜G = A G + B2 Z and 𝒞G = C1 G + D12 Z are linear in (G, Z).
 
-* Method ``"quadratic"`` (common Lyapunov function, arbitrarily fast θ; Boyd et al. 1994 §7.2.2, in the
+* Method ``"quadratic"`` (common Lyapunov function, arbitrarily fast θ; Boyd et al. 1994 ch. 7, in the
   dual form of Gahinet & Apkarian 1994): G = P = X ≻ 0 common, W_i = K_i X, the LMI (H_i) at every
   vertex i with (2,2) block X; K_i = W_i X⁻¹. Since X is common, Σ λ_i W_i = K(θ)X, and (H) is affine
   in λ, so the vertex LMIs hold over the polytope and for every trajectory θ(k) (V = xᵀX⁻¹x).

@@ -693,11 +693,13 @@ def certify_state_feedback(
 def _quadratic_stability(result: StateFeedbackResult, A_cl: list[np.ndarray]) -> tuple[bool, str]:
     """Common Lyapunov function of the closed-loop vertices: a fresh LMI solve with its eigenvalue
     re-check (:func:`lpvflow.validate.stability.quadratic_stability`); when that solve fails (it can
-    near the unit circle: adip_like over ±0.5, where Clarabel fails and SCS returns a wrong P), a
-    ``"quadratic"`` design's own P = X⁻¹, scaled to λ_min(P) = 1, through the same eigenvalue re-check
-    (:func:`~lpvflow.validate.stability.check_common_lyapunov`: A_iᵀPA_i − P ⪯ −1e-12·I)."""
+    near the unit circle: adip_like over ±0.5, where Clarabel fails and SCS returns a wrong P), the
+    design's own P = X⁻¹ when it has one (G = P_1 = … = P_N = X: every ``"quadratic"`` design, and a
+    ``"dilated"`` one that kept its quadratic start), scaled to λ_min(P) = 1, through the same
+    eigenvalue re-check (:func:`~lpvflow.validate.stability.check_common_lyapunov`:
+    A_iᵀPA_i − P ⪯ −1e-12·I)."""
     fresh = quadratic_stability(A_cl)
-    if fresh.certified or result.method != "quadratic":
+    if fresh.certified or not all(np.array_equal(Pi, result.G) for Pi in result.P):
         return fresh.certified, f"common Lyapunov LMI: {fresh.reason or 'certified'}"
     P = np.linalg.inv(0.5 * (result.G + result.G.T))
     check = check_common_lyapunov(A_cl, P / np.linalg.eigvalsh(P)[0], 1e-12)

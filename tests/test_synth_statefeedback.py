@@ -157,7 +157,7 @@ def test_dilated_not_worse_on_random_polytopes(seed):
 
 
 @pytest.mark.slow
-def test_maglev_like_dilated_not_worse_than_quadratic():  # ~80 s: 12 states, 9 dilated LMIs of size 30
+def test_maglev_like_dilated_not_worse_than_quadratic():  # 40-80 s: 12 states, 9 dilated LMIs of size 30
     model, weights = maglev_like()
     # started from the quadratic point: without it Clarabel stops at 1.47308 > 1.47213 (quadratic)
     q, d = _dilated_ratio(generalized_plant(model, weights), seed_quadratic=True)

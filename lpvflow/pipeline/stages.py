@@ -408,18 +408,22 @@ def _negative_feedback_lti(path: str, model: LPVSS):
 
 # ----------------------------------------------------------------------------------------- synth
 def synth(ctx: StageContext) -> tuple[dict, list[str]]:
-    """Polytopic H∞ controller (dilated LMIs) and the LTI baseline designed at one frozen point."""
+    """Polytopic H∞ controller and the LTI baseline designed at one frozen point (``baseline_at``,
+    default the centre of the scheduling box), both on the model in balanced state coordinates."""
     from lpvflow.synth.certify import certify
     from lpvflow.synth.lmi_hinf import synthesize
     from lpvflow.synth.plant import generalized_plant
+    from lpvflow.synth.polytope import scheduling_box
 
     cfg = ctx.config["synth"]
-    model = load(ctx.path("model.json"))
     box = cfg["box"]
+    model = load(ctx.path("model.json"))
+    centre = scheduling_box(model, box).mean(axis=1)
+    model = balanced_states(model, centre)
     result = synthesize(generalized_plant(model, cfg["weights"], box), cfg["method"], cfg["solver"])
     certificate = certify(result, model, cfg["weights"])
     result.controller.save(ctx.path("controller.json"))
-    at = cfg["baseline_at"] if cfg["baseline_at"] is not None else [0.0] * model.basis.n_p
+    at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre.tolist()
     nominal = [[v, v] for v in at]
     baseline = synthesize(generalized_plant(model, cfg["weights"], nominal), cfg["method"], cfg["solver"])
     baseline.controller.save(ctx.path("baseline.json"))
@@ -428,6 +432,22 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
              "solve_seconds": result.report.seconds, "order": result.controller.order,
              "polytope": result.plant.polytope.kind},
             ["controller.json", "baseline.json"])
+
+
+def balanced_states(model: LPVSS, p: np.ndarray) -> LPVSS:
+    """The same model in diagonal state coordinates x = T x̃ with ‖row i of B(p)‖ = ‖column i of C(p)‖.
+
+    Controllers (from e to u) do not depend on the plant's state coordinates, but the synthesis LMIs
+    do numerically: an identified realization can carry B ~ 1e-4 against C ~ 0.5 (maglev, m/A), and
+    the solver then returns γ two orders of magnitude above the optimum. States without input or
+    output coupling at p keep their scale.
+    """
+    _, B, C, _ = model.matrices(p)
+    b, c = np.linalg.norm(B, axis=1), np.linalg.norm(C, axis=0)
+    coupled = (b > 0) & (c > 0)
+    t = np.where(coupled, np.sqrt(np.where(coupled, b, 1.0) / np.where(coupled, c, 1.0)), 1.0)
+    return replace(model, A=model.A * t / t[:, None], B=model.B / t[:, None], C=model.C * t,
+                   K=None if model.K is None else model.K / t[:, None])
 
 
 # ---------------------------------------------------------------------------------------- verify

@@ -46,34 +46,10 @@ Q_i = Y(A_i + B2Dk_iC2)X + YB2Ck_iU + ṼᵀBk_iC2X + ṼᵀAk_iU — all affine
 Ak = Ṽ⁻ᵀ(Q − YAX − YB2L − FC2X + YB2RC2X)U⁻¹. S − YX is non-singular because the (2,2) block forces
 [X I; S Y] to have a positive definite symmetric part.
 
-Controller elimination (projection lemma, Gahinet & Apkarian 1994, Lemma 3.1). With Θ_i = [L_i R_i; Q_i F_i]
-the vertex LMI is M_i(Θ_i) = M_i(0) + ŨΘ_iṼ + (ŨΘ_iṼ)ᵀ with constant Ũ (rows: [B2 0; 0 I] in the first
-block, [D12 0] in the z block) and Ṽ (columns: [I 0; 0 C2] in the second block, [0; D21] in the w block),
-so a Θ_i exists iff W_Uᵀ M_i(0) W_U ≻ 0 and W_Vᵀ M_i(0) W_V ≻ 0 (W_U, W_V bases of ker Ũᵀ, ker Ṽ). The SDPs
-are solved in the controller-free variables only; Θ_i is computed afterwards (:func:`_theta`). Why:
-Clarabel's cost per iteration grows with the cube of every PSD block's svec size, and the full LMIs
-(2·2n + nw + nz = 54 rows for n = 12) made one solve take 15–30 s on the maglev-like plant.
-
 Method ``"common"`` (item 3b, Gahinet & Apkarian 1994 / Apkarian et al. 1995 in discrete time) is the
-special case 𝒢 = 𝒫_i = 𝒫: X, Y symmetric, S = I, P̄ = [X I; I Y]. After elimination it is, per vertex,
-
-    ⎡ N_Xᵀ diag(X, γI) N_X    N_Xᵀ [A_iX  B1_i; C1_iX  D11_i] ⎤ ≻ 0,        N_X basis of ker [B2ᵀ D12ᵀ],
-    ⎣ ⋆                        diag(X, γI)                   ⎦
-
-    ⎡ Y   [YA_i  YB1_i] N_Y          0                    ⎤
-    ⎢ ⋆   N_Yᵀ diag(Y, γI) N_Y      N_Yᵀ [C1_iᵀ; D11_iᵀ]  ⎥ ≻ 0,                 N_Y basis of ker [C2 D21],
-    ⎣ ⋆   ⋆                          γI                   ⎦
-
-and [X I; I Y] ≻ 0 once (LMIs of n + nz − nu + n + nw and n + n + nw − ny + nz rows instead of 54).
-
-Method ``"dilated"`` (item 3c). The N² pair LMIs (E_ij) are replaced by N vertex LMIs with a common
-next-step block Z in place of P̄_j, plus P̄_j ⪰ Z for every j: since (E_ij) is monotone in its (1,1)
-block, this implies every (E_ij) — the guarantee is still for arbitrarily fast θ(k) and the independent
-re-check still evaluates all N² pairs with the returned 𝒫_j — but it is more conservative than the pair
-form (a sufficient condition, not equivalent). It keeps the controller variables per vertex, so they can
-be eliminated (W_U, W_V projections, 3n + nw + nz − nu and 3n + nw + nz − ny rows). Every feasible point
-of ``"common"`` is feasible here (Z = P̄_i = P̄, S = I), so γ_dilated ≤ γ_common up to solver accuracy.
-γ is the SDP objective; strictness is imposed as ⪰ margin·I.
+special case 𝒢 = 𝒫_i = 𝒫: X, Y symmetric, S = I, P̄ = [X I; I Y], one LMI per vertex. Every feasible
+point of ``"common"`` is feasible for ``"dilated"`` (item 3c), so γ_dilated ≤ γ_common.
+γ² is the SDP objective; strictness is imposed as ⪰ margin·I.
 """
 
 from __future__ import annotations
@@ -146,12 +122,14 @@ def _unscaled_controller(K: tuple[np.ndarray, ...], du: np.ndarray, dy: np.ndarr
     return Ak, Bk / dy[None, :], du[:, None] * Ck, du[:, None] * Dk / dy[None, :]
 
 
-def _vertex_blocks(v: VertexPlant, X, Y) -> tuple:
-    """Φ_i, Ψ_i, Ω_i, Δ_i of the transformed LMI at Θ_i = 0 (module docstring)."""
-    Phi = cp.bmat([[v.A @ X, v.A], [np.zeros_like(v.A), Y @ v.A]])
-    Psi = cp.vstack([v.B1, Y @ v.B1])
-    Omega = cp.hstack([v.C1 @ X, v.C1])
-    return Phi, Psi, Omega, v.D11
+def _vertex_blocks(v, X, Y, Qi, Li, Fi, Ri):
+    """Φ_i, Ψ_i, Ω_i, Δ_i of the transformed LMI (module docstring)."""
+    Phi = cp.bmat([[v.A @ X + v.B2 @ Li, v.A + v.B2 @ Ri @ v.C2],
+                   [Qi, Y @ v.A + Fi @ v.C2]])
+    Psi = cp.vstack([v.B1 + v.B2 @ Ri @ v.D21, Y @ v.B1 + Fi @ v.D21])
+    Omega = cp.hstack([v.C1 @ X + v.D12 @ Li, v.C1 + v.D12 @ Ri @ v.C2])
+    Delta = v.D11 + v.D12 @ Ri @ v.D21
+    return Phi, Psi, Omega, Delta
 
 
 def _lmi(Pnext, Phi, Pcur_block, Psi, Omega, Delta, g, nw, nz):
@@ -162,16 +140,6 @@ def _lmi(Pnext, Phi, Pcur_block, Psi, Omega, Delta, g, nw, nz):
         [Psi.T, np.zeros((nw, n2)), g * np.eye(nw), Delta.T],
         [np.zeros((nz, n2)), Omega, Delta, g * np.eye(nz)],
     ])
-
-
-def _theta_factors(v: VertexPlant) -> tuple[np.ndarray, np.ndarray]:
-    """Ũ, Ṽ with M_i(Θ_i) = M_i(0) + ŨΘ_iṼ + (ŨΘ_iṼ)ᵀ, Θ_i = [L_i R_i; Q_i F_i] (module docstring)."""
-    n, nw, nu, nz, ny = v.dims
-    U = np.zeros((4 * n + nw + nz, nu + n))
-    U[:n, :nu], U[n:2 * n, nu:], U[4 * n + nw:, :nu] = v.B2, np.eye(n), v.D12
-    V = np.zeros((n + ny, 4 * n + nw + nz))
-    V[:n, 2 * n:3 * n], V[n:, 3 * n:4 * n], V[n:, 4 * n:4 * n + nw] = np.eye(n), v.C2, v.D21
-    return U, V
 
 
 def reconstruct(v: VertexPlant, X, Y, S, Q, L, F, R, U, Vt) -> tuple[np.ndarray, ...]:
@@ -186,60 +154,47 @@ def reconstruct(v: VertexPlant, X, Y, S, Q, L, F, R, U, Vt) -> tuple[np.ndarray,
 
 @dataclass
 class _Lmis:
-    """cvxpy variables and controller-free LMIs of one method (module docstring), before a margin is chosen.
-
-    ``Pnext`` is the (1,1) block of the vertex LMIs: P̄ for ``"common"``, Z for ``"dilated"``.
-    """
+    """cvxpy variables and vertex LMIs of one method (module docstring), before a margin is chosen."""
 
     X: cp.Variable
     Y: cp.Variable
     S: cp.Variable | np.ndarray
+    Q: list[cp.Variable]
+    L: list[cp.Variable]
+    F: list[cp.Variable]
+    R: list[cp.Variable]
     Pbar: list
-    Pnext: cp.Expression
     matrices: list
     bounds: list[cp.Expression]
 
 
-def _diag(P: cp.Expression, g: cp.Expression, m: int) -> cp.Expression:
-    """diag(P, g·I_m)."""
-    n = P.shape[0]
-    return cp.bmat([[P, np.zeros((n, m))], [np.zeros((m, n)), g * np.eye(m)]])
-
-
 def _lmis(verts: list[VertexPlant], method: str, g: cp.Expression) -> _Lmis:
-    """The controller-free LMIs (X_i, Y_i, coupling for common; W_Uᵀ M_i W_U, W_Vᵀ M_i W_V, Z ⪯ P̄_j for
-    dilated) with γ = g, and the blocks bounded by ``_BOUND`` (P̄_i, sym 𝒢)."""
-    n, nw, _, nz, _ = verts[0].dims
-    I = np.eye(n)
+    """The vertex LMI matrices (E_ij) with γ² = g, and the blocks bounded by ``_BOUND`` (P̄_i, 𝒢 sym)."""
+    n, nw, nu, nz, ny = verts[0].dims
+    N = len(verts)
     dilated = method == "dilated"
     X = cp.Variable((n, n), symmetric=not dilated)
     Y = cp.Variable((n, n), symmetric=not dilated)
-    if not dilated:
-        NX = scipy.linalg.null_space(np.hstack([verts[0].B2.T, verts[0].D12.T]))
-        NY = scipy.linalg.null_space(np.hstack([verts[0].C2, verts[0].D21]))
-        Pbar = cp.bmat([[X, I], [I, Y]])
-        matrices = [Pbar]
-        for v in verts:
-            out = NX.T @ cp.bmat([[v.A @ X, v.B1], [v.C1 @ X, v.D11]])
-            matrices.append(cp.bmat([[NX.T @ _diag(X, g, nz) @ NX, out], [out.T, _diag(X, g, nw)]]))
-            inp = cp.hstack([Y @ v.A, Y @ v.B1]) @ NY
-            mid = NY.T @ _diag(Y, g, nw) @ NY
-            right = NY.T @ np.vstack([v.C1.T, v.D11.T])
-            matrices.append(cp.bmat([[Y, inp, np.zeros((n, nz))], [inp.T, mid, right],
-                                     [np.zeros((nz, n)), right.T, g * np.eye(nz)]]))
-        return _Lmis(X, Y, I, [Pbar] * len(verts), Pbar, matrices, [Pbar])
-    S = cp.Variable((n, n))
-    Pbar = [cp.Variable((2 * n, 2 * n), symmetric=True) for _ in verts]
-    Z = cp.Variable((2 * n, 2 * n), symmetric=True)
-    Gsym = cp.bmat([[X + X.T, I + S.T], [I + S, Y + Y.T]])
-    U, V = _theta_factors(verts[0])
-    WU, WV = scipy.linalg.null_space(U.T), scipy.linalg.null_space(V)
-    matrices = [P - Z for P in Pbar]
+    S = cp.Variable((n, n)) if dilated else np.eye(n)
+    Q = [cp.Variable((n, n)) for _ in range(N)]
+    L = [cp.Variable((nu, n)) for _ in range(N)]
+    F = [cp.Variable((n, ny)) for _ in range(N)]
+    R = [cp.Variable((nu, ny)) for _ in range(N)]
+    I = np.eye(n)
+    if dilated:
+        Pbar = [cp.Variable((2 * n, 2 * n), symmetric=True) for _ in range(N)]
+        Gsym = cp.bmat([[X + X.T, I + S.T], [I + S, Y + Y.T]])
+        bounds = [*Pbar, 0.5 * Gsym]
+    else:
+        Pbar = [cp.bmat([[X, I], [I, Y]])] * N
+        bounds = [Pbar[0]]
+    matrices = []
     for i, v in enumerate(verts):
-        Phi, Psi, Omega, Delta = _vertex_blocks(v, X, Y)
-        M = _lmi(Z, Phi, Gsym - Pbar[i], Psi, Omega, Delta, g, nw, nz)
-        matrices += [WU.T @ M @ WU, WV.T @ M @ WV]
-    return _Lmis(X, Y, S, Pbar, Z, matrices, [*Pbar, 0.5 * Gsym])
+        Phi, Psi, Omega, Delta = _vertex_blocks(v, X, Y, Q[i], L[i], F[i], R[i])
+        for j in range(N) if dilated else (i,):
+            cur = Gsym - Pbar[i] if dilated else Pbar[i]
+            matrices.append(_lmi(Pbar[j], Phi, cur, Psi, Omega, Delta, g, nw, nz))
+    return _Lmis(X, Y, S, Q, L, F, R, Pbar, matrices, bounds)
 
 
 def _bounded(lmis: _Lmis) -> list[cp.Constraint]:
@@ -249,59 +204,12 @@ def _bounded(lmis: _Lmis) -> list[cp.Constraint]:
 
 def _values(lmis: _Lmis) -> dict:
     """The numbers of a solved LMI set (copied: the variables are overwritten by the next solve)."""
-    val = {k: np.array(getattr(lmis, k).value, dtype=float) for k in ("X", "Y", "Pnext")}
+    val = {k: np.array(getattr(lmis, k).value, dtype=float) for k in ("X", "Y")}
     val["S"] = np.array(lmis.S.value, dtype=float) if isinstance(lmis.S, cp.Variable) else lmis.S
+    for k in ("Q", "L", "F", "R"):
+        val[k] = [np.array(v.value, dtype=float) for v in getattr(lmis, k)]
     val["Pbar"] = [np.array(P.value, dtype=float) for P in lmis.Pbar]
     return val
-
-
-def _theta(v: VertexPlant, val: dict, i: int, gamma: float, method: str) -> np.ndarray:
-    """Θ_i with M_i(Θ_i) ≻ 0 given the solved controller-free variables (Iwasaki & Skelton 1994, Thm. 2).
-
-    With Ũ, Ṽ of :func:`_theta_factors` and ρ > 0 such that M_i(0) + ρŨŨᵀ ≻ 0 (possible because
-    W_Uᵀ M_i(0) W_U ≻ 0), Θ = ρŨᵀΦṼᵀ(ṼΦṼᵀ)⁻¹, Φ = (M_i(0) + ρŨŨᵀ)⁻¹, solves the LMI. ρ is taken from a
-    logarithmic grid as the value giving the largest Jacobi-scaled smallest eigenvalue of M_i(Θ).
-    """
-    n, nw, _, nz, _ = v.dims
-    X, Y, S = val["X"], val["Y"], val["S"]
-    I = np.eye(n)
-    Gsym = np.block([[X + X.T, I + S.T], [I + S, Y + Y.T]])
-    cur = val["Pnext"] if method == "common" else Gsym - val["Pbar"][i]
-    Z2 = np.zeros((n, n))
-    Phi = np.block([[v.A @ X, v.A], [Z2, Y @ v.A]])
-    Psi, Omega = np.vstack([v.B1, Y @ v.B1]), np.hstack([v.C1 @ X, v.C1])
-    M0 = np.block([
-        [val["Pnext"], Phi, Psi, np.zeros((2 * n, nz))],
-        [Phi.T, cur, np.zeros((2 * n, nw)), Omega.T],
-        [Psi.T, np.zeros((nw, 2 * n)), gamma * np.eye(nw), v.D11.T],
-        [np.zeros((nz, 2 * n)), Omega, v.D11, gamma * np.eye(nz)],
-    ])
-    d = 1.0 / np.sqrt(np.clip(np.abs(np.diag(M0)), 1e-300, None))  # Jacobi congruence D M D
-    M0 = 0.5 * (M0 + M0.T) * d[:, None] * d[None, :]
-    U, V = _theta_factors(v)
-    U, V = d[:, None] * U, V * d[None, :]
-    QU, RU = np.linalg.qr(U)
-    WU = scipy.linalg.null_space(U.T)
-    inner = WU.T @ M0 @ WU
-    schur = QU.T @ M0 @ QU - QU.T @ M0 @ WU @ np.linalg.solve(inner, WU.T @ M0 @ QU)
-    RUi = np.linalg.inv(RU)
-    rho_min = max(float(np.linalg.eigvalsh(-RUi.T @ schur @ RUi)[-1]), 0.0)  # M0 + ρUUᵀ ≻ 0 ⟺ ρ > ρ_min
-    best, best_eig = None, -np.inf
-    for rho in rho_min + max(rho_min, 1.0) * np.logspace(-6, 6, 37):
-        try:
-            Phi_inv = np.linalg.inv(np.linalg.cholesky(M0 + rho * U @ U.T))
-        except np.linalg.LinAlgError:
-            continue
-        Phi_full = Phi_inv.T @ Phi_inv
-        Theta = rho * U.T @ Phi_full @ V.T @ np.linalg.inv(V @ Phi_full @ V.T)
-        T = U @ Theta @ V
-        eig = np.linalg.eigvalsh(M0 + T + T.T)[0]
-        if eig > best_eig:
-            best, best_eig = Theta, eig
-    if best is None:
-        raise SynthesisError("controller reconstruction failed: no ρ makes M_i(0) + ρŨŨᵀ positive definite "
-                             "(the controller-free LMIs hold too loosely); increase suboptimality")
-    return best
 
 
 class _MarginProblem:
@@ -340,7 +248,7 @@ def _bisect(
         if gamma_max is not None and lo >= gamma_max:
             break
     if best is None:
-        raise SynthesisError(f"{mp.what}: no strictly feasible point up to γ = {lo:.6g}")
+        raise SynthesisError(f"{mp.what} are infeasible: no strictly feasible point up to γ = {lo:.6g}")
     while lo is None:
         t, val = mp.margin(hi / 4.0)
         if t > 0:
@@ -451,12 +359,8 @@ def _result(plant: GeneralizedPlant, method: str, verts: list[VertexPlant], s: n
         raise SynthesisError(f"controller reconstruction is ill-conditioned (S − YX has condition "
                              f"{sig[0] / max(sig[-1], 1e-300):.2g}); increase suboptimality")
     Vt, U = W * np.sqrt(sig), np.sqrt(sig)[:, None] * Zt
-    nu = verts[0].dims[2]
-    K = []
-    for i, v in enumerate(verts):
-        Th = _theta(v, val, i, gamma, method)
-        L, R, Q, F = Th[:nu, :n], Th[:nu, n:], Th[nu:, :n], Th[nu:, n:]
-        K.append(_unscaled_controller(reconstruct(v, Xv, Yv, Sv, Q, L, F, R, U, Vt), du, dy))
+    K = [_unscaled_controller(reconstruct(v, Xv, Yv, Sv, val["Q"][i], val["L"][i], val["F"][i], val["R"][i],
+                                          U, Vt), du, dy) for i, v in enumerate(verts)]
     T = np.block([[I, Yv.T], [np.zeros((n, n)), Vt.T]])
     back = np.diag(np.concatenate([s, np.ones(n)])) @ np.linalg.inv(T).T  # ξ = diag(s, I) ξ̃
     G = gamma * back @ np.block([[Xv, I], [Sv, Yv]]) @ back.T

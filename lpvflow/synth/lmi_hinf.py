@@ -234,6 +234,12 @@ class _MarginProblem:
         return float(self.t.value), _values(self.lmis)
 
 
+#: Relative γ increases tried, in turn, when the returned point fails the independent re-check by
+#: round-off (max eigenvalue ~1e-12 ≥ 0): the margin problem at a larger γ has a strictly feasible point
+#: further inside. The certified γ is the one reported.
+BACK_OFF = (1.02, 1.1)
+
+
 def _bisect(
     mp: _MarginProblem, start: float, rel_tol: float, gamma_max: float | None,
 ) -> tuple[float, float, dict]:
@@ -280,8 +286,9 @@ def synthesize(
     step 2 to a relative width suboptimality/2 instead. Both run on the scaled plant (:func:`_scalings`);
     the controller is unscaled exactly. Whatever the solver status (optimal or optimal_inaccurate),
     the vertex LMIs are re-evaluated in closed-loop coordinates with the returned numbers
-    (:func:`lpvflow.synth.certify.vertex_lmi_max_eig`) and the result is refused unless every one is
-    negative definite.
+    (:func:`lpvflow.synth.certify.vertex_lmi_max_eig`); a point that fails by round-off is replaced by
+    the margin problem's point at γ·1.02, then γ·1.1 (:data:`BACK_OFF`), and the result is refused
+    unless every vertex LMI is negative definite.
 
     Args:
         margin: strictness of step 1, every LMI ⪰ margin·I.
@@ -325,6 +332,12 @@ def synthesize(
         t, val_final = mp.margin(hi * (1.0 + suboptimality))  # room for a margin, as in step 2
         gamma, val = (hi * (1.0 + suboptimality), val_final) if t > 0 else (hi, val)
         result = _result(plant, method, verts, s, du, dy, gamma, lo, val)
+    for back_off in BACK_OFF:  # a point at the re-check's edge: give the margin more room in γ
+        if result.lmi_max_eig < 0:
+            break
+        t, val = mp.margin(result.gamma * back_off)
+        if t > 0:
+            result = _result(plant, method, verts, s, du, dy, result.gamma * back_off, result.gamma_opt, val)
     if gamma_max is not None and result.gamma > gamma_max:
         raise SynthesisError(f"{what} are infeasible (smallest γ found {result.gamma:.4g}): "
                              f"{_infeasibility_hint(plant, gamma_max)}")

@@ -45,8 +45,8 @@ def _fmt(value) -> str:
     return json.dumps(value) if isinstance(value, dict | list) else str(value)
 
 
-def _figures(folder: Path) -> None:
-    """Data, fit and margin figures from the stored artifacts (matplotlib, Agg)."""
+def _figures(folder: Path) -> list[str]:
+    """Data and margin figures from the stored artifacts (matplotlib, Agg); the names written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -54,6 +54,7 @@ def _figures(folder: Path) -> None:
 
     from lpvflow.data import read_columns
 
+    written = []
     data_csv = folder / "data.csv"
     if data_csv.exists():
         table = read_columns(data_csv)
@@ -66,6 +67,7 @@ def _figures(folder: Path) -> None:
         fig.tight_layout()
         fig.savefig(folder / "data.png", dpi=90)
         plt.close(fig)
+        written.append("data.png")
     validate = folder / "validate.json"
     if validate.exists():
         out = json.loads(validate.read_text())["outputs"]
@@ -77,6 +79,8 @@ def _figures(folder: Path) -> None:
             fig.tight_layout()
             fig.savefig(folder / "margins.png", dpi=90)
             plt.close(fig)
+            written.append("margins.png")
+    return written
 
 
 def _number(value: object, unit: str = "", digits: int = 3) -> str:
@@ -112,7 +116,7 @@ def _scenario_table(scenarios: list[dict]) -> str:
 
 def write_report(folder: Path, summary: dict) -> Path:
     """``report.html`` in ``folder``: summary tables per stage and every figure, embedded."""
-    _figures(folder)
+    drawn = _figures(folder)
     sections = [f"<h1>lpvflow design: {html.escape(summary['name'])}</h1>"]
     verdict = summary.get("verdict")
     if verdict:
@@ -139,7 +143,7 @@ def write_report(folder: Path, summary: dict) -> Path:
             if artifact.endswith(".png"):
                 sections.append(_embed(folder / artifact))
         extra = {"experiment": ["data.png"], "validate": ["margins.png"]}.get(name, [])
-        sections += [_embed(folder / f) for f in extra if (folder / f).exists()]
+        sections += [_embed(folder / f) for f in extra if f in drawn]
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
              "table{border-collapse:collapse;margin:0.5em 0}th,td{border:1px solid #ccc;padding:3px 8px;"
              "text-align:left;font-size:13px;vertical-align:top}th{background:#f4f4f4}"

@@ -8,8 +8,7 @@ import control
 import numpy as np
 import pytest
 
-from lpvflow.basis import Basis
-from lpvflow.models import LPVSS, load
+from lpvflow.models import load
 from lpvflow.synth.certify import certify, vertex_lmi_max_eig
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.examples import adip_like, maglev_like, random_lpv
@@ -17,6 +16,7 @@ from lpvflow.synth.lmi_hinf import synthesize
 from lpvflow.synth.plant import augment, generalized_plant, weight_systems
 from lpvflow.synth.polytope import polytope_of
 from lpvflow.synth.sdp import SynthesisError
+from tests.synth_cases import two_state_plant
 
 WEIGHTS = {"S": {"num": [0.1, 0.1], "den": [1, -1]}, "K": {"num": [0.01], "den": [1]},
            "B": {"num": [0, 0.5], "den": [1, -0.5]}}
@@ -25,17 +25,11 @@ WEIGHTS = {"S": {"num": [0.1, 0.1], "den": [1, -1]}, "K": {"num": [0.01], "den":
 SDP_REL_TOL = 1e-3
 
 
-def _plant_model():
-    basis = Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,))
-    A = np.array([[[0.9, 0.1], [0.0, 0.8]], [[0.05, 0.0], [0.0, 0.02]]])
-    B = np.array([[[0.0], [1.0]], [[0.0], [0.3]]])
-    C = np.array([[[1.0, 0.0]], [[0.0, 0.0]]])
-    return LPVSS(A, B, C, np.zeros((2, 1, 1)), basis, 0.01)
 
 
 @pytest.fixture(scope="module")
 def designs():
-    model = _plant_model()
+    model = two_state_plant()
     gp = generalized_plant(model, WEIGHTS)
     return model, {m: synthesize(gp, m) for m in ("common", "dilated")}
 
@@ -116,7 +110,7 @@ def test_degenerate_box_is_the_lti_design_at_that_point(designs):
 
 
 def test_infeasible_spec_names_the_reason():
-    model = _plant_model()
+    model = two_state_plant()
     gp = generalized_plant(model, WEIGHTS)
     with pytest.raises(SynthesisError, match=r"infeasible.*γ ≤ 0.01.*vertex poles"):
         synthesize(gp, "common", gamma_max=0.01)
@@ -127,7 +121,7 @@ def test_a_point_failing_the_recheck_is_an_error_not_a_controller(monkeypatch):
 
     monkeypatch.setattr(certify_module, "vertex_lmi_max_eig", lambda result: 1e-3)
     with pytest.raises(SynthesisError, match="fails the independent vertex-LMI re-check"):
-        synthesize(generalized_plant(_plant_model(), WEIGHTS), "common")
+        synthesize(generalized_plant(two_state_plant(), WEIGHTS), "common")
 
 
 @pytest.mark.slow
@@ -140,11 +134,11 @@ def test_a_box_no_common_controller_covers_is_refused_with_the_reason():  # ~19 
 def test_parameter_dependent_input_matrix_without_filter_is_refused():
     weights = {k: v for k, v in WEIGHTS.items() if k != "B"}
     with pytest.raises(Exception, match="B2 of the generalized plant depends"):
-        generalized_plant(_plant_model(), weights)
+        generalized_plant(two_state_plant(), weights)
 
 
 def test_static_controller_survives_json(tmp_path):
-    model = _plant_model()
+    model = two_state_plant()
     poly = polytope_of(model)
     K = LPVController(np.zeros((2, 0, 0)), np.zeros((2, 0, 1)), np.zeros((2, 1, 0)),
                       np.array([[[0.5]], [[0.7]]]), poly, model.basis, model.Ts)
@@ -173,7 +167,7 @@ def test_controller_round_trip_and_online_step(designs, tmp_path):
 
 
 def test_cli_synth_writes_controller_and_keeps_model(tmp_path):
-    model = _plant_model()
+    model = two_state_plant()
     mpath, cpath, kpath = tmp_path / "m.json", tmp_path / "d.toml", tmp_path / "k.json"
     model.save(mpath)
     before = mpath.read_bytes()

@@ -22,8 +22,6 @@ import pytest
 import scipy.linalg
 
 import lpvflow.synth.lmi_statefeedback as sfmod
-from lpvflow.basis import Basis
-from lpvflow.models import LPVSS
 from lpvflow.synth.examples import maglev_like, random_lpv
 from lpvflow.synth.lmi_statefeedback import (
     as_vertices,
@@ -33,18 +31,13 @@ from lpvflow.synth.lmi_statefeedback import (
 )
 from lpvflow.synth.plant import augment, generalized_plant, weight_systems
 from lpvflow.synth.sdp import SynthesisError
+from tests.synth_cases import two_state_plant
 
 WEIGHTS = {"S": {"num": [0.1, 0.1], "den": [1, -1]}, "K": {"num": [0.01], "den": [1]},
            "B": {"num": [0, 0.5], "den": [1, -0.5]}}
 DISK = (0.5, 0.45)
 
 
-def _plant_model():
-    basis = Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,))
-    A = np.array([[[0.9, 0.1], [0.0, 0.8]], [[0.05, 0.0], [0.0, 0.02]]])
-    B = np.array([[[0.0], [1.0]], [[0.0], [0.3]]])
-    C = np.array([[[1.0, 0.0]], [[0.0, 0.0]]])
-    return LPVSS(A, B, C, np.zeros((2, 1, 1)), basis, 0.01)
 
 
 def _riccati(v, gamma):
@@ -86,7 +79,7 @@ def _tuple(v):
 
 @pytest.fixture(scope="module")
 def toy():
-    model = _plant_model()
+    model = two_state_plant()
     gp = generalized_plant(model, WEIGHTS)
     designs = {(m, d): synthesize_state_feedback(gp, m, disk=d)
                for m in ("quadratic", "dilated") for d in (None, DISK)}
@@ -223,7 +216,7 @@ def test_recheck_catches_a_tampered_design(toy):
 
 def test_a_point_failing_the_recheck_is_an_error_not_a_controller(monkeypatch):
     monkeypatch.setattr(sfmod, "vertex_lmi_max_eig", lambda result: 1e-3)
-    gp = generalized_plant(_plant_model(), WEIGHTS)
+    gp = generalized_plant(two_state_plant(), WEIGHTS)
     with pytest.raises(SynthesisError, match="passes the independent vertex-LMI re-check"):
         synthesize_state_feedback(gp, "quadratic")
 

@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-import control
 import numba
 import numpy as np
 
@@ -39,6 +39,9 @@ from lpvflow.models import (
     default_names,
     register_format,
 )
+
+if TYPE_CHECKING:
+    import control
 
 #: Smallest singular value of I − D11 Δ(p), relative to its largest, that still counts as well posed.
 WELL_POSED_TOL = 1e-8
@@ -170,6 +173,8 @@ class LPVLFR:
 
     def frozen(self, p: np.ndarray) -> control.StateSpace:
         """The LTI model at constant scheduling p, as a discrete python-control StateSpace (dt = Ts)."""
+        import control
+
         A, B, C, D = self.matrices(p)
         return control.ss(A, B, C, D, self.Ts, inputs=self.u_names, outputs=self.y_names)
 

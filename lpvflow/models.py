@@ -22,14 +22,16 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import control
 import numpy as np
 
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, ModelError
 from lpvflow.simulate import io_recursion, ss_recursion
+
+if TYPE_CHECKING:  # python-control takes ~1 s to import; only frozen models need it
+    import control
 
 FORMAT_VERSION = 1
 _LOADERS: dict[str, Callable[[dict], Any]] = {}
@@ -288,6 +290,8 @@ class LPVSS:
 
     def frozen(self, p: np.ndarray) -> control.StateSpace:
         """The LTI model at constant scheduling p, as a discrete python-control StateSpace (dt = Ts)."""
+        import control
+
         A, B, C, D = self.matrices(p)
         return control.ss(A, B, C, D, self.Ts, inputs=self.u_names, outputs=self.y_names)
 

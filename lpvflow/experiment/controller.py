@@ -12,11 +12,14 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 
 from lpvflow.errors import ModelError
+
+if TYPE_CHECKING:  # python-control takes ~1 s to import; the controller law needs only numpy
+    import control
 
 FORMAT = "lpvflow/lti-controller"
 VERSION = 1

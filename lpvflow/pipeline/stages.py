@@ -253,10 +253,13 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     from lpvflow.validate.frozen import compare_frozen
     from lpvflow.validate.metrics import fit_report
     from lpvflow.validate.plots import bode_overlay, gap_margin_plot
+    from lpvflow.validate.scaling import SignalScaling
 
     cfg = ctx.config["validate"]
+    if cfg["scaling"] not in ("data", "none"):
+        raise DataError(f"[validate] scaling = {cfg['scaling']!r}; use \"data\" or \"none\"")
     model = load(ctx.path("model.json"))
-    _, val = read_data(ctx)
+    est, val = read_data(ctx)
     y_sim = closed_loop_simulation(model, val, ctx)
     fit = fit_report(val.y, y_sim, val.y_names)
     plot_fit(ctx.path("fit.png"), val, y_sim)
@@ -264,10 +267,7 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     controller = ctx.config["experiment"]["controller"]
     K = _negative_feedback_lti(controller, model) if controller else None
     reference = _fmu_reference(ctx, model)
-    if cfg["scaling"] not in ("data", "none"):
-        raise DataError(f"[validate] scaling = {cfg['scaling']!r}; use \"data\" or \"none\"")
-    est, _ = read_data(ctx)
-    scale = _SignalScaling(est.u.std(axis=0), est.y.std(axis=0), enabled=cfg["scaling"] == "data")
+    scale = SignalScaling(est.u.std(axis=0), est.y.std(axis=0), enabled=cfg["scaling"] == "data")
     box = np.column_stack([model.basis.p_min, model.basis.p_max])
     try:
         with warnings.catch_warnings():
@@ -294,56 +294,13 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     return outputs, artifacts
 
 
-class _SignalScaling:
-    """ν-gap and b(P, K) depend on the units of u and y; with ``scaling = "data"`` they are computed for
-    the scaled plant D_y⁻¹ G D_u and controller D_u⁻¹ K D_y, D_u, D_y the standard deviations of the
-    estimation data's inputs and outputs (Vinnicombe 2001, §2.6: scale signals to comparable sizes)."""
-
-    def __init__(self, u_std: np.ndarray, y_std: np.ndarray, enabled: bool) -> None:
-        self.enabled = enabled
-        self.Du = np.diag(np.where(u_std > 0, u_std, 1.0))
-        self.Dy_inv = np.diag(1.0 / np.where(y_std > 0, y_std, 1.0))
-
-    def plant(self, G):
-        import control
-
-        if not self.enabled:
-            return G
-        return control.ss(G.A, G.B @ self.Du, self.Dy_inv @ G.C, self.Dy_inv @ G.D @ self.Du, G.dt)
-
-    def controller(self, K):
-        import control
-
-        if K is None or not self.enabled:
-            return K
-        Du_inv, Dy = np.linalg.inv(self.Du), np.linalg.inv(self.Dy_inv)
-        return control.ss(K.A, K.B @ Dy, Du_inv @ K.C, Du_inv @ K.D @ Dy, K.dt)
-
-    def plant_at(self, reference):
-        return None if reference is None else (lambda p: self.plant(reference(p)))
-
-    def model(self, model: LPVSS) -> _ScaledModel:
-        return _ScaledModel(model, self)
-
-
-@dataclass
-class _ScaledModel:
-    """``frozen(p)`` of a model, scaled by :class:`_SignalScaling`."""
-
-    model: LPVSS
-    scaling: _SignalScaling
-
-    def frozen(self, p: np.ndarray):
-        return self.scaling.plant(self.model.frozen(p))
-
-
 def _fmu_reference(ctx: StageContext, model: LPVSS):
     """The plant FMU as frozen reference p ↦ discrete LTI over the model's inputs and outputs, or None.
 
     Scheduling expressions: the experiment's definition of each model scheduling column (e.g.
     ``sin_arm = "sin(arm_angle)"``), else the column name itself (a plant signal). The FMU gets the
     experiment's parameters except the measurement-noise effect (finite differences need exact outputs)."""
-    from lpvflow.validate.fmu_reference import FmuLinearization, FmuLocalModels
+    from lpvflow.validate.fmu_reference import FmuLinearization, FmuLocalModels, SelectedChannels
 
     cfg = ctx.config["validate"]
     kind = cfg["reference"]
@@ -358,34 +315,11 @@ def _fmu_reference(ctx: StageContext, model: LPVSS):
                   if not name.startswith("effect_noise")}
     reference = classes[kind](ctx.config["design"]["plant"], model.Ts, expressions,
                               start=cfg["operating_point"], parameters=parameters)
-    return _SelectedChannels(reference, model.u_names, model.y_names)
-
-
-class _SelectedChannels:
-    """A frozen FMU reference restricted to (and ordered like) the model's inputs and outputs."""
-
-    def __init__(self, reference, u_names: list[str], y_names: list[str]) -> None:
-        plant = reference.plant
-        missing = sorted(set(u_names) - set(plant.input_names))
-        missing += sorted(set(y_names) - set(plant.output_names))
-        if missing:
-            reference.close()
-            raise DataError(f"[validate] the model's signal(s) {', '.join(missing)} are not inputs/outputs "
-                            f"of {plant.name}; the FMU reference needs the model's names")
-        self.reference = reference
-        self.inputs = [list(plant.input_names).index(n) for n in u_names]
-        self.outputs = [list(plant.output_names).index(n) for n in y_names]
-        self.labels = (list(u_names), list(y_names))
-
-    def __call__(self, p: np.ndarray):
-        import control
-
-        G = self.reference(p)
-        return control.ss(G.A, G.B[:, self.inputs], G.C[self.outputs], G.D[np.ix_(self.outputs, self.inputs)],
-                          G.dt, inputs=self.labels[0], outputs=self.labels[1])
-
-    def close(self) -> None:
-        self.reference.close()
+    try:
+        return SelectedChannels(reference, model.u_names, model.y_names)
+    except DataError as exc:
+        reference.close()
+        raise DataError(f"[validate] {exc}") from None
 
 
 def _negative_feedback_lti(path: str, model: LPVSS):

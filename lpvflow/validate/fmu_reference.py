@@ -310,3 +310,27 @@ def _unit(n: int, j: int) -> np.ndarray:
     e = np.zeros(n)
     e[j] = 1.0
     return e
+
+
+class SelectedChannels:
+    """A frozen FMU reference restricted to (and ordered like) given inputs and outputs of the FMU."""
+
+    def __init__(self, reference: FmuOperatingPoints, u_names: Sequence[str], y_names: Sequence[str]) -> None:
+        plant = reference.plant
+        missing = sorted(set(u_names) - set(plant.input_names))
+        missing += sorted(set(y_names) - set(plant.output_names))
+        if missing:
+            raise DataError(f"signal(s) {', '.join(missing)} are not inputs/outputs of {plant.name}; the FMU "
+                            "reference needs the model's signal names")
+        self.reference = reference
+        self.inputs = [list(plant.input_names).index(n) for n in u_names]
+        self.outputs = [list(plant.output_names).index(n) for n in y_names]
+        self.labels = (list(u_names), list(y_names))
+
+    def __call__(self, p: np.ndarray) -> control.StateSpace:
+        G = self.reference(p)
+        return control.ss(G.A, G.B[:, self.inputs], G.C[self.outputs], G.D[np.ix_(self.outputs, self.inputs)],
+                          G.dt, inputs=self.labels[0], outputs=self.labels[1])
+
+    def close(self) -> None:
+        self.reference.close()

@@ -272,8 +272,10 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SchedulingRangeWarning)
-            rows = compare_frozen(scale.model(model), scale.plant_at(reference), cfg["grid"],
-                                  scale.controller(K), box=box) if (K or reference) else []
+            rows = []
+            if K is not None or reference is not None:
+                rows = compare_frozen(scale.model(model), scale.plant_at(reference), cfg["grid"],
+                                      scale.controller(K), box=box)
             if reference is not None:
                 points = [np.asarray(row["p"]) for row in rows]
                 shown = [points[i] for i in sorted({0, len(points) // 2, len(points) - 1})]

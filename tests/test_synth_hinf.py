@@ -191,3 +191,14 @@ def test_maglev_like_dilated_not_worse_than_common():
     common, dilated = synthesize(gp, "common"), synthesize(gp, "dilated")
     assert dilated.gamma <= common.gamma * (1 + 1e-6)
     assert certify(dilated, model, weights, per_axis=11).ok
+
+
+def test_a_common_point_is_a_dilated_certificate(designs):
+    """𝒢 = 𝒫_i = 𝒫 makes the common result a dilated one: every vertex-pair LMI holds with its numbers."""
+    from lpvflow.synth.lmi_hinf import _common_as_dilated
+
+    _, results = designs
+    as_dilated = _common_as_dilated(results["common"])
+    assert as_dilated.method == "dilated" and as_dilated.gamma == results["common"].gamma
+    assert as_dilated.lmi_max_eig < 0
+    assert vertex_lmi_max_eig(as_dilated) == pytest.approx(as_dilated.lmi_max_eig)

@@ -54,7 +54,7 @@ point of ``"common"`` is feasible for ``"dilated"`` (item 3c), so γ_dilated ≤
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cvxpy as cp
 import numpy as np
@@ -277,6 +277,11 @@ def synthesize(
 ) -> HinfResult:
     """γ-optimal vertex controllers of ``method`` (``"common"`` or ``"dilated"``).
 
+    ``"dilated"`` also solves ``"common"`` and returns the better certified point: a common solution is
+    a dilated one (𝒢 = 𝒫_i = 𝒫), so γ_dilated ≤ γ_common holds for the returned numbers too, not only
+    in exact arithmetic (near the optimum the larger dilated margin problem loses its sign earlier:
+    adip_like ±0.3 gave 27.65 against 25.83). Either solve may fail if the other one succeeds.
+
     1. minimise γ subject to the vertex LMIs ⪰ margin·I, with P̄_i (and sym 𝒢) ⪯ β·I (β = 1e6 in the
        scaled coordinates, which keeps the near-singular H∞ optimum bounded): γ_opt;
     2. fix γ = (1 + suboptimality)·γ_opt and maximise the common margin t of every LMI ⪰ t·I under the
@@ -301,6 +306,41 @@ def synthesize(
     """
     if method not in METHODS:
         raise ModelError(f"unknown output-feedback method {method!r}; use one of {', '.join(METHODS)}")
+    args = (solver, margin, gamma_max, suboptimality)
+    if method == "common":
+        return _synthesize_one(plant, "common", *args)
+    try:
+        common = _synthesize_one(plant, "common", *args)
+    except SynthesisError:
+        return _synthesize_one(plant, "dilated", *args)
+    try:
+        dilated = _synthesize_one(plant, "dilated", *args)
+    except SynthesisError:
+        dilated = None
+    if dilated is not None and dilated.gamma <= common.gamma:
+        return dilated
+    return _common_as_dilated(common)
+
+
+def _common_as_dilated(common: HinfResult) -> HinfResult:
+    """The common-Lyapunov result read as a dilated certificate (𝒫_i = 𝒢 = 𝒫), re-checked as such."""
+    from lpvflow.synth.certify import vertex_lmi_max_eig
+
+    result = replace(common, method="dilated")
+    result.lmi_max_eig = vertex_lmi_max_eig(result)
+    if not result.lmi_max_eig < 0:
+        raise SynthesisError(f"the common point fails the dilated vertex-pair re-check "
+                             f"(max eigenvalue {result.lmi_max_eig:.3g} ≥ 0)")
+    result.report = replace(common.report, status=common.report.status + "; dilated: the common point "
+                            "(𝒢 = 𝒫) is the better dilated certificate")
+    return result
+
+
+def _synthesize_one(
+    plant: GeneralizedPlant, method: str, solver: str, margin: float, gamma_max: float | None,
+    suboptimality: float,
+) -> HinfResult:
+    """One method's γ-optimal vertex controllers (:func:`synthesize` describes the steps)."""
     s, du, dy = _scalings(plant.vertices)
     verts = [_scaled(v, s, du, dy) for v in plant.vertices]
     what = f"{method} output-feedback H∞ LMIs at {len(verts)} vertices" + (

@@ -11,6 +11,8 @@ Two references, both at an equilibrium of the plant whose scheduling value equal
    with a model identified from data sampled at Ts. The FMU outputs at t_k use the input held over
    the step that ended at t_k (fmu_plants/README.md), so a feedthrough D acts with one sample of
    delay: y(k) = C x(k) + D u(k−1). When D ≠ 0 the discrete model carries u(k−1) as extra states.
+   An actuator dead time set with the FMU's ``effect_input_delay`` (whole samples d) is appended as
+   z^(−d) on every input (`with_input_delay`): the Jacobians cannot see it, the data do.
 
 2. `FmuLocalModels`: a local LTI model identified from a small-signal experiment at the
    equilibrium: a PRBS of amplitude a around u* (`run_fmu_experiment`, states started at x*),

@@ -37,6 +37,7 @@ from functools import partial  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from timing import best_of  # noqa: E402
 
 from lpvflow.basis import Basis  # noqa: E402
 from lpvflow.identify import montecarlo as mc  # noqa: E402
@@ -85,12 +86,7 @@ def time_iv_oe_fit(repeats: int = 7) -> float:
     data = mc.ch4_data(np.random.default_rng(0), 15, "white")
     fit = partial(identify_iv_oe, data, 2, 2, 1, Basis.poly(2), form="static")
     fit()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fit()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+    return best_of(fit, repeats)
 
 
 def run_table(spec: tuple, runs: int, seed: int, client: str | None, workers: int | None) -> dict:

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import json
 import platform
-import time
 from pathlib import Path
 
 import control as ct
 import numpy as np
+from timing import best_of
 
 from lpvflow.validate.margins import stability_margin
 from lpvflow.validate.nugap import chordal_distance, nugap
@@ -43,15 +43,6 @@ def random_pair(rng: np.random.Generator, n: int, p: int, m: int, dt: float) -> 
     return P1, P2
 
 
-def best_time(call, repeats: int = REPEATS) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - start)
-    return min(times)
-
-
 def dense_max(P1: ct.StateSpace, P2: ct.StateSpace) -> float:
     top = np.pi / P1.dt * (1 - 1e-12) if P1.isdtime() else 1e4
     omega = np.logspace(-4, np.log10(top), DENSE)
@@ -66,9 +57,9 @@ def run_case(name: str, n: int, p: int, m: int, dt: float, goal: float | None) -
     rng = np.random.default_rng(n * 10 + p + (1 if dt else 0))
     pairs = [random_pair(rng, n, p, m, dt) for _ in range(PAIRS)]
     nugap(*pairs[0])  # warm-up (imports, caches)
-    gap_times = [best_time(lambda pair=pair: nugap(*pair)) for pair in pairs]
+    gap_times = [best_of(lambda pair=pair: nugap(*pair), REPEATS) for pair in pairs]
     K = ct.ss([], [], [], 0.1 * np.ones((m, p)), dt)
-    margin_times = [best_time(lambda pair=pair: stability_margin(pair[0], K)) for pair in pairs]
+    margin_times = [best_of(lambda pair=pair: stability_margin(pair[0], K), REPEATS) for pair in pairs]
     errors, held = [], 0
     for pair in pairs:
         result = nugap(*pair)

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.identify import montecarlo as mc
 from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.iv import Structure, parameter_vector, simulate_psi
 from lpvflow.identify.oe import identify_oe, sensitivities
 from lpvflow.models import LPVIO
+from tests.test_iv import mimo_model
 
 
 def siso_data(form: str, noise: float = 0.0, seed: int = 0, n: int = 3000) -> Dataset:
@@ -24,17 +24,6 @@ def perturbed(io: LPVIO, struct: Structure, scale: float, seed: int) -> LPVIO:
     """``io`` with every free parameter moved by scale·N(0, 1)."""
     rng = np.random.default_rng(seed)
     return struct.model([t + scale * rng.standard_normal(t.shape) for t in struct.thetas(io)])
-
-
-def mimo_model() -> LPVIO:
-    A = np.zeros((1, 2, 2, 2))
-    A[0, 0] = [[-0.5, 0.1], [0.05, -0.3]]
-    A[0, 1] = [[0.2, 0.0], [-0.1, 0.1]]
-    B = np.zeros((2, 2, 2, 2))
-    B[1, 0] = [[1.0, 0.3], [0.2, 0.8]]
-    B[1, 1] = [[0.4, -0.2], [0.1, 0.3]]
-    one = np.ones((2, 2), dtype=int)
-    return LPVIO(A, B, Basis.affine(), 1.0, form="shifted", na=one, nb=one, nk=one)
 
 
 @pytest.mark.parametrize("form", ["shifted", "static"])
@@ -69,7 +58,7 @@ def test_mimo_oe_converges_noise_free():
     n = 2000
     u = rng.uniform(-1, 1, (n, 2))
     p = (0.5 + 0.5 * np.sin(0.07 * np.arange(n)))[:, None]
-    true = mimo_model()
+    true = mimo_model("shifted")
     data = Dataset(u, true.simulate(u, p), p, 1.0)
     struct = Structure.from_data(data, 1, 1, 1, "affine", "shifted")
     io = identify_oe(data, 1, 1, 1, "affine", form="shifted", init=perturbed(true, struct, 0.03, seed=3))

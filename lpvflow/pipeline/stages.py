@@ -206,7 +206,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     """
     from lpvflow.data import read_columns
     from lpvflow.experiment.controller import load_controller
-    from lpvflow.experiment.scheduling import evaluate
+    from lpvflow.experiment.scheduling import compile_expression
 
     cfg = ctx.config["experiment"]
     if not cfg["controller"]:
@@ -220,7 +220,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     excitation = np.column_stack([table.get(f"{n}_excitation", zero)[start:] for n in K.outputs])
     u_index = [data.u_names.index(n) for n in K.outputs]
     y_index = [data.y_names.index(n) for n in K.inputs]
-    expressions = [cfg["scheduling"][name] for name in data.p_names]
+    expressions = [compile_expression(cfg["scheduling"][name], data.y_names) for name in data.p_names]
     x, xc = np.zeros(model.nx), np.zeros(K.A.shape[0])
     y_sim = np.zeros_like(data.y)
     with warnings.catch_warnings():
@@ -229,8 +229,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
         for k in range(data.N):
             y = C @ x  # C at p(k−1): one matrix evaluation per sample
             y_sim[k] = y
-            signals = {n: np.array([v]) for n, v in zip(data.y_names, y, strict=True)}
-            p = np.array([float(evaluate(e, signals)[0]) for e in expressions])
+            p = np.array([scheduling_of(y) for scheduling_of in expressions])
             A, B, C, _ = model.matrices(p)
             dy = y[y_index] - K.y_op
             u = np.zeros(model.nu)

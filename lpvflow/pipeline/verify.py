@@ -248,10 +248,14 @@ def _scheduling_function(loop: Loop) -> Callable[[Mapping[str, float]], np.ndarr
     if callable(loop.scheduling):
         return lambda signals: np.asarray(loop.scheduling(signals), dtype=float).reshape(-1)
     exprs = loop.scheduling
+    compiled: dict[tuple[str, ...], list[Callable[[np.ndarray], float]]] = {}
 
     def evaluate(signals: Mapping[str, float]) -> np.ndarray:
-        arrays = {name: np.array([value]) for name, value in signals.items()}
-        return np.array([expressions.evaluate(expr, arrays)[0] for expr in exprs])
+        names = tuple(signals)  # the same names at every step: compile once
+        if names not in compiled:
+            compiled[names] = [expressions.compile_expression(expr, list(names)) for expr in exprs]
+        sample = list(signals.values())
+        return np.array([value_of(sample) for value_of in compiled[names]])
 
     return evaluate
 

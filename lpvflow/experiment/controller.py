@@ -80,6 +80,25 @@ class LtiController:
             u_op=np.zeros(len(outputs)) if u_op is None else np.asarray(u_op, float).reshape(-1),
         )
 
+    def negative_feedback(
+        self, y_names: list[str] | None = None, u_names: list[str] | None = None,
+    ) -> control.StateSpace:
+        """The law as K in u = −K y (the convention of :mod:`lpvflow.validate.margins`), from the plant
+        outputs ``y_names`` to the plant inputs ``u_names`` (default: the controller's own signals);
+        channels the controller does not read or drive get zero gain. Operating points are dropped."""
+        import control
+
+        y_names = list(self.inputs) if y_names is None else list(y_names)
+        u_names = list(self.outputs) if u_names is None else list(u_names)
+        cols = [y_names.index(n) for n in self.inputs]
+        rows = [u_names.index(n) for n in self.outputs]
+        n = self.A.shape[0]
+        B, C = np.zeros((n, len(y_names))), np.zeros((len(u_names), n))
+        D = np.zeros((len(u_names), len(y_names)))
+        B[:, cols], C[rows] = self.B, self.C
+        D[np.ix_(rows, cols)] = self.D
+        return control.ss(self.A, B, -C, -D, self.Ts)
+
     def to_dict(self) -> dict[str, object]:
         return {
             "format": FORMAT, "version": VERSION, "Ts": self.Ts,

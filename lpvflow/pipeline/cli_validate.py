@@ -162,10 +162,7 @@ def _load_loop_controller(path: str | None) -> tuple[object, str | None]:
     except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
         raise ModelError(f"controller file {path} is not a lpvflow JSON file") from None
     if kind == LTI_CONTROLLER_FORMAT:
-        import control
-
-        lti = load_controller(path)
-        K = control.ss(lti.A, lti.B, -lti.C, -lti.D, lti.Ts)
+        K = load_controller(path).negative_feedback()
         return K, f"{path} (lpvflow/lti-controller u = K (y - y_op); used as -K in u = -K y)"
     controller = load(path)
     if not isinstance(controller, LPVController):

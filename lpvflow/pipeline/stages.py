@@ -248,6 +248,7 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     ``reference = "linearization"`` or ``"local"`` — the ν-gap δν(G_FMU(θ), Ĝ(θ)) to the plant FMU at
     its equilibrium with that scheduling value (thesis Fig. 6.11, notes_002 §6.4: δν < b over the range
     means K_id stabilizes every frozen plant the model is that close to)."""
+    from lpvflow.experiment.controller import load_controller
     from lpvflow.pipeline.cli_identify import plot_fit
     from lpvflow.validate.frozen import compare_frozen
     from lpvflow.validate.metrics import fit_report
@@ -264,7 +265,7 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     plot_fit(ctx.path("fit.png"), val, y_sim)
     artifacts = ["fit.png"]
     controller = ctx.config["experiment"]["controller"]
-    K = _negative_feedback_lti(controller, model) if controller else None
+    K = load_controller(controller).negative_feedback(model.y_names, model.u_names) if controller else None
     reference = _fmu_reference(ctx, model)
     scale = SignalScaling(est.u.std(axis=0), est.y.std(axis=0), enabled=cfg["scaling"] == "data")
     box = np.column_stack([model.basis.p_min, model.basis.p_max])
@@ -321,24 +322,6 @@ def _fmu_reference(ctx: StageContext, model: LPVSS):
     except DataError as exc:
         reference.close()
         raise DataError(f"[validate] {exc}") from None
-
-
-def _negative_feedback_lti(path: str, model: LPVSS):
-    """The experiment's LTI controller as K in u = −K y over the model's outputs (python-control)."""
-    import control
-
-    from lpvflow.experiment.controller import load_controller
-
-    K = load_controller(path)
-    B = np.zeros((K.A.shape[0], model.ny))
-    D = np.zeros((model.nu, model.ny))
-    cols = [model.y_names.index(n) for n in K.inputs]
-    rows = [model.u_names.index(n) for n in K.outputs]
-    B[:, cols] = K.B
-    D[np.ix_(rows, cols)] = K.D
-    C = np.zeros((model.nu, K.A.shape[0]))
-    C[rows] = K.C
-    return control.ss(K.A, B, -C, -D, K.Ts)
 
 
 # ----------------------------------------------------------------------------------------- synth

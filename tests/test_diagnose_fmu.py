@@ -132,11 +132,39 @@ def test_tanks_first_order_model_is_raised_to_the_cascade_order(fmus):
     assert result.bfr_after[0] > result.bfr_before[0] + 10
 
 
+def test_tanks_sensor_noise_is_colored_noise_not_model_order(fmus):
+    """0.5 mm of white noise on the level sensor, no structural effect. Least squares is biased (the
+    lagged levels at Ts = 1 s are nearly collinear), and an LS fit with more lags recovers part of
+    the bias on validation: model_order was named (5 seeds of 5). Refitted by output error, the
+    nominal structure recovers the noise-free accuracy and no extension adds to it: colored_noise."""
+    result = diagnose(tanks_data({"effect_noise_std": 5e-4, "effect_noise_seed": 1}, build=fmus), TANKS)
+    assert result.cause == "colored_noise", (result.ranking, result.refit_ranking)
+    ls_order = next(r for r in result.ranking if r["cause"] == "model_order")
+    assert ls_order["significant"]  # the trap: among LS fits, a higher order gains
+    assert not any(r["significant"] for r in result.refit_ranking)
+    assert result.bfr_after[0] > result.bfr_before[0] + 3 and result.bfr_after[0] > 95
+
+
+def test_tanks_first_order_model_under_sensor_noise_is_raised(fmus):
+    """na = nb = 1 under 0.5 mm of sensor noise (was none or input_delay): the order extension,
+    refitted by output error, still gains over the output-error fit of the first-order model."""
+    data = tanks_data({"effect_noise_std": 5e-4, "effect_noise_seed": 1}, build=fmus)
+    result = diagnose(data, Structure(na=1, nb=1, nk=1, basis="poly:2"))
+    assert result.cause == "model_order", (result.ranking, result.refit_ranking)
+    assert result.parameters["na"] >= 2
+    refit = next(r for r in result.refit_ranking if r["cause"] == "model_order")
+    assert refit["bfr_gain"] > 5 and refit["p_value"] < 1e-3
+    assert result.bfr_after[0] > result.bfr_before[0] + 10
+
+
 def test_tanks_dead_zone_width_is_estimated(fmus):
     """effect_deadzone = 3 V with the pump at 1–9 V (a third of the levels inside the dead zone):
     the input-nonlinearity extension finds a dead zone of width 3 V within 20 % and gains on
-    validation. It is not always the verdict: with the output as scheduling, a richer basis in the
-    level absorbs a static input map in steady state and gains as much (benchmarks/README.md)."""
+    validation. It is not always the verdict (benchmarks/README.md): a 3 V dead zone drives the
+    tanks towards empty (equilibrium level ∝ (V − 3)², 1.7 mm at 4 V; 20–35 % of the samples below
+    1 cm, under the plant's 0.01 m operating range), where poly:2 in the level misses the Torricelli
+    outflow — even the *true* dead zone applied to the input simulates at only 88–92 % with poly:2.
+    The record holds two effects of similar size, and a richer basis often gains as much."""
     data = tanks_data({"effect_deadzone": 3.0}, pump="levels:lo=1,hi=9,min_hold=10,max_hold=60", build=fmus)
     result = diagnose(data, TANKS, causes=["input_nonlinearity"])
     assert result.cause == "input_nonlinearity", result.ranking

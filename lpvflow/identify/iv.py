@@ -181,12 +181,21 @@ def _solve(zeta: np.ndarray, phi: np.ndarray, y: np.ndarray) -> np.ndarray:
     """θ = (ζᵀφ)⁻¹ ζᵀ y, refusing near-singular instrument matrices with one line."""
     if phi.shape[1] == 0:
         return np.zeros(0)
-    M = zeta.T @ phi
+    # Columns scaled to unit norm first: the condition test then judges the excitation, not the units
+    # (tanks FMU, levels ~0.1 m, ψ = p² ~ 0.01, pump ~10 V: unscaled rcond 1e-13, scaled 4e-9).
+    d_zeta, d_phi = _column_scale(zeta), _column_scale(phi)
+    M = (zeta * d_zeta).T @ (phi * d_phi)
     s = np.linalg.svd(M, compute_uv=False)
     if not np.isfinite(s).all() or s[-1] <= IV_RCOND * s[0]:
         raise DataError("the instrument matrix is singular: the data do not excite every coefficient; "
                         "lower the orders or basis degree, or excite more")
-    return np.linalg.solve(M, zeta.T @ y)
+    return d_phi * np.linalg.solve(M, (zeta * d_zeta).T @ y)
+
+
+def _column_scale(x: np.ndarray) -> np.ndarray:
+    """1 / column norm (1 for an all-zero column, which the condition test then rejects)."""
+    norms = np.linalg.norm(x, axis=0)
+    return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
 
 
 def iv_thetas(struct: Structure, data: Dataset, y_aux: np.ndarray, psi: np.ndarray,

@@ -143,3 +143,26 @@ def simulate_in_loop(
         y[k] = y_k
         xc = K.A @ xc + K.B @ (y_k[y_index] - K.y_op)
     return y
+
+
+def loop_signals(y: np.ndarray, data: Dataset, loop: Loop) -> tuple[np.ndarray, np.ndarray]:
+    """Plant input and scheduling of the loop for the output trajectory ``y`` (N, ny) over ``data``.
+
+    u(k) = u_op + C xc(k) + D (y(k) − y_op) + r(k) on the driven inputs (recorded values on the
+    others), the scheduling columns with an expression recomputed from y, the others as recorded:
+    the signals :func:`simulate_in_loop` fed its model, rebuilt from its output.
+    """
+    K = loop.controller
+    y_index = [data.y_names.index(name) for name in K.inputs]
+    u_index = [data.u_names.index(name) for name in K.outputs]
+    u, p = data.u.copy(), data.p.copy()
+    xc = np.zeros(K.A.shape[0])
+    for k in range(data.N):
+        dy = y[k, y_index] - K.y_op
+        u[k, u_index] = K.u_op + K.C @ xc + K.D @ dy + loop.excitation[k]
+        xc = K.A @ xc + K.B @ dy
+    for i, name in enumerate(data.p_names):
+        if name in loop.scheduling:
+            expression = compile_expression(loop.scheduling[name], data.y_names)
+            p[:, i] = [expression(row) for row in y]
+    return u, p

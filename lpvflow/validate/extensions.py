@@ -84,6 +84,7 @@ class Fit:
     bic: float
     simulate: Callable[[LPVIO], np.ndarray] = field(repr=False)
     reference: np.ndarray = field(repr=False)  # measured validation outputs, to bound the simulation
+    data: Dataset | None = field(default=None, repr=False)  # the estimation data it was fitted on
 
     @cached_property
     def _validation(self) -> tuple[np.ndarray, bool]:
@@ -123,6 +124,7 @@ class Context:
     nominal: Fit
     channels: dict[str, tuple[np.ndarray, np.ndarray]]  # name → (estimation, validation) values
     loop: Loop | None = None  # closed-loop data: the identification loop the models are simulated in
+    estimator: str = "arx"  # "oe": every variant refined by output error (diagnose's noise round)
 
     @property
     def ny(self) -> int:
@@ -131,6 +133,11 @@ class Context:
     @property
     def nu(self) -> int:
         return self.est.u.shape[1]
+
+    def fit(self, est: Dataset, val: Dataset, na, nb, nk, basis: Basis,
+            simulate: Callable[[LPVIO], np.ndarray] | None = None) -> Fit:
+        """:func:`fit` with this context's form and estimator."""
+        return fit(est, val, na, nb, nk, basis, self.structure.form, simulate, self.estimator)
 
     def in_loop(self, **drive) -> Callable[[LPVIO], np.ndarray] | None:
         """:func:`loop_simulator` of this context (None on open-loop data)."""
@@ -154,16 +161,40 @@ def loop_simulator(est: Dataset, val: Dataset, loop: Loop | None, p: np.ndarray 
 
 
 def fit(est: Dataset, val: Dataset, na, nb, nk, basis: Basis | str, form: str = "shifted",
-        simulate: Callable[[LPVIO], np.ndarray] | None = None) -> Fit:
+        simulate: Callable[[LPVIO], np.ndarray] | None = None, estimator: str = "arx") -> Fit:
     """Fit LPV-ARX on ``est``; one-step loss and BIC; its simulation on ``val`` (open loop on the
-    whole record, or with ``simulate``) runs on first use."""
+    whole record, or with ``simulate``) runs on first use.
+
+    ``estimator="oe"``: the ARX fit is refined by output error (:func:`output_error`); loss and BIC
+    are then those of the estimation-data simulation error.
+    """
     model = identify_arx(est, na, nb, nk, basis, form=form)
+    n_params = int(sum(c.shape[0] for c in model.param_cov))
+    if estimator == "oe":
+        model = output_error(est, model)
     sign, logdet = np.linalg.slogdet(model.noise_cov)
     loss = logdet if sign > 0 else -np.inf
-    n_params = int(sum(c.shape[0] for c in model.param_cov))
     n_eff = est.N - model.max_lag
     return Fit(model, float(loss), n_params, float(n_eff * loss + n_params * np.log(n_eff)),
-               simulate or (lambda m: simulate_validation(m, est, val)), val.y)
+               simulate or (lambda m: simulate_validation(m, est, val)), val.y, est)
+
+
+#: Function evaluations of the output-error refinement (from the ARX fit, which is close).
+OE_EVALUATIONS = 30
+
+
+def output_error(est: Dataset, start: LPVIO) -> LPVIO:
+    """The output-error (simulation-error) estimate of ``start``'s structure on ``est``, started from it.
+
+    Consistent under white output (sensor) noise, where least squares is biased (the equation error
+    is then A(q)·e, coloured); ``noise_cov`` is the covariance of the simulation error.
+    """
+    from lpvflow.identify.oe import identify_oe
+
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return identify_oe(est, start.na, start.nb, start.nk, start.basis, start.form, init=start,
+                           max_nfev=OE_EVALUATIONS)
 
 
 def joined(est: Dataset, val: Dataset) -> Dataset:
@@ -211,7 +242,7 @@ def input_delay(ctx: Context) -> Candidate | None:
             trial = best_nk.copy()
             trial[:, j] = d
             try:
-                scores[d] = fit(ctx.est, ctx.val, na, nb, trial, basis, ctx.structure.form, ctx.in_loop())
+                scores[d] = ctx.fit(ctx.est, ctx.val, na, nb, trial, basis, ctx.in_loop())
             except LpvflowError:
                 continue
         d_best = min(scores, key=lambda d: scores[d].loss)
@@ -252,7 +283,7 @@ def model_order(ctx: Context) -> Candidate | None:
     """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
-    trials = {(da, db): fit(ctx.est, ctx.val, na + da, nb + db, nk, basis, ctx.structure.form, ctx.in_loop())
+    trials = {(da, db): ctx.fit(ctx.est, ctx.val, na + da, nb + db, nk, basis, ctx.in_loop())
               for da, db in ((1, 0), (0, 1), (1, 1), (2, 1), (2, 2))}
     (da, db), best = min(trials.items(), key=lambda item: simulation_bic(ctx, item[1]))
     new = {"na": int(na.max() + da), "nb": int(nb.max() + db)}
@@ -275,7 +306,7 @@ def scheduling_dependence(ctx: Context) -> Candidate | None:
     trials = {}
     for spec, basis in options.items():
         try:
-            trials[spec] = fit(ctx.est, ctx.val, na, nb, nk, basis, ctx.structure.form, ctx.in_loop())
+            trials[spec] = ctx.fit(ctx.est, ctx.val, na, nb, nk, basis, ctx.in_loop())
         except LpvflowError:
             continue
     if not trials:
@@ -300,7 +331,7 @@ def scheduling_variable(ctx: Context) -> Candidate | None:
         basis = Basis(base.kind, base.n_p + 1, degree=base.degree, cross=base.cross)
         try:
             whole = joined(est, val)
-            trials[name] = fit(est, val, na, nb, nk, basis, ctx.structure.form,
+            trials[name] = ctx.fit(est, val, na, nb, nk, basis,
                                ctx.in_loop(p=whole.p, p_names=whole.p_names))
         except LpvflowError:
             continue
@@ -322,6 +353,9 @@ def saturation(u: np.ndarray, limit: float) -> np.ndarray:
 def input_nonlinearity(ctx: Context) -> Candidate | None:
     """Dead zone or saturation at one actuator: width/limit by grid + bounded refinement of the loss.
 
+    The level is always chosen by the LS one-step loss (cheap); with ``ctx.estimator == "oe"`` only
+    the chosen map of each kind is refitted by output error, and the kinds compete on that loss.
+
     Backlash is not tested (it needs a state of the map); the diagnosis never names it.
     """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
@@ -331,7 +365,7 @@ def input_nonlinearity(ctx: Context) -> Candidate | None:
         mag = np.abs(ctx.est.u[:, j])
         for kind, nonlin, grid in (("dead_zone", dead_zone, np.quantile(mag, np.linspace(0.02, 0.6, 15))),
                                    ("saturation", saturation, np.quantile(mag, np.linspace(0.4, 0.98, 15)))):
-            def trial(level: float, j=j, nonlin=nonlin) -> Fit:
+            def trial(level: float, j=j, nonlin=nonlin, estimator: str = "arx") -> Fit:
                 est, val = ctx.est, ctx.val
                 u_e, u_v = est.u.copy(), val.u.copy()
                 u_e[:, j], u_v[:, j] = nonlin(u_e[:, j], level), nonlin(u_v[:, j], level)
@@ -341,7 +375,7 @@ def input_nonlinearity(ctx: Context) -> Candidate | None:
                     return out
 
                 return fit(replace(est, u=u_e), replace(val, u=u_v), na, nb, nk, basis, ctx.structure.form,
-                           ctx.in_loop(input_map=mapped))
+                           ctx.in_loop(input_map=mapped), estimator)
 
             losses = []
             for level in grid:
@@ -357,7 +391,7 @@ def input_nonlinearity(ctx: Context) -> Candidate | None:
                 level = float(res.x)
             else:
                 level = float(grid[i])
-            results.append((trial(level), kind, level, j))
+            results.append((trial(level, estimator=ctx.estimator), kind, level, j))
     best, kind, level, j = min(results, key=lambda r: r[0].loss)
     what = "width" if kind == "dead_zone" else "limit"
     channel = ctx.est.u_names[j]
@@ -388,8 +422,8 @@ def friction(ctx: Context) -> Candidate | None:
         name = f"sign_d{ctx.est.y_names[i]}"
         if ctx.loop is not None:
             try:
-                result = fit(_with_inputs(ctx.est, velocity_sign(ctx.est.y[:, i])[:, None], [name]), ctx.val,
-                             na, nb_f, nk_f, basis, ctx.structure.form, ctx.in_loop(sign_of=i))
+                est = _with_inputs(ctx.est, velocity_sign(ctx.est.y[:, i])[:, None], [name])
+                result = ctx.fit(est, ctx.val, na, nb_f, nk_f, basis, ctx.in_loop(sign_of=i))
             except LpvflowError:
                 continue
             trials.append((result, i, result.model))
@@ -410,7 +444,7 @@ def friction(ctx: Context) -> Candidate | None:
         try:
             for _ in range(2):
                 est = _with_inputs(ctx.est, backward_sign(y_est, i), [name])
-                result = fit(est, ctx.val, na, nb_f, nk_f, basis, ctx.structure.form,
+                result = ctx.fit(est, ctx.val, na, nb_f, nk_f, basis,
                              lambda m: simulate_own(m, whole, y_whole)[ctx.est.N :])
                 with np.errstate(over="ignore", invalid="ignore"):
                     y_est = simulate_own(result.model, ctx.est, y_est)
@@ -459,7 +493,7 @@ def offset(ctx: Context) -> Candidate | None:
         val = _with_inputs(ctx.val, np.column_stack([features[f][1] for f in names]), names)
         nb_o, nk_o = _extend_orders(nb, nk, 1, 0, len(names))
         try:
-            trials[tuple(names)] = fit(est, val, na, nb_o, nk_o, basis, ctx.structure.form,
+            trials[tuple(names)] = ctx.fit(est, val, na, nb_o, nk_o, basis,
                                        ctx.in_loop(exogenous=joined(est, val).u[:, ctx.nu :]))
         except LpvflowError:
             continue
@@ -480,24 +514,116 @@ def offset(ctx: Context) -> Candidate | None:
                      f"adding {what} (output-equivalent {np.round(output_bias, 4).tolist()})", list(names))
 
 
+#: Iterations of :func:`closed_loop_iv` (each: one loop simulation and one IV solve).
+CLOSED_LOOP_IV_ITERATIONS = 4
+
+
+def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO,
+                   iterations: int = CLOSED_LOOP_IV_ITERATIONS) -> tuple[LPVIO, float]:
+    """IV estimate of ``start``'s structure on closed-loop data, and its loss (log det of the
+    covariance of its loop-simulation error on ``est``).
+
+    The instruments are the regressors rebuilt from the model's own simulation in the loop
+    (:func:`~lpvflow.validate.closed_loop.simulate_in_loop`): outputs, the plant input the
+    controller makes of them plus the excitation, and the scheduling recomputed from them — functions
+    of the excitation alone, so uncorrelated with the sensor noise, which in a loop also reaches the
+    measured input (open-loop IV-OE or output error would take it for signal). Iterated from the LS
+    fit; each IV step is halved (up to 4 times) until the loop-simulation error on ``est`` decreases,
+    and the iteration stops when no step does.
+    """
+    from lpvflow.identify.iv import Structure as IvStructure
+    from lpvflow.identify.iv import _solve
+    from lpvflow.validate.closed_loop import loop_signals
+
+    struct = IvStructure.from_data(est, start.na, start.nb, start.nk, start.basis, start.form)
+    psi = struct.basis.eval(est.p, check_range=False)
+    phis = [struct.regressor(r, est.y, est.u, psi)[struct.max_lag :] for r in range(struct.ny)]
+
+    def loop_loss(model: LPVIO) -> tuple[float, np.ndarray]:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", SchedulingRangeWarning)
+            y_sim = simulate_in_loop(model, est, loop)
+        if not np.all(np.isfinite(y_sim)):
+            return np.inf, y_sim
+        sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov((est.y - y_sim).T)))
+        return (float(logdet) if sign > 0 else np.inf), y_sim
+
+    best_theta = struct.thetas(start)
+    best_loss, y_best = loop_loss(start)
+    if not np.isfinite(best_loss):
+        raise LpvflowError("closed-loop IV: the starting model diverges in the loop")
+    for _ in range(iterations):
+        u_sim, p_sim = loop_signals(y_best, est, loop)
+        psi_sim = struct.basis.eval(p_sim, check_range=False)
+        target = [_solve(struct.regressor(r, y_best, u_sim, psi_sim)[struct.max_lag :], phis[r],
+                         est.y[struct.max_lag :, r]) for r in range(struct.ny)]
+        step, improved = 1.0, False
+        for _ in range(4):  # the IV step, halved until the loop-simulation error decreases
+            theta = [b + step * (t - b) for b, t in zip(best_theta, target, strict=True)]
+            loss, y_sim = loop_loss(struct.model(theta))
+            if loss < best_loss:
+                best_theta, best_loss, y_best, improved = theta, loss, y_sim, True
+                break
+            step /= 2
+        if not improved:
+            break
+    best = (best_loss, struct.model(best_theta))
+    return best[1], best[0]
+
+
 def colored_noise(ctx: Context) -> Candidate | None:
-    """Estimates biased by coloured noise: the same structure estimated by IV-OE (thesis Alg. 4.1)."""
+    """Estimates biased by coloured noise: the same structure re-estimated consistently.
+
+    Open loop: output error (:func:`output_error`) started from the nominal LS fit and from IV-OE
+    (thesis Alg. 4.1) when IV-OE converges, the smaller estimation simulation error kept; the
+    candidate's ``loss`` is then the log det of that simulation-error covariance, which
+    :func:`lpvflow.validate.diagnose.diagnose` compares with the nominal one-step loss (noise share).
+    Closed loop: :func:`closed_loop_iv`, scored in the loop (an open-loop simulation error of an
+    unstable plant has no meaning), its loss that of the estimation-data loop simulation.
+    """
     from lpvflow.identify.iv import identify_iv_oe
 
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
+    starts = []
     try:
+        if ctx.loop is not None:
+            raise LpvflowError("open-loop IV-OE is not used on closed-loop data")
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore", RuntimeWarning)
-            model = identify_iv_oe(ctx.est, na, nb, nk, basis, form=ctx.structure.form)
-    except (LpvflowError, np.linalg.LinAlgError):  # IV-OE did not converge: the cause stays untested
+            iv_oe = identify_iv_oe(ctx.est, na, nb, nk, basis, form=ctx.structure.form)
+        if np.all(np.isfinite(iv_oe.A)) and np.all(np.isfinite(iv_oe.B)):
+            starts.append(("iv-oe", iv_oe))
+    except (LpvflowError, np.linalg.LinAlgError):  # IV-OE did not converge
+        pass
+    simulate = ctx.in_loop() or (lambda m: simulate_validation(m, ctx.est, ctx.val))
+    if ctx.loop is not None:
+        try:
+            model, loss = closed_loop_iv(ctx.est, ctx.loop, ctx.nominal.model)
+        except (LpvflowError, np.linalg.LinAlgError):
+            return None  # the cause stays untested
+        n_eff, k = ctx.est.N - model.max_lag, ctx.nominal.n_params
+        refit = Fit(model, loss, k, n_eff * loss + k * np.log(n_eff), simulate, ctx.val.y, ctx.est)
+        return Candidate("colored_noise", {"estimator": "closed-loop iv"}, refit,
+                         "re-estimating the same structure by closed-loop IV (instruments from the "
+                         "model's own loop simulation, driven by the excitation alone)")
+    trials = []
+    for label, start in [("ls", ctx.nominal.model), *starts]:
+        try:
+            model = output_error(ctx.est, start)
+        except (LpvflowError, np.linalg.LinAlgError):
+            continue
+        sign, logdet = np.linalg.slogdet(model.noise_cov)
+        if sign > 0 and np.isfinite(logdet):
+            trials.append((float(logdet), label, model))
+    if not trials:
         return None
-    if not (np.all(np.isfinite(model.A)) and np.all(np.isfinite(model.B))):
-        return None
-    refit = Fit(model, ctx.nominal.loss, ctx.nominal.n_params, ctx.nominal.bic,
-                ctx.in_loop() or (lambda m: simulate_validation(m, ctx.est, ctx.val)), ctx.val.y)
-    return Candidate("colored_noise", {"estimator": "iv-oe"}, refit,
-                     "re-estimating the same structure by IV-OE (instruments from an OE model)")
+    loss, label, model = min(trials, key=lambda t: t[0])
+    n_eff = ctx.est.N - model.max_lag
+    refit = Fit(model, loss, ctx.nominal.n_params, n_eff * loss + ctx.nominal.n_params * np.log(n_eff),
+                simulate, ctx.val.y)
+    return Candidate("colored_noise", {"estimator": "output-error", "started_from": label}, refit,
+                     "re-estimating the same structure by output error (simulation-error fit)")
 
 
 EXTENSIONS: dict[str, Callable[[Context], Candidate | None]] = {

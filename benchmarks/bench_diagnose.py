@@ -161,7 +161,10 @@ def fmu_hit_rates(seeds: int, prefix: str = "") -> dict:
                 before.append(np.mean(result.bfr_before))
                 after.append(np.mean(result.bfr_after))
                 if hit and cause != "none":
-                    p_hits.append(next(r for r in result.ranking if r["cause"] == cause)["p_value"])
+                    # a cause named in the noise round is scored there (refit_ranking)
+                    rows = result.refit_ranking if result.cause != "colored_noise" else []
+                    rows = rows if any(r["cause"] == cause for r in rows) else result.ranking
+                    p_hits.append(next(r for r in rows if r["cause"] == cause)["p_value"])
             row = {"cause": cause, "noise_std": noise, "hits": hits, "runs": seeds,
                    "named": {c: named.count(c) for c in set(named)},
                    "bfr_before_median": float(np.median(before)), "bfr_after_median": float(np.median(after)),

@@ -157,7 +157,12 @@ def loop_simulator(est: Dataset, val: Dataset, loop: Loop | None, p: np.ndarray 
     whole = joined(est, val)
     if p is not None:
         whole = replace(whole, p=p, p_names=p_names)
-    return lambda model: simulate_in_loop(model, whole, loop, **drive)[est.N :]
+    def run(model: LPVIO) -> np.ndarray:
+        return simulate_in_loop(model, whole, loop, **drive)[est.N :]
+
+    run.drive = drive  # read back by refit_in_loop
+    run.rescheduled = p is not None
+    return run
 
 
 def fit(est: Dataset, val: Dataset, na, nb, nk, basis: Basis | str, form: str = "shifted",
@@ -500,26 +505,33 @@ def offset(ctx: Context) -> Candidate | None:
     if not trials:
         return None
     names, best = min(trials.items(), key=lambda item: item[1].bic)
-    const = best.model.B[0, 0, :, ctx.nu]
-    trend = best.model.B[0, 0, :, ctx.nu + 1] if "trend" in names else np.zeros(ctx.ny)
-    # Output-equivalent bias o = A(1, ψ̄)⁻¹ c with A(1, ψ̄) = I + Σ_i A_i(ψ̄) at the mean scheduling.
-    psi_mean = best.model.basis.eval(ctx.est.p, check_range=False).mean(axis=0)
-    a_sum = np.eye(ctx.ny) + np.einsum("l,ilrc->rc", psi_mean, best.model.A)
-    output_bias = np.linalg.solve(a_sum, const)
-    params = {"constant": const.tolist(), "trend": trend.tolist(), "output_offset": output_bias.tolist()}
-    if ctx.ny == 1:
-        params = {k: v[0] for k, v in params.items()}
+    params = _offset_parameters(best.model, ctx.est.p, ctx.nu, "trend" in names)
     what = "a bias and a trend" if "trend" in names else "a constant bias"
     return Candidate("offset", params, best,
-                     f"adding {what} (output-equivalent {np.round(output_bias, 4).tolist()})", list(names))
+                     f"adding {what} (output-equivalent {np.round(params['output_offset'], 4).tolist()})",
+                     list(names))
+
+
+def _offset_parameters(model: LPVIO, p: np.ndarray, nu: int, trend: bool) -> dict:
+    """Constant (and trend) coefficients of the offset inputs and the output-equivalent bias."""
+    ny = model.ny
+    const = model.B[0, 0, :, nu]
+    slope = model.B[0, 0, :, nu + 1] if trend else np.zeros(ny)
+    # Output-equivalent bias o = A(1, ψ̄)⁻¹ c with A(1, ψ̄) = I + Σ_i A_i(ψ̄) at the mean scheduling.
+    psi_mean = model.basis.eval(p, check_range=False).mean(axis=0)
+    a_sum = np.eye(ny) + np.einsum("l,ilrc->rc", psi_mean, model.A)
+    output_bias = np.linalg.solve(a_sum, const)
+    params = {"constant": const.tolist(), "trend": slope.tolist(), "output_offset": output_bias.tolist()}
+    return {k: v[0] for k, v in params.items()} if ny == 1 else params
 
 
 #: Iterations of :func:`closed_loop_iv` (each: one loop simulation and one IV solve).
 CLOSED_LOOP_IV_ITERATIONS = 4
 
 
-def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO,
-                   iterations: int = CLOSED_LOOP_IV_ITERATIONS) -> tuple[LPVIO, float]:
+def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLOSED_LOOP_IV_ITERATIONS,
+                   data: Dataset | None = None, input_map: Callable | None = None,
+                   exogenous: np.ndarray | None = None, sign_of: int | None = None) -> tuple[LPVIO, float]:
     """IV estimate of ``start``'s structure on closed-loop data, and its loss (log det of the
     covariance of its loop-simulation error on ``est``).
 
@@ -530,19 +542,34 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO,
     measured input (open-loop IV-OE or output error would take it for signal). Iterated from the LS
     fit; each IV step is halved (up to 4 times) until the loop-simulation error on ``est`` decreases,
     and the iteration stops when no step does.
+
+    An extension's model: ``data`` is its estimation data (the model's inputs as it was fitted), and
+    ``input_map``, ``exogenous`` (estimation rows) and ``sign_of`` its drive in the loop
+    (:func:`~lpvflow.validate.closed_loop.simulate_in_loop`); the instruments then hold the same
+    inputs made from the simulated loop.
     """
     from lpvflow.identify.iv import Structure as IvStructure
     from lpvflow.identify.iv import _solve
     from lpvflow.validate.closed_loop import loop_signals
 
-    struct = IvStructure.from_data(est, start.na, start.nb, start.nk, start.basis, start.form)
-    psi = struct.basis.eval(est.p, check_range=False)
-    phis = [struct.regressor(r, est.y, est.u, psi)[struct.max_lag :] for r in range(struct.ny)]
+    data = est if data is None else data
+    struct = IvStructure.from_data(data, start.na, start.nb, start.nk, start.basis, start.form)
+    psi = struct.basis.eval(data.p, check_range=False)
+    phis = [struct.regressor(r, data.y, data.u, psi)[struct.max_lag :] for r in range(struct.ny)]
+    drive = {"input_map": input_map, "exogenous": exogenous, "sign_of": sign_of}
+
+    def model_inputs(u_sim: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
+        parts = [np.array([input_map(row) for row in u_sim]) if input_map is not None else u_sim]
+        if exogenous is not None:
+            parts.append(np.asarray(exogenous, float).reshape(len(u_sim), -1))
+        if sign_of is not None:
+            parts.append(velocity_sign(y_sim[:, sign_of])[:, None])
+        return np.hstack(parts)
 
     def loop_loss(model: LPVIO) -> tuple[float, np.ndarray]:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore", SchedulingRangeWarning)
-            y_sim = simulate_in_loop(model, est, loop)
+            y_sim = simulate_in_loop(model, est, loop, **drive)
         if not np.all(np.isfinite(y_sim)):
             return np.inf, y_sim
         sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov((est.y - y_sim).T)))
@@ -555,7 +582,8 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO,
     for _ in range(iterations):
         u_sim, p_sim = loop_signals(y_best, est, loop)
         psi_sim = struct.basis.eval(p_sim, check_range=False)
-        target = [_solve(struct.regressor(r, y_best, u_sim, psi_sim)[struct.max_lag :], phis[r],
+        v_sim = model_inputs(u_sim, y_best)
+        target = [_solve(struct.regressor(r, y_best, v_sim, psi_sim)[struct.max_lag :], phis[r],
                          est.y[struct.max_lag :, r]) for r in range(struct.ny)]
         step, improved = 1.0, False
         for _ in range(4):  # the IV step, halved until the loop-simulation error decreases
@@ -569,6 +597,32 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO,
             break
     best = (best_loss, struct.model(best_theta))
     return best[1], best[0]
+
+
+def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop) -> Candidate | None:
+    """``cand`` refitted by :func:`closed_loop_iv` with its own loop drive (diagnose's noise round on
+    closed-loop data); None for an extension that changes the scheduling or cannot be refitted."""
+    run = cand.fit.simulate
+    drive = getattr(run, "drive", None)
+    if drive is None or getattr(run, "rescheduled", False) or cand.fit.data is None:
+        return None
+    exogenous = drive.get("exogenous")
+    try:
+        model, loss = closed_loop_iv(est, loop, cand.fit.model, data=cand.fit.data,
+                                     input_map=drive.get("input_map"), sign_of=drive.get("sign_of"),
+                                     exogenous=None if exogenous is None else exogenous[: est.N])
+    except (LpvflowError, np.linalg.LinAlgError):
+        return None
+    k, n_eff = cand.fit.n_params, est.N - model.max_lag
+    refit = Fit(model, loss, k, n_eff * loss + k * np.log(n_eff), run, cand.fit.reference, cand.fit.data)
+    params = dict(cand.parameters)
+    if cand.cause == "friction":
+        level = _coulomb_level(model, drive["sign_of"])
+        params |= {"coulomb_level_input_units": level, "level_in_extended_model": level}
+    elif cand.cause == "offset":
+        params = _offset_parameters(model, est.p, est.u.shape[1], "trend" in cand.inputs_added)
+    return Candidate(cand.cause, params, refit, cand.description + " (refitted by closed-loop IV)",
+                     cand.inputs_added)
 
 
 def colored_noise(ctx: Context) -> Candidate | None:

@@ -52,7 +52,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError, LpvflowError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.validate import residuals
-from lpvflow.validate.closed_loop import Loop
+from lpvflow.validate.closed_loop import Loop, simulate_in_loop
 from lpvflow.validate.extensions import (
     EXTENSIONS,
     Candidate,
@@ -340,10 +340,11 @@ def diagnose(
         # drive in the loop), scored against the closed-loop IV fit of the nominal structure.
         base = candidates["colored_noise"]
         refits = {}
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore", SchedulingRangeWarning)
+            fallback = simulate_in_loop(base.fit.model, est, loop)  # instruments if an LS fit diverges
             for c, cand in candidates.items():
-                if c != "colored_noise" and (refit := refit_in_loop(cand, est, loop)) is not None:
+                if c != "colored_noise" and (refit := refit_in_loop(cand, est, loop, fallback)) is not None:
                     refits[c] = refit
         refit_ranked, refit_losses = _rank(est, val, base.fit, refits, min_gain, alpha)
         structural = _choose(refit_ranked, refits, refit_losses)

@@ -531,7 +531,8 @@ CLOSED_LOOP_IV_ITERATIONS = 4
 
 def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLOSED_LOOP_IV_ITERATIONS,
                    data: Dataset | None = None, input_map: Callable | None = None,
-                   exogenous: np.ndarray | None = None, sign_of: int | None = None) -> tuple[LPVIO, float]:
+                   exogenous: np.ndarray | None = None, sign_of: int | None = None,
+                   fallback: np.ndarray | None = None) -> tuple[LPVIO, float]:
     """IV estimate of ``start``'s structure on closed-loop data, and its loss (log det of the
     covariance of its loop-simulation error on ``est``).
 
@@ -546,7 +547,8 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLO
     An extension's model: ``data`` is its estimation data (the model's inputs as it was fitted), and
     ``input_map``, ``exogenous`` (estimation rows) and ``sign_of`` its drive in the loop
     (:func:`~lpvflow.validate.closed_loop.simulate_in_loop`); the instruments then hold the same
-    inputs made from the simulated loop.
+    inputs made from the simulated loop. ``fallback``: a loop simulation on ``est`` (of another
+    model) whose signals serve as the first instruments when ``start`` itself diverges in the loop.
     """
     from lpvflow.identify.iv import Structure as IvStructure
     from lpvflow.identify.iv import _solve
@@ -575,10 +577,12 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLO
         sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov((est.y - y_sim).T)))
         return (float(logdet) if sign > 0 else np.inf), y_sim
 
-    best_theta = struct.thetas(start)
+    best_theta: list[np.ndarray] | None = struct.thetas(start)
     best_loss, y_best = loop_loss(start)
     if not np.isfinite(best_loss):
-        raise LpvflowError("closed-loop IV: the starting model diverges in the loop")
+        if fallback is None or not np.all(np.isfinite(fallback)):
+            raise LpvflowError("closed-loop IV: the starting model diverges in the loop")
+        best_theta, y_best = None, fallback
     for _ in range(iterations):
         u_sim, p_sim = loop_signals(y_best, est, loop)
         psi_sim = struct.basis.eval(p_sim, check_range=False)
@@ -587,7 +591,8 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLO
                          est.y[struct.max_lag :, r]) for r in range(struct.ny)]
         step, improved = 1.0, False
         for _ in range(4):  # the IV step, halved until the loop-simulation error decreases
-            theta = [b + step * (t - b) for b, t in zip(best_theta, target, strict=True)]
+            theta = target if best_theta is None else [
+                b + step * (t - b) for b, t in zip(best_theta, target, strict=True)]
             loss, y_sim = loop_loss(struct.model(theta))
             if loss < best_loss:
                 best_theta, best_loss, y_best, improved = theta, loss, y_sim, True
@@ -595,11 +600,14 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLO
             step /= 2
         if not improved:
             break
+    if best_theta is None:
+        raise LpvflowError("closed-loop IV: every iterate diverged in the loop")
     best = (best_loss, struct.model(best_theta))
     return best[1], best[0]
 
 
-def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop) -> Candidate | None:
+def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop,
+                  fallback: np.ndarray | None = None) -> Candidate | None:
     """``cand`` refitted by :func:`closed_loop_iv` with its own loop drive (diagnose's noise round on
     closed-loop data); None for an extension that changes the scheduling or cannot be refitted."""
     run = cand.fit.simulate
@@ -610,7 +618,8 @@ def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop) -> Candidate | None
     try:
         model, loss = closed_loop_iv(est, loop, cand.fit.model, data=cand.fit.data,
                                      input_map=drive.get("input_map"), sign_of=drive.get("sign_of"),
-                                     exogenous=None if exogenous is None else exogenous[: est.N])
+                                     exogenous=None if exogenous is None else exogenous[: est.N],
+                                     fallback=fallback)
     except (LpvflowError, np.linalg.LinAlgError):
         return None
     k, n_eff = cand.fit.n_params, est.N - model.max_lag

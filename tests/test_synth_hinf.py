@@ -202,3 +202,109 @@ def test_a_common_point_is_a_dilated_certificate(designs):
     assert as_dilated.method == "dilated" and as_dilated.gamma == results["common"].gamma
     assert as_dilated.lmi_max_eig < 0
     assert vertex_lmi_max_eig(as_dilated) == pytest.approx(as_dilated.lmi_max_eig)
+
+
+def _scaled_vertices(gp):
+    from lpvflow.synth.lmi_hinf import _scaled, _scalings
+
+    s, du, dy = _scalings(gp.vertices)
+    return [_scaled(v, s, du, dy) for v in gp.vertices], (s, du, dy)
+
+
+def _schur(M, keep):
+    """Schur complement of M on the rows/columns not in ``keep``."""
+    rest = np.setdiff1d(np.arange(M.shape[0]), keep)
+    return M[np.ix_(keep, keep)] - M[np.ix_(keep, rest)] @ np.linalg.solve(M[np.ix_(rest, rest)],
+                                                                          M[np.ix_(rest, keep)])
+
+
+def test_eliminated_lmis_are_the_projected_vertex_lmi_up_to_a_schur_complement():
+    """ker 𝒰ᵀ, ker 𝒱 bases in block form: W_𝒰ᵀM_i(0)W_𝒰 and (X_i), W_𝒱ᵀM_i(0)W_𝒱 and (Y_i) have equal Schur
+    complements on P̄ (resp. diag(X, γI) and Y), so each pair is positive definite together (P̄ ≻ 0)."""
+    import cvxpy as cp
+    import scipy.linalg
+
+    from lpvflow.synth.lmi_hinf import _eliminated_lmis, _theta_factors, _vertex_lmi_at_zero
+
+    gp = generalized_plant(random_lpv(4, nx=3), WEIGHTS, [[-0.5, 0.5]])
+    verts, _ = _scaled_vertices(gp)
+    n, nw, nu, nz, ny = verts[0].dims
+    rng = np.random.default_rng(0)
+    Y = rng.standard_normal((n, n))
+    Y = Y @ Y.T + np.eye(n)
+    X = np.linalg.inv(Y) + np.diag(rng.uniform(0.5, 2.0, n))  # [X I; I Y] ≻ 0
+    gamma = 1.7
+    lmis = _eliminated_lmis(verts, cp.Parameter(pos=True, value=gamma))
+    lmis.X.value, lmis.Y.value = X, Y
+    NX = scipy.linalg.null_space(np.hstack([verts[0].B2.T, verts[0].D12.T]))
+    NY = scipy.linalg.null_space(np.hstack([verts[0].C2, verts[0].D21]))
+    m, kx, ky = 4 * n + nw + nz, NX.shape[1], NY.shape[1]
+    WU = np.zeros((m, kx + 2 * n + nw))  # rows: first 2n | second 2n | w | z
+    WU[:n, :kx], WU[4 * n + nw:, :kx] = NX[:n], NX[n:]
+    WU[2 * n:4 * n + nw, kx:] = np.eye(2 * n + nw)
+    WV = np.zeros((m, 2 * n + ky + nz))
+    WV[:2 * n, :2 * n], WV[4 * n + nw:, 2 * n + ky:] = np.eye(2 * n), np.eye(nz)
+    WV[3 * n:4 * n + nw, 2 * n:2 * n + ky] = NY
+    for i, v in enumerate(verts):
+        U, V = _theta_factors(v)
+        assert np.allclose(U.T @ WU, 0) and np.allclose(V @ WV, 0)
+        assert WU.shape[1] == m - nu - n and WV.shape[1] == m - n - ny  # bases of the whole kernels
+        M0 = _vertex_lmi_at_zero(v, X, Y, gamma)
+        MX, MY = lmis.matrices[1 + 2 * i].value, lmis.matrices[2 + 2 * i].value
+        np.testing.assert_allclose(_schur(WU.T @ M0 @ WU, np.arange(kx)), _schur(MX, np.arange(kx)),
+                                   rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(_schur(WV.T @ M0 @ WV, np.arange(2 * n, 2 * n + ky + nz)),
+                                   _schur(MY, np.arange(n, n + ky + nz)), rtol=1e-9, atol=1e-9)
+
+
+def test_eliminated_common_gamma_equals_the_full_change_of_variables_gamma(designs):
+    """The synthesis ran on the eliminated LMIs; γ-minimisation on the full LMIs (E_ii) gives the same γ."""
+    import cvxpy as cp
+
+    from lpvflow.synth.lmi_hinf import _bounded, _lmis
+    from lpvflow.synth.sdp import psd, solve
+
+    _, results = designs
+    common = results["common"]
+    assert "full LMIs" not in common.report.status
+    verts, _ = _scaled_vertices(common.plant)
+    g = cp.Variable(nonneg=True)
+    full = _lmis(verts, "common", g)
+    solve(cp.Problem(cp.Minimize(g), [psd(M, 1e-7) for M in full.matrices] + _bounded(full)))
+    assert abs(common.gamma_opt - g.value) <= 0.01 * g.value
+    assert common.gamma <= 1.011 * g.value and common.lmi_max_eig < 0
+
+
+def test_eliminated_lmis_strictly_feasible_iff_the_reconstructed_controller_passes_the_recheck(designs):
+    """Above γ_opt the eliminated LMIs have a positive margin and the Iwasaki–Skelton controller passes the
+    closed-loop re-check; below it they have none, and neither do the full LMIs."""
+    from lpvflow.synth.lmi_hinf import _MarginProblem, _result
+
+    _, results = designs
+    common = results["common"]
+    gp = common.plant
+    verts, (s, du, dy) = _scaled_vertices(gp)
+    eliminated = _MarginProblem(verts, "common", "CLARABEL", "eliminated", eliminate=True)
+    full = _MarginProblem(verts, "common", "CLARABEL", "full", eliminate=False)
+    for factor in (1.05, 1.5):
+        gamma = factor * common.gamma_opt
+        t, val = eliminated.margin(gamma)
+        assert t > 0
+        assert _result(gp, "common", verts, s, du, dy, gamma, common.gamma_opt, val).lmi_max_eig < 0
+    for factor in (0.95, 0.7):
+        assert eliminated.margin(factor * common.gamma_opt)[0] <= 0
+        assert full.margin(factor * common.gamma_opt)[0] <= 0
+
+
+def test_common_falls_back_to_the_full_lmis_when_the_reconstruction_fails(monkeypatch, designs):
+    import lpvflow.synth.lmi_hinf as lmi_hinf
+
+    def fail(*args):
+        raise SynthesisError("controller reconstruction failed (test)")
+
+    monkeypatch.setattr(lmi_hinf, "_controller_variables", fail)
+    _, results = designs
+    res = synthesize(results["common"].plant, "common")
+    assert "full LMIs (eliminated: controller reconstruction failed (test))" in res.report.status
+    assert res.lmi_max_eig < 0 and res.controller.info["status"] == res.report.status
+    assert abs(res.gamma - results["common"].gamma) <= 0.01 * results["common"].gamma

@@ -49,7 +49,51 @@ Ak = Ṽ⁻ᵀ(Q − YAX − YB2L − FC2X + YB2RC2X)U⁻¹. S − YX is non-sin
 Method ``"common"`` (item 3b, Gahinet & Apkarian 1994 / Apkarian et al. 1995 in discrete time) is the
 special case 𝒢 = 𝒫_i = 𝒫: X, Y symmetric, S = I, P̄ = [X I; I Y], one LMI per vertex. Every feasible
 point of ``"common"`` is feasible for ``"dilated"`` (item 3c), so γ_dilated ≤ γ_common.
-γ² is the SDP objective; strictness is imposed as ⪰ margin·I.
+The code holds γ (not γ²) in the w and z blocks (:func:`_result`); γ is the SDP objective; strictness
+is imposed as ⪰ margin·I.
+
+Controller elimination for ``"common"`` (issue 6: the full LMIs cost 105 s on the issue's n = 12 plant).
+With Θ_i = [L_i R_i; Q_i F_i] the vertex LMI is M_i(Θ_i) = M_i(0) + 𝒰Θ_i𝒱 + (𝒰Θ_i𝒱)ᵀ, where 𝒰 has
+[B2 0; 0 I] in the first 2n rows and [D12 0] in the z rows, and 𝒱 has [I 0; 0 C2] in the second 2n
+columns and [0; D21] in the w columns — constant because B2, C2, D12, D21 are (A3). By the projection
+lemma (Gahinet & Apkarian 1994, IJRNC 4, Lemma 3.1) a Θ_i exists iff W_𝒰ᵀM_i(0)W_𝒰 ≻ 0 and
+W_𝒱ᵀM_i(0)W_𝒱 ≻ 0 (W bases of ker 𝒰ᵀ, ker 𝒱). Written out,
+
+    W_𝒰ᵀM_i(0)W_𝒰 = ⎡ N_Xᵀdiag(X, γI)N_X   N_Xᵀ[A_i; C1_i][X I]   N_Xᵀ[B1_i; D11_i] ⎤
+                    ⎢ ⋆                    P̄                      0                 ⎥,
+                    ⎣ ⋆                    0                      γI                ⎦
+
+    W_𝒱ᵀM_i(0)W_𝒱 = ⎡ P̄   [I; Y][A_i B1_i]N_Y       0                    ⎤
+                    ⎢ ⋆   N_Yᵀdiag(Y, γI)N_Y        N_Yᵀ[C1_iᵀ; D11_iᵀ]  ⎥,
+                    ⎣ ⋆   ⋆                          γI                   ⎦
+
+and since [X I] = [I 0]P̄ and [I; Y] = P̄[0; I], their Schur complements on P̄ ≻ 0 are those of the
+following LMIs on diag(X, γI) and on Y: per vertex, the two LMIs of the discrete-time theorem of Gahinet
+& Apkarian (1994, Thm. 5.3; polytopic use: Apkarian, Gahinet & Becker 1995) in X, Y only,
+
+    (X_i)  ⎡ N_Xᵀ diag(X, γI_nz) N_X    N_Xᵀ [A_iX  B1_i; C1_iX  D11_i] ⎤ ≻ 0,   N_X basis of ker [B2ᵀ D12ᵀ],
+           ⎣ ⋆                           diag(X, γI_nw)                  ⎦
+
+           ⎡ Y   [Y A_i  Y B1_i] N_Y          0                     ⎤
+    (Y_i)  ⎢ ⋆   N_Yᵀ diag(Y, γI_nw) N_Y      N_Yᵀ [C1_iᵀ; D11_iᵀ]  ⎥ ≻ 0,        N_Y basis of ker [C2 D21],
+           ⎣ ⋆   ⋆                             γI_nz                 ⎦
+
+    (C)    P̄ = [X I; I Y] ≻ 0   (once),
+
+of (n + nz − nu) + (n + nw) and n + (n + nw − ny) + nz rows instead of 4n + nw + nz (28, 28 instead of
+54 for the issue's plant, and 2·n(n+1)/2 variables instead of N·(n + nu)(n + ny) more). γ-minimisation,
+margin maximisation and bisection (:func:`synthesize`) run on these; the margin t is that of (X_i),
+(Y_i), (C) ⪰ t·I. The controller variables are then recovered vertex by vertex at the returned X, Y, γ
+(:func:`_controller_variables`) with the explicit solution of Iwasaki & Skelton (1994, Automatica 30(8),
+Thm. 2): after a Jacobi scaling of M_i(0), 𝒰, 𝒱, any ρ with Φ = (M_i(0) + ρ𝒰𝒰ᵀ)⁻¹ ≻ 0 gives
+Θ_i = ρ𝒰ᵀΦ𝒱ᵀ(𝒱Φ𝒱ᵀ)⁻¹ with M_i(Θ_i) ≻ 0 (such ρ > ρ_min exist iff W_𝒰ᵀM_i(0)W_𝒰 ≻ 0); ρ is taken from a
+logarithmic grid above ρ_min as the one with the largest Jacobi-scaled smallest eigenvalue. Strict
+feasibility of (X_i), (Y_i), (C) therefore gives a reconstructed controller that passes the independent
+re-check, up to round-off. Where round-off wins — weights with poles near z = 1 put XY's eigenvalues
+between ≈ 1 and ≈ 1e9, and S − YX = I − YX then has condition ≈ 1e12, e.g. the bundled ADIP design and
+its LTI baseline, where the full LMIs also pass the re-check with a max eigenvalue of only −7e-11 and
+−5e-13 — ``"common"`` falls back to the full change-of-variables LMIs above (:func:`_synthesize_common`,
+said in the report's status). The full LMIs remain what ``"dilated"`` solves.
 """
 
 from __future__ import annotations
@@ -63,7 +107,7 @@ import scipy.linalg
 from lpvflow.errors import ModelError
 from lpvflow.synth.controller import LPVController, series_input_filter
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant
-from lpvflow.synth.sdp import SolveReport, SynthesisError, psd, solve
+from lpvflow.synth.sdp import COARSE, SolveReport, SynthesisError, psd, solve
 
 METHODS = ("common", "dilated")
 _BOUND = 1e6  # P̄_i, sym 𝒢 ⪯ β·I in the scaled coordinates (synthesize, step 1 and 2)
@@ -203,32 +247,139 @@ def _bounded(lmis: _Lmis) -> list[cp.Constraint]:
 
 
 def _values(lmis: _Lmis) -> dict:
-    """The numbers of a solved LMI set (copied: the variables are overwritten by the next solve)."""
+    """The numbers of a solved LMI set (copied: the variables are overwritten by the next solve).
+
+    The eliminated ``"common"`` LMIs have no Q_i, L_i, F_i, R_i: :func:`_result` adds them
+    (:func:`_controller_variables`).
+    """
     val = {k: np.array(getattr(lmis, k).value, dtype=float) for k in ("X", "Y")}
     val["S"] = np.array(lmis.S.value, dtype=float) if isinstance(lmis.S, cp.Variable) else lmis.S
-    for k in ("Q", "L", "F", "R"):
-        val[k] = [np.array(v.value, dtype=float) for v in getattr(lmis, k)]
+    if lmis.Q:
+        for k in ("Q", "L", "F", "R"):
+            val[k] = [np.array(v.value, dtype=float) for v in getattr(lmis, k)]
     val["Pbar"] = [np.array(P.value, dtype=float) for P in lmis.Pbar]
     return val
+
+
+def _diag(P: cp.Expression, g: cp.Expression, m: int) -> cp.Expression:
+    """diag(P, g·I_m)."""
+    n = P.shape[0]
+    return cp.bmat([[P, np.zeros((n, m))], [np.zeros((m, n)), g * np.eye(m)]])
+
+
+def _eliminated_lmis(verts: list[VertexPlant], g: cp.Expression) -> _Lmis:
+    """The controller-free ``"common"`` LMIs (X_i), (Y_i), (C) of the module docstring with γ = g."""
+    n, nw, _, nz, _ = verts[0].dims
+    X = cp.Variable((n, n), symmetric=True)
+    Y = cp.Variable((n, n), symmetric=True)
+    I = np.eye(n)
+    NX = scipy.linalg.null_space(np.hstack([verts[0].B2.T, verts[0].D12.T]))  # orthonormal, (A3): one for all
+    NY = scipy.linalg.null_space(np.hstack([verts[0].C2, verts[0].D21]))
+    Pbar = cp.bmat([[X, I], [I, Y]])
+    matrices = [Pbar]
+    for v in verts:
+        out = NX.T @ cp.bmat([[v.A @ X, v.B1], [v.C1 @ X, v.D11]])
+        matrices.append(cp.bmat([[NX.T @ _diag(X, g, nz) @ NX, out], [out.T, _diag(X, g, nw)]]))
+        inp = cp.hstack([Y @ v.A, Y @ v.B1]) @ NY
+        right = NY.T @ np.vstack([v.C1.T, v.D11.T])
+        matrices.append(cp.bmat([[Y, inp, np.zeros((n, nz))],
+                                 [inp.T, NY.T @ _diag(Y, g, nw) @ NY, right],
+                                 [np.zeros((nz, n)), right.T, g * np.eye(nz)]]))
+    return _Lmis(X, Y, I, [], [], [], [], [Pbar] * len(verts), matrices, [Pbar])
+
+
+def _lmi_set(verts: list[VertexPlant], method: str, g: cp.Expression, eliminate: bool) -> _Lmis:
+    """The LMIs of the SDPs: (X_i), (Y_i), (C) if ``eliminate`` (``"common"`` only), else (E_ij)."""
+    return _eliminated_lmis(verts, g) if eliminate else _lmis(verts, method, g)
+
+
+def _theta_factors(v: VertexPlant) -> tuple[np.ndarray, np.ndarray]:
+    """𝒰, 𝒱 with M_i(Θ) = M_i(0) + 𝒰Θ𝒱 + (𝒰Θ𝒱)ᵀ, Θ = [L R; Q F] (module docstring)."""
+    n, nw, nu, nz, ny = v.dims
+    U = np.zeros((4 * n + nw + nz, nu + n))
+    U[:n, :nu], U[n:2 * n, nu:], U[4 * n + nw:, :nu] = v.B2, np.eye(n), v.D12
+    V = np.zeros((n + ny, 4 * n + nw + nz))
+    V[:n, 2 * n:3 * n], V[n:, 3 * n:4 * n], V[n:, 4 * n:4 * n + nw] = np.eye(n), v.C2, v.D21
+    return U, V
+
+
+def _vertex_lmi_at_zero(v: VertexPlant, X: np.ndarray, Y: np.ndarray, gamma: float) -> np.ndarray:
+    """M_i(0): the ``"common"`` vertex LMI with Q_i = L_i = F_i = R_i = 0 (module docstring)."""
+    n, nw, _, nz, _ = v.dims
+    Pbar = np.block([[X, np.eye(n)], [np.eye(n), Y]])
+    Phi = np.block([[v.A @ X, v.A], [np.zeros((n, n)), Y @ v.A]])
+    Psi, Omega = np.vstack([v.B1, Y @ v.B1]), np.hstack([v.C1 @ X, v.C1])
+    M = np.block([[Pbar, Phi, Psi, np.zeros((2 * n, nz))],
+                  [Phi.T, Pbar, np.zeros((2 * n, nw)), Omega.T],
+                  [Psi.T, np.zeros((nw, 2 * n)), gamma * np.eye(nw), v.D11.T],
+                  [np.zeros((nz, 2 * n)), Omega, v.D11, gamma * np.eye(nz)]])
+    return 0.5 * (M + M.T)
+
+
+#: ρ − ρ_min, in units of max(ρ_min, 1), tried by the Iwasaki–Skelton reconstruction (module docstring).
+_RHO_GRID = np.logspace(-6, 6, 37)
+
+
+def _controller_variables(verts: list[VertexPlant], val: dict, gamma: float) -> dict:
+    """Q_i, L_i, F_i, R_i with M_i(Θ_i) ≻ 0 at the solved X, Y and γ (Iwasaki & Skelton; module docstring).
+
+    Raises:
+        SynthesisError: no ρ makes M_i(0) + ρ𝒰𝒰ᵀ positive definite (W_𝒰ᵀM_i(0)W_𝒰 is not).
+    """
+    n, _, nu, _, _ = verts[0].dims
+    out: dict[str, list[np.ndarray]] = {k: [] for k in ("Q", "L", "F", "R")}
+    for v in verts:
+        M = _vertex_lmi_at_zero(v, val["X"], val["Y"], gamma)
+        U, V = _theta_factors(v)
+        d = 1.0 / np.sqrt(np.clip(np.abs(np.diag(M)), 1e-300, None))  # Jacobi congruence D M D
+        M, U, V = M * d[:, None] * d[None, :], d[:, None] * U, V * d[None, :]
+        QU, RU = np.linalg.qr(U)
+        WU = scipy.linalg.null_space(U.T)
+        schur = QU.T @ M @ QU - QU.T @ M @ WU @ np.linalg.solve(WU.T @ M @ WU, WU.T @ M @ QU)
+        RUi = np.linalg.inv(RU)
+        rho_min = max(float(np.linalg.eigvalsh(-RUi.T @ schur @ RUi)[-1]), 0.0)  # M + ρUUᵀ ≻ 0 ⟺ ρ > ρ_min
+        best, best_eig = None, -np.inf
+        for rho in rho_min + max(rho_min, 1.0) * _RHO_GRID:
+            try:
+                Li = np.linalg.inv(np.linalg.cholesky(M + rho * U @ U.T))
+            except np.linalg.LinAlgError:
+                continue
+            Phi = Li.T @ Li
+            Theta = rho * U.T @ Phi @ V.T @ np.linalg.inv(V @ Phi @ V.T)
+            T = U @ Theta @ V
+            eig = float(np.linalg.eigvalsh(M + T + T.T)[0])
+            if eig > best_eig:
+                best, best_eig = Theta, eig
+        if best is None:
+            raise SynthesisError("controller reconstruction failed: no ρ makes M_i(0) + ρ𝒰𝒰ᵀ positive "
+                                 "definite (the eliminated LMIs hold too loosely); increase suboptimality")
+        out["L"].append(best[:nu, :n])
+        out["R"].append(best[:nu, n:])
+        out["Q"].append(best[nu:, :n])
+        out["F"].append(best[nu:, n:])
+    return out
 
 
 class _MarginProblem:
     """max t s.t. every vertex LMI ⪰ t·I at a fixed γ (a cvxpy Parameter: compiled once)."""
 
-    def __init__(self, verts: list[VertexPlant], method: str, solver: str, what: str) -> None:
+    def __init__(self, verts: list[VertexPlant], method: str, solver: str, what: str,
+                 eliminate: bool) -> None:
         self.gamma = cp.Parameter(pos=True)
         self.t = cp.Variable()
-        self.lmis = _lmis(verts, method, self.gamma)
+        self.lmis = _lmi_set(verts, method, self.gamma, eliminate)
         constraints = [psd(M, self.t) for M in self.lmis.matrices] + _bounded(self.lmis)
         self.problem = cp.Problem(cp.Maximize(self.t), constraints)
         self.solver, self.what = solver, what
+        self.tolerance = COARSE if eliminate else None
         self.reports: list[SolveReport] = []
 
     def margin(self, gamma: float) -> tuple[float, dict | None]:
         """(t, numbers) at γ; t = −inf when no solver returned a point."""
         self.gamma.value = gamma
         try:
-            self.reports.append(solve(self.problem, self.solver, f"{self.what} at γ = {gamma:.6g}"))
+            self.reports.append(solve(self.problem, self.solver, f"{self.what} at γ = {gamma:.6g}",
+                                      self.tolerance))
         except SynthesisError:
             return -np.inf, None
         return float(self.t.value), _values(self.lmis)
@@ -295,6 +446,11 @@ def synthesize(
     the margin problem's point at γ·1.02, then γ·1.1 (:data:`BACK_OFF`), and the result is refused
     unless every vertex LMI is negative definite.
 
+    For ``"common"`` steps 1 and 2 and the bisection solve the eliminated LMIs (X_i), (Y_i), (C) of the
+    module docstring (Clarabel tolerance :data:`lpvflow.synth.sdp.COARSE`) and the vertex controllers are
+    reconstructed at the returned X, Y, γ; if that path fails other than by infeasibility (ill-conditioned
+    S − YX, a failed re-check), the full LMIs are solved instead and the status says so.
+
     Args:
         margin: strictness of step 1, every LMI ⪰ margin·I.
         gamma_max: demand γ ≤ gamma_max (a design spec ‖·‖∞ ≤ 1 is gamma_max = 1); infeasible then means
@@ -308,9 +464,9 @@ def synthesize(
         raise ModelError(f"unknown output-feedback method {method!r}; use one of {', '.join(METHODS)}")
     args = (solver, margin, gamma_max, suboptimality)
     if method == "common":
-        return _synthesize_one(plant, "common", *args)
+        return _synthesize_common(plant, *args)
     try:
-        common = _synthesize_one(plant, "common", *args)
+        common = _synthesize_common(plant, *args)
     except SynthesisError:
         return _synthesize_one(plant, "dilated", *args)
     try:
@@ -336,9 +492,23 @@ def _common_as_dilated(common: HinfResult) -> HinfResult:
     return result
 
 
+def _synthesize_common(plant: GeneralizedPlant, *args) -> HinfResult:
+    """``"common"`` by the eliminated LMIs; by the full ones when that fails other than by infeasibility."""
+    try:
+        return _synthesize_one(plant, "common", *args, eliminate=True)
+    except SynthesisError as exc:
+        if "infeasible" in str(exc):
+            raise
+        reason = str(exc)
+    result = _synthesize_one(plant, "common", *args, eliminate=False)
+    result.report.status += f"; full LMIs (eliminated: {reason[:120]})"
+    result.controller = implementable_controller(result)
+    return result
+
+
 def _synthesize_one(
     plant: GeneralizedPlant, method: str, solver: str, margin: float, gamma_max: float | None,
-    suboptimality: float,
+    suboptimality: float, eliminate: bool = False,
 ) -> HinfResult:
     """One method's γ-optimal vertex controllers (:func:`synthesize` describes the steps)."""
     s, du, dy = _scalings(plant.vertices)
@@ -346,19 +516,19 @@ def _synthesize_one(
     what = f"{method} output-feedback H∞ LMIs at {len(verts)} vertices" + (
         f" with γ ≤ {gamma_max:g}" if gamma_max is not None else "")
     g = cp.Variable(nonneg=True)
-    first = _lmis(verts, method, g)
+    first = _lmi_set(verts, method, g, eliminate)
     constraints = [psd(M, margin) for M in first.matrices] + _bounded(first)
     if gamma_max is not None:
         constraints.append(g <= gamma_max)
     gamma_opt = None
     try:
-        report1 = solve(cp.Problem(cp.Minimize(g), constraints), solver, what)
+        report1 = solve(cp.Problem(cp.Minimize(g), constraints), solver, what, COARSE if eliminate else None)
         gamma_opt = float(g.value)
     except SynthesisError as exc:
         if "infeasible" in str(exc):
             raise SynthesisError(f"{exc}: {_infeasibility_hint(plant, gamma_max)}") from None
         report1 = SolveReport(solver, str(exc), 0.0, [])
-    mp = _MarginProblem(verts, method, solver, what)
+    mp = _MarginProblem(verts, method, solver, what, eliminate)
     result = None
     if gamma_opt is not None:
         gamma = gamma_opt * (1.0 + suboptimality)
@@ -411,6 +581,8 @@ def _result(plant: GeneralizedPlant, method: str, verts: list[VertexPlant], s: n
     if sig[-1] <= 1e-12 * sig[0]:
         raise SynthesisError(f"controller reconstruction is ill-conditioned (S − YX has condition "
                              f"{sig[0] / max(sig[-1], 1e-300):.2g}); increase suboptimality")
+    if "Q" not in val:  # eliminated "common" LMIs
+        val = {**val, **_controller_variables(verts, val, gamma)}
     Vt, U = W * np.sqrt(sig), np.sqrt(sig)[:, None] * Zt
     K = [_unscaled_controller(reconstruct(v, Xv, Yv, Sv, val["Q"][i], val["L"][i], val["F"][i], val["R"][i],
                                           U, Vt), du, dy) for i, v in enumerate(verts)]

@@ -308,3 +308,22 @@ def test_common_falls_back_to_the_full_lmis_when_the_reconstruction_fails(monkey
     assert "full LMIs (eliminated: controller reconstruction failed (test))" in res.report.status
     assert res.lmi_max_eig < 0 and res.controller.info["status"] == res.report.status
     assert abs(res.gamma - results["common"].gamma) <= 0.01 * results["common"].gamma
+
+
+def test_an_eliminated_result_that_needed_the_bisection_is_compared_with_the_full_lmis(monkeypatch, designs):
+    import lpvflow.synth.lmi_hinf as lmi_hinf
+
+    inner = lmi_hinf._synthesize_one
+
+    def worse_after_bisection(plant, method, *args, eliminate=False):
+        res = inner(plant, method, *args, eliminate=eliminate)
+        if eliminate:  # what maglev_like does: the eliminated bisection stops at a larger γ
+            res = dataclasses.replace(res, gamma=2.0 * res.gamma, report=dataclasses.replace(
+                res.report, status=res.report.status + ", bisection used"))
+        return res
+
+    monkeypatch.setattr(lmi_hinf, "_synthesize_one", worse_after_bisection)
+    _, results = designs
+    res = synthesize(results["common"].plant, "common")
+    assert "full LMIs (eliminated: bisection used" in res.report.status
+    assert abs(res.gamma - results["common"].gamma) <= 0.01 * results["common"].gamma and res.lmi_max_eig < 0

@@ -76,6 +76,9 @@ def test_settling_time_and_overshoot_match_the_analytic_loop(
     assert metrics["band"] == pytest.approx(0.02) and metrics["change_time"] == pytest.approx(0.1)
     j = np.arange(90, 100) - 10  # final window: the last 10 of 100 samples, j samples after the step
     assert metrics["steady_state_error"] == pytest.approx(abs(np.mean(c**j)), rel=1e-6, abs=1e-15)
+    j = np.arange(90)  # |r − y| = |c|^j from the step on
+    assert metrics["iae"] == pytest.approx(TS * np.sum(np.abs(c) ** j), rel=1e-9)
+    assert metrics["ise"] == pytest.approx(TS * np.sum(c ** (2 * j)), rel=1e-9)
     assert result["controls"]["u"]["peak_control"] == pytest.approx(kp)  # kp·e at the step
     assert result["controls"]["u"]["saturation_time"] == 0.0
 

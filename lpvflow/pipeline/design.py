@@ -1,11 +1,13 @@
-"""`lpvflow design`: experiment → identify → [diagnose] → reduce → validate → synth → verify → export
-→ report.
+"""`lpvflow design`: experiment → identify → [diagnose] → reduce → validate → synth → verify →
+[adoption] → export → report.
 
 Each stage runs only when its cache key changed (:mod:`lpvflow.pipeline.cache`); artifacts live in
 ``<output_dir>/<name>/``. A stage that fails with an lpvflow error ends the run there: the report is
 still written, with the error, and the run counts as a failed finding (exit status 1). Bad input
 (the design file, missing plant or controller files) is refused before any stage runs (exit 2).
-Without a [synth] table the run ends after validation.
+Without a [synth] table the run ends after validation. With [diagnose] adopt = true and an adopted
+extension, the adoption stage designs and verifies the identified model too and compares the two
+controllers in closed loop (:func:`lpvflow.pipeline.stages.adoption`).
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ STAGES = (
           (("experiment", "controller"),)),
     Stage("synth", stages.synth, ("synth",), ("reduce",)),
     Stage("verify", stages.verify, ("design", "verify"), ("synth",), (("design", "plant"),)),
+    Stage("adoption", stages.adoption, ("design", "diagnose", "reduce", "synth", "verify"),
+          ("identify", "diagnose", "synth"), (("design", "plant"),)),
     Stage("export", stages.export, ("export",), ("synth",)),
 )
 

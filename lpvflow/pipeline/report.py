@@ -20,11 +20,16 @@ FIGURE_CAPTIONS = {
     "diagnosis.png": "Diagnosis: where the nominal simulation misses, and the validation gain of each "
                      "extension (green: significant).",
 }
+#: Stage outputs shown as their own table, not in the stage's key/value table.
+SEPARATE_TABLES = {("verify", "scenarios"), ("adoption", "rows")}
 
 
 def _embed(path: Path) -> str:
     data = base64.b64encode(path.read_bytes()).decode()
     caption = FIGURE_CAPTIONS.get(path.name, path.stem.replace("_", " "))
+    if path.name.startswith("adoption_"):
+        caption = ("Closed loop on the plant FMU: the LPV controller designed on the identified model "
+                   "(before adoption) and on the adopted extension (after).")
     return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(path.name)}">'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
@@ -89,9 +94,9 @@ def _number(value: object, unit: str = "", digits: int = 3) -> str:
 
 def _scenario_table(scenarios: list[dict]) -> str:
     """One row per scenario and controller: verdict, and per tracked output and actuated input the
-    settling time, overshoot, steady-state error and peak control (:mod:`lpvflow.pipeline.verify`)."""
+    settling time, overshoot, steady-state error, IAE and peak control (:mod:`lpvflow.pipeline.verify`)."""
     head = ["scenario", "controller", "stable", "output", "settling [s]", "overshoot", "steady-state error",
-            "peak control", "saturated [s]", "reason"]
+            "IAE", "peak control", "saturated [s]", "reason"]
     body = []
     for scenario in scenarios:
         for key in ("controller", "baseline"):
@@ -107,11 +112,29 @@ def _scenario_table(scenarios: list[dict]) -> str:
                              if "overshoot" in m else "–")
                 cells = [scenario["name"], run["controller"], "yes" if run["stable"] else "no", output,
                          _number(m.get("settling_time")), overshoot, _number(m.get("steady_state_error")),
-                         controls, saturated, run.get("reason", "")]
+                         _number(m.get("iae"), "", 4), controls, saturated, run.get("reason", "")]
                 css = "" if run["stable"] else ' class="fail"'
                 body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells)
                             + "</tr>")
     return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(body) + "</table>")
+
+
+def _adoption_table(rows: list[dict]) -> str:
+    """Before/after adoption of the diagnosed extension: one row per scenario and tracked output, the
+    LPV controller designed on the identified model (before) and on the extended one (after)."""
+    head = ["scenario", "output", "controller", "stable", "settling [s]", "overshoot", "IAE", "ISE",
+            "steady-state error"]
+    body = []
+    for row in rows:
+        for key in ("before", "after"):
+            m = row[key]
+            cells = [row["scenario"], row["output"], f"{key} adoption", "yes" if m["stable"] else "no",
+                     _number(m["settling_time"]), _number(m["overshoot_percent"], " %", 2),
+                     _number(m["iae"], "", 4), _number(m["ise"], "", 4), _number(m["steady_state_error"])]
+            css = "" if m["stable"] else ' class="fail"'
+            body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
+    return ("<h3>Before/after adoption</h3><table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"
+            + "".join(body) + "</table>")
 
 
 def write_report(folder: Path, summary: dict) -> Path:
@@ -135,10 +158,12 @@ def write_report(folder: Path, summary: dict) -> Path:
             continue
         outputs = stage.get("outputs", {})
         rows = [(k, _fmt(v)) for k, v in outputs.items()
-                if (not isinstance(v, list) or len(v) <= 12) and not (name == "verify" and k == "scenarios")]
+                if (not isinstance(v, list) or len(v) <= 12) and (name, k) not in SEPARATE_TABLES]
         sections.append(f"<h2>{html.escape(name)}</h2>" + (_table(rows) if rows else ""))
         if name == "verify" and outputs.get("scenarios"):
             sections.append(_scenario_table(outputs["scenarios"]))
+        if name == "adoption" and outputs.get("rows"):
+            sections.append(_adoption_table(outputs["rows"]))
         for artifact in stage.get("artifacts", []):
             if artifact.endswith(".png"):
                 sections.append(_embed(folder / artifact))

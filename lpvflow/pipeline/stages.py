@@ -121,6 +121,8 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
 
     With an experiment controller (closed-loop data) every model is simulated in the identification
     loop with the experiment's scheduling expressions (as :func:`closed_loop_simulation` does).
+    With ``remove_offsets`` the diagnosed record has the same offsets subtracted as the identify stage's
+    data (:func:`read_data`), so an adopted model works in the same deviation coordinates.
     """
     from lpvflow.data import read_columns
     from lpvflow.experiment.controller import load_controller
@@ -130,12 +132,18 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
 
     cfg, ident = ctx.config["diagnose"], ctx.config["identify"]
     data = Dataset.read(ctx.path("data.csv"), ident["u"], ident["y"], ident["p"])
+    experiment = ctx.config["experiment"]
+    if ident["remove_offsets"]:
+        if experiment["controller"]:
+            raise DataError("[diagnose] with [identify] remove_offsets needs open-loop data (the experiment "
+                            "controller acts on the measured signals, not on deviations)")
+        offsets = read_data(ctx)[0].offsets
+        data = replace(data, u=data.u - offsets["u"], y=data.y - offsets["y"], offsets=offsets)
     table = read_columns(ctx.path("data.csv"))
     missing = [c for c in cfg["candidates"] if c not in table]
     if missing:
         raise DataError(f"[diagnose] candidate column(s) {missing} are not in the experiment data")
     structure = Structure(ident["na"], ident["nb"], ident["nk"], ident["basis"])
-    experiment = ctx.config["experiment"]
     controller = load_controller(experiment["controller"]) if experiment["controller"] else None
     result = run_diagnosis(data, structure, {c: table[c] for c in cfg["candidates"]}, split=cfg["split"],
                            controller=controller, scheduling=experiment["scheduling"])
@@ -385,6 +393,67 @@ def verify(ctx: StageContext) -> tuple[dict, list[str]]:
         plot_runs(scenario_result.runs, ctx.path(name), title=scenarios[i].name)
         artifacts.append(name)
     return result.to_dict(), artifacts
+
+
+# -------------------------------------------------------------------------------------- adoption
+#: Per tracked output, the verification metrics the before/after adoption table compares.
+ADOPTION_METRICS = ("settling_time", "overshoot_percent", "iae", "ise", "steady_state_error")
+
+
+def adoption(ctx: StageContext) -> tuple[dict, list[str]]:
+    """Closed-loop gain of adopting the diagnosed extension ([diagnose] adopt = true).
+
+    "Before" is the design without adoption: the identified model goes through the same reduce and
+    synth stages (same configuration, in the sub-folder ``before_adoption/``); "after" is this design's
+    LPV controller. Both run on every verification scenario on the plant FMU (which has the effect),
+    and per scenario and tracked output the table gives settling time, overshoot, IAE and ISE of the
+    tracking error (:mod:`lpvflow.pipeline.verify`) before and after; ``iae_total`` sums the IAE
+    over scenarios and outputs (None when a run failed). A failure of the "before" design is reported,
+    not raised: the design itself is the adopted one.
+    """
+    from lpvflow.errors import LpvflowError
+    from lpvflow.pipeline.scenarios import parse_loop, parse_scenario
+    from lpvflow.pipeline.verify import plot_runs, run_metrics, simulate_loop
+
+    diagnosis = ctx.outputs.get("diagnose", {})
+    if not diagnosis.get("adopted"):
+        return {"compared": False, "reason": "no extension was adopted ([diagnose] adopt = false, cause "
+                                             f"{diagnosis.get('cause')!r} or adoption refused)"}, []
+    before = StageContext(ctx.path("before_adoption"), ctx.config)
+    before.folder.mkdir(exist_ok=True)
+    before.path("model_full.json").write_bytes(ctx.path("model_full.json").read_bytes())
+    try:
+        reduced, _ = reduce_model(before)
+        synthesized, _ = synth(before)
+    except LpvflowError as exc:
+        return {"compared": False, "reason": f"the design on the identified model failed: {exc}"}, []
+    cfg = ctx.config["verify"]
+    loop = parse_loop(cfg["loop"])
+    controllers = (("before adoption", load(before.path("controller.json"))),
+                   ("after adoption", load(ctx.path("controller.json"))))
+    plant = ctx.config["design"]["plant"]
+    rows, artifacts, totals = [], [], {"before": 0.0, "after": 0.0}
+    for i, doc in enumerate(cfg["scenario"]):
+        scenario = parse_scenario(doc, i)
+        runs = [simulate_loop(K, plant, scenario, loop, label) for label, K in controllers]
+        plot_runs(runs, ctx.path(f"adoption_{i}.png"), title=f"{scenario.name}: before/after adoption")
+        artifacts.append(f"adoption_{i}.png")
+        metrics = dict(zip(("before", "after"), (run_metrics(r, scenario, loop) for r in runs), strict=True))
+        for output in list(metrics["after"]["outputs"] or metrics["before"]["outputs"]) or ["–"]:
+            row = {"scenario": scenario.name, "output": output}
+            for key, m in metrics.items():
+                values = m["outputs"].get(output, {})
+                row[key] = {"stable": m["stable"], "reason": m["reason"],
+                            **{name: values.get(name) for name in ADOPTION_METRICS}}
+                iae = row[key]["iae"]
+                totals[key] = None if totals[key] is None or iae is None else totals[key] + iae
+            rows.append(row)
+    return ({"compared": True, "model_before": f"identified, order {reduced['order']}",
+             "model_after": f"{diagnosis['cause']} {diagnosis['parameters']}, order "
+                            f"{ctx.outputs['reduce']['order']}",
+             "gamma_before": synthesized["gamma"], "gamma_after": ctx.outputs["synth"]["gamma"],
+             "iae_total_before": totals["before"], "iae_total_after": totals["after"], "rows": rows},
+            artifacts)
 
 
 # ---------------------------------------------------------------------------------------- export

@@ -19,6 +19,9 @@ final reference; the final window is the last 10 % of the run, at least one samp
     peak_deviation      max |y − r_f|
     steady_state_error  |mean(r_f − y)| over the final window
     settled             the output stays inside the band over the whole final window
+    iae, ise            integrated tracking error from t_c to the end of the run, Ts·Σ|r_f − y| (output
+                        units·s) and Ts·Σ(r_f − y)² (units²·s): one number for speed, overshoot and
+                        oscillation together, comparable between controllers on the same scenario
 
 per actuated input: peak_control max |u| (after the limits) and saturation_time = Ts·#{k: u_c(k) outside
 the limits}. Verdict: stable ⇔ the run finished with finite signals inside ``output_bounds`` and every
@@ -376,6 +379,7 @@ def tracking_metrics(
             raise DataError(f"{what}: the reference does not change; give settling_band for it")
     k_c = int(np.searchsorted(time, t_c - 1e-9))
     err = y[k_c:] - r_f
+    Ts = float(time[1] - time[0]) if len(time) > 1 else 0.0
     outside = np.flatnonzero(~(np.abs(err) <= band))
     settle = k_c if outside.size == 0 else k_c + int(outside[-1]) + 1
     window = len(time) - max(1, math.ceil(FINAL_WINDOW * len(time)))
@@ -390,6 +394,8 @@ def tracking_metrics(
         "overshoot_percent": None if overshoot is None else 100.0 * overshoot / abs(delta),
         "peak_deviation": float(np.max(np.abs(err))),
         "steady_state_error": float(abs(np.mean(r_f - y[window:]))),
+        "iae": float(Ts * np.sum(np.abs(err))),
+        "ise": float(Ts * np.sum(err**2)),
     }
 
 

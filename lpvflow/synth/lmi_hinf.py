@@ -89,11 +89,13 @@ Thm. 2): after a Jacobi scaling of M_i(0), 𝒰, 𝒱, any ρ with Φ = (M_i(0) 
 Θ_i = ρ𝒰ᵀΦ𝒱ᵀ(𝒱Φ𝒱ᵀ)⁻¹ with M_i(Θ_i) ≻ 0 (such ρ > ρ_min exist iff W_𝒰ᵀM_i(0)W_𝒰 ≻ 0); ρ is taken from a
 logarithmic grid above ρ_min as the one with the largest Jacobi-scaled smallest eigenvalue. Strict
 feasibility of (X_i), (Y_i), (C) therefore gives a reconstructed controller that passes the independent
-re-check, up to round-off. Where round-off wins — weights with poles near z = 1 put XY's eigenvalues
-between ≈ 1 and ≈ 1e9, and S − YX = I − YX then has condition ≈ 1e12, e.g. the bundled ADIP design and
-its LTI baseline, where the full LMIs also pass the re-check with a max eigenvalue of only −7e-11 and
-−5e-13 — ``"common"`` falls back to the full change-of-variables LMIs above (:func:`_synthesize_common`,
-said in the report's status). The full LMIs remain what ``"dilated"`` solves.
+re-check, up to round-off. Where round-off wins — weights with poles near z = 1 make X and Y reach
+1e4–1e5 while the margin is 1e-5, and S − YX = I − YX then has condition > 1e12, e.g. the bundled
+ADIP design and its LTI baseline, where the full LMIs also pass the re-check with a max eigenvalue of
+only −7e-11 and −5e-13 — and where the eliminated margin problem loses its sign at a larger γ than the
+full one (it needed the bisection: maglev_like stopped at 2.26 against the full LMIs' 1.70),
+``"common"`` also solves the full change-of-variables LMIs above and returns the lower certified γ
+(:func:`_synthesize_common`, said in the report's status). The full LMIs remain what ``"dilated"`` solves.
 """
 
 from __future__ import annotations
@@ -448,8 +450,8 @@ def synthesize(
 
     For ``"common"`` steps 1 and 2 and the bisection solve the eliminated LMIs (X_i), (Y_i), (C) of the
     module docstring (Clarabel tolerance :data:`lpvflow.synth.sdp.COARSE`) and the vertex controllers are
-    reconstructed at the returned X, Y, γ; if that path fails other than by infeasibility (ill-conditioned
-    S − YX, a failed re-check), the full LMIs are solved instead and the status says so.
+    reconstructed at the returned X, Y, γ; if that path fails or needs the bisection, the full LMIs are
+    solved too and the lower certified γ is returned (:func:`_synthesize_common`; the status says so).
 
     Args:
         margin: strictness of step 1, every LMI ⪰ margin·I.
@@ -493,15 +495,34 @@ def _common_as_dilated(common: HinfResult) -> HinfResult:
 
 
 def _synthesize_common(plant: GeneralizedPlant, *args) -> HinfResult:
-    """``"common"`` by the eliminated LMIs; by the full ones when that fails other than by infeasibility."""
+    """``"common"`` by the eliminated LMIs when their two steps agree; else also by the full LMIs.
+
+    The eliminated result is returned when γ minimisation and the margin problem gave a certified point
+    without the bisection fallback. When the eliminated path raised (ill-conditioned S − YX, a failed
+    re-check, infeasible) or needed the bisection — where its smaller SDP loses the margin's sign at a
+    larger γ than the full LMIs on badly scaled plants (maglev_like: 2.26 against 1.70) — the full LMIs
+    are solved too, and the lower certified γ of the two is returned (both are common-Lyapunov
+    certificates, re-checked independently); the status says what happened.
+    """
     try:
-        return _synthesize_one(plant, "common", *args, eliminate=True)
+        eliminated = _synthesize_one(plant, "common", *args, eliminate=True)
     except SynthesisError as exc:
-        if "infeasible" in str(exc):
+        eliminated, reason = None, str(exc)[:120]
+    else:
+        if "bisection used" not in eliminated.report.status:
+            return eliminated
+        reason = f"bisection used, γ = {eliminated.gamma:.6g}"
+    try:
+        result = _synthesize_one(plant, "common", *args, eliminate=False)
+    except SynthesisError:
+        if eliminated is None:
             raise
-        reason = str(exc)
-    result = _synthesize_one(plant, "common", *args, eliminate=False)
-    result.report.status += f"; full LMIs (eliminated: {reason[:120]})"
+        result = None
+    if result is None or (eliminated is not None and eliminated.gamma < result.gamma):
+        result, eliminated.report.status = eliminated, eliminated.report.status + "; full LMIs: " + (
+            "failed" if result is None else f"γ = {result.gamma:.6g}")
+    else:
+        result.report.status += f"; full LMIs (eliminated: {reason})"
     result.controller = implementable_controller(result)
     return result
 

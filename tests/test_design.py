@@ -205,13 +205,14 @@ def test_adopted_dead_time_gives_a_controller_that_tracks_the_fmu_plant_better(t
     nk = 4; the adoption stage designs the same controller on the identified model (nk = 1) and runs
     both on the FMU plant, which has the dead time. Offsets removed: the frozen models of an ARX in
     absolute levels and volts have the secant gain h/V, half the plant's incremental gain 2h/V, and
-    loops designed on them overshot 30–50 %. Affine basis (poly:2: benchmarks/README.md, the same
-    picture but Σ IAE worse after adoption on one seed of five).
+    loops designed on them overshot 30–50 %.
 
-    Measured (seed 3): on the 4 cm step up the adopted design settles in 60 s instead of 104 s,
-    overshoots 3.7 % instead of 8.8 % and its IAE is 11.6 % lower (0.709 vs 0.802 m·s; ISE 1.4 %
-    higher). On the 3 cm step down it is NOT better: no overshoot (2.0 % before) but it settles in
-    69 s instead of 50 s, IAE 2.1 % higher (0.566 vs 0.554 m·s). Sum of IAE 1.274 vs 1.356 m·s (−6.0 %)."""
+    Measured (seed 3, affine): on the 4 cm step up the adopted design settles in 58 s instead of
+    101 s, overshoots 3.5 % instead of 8.0 % and its IAE is 10.3 % lower (0.674 vs 0.752 m·s; ISE
+    4.6 % higher). On the 3 cm step down it is NOT better: no overshoot (2.0 % before) but it settles
+    in 67 s instead of 48 s, IAE 5.2 % higher (0.542 vs 0.515 m·s). Sum of IAE 1.216 vs 1.267 m·s
+    (−4.0 %) here, but over seeds 1–5 and the affine and poly:2 bases (benchmarks/README.md) the sum
+    is lower in only 5 of 10 cases: what holds in all ten, and is asserted, is the step up."""
     summary = run_design(dead_time_design(tmp_path, tanks_fmu), log=lambda _: None)
     assert summary["failed"] is None
     diag = summary["stages"]["diagnose"]["outputs"]
@@ -227,7 +228,6 @@ def test_adopted_dead_time_gives_a_controller_that_tracks_the_fmu_plant_better(t
     # The step down: both settle, the adopted design without overshoot but not with a smaller IAE.
     assert down["before"]["stable"] and down["after"]["stable"]
     assert down["after"]["overshoot_percent"] <= down["before"]["overshoot_percent"]
-    assert adoption["iae_total_after"] < adoption["iae_total_before"]
     # "after" is the design's own verification: the same co-simulation, the same numbers.
     verified = summary["stages"]["verify"]["outputs"]["scenarios"][0]["controller"]["outputs"]["lower_level"]
     assert after["iae"] == pytest.approx(verified["iae"], rel=1e-12)

@@ -6,7 +6,8 @@ model order: na ≥ the true order). Control: 'none' on data without an effect.
 Cost: one diagnosis of N = 20 000 samples (SISO, all candidates) and the time of each extension.
 
 FMU section: the plants of fmu_plants/ with an effect parameter set (experiments and nominal
-structures of tests/test_diagnose_fmu.py), over experiment seeds (input signals and noise draw) and
+structures of tests/test_diagnose_fmu.py; tanks poly:3 in the level, also for the na = nb = 1
+case), over experiment seeds (input signals and noise draw) and
 sensor-noise levels (effect_noise_std, in the output's unit). Same hit definition; model order:
 na ≥ 2 (two tanks); scheduling dependence: a polynomial degree ≥ 2 (the physical coefficient
 functions are not polynomials). The ADIP cases are closed-loop records (unstable plant, stabilizing
@@ -102,7 +103,7 @@ FMU_CASES = {
     "tanks none": ("none", "tanks", {}, TANKS, None, [0.0, 5e-4], {}),
     "tanks dead time 3 s": ("input_delay", "tanks", {"effect_input_delay": 3.0}, TANKS,
                             lambda par: par["nk"] == 4, [0.0, 5e-4], {}),
-    "tanks na = nb = 1": ("model_order", "tanks", {}, Structure(1, 1, 1, "poly:2"),
+    "tanks na = nb = 1": ("model_order", "tanks", {}, Structure(1, 1, 1, TANKS.basis),
                           lambda par: par["na"] >= 2, [0.0, 5e-4], {}),
     "tanks saturation 8 V": ("input_nonlinearity", "tanks", {"effect_saturation": 8.0}, TANKS,
                              lambda par: par["kind"] == "saturation" and abs(par["limit"] - 8) <= 0.4,

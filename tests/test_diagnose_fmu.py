@@ -2,8 +2,12 @@
 
 tanks: open loop, pump voltage random levels in 4–11 V held 5–40 s, Ts = 1 s, 4000 s; the lower
 level is output and scheduling (quasi-LPV, thesis §5.1). Nominal structure: na = 3, nb = 2, nk = 1,
-poly:2 — the third lag stands in for the unmeasured upper level (validation BFR ≈ 97 % without
-effect: adequate, not perfect).
+poly:3 — the third lag stands in for the unmeasured upper level; cubic in the level because the
+Torricelli outflows make the linearised coefficients ∝ 1/√h (time constant τ = 2A√h/(a√2g), pole
+1 − Ts/τ), which varies by a factor 2.5 over the 3–18 cm of the experiment: a quadratic leaves a
+misfit that a richer basis recovers (poly:2 gave scheduling_dependence on 2 of 10 effect-free
+seeds, +0.5–1.5 points on every seed), a cubic does not (none on 20 of 20 seeds, validation BFR
+≈ 98 %).
 
 airpath: open loop, throttle random levels 5–40 % held 0.05–0.5 s, valve lift 30–100 % and engine
 speed 1000–4000 rpm held 0.5–2 s, Ts = 10 ms, 40 s; output manifold pressure [kPa], inputs throttle
@@ -40,7 +44,7 @@ from lpvflow.validate.extensions import Structure
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD = ROOT / "fmu_plants" / "build"
-TANKS = Structure(na=3, nb=2, nk=1, basis="poly:2")
+TANKS = Structure(na=3, nb=2, nk=1, basis="poly:3")
 AIRPATH = Structure(na=1, nb=1, nk=1, basis="poly:2")
 ADIP = Structure(na=2, nb=2, nk=1, basis="affine")
 ADIP_SCHEDULING = {"sin_arm": "sin(arm_angle)"}
@@ -99,12 +103,16 @@ def diagnose_adip(data: Dataset, **kwargs):
     return diagnose(data, ADIP, controller=adip_controller(), scheduling=ADIP_SCHEDULING, **kwargs)
 
 
-def test_effect_free_tanks_gives_none(fmus):
-    """The validation part starts at a level of about 0.13 m with τ ≈ 15 s: simulated from a zero
-    past it would lose over 20 BFR points to the start transient."""
-    result = diagnose(tanks_data({}, build=fmus), TANKS)
+@pytest.mark.parametrize("seed", range(5))
+def test_effect_free_tanks_gives_none(fmus, seed):
+    """The control: no effect, no noise, the nominal structure adequate for the plant (poly:3, module
+    docstring) — none on seeds 0…19 of benchmarks/bench_diagnose.py's experiment (0…4 here). The
+    validation part starts at a level of about 0.13 m with τ ≈ 15 s: simulated from a zero past it
+    would lose over 20 BFR points to the start transient."""
+    result = diagnose(tanks_data({}, seed=seed, build=fmus), TANKS)
     assert result.cause == "none", result.ranking
-    assert result.bfr_before[0] > 95
+    assert result.bfr_before[0] > 97
+    assert not any(r["significant"] for r in result.ranking)
 
 
 def test_tanks_dead_time_is_found_exactly(fmus):
@@ -126,7 +134,7 @@ def test_tanks_pump_saturation_is_found(fmus):
 def test_tanks_first_order_model_is_raised_to_the_cascade_order(fmus):
     """Two tanks in cascade given a first-order structure (na = nb = 1): the order is raised to
     at least 2 and the validation BFR gains over 10 points (80 → 97 %)."""
-    result = diagnose(tanks_data({}, build=fmus), Structure(na=1, nb=1, nk=1, basis="poly:2"))
+    result = diagnose(tanks_data({}, build=fmus), Structure(na=1, nb=1, nk=1, basis=TANKS.basis))
     assert result.cause == "model_order", result.ranking
     assert result.parameters["na"] >= 2
     assert result.bfr_after[0] > result.bfr_before[0] + 10
@@ -149,7 +157,7 @@ def test_tanks_first_order_model_under_sensor_noise_is_raised(fmus):
     """na = nb = 1 under 0.5 mm of sensor noise (was none or input_delay): the order extension,
     refitted by output error, still gains over the output-error fit of the first-order model."""
     data = tanks_data({"effect_noise_std": 5e-4, "effect_noise_seed": 1}, build=fmus)
-    result = diagnose(data, Structure(na=1, nb=1, nk=1, basis="poly:2"))
+    result = diagnose(data, Structure(na=1, nb=1, nk=1, basis=TANKS.basis))
     assert result.cause == "model_order", (result.ranking, result.refit_ranking)
     assert result.parameters["na"] >= 2
     refit = next(r for r in result.refit_ranking if r["cause"] == "model_order")
@@ -157,19 +165,21 @@ def test_tanks_first_order_model_under_sensor_noise_is_raised(fmus):
     assert result.bfr_after[0] > result.bfr_before[0] + 10
 
 
-def test_tanks_dead_zone_width_is_estimated(fmus):
-    """effect_deadzone = 3 V with the pump at 1–9 V (a third of the levels inside the dead zone):
-    the input-nonlinearity extension finds a dead zone of width 3 V within 20 % and gains on
-    validation. It is not always the verdict (benchmarks/README.md): a 3 V dead zone drives the
-    tanks towards empty (equilibrium level ∝ (V − 3)², 1.7 mm at 4 V; 20–35 % of the samples below
-    1 cm, under the plant's 0.01 m operating range), where poly:2 in the level misses the Torricelli
-    outflow — even the *true* dead zone applied to the input simulates at only 88–92 % with poly:2.
-    The record holds two effects of similar size, and a richer basis often gains as much."""
+def test_tanks_dead_zone_is_named_with_its_width(fmus):
+    """effect_deadzone = 3 V with the pump at 1–9 V held 10–60 s (a quarter of the levels inside the
+    dead zone): input_nonlinearity, a dead zone of width 3 V within 20 %, gaining on validation.
+    Seed 3 is one of the 6 hits of 10 noise-free seeds (benchmarks/README.md; widths of the hits
+    3.1–3.3 V); the 4 misses are none: a 3 V dead zone drives the tanks towards empty (equilibrium
+    level ∝ (V − 3)², 1.7 mm at 4 V; 40–60 % of the samples below 1 cm, under the plant's 0.01 m
+    operating range), where the coefficients ∝ 1/√h leave any polynomial basis (nominal BFR 88–95 %
+    against 98 % on effect-free data), and the dead zone's gain is then not clearly ahead of the
+    runner-up or not significant."""
     data = tanks_data({"effect_deadzone": 3.0}, pump="levels:lo=1,hi=9,min_hold=10,max_hold=60", build=fmus)
-    result = diagnose(data, TANKS, causes=["input_nonlinearity"])
+    result = diagnose(data, TANKS)
     assert result.cause == "input_nonlinearity", result.ranking
     assert result.parameters["kind"] == "dead_zone"
     assert result.parameters["width"] == pytest.approx(3.0, rel=0.2)
+    assert result.bfr_after[0] > result.bfr_before[0] + 2
 
 
 def test_effect_free_airpath_gives_none(fmus):

@@ -33,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from lpvflow.validate import extensions
 from lpvflow.validate.diagnose import diagnose
 from lpvflow.validate.extensions import Structure
+from tests import test_diagnose_fmu
 from tests.diagnosis_cases import NOMINAL, make_case
 from tests.test_diagnose_fmu import (
     ADIP,
@@ -88,7 +89,9 @@ def hit_rates(seeds: int, snrs: list[float]) -> dict:
     return table
 
 
-DEAD_ZONE_PUMP = "levels:lo=1,hi=9,min_hold=10,max_hold=60"
+#: Pump design of the dead-zone cases (tests/test_diagnose_fmu.py): a quarter of the levels inside
+#: the 3 V dead zone, each held 20–60 s so that the tanks settle (10–60 s: 6/10 noise-free).
+DEAD_ZONE_PUMP = test_diagnose_fmu.DEAD_ZONE_PUMP
 #: Angle-sensor noise levels [rad] of the ADIP cases.
 ADIP_NOISE = [0.0, 1e-4]
 
@@ -108,6 +111,7 @@ FMU_CASES = {
     "tanks saturation 8 V": ("input_nonlinearity", "tanks", {"effect_saturation": 8.0}, TANKS,
                              lambda par: par["kind"] == "saturation" and abs(par["limit"] - 8) <= 0.4,
                              [0.0, 5e-4], {}),
+    "tanks none, dead-zone design": ("none", "tanks", {}, TANKS, None, [0.0], {"pump": DEAD_ZONE_PUMP}),
     "tanks dead zone 3 V": ("input_nonlinearity", "tanks", {"effect_deadzone": 3.0}, TANKS,
                             lambda par: par["kind"] == "dead_zone" and abs(par["width"] - 3) <= 0.6,
                             [0.0, 5e-4], {"pump": DEAD_ZONE_PUMP}),

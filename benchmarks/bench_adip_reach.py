@@ -12,6 +12,8 @@ the linearisation, so θ = cos φ1 is the natural scheduling variable and ±φ1 
    lpvflow/pipeline/examples/adip.toml) on the affine-in-θ least-squares fit of the linearisations
    over θ ∈ [θ_lo, 1], for decreasing θ_lo: γ or the reason it is infeasible, and the fit error;
    where the common LMIs are infeasible, the dilated ones (vertex Lyapunov matrices) alone as well.
+   ``synthesize`` retries ill-conditioned cases (bisection needed, or failed) in balanced state
+   coordinates (lmi_hinf._balanced_common); the status says which attempt gave γ.
 4. Whether *any* gain-scheduled state feedback can be certified on the two-vertex polytope spanned by
    the exact linearisations at θ_lo and 1 (with the input filter W_B = 0.3/(z − 0.7) of assumption A3,
    as the synthesis uses): the largest margin t of
@@ -127,7 +129,8 @@ def synthesis_reach(weights: dict) -> list[dict]:
         t0 = time.perf_counter()
         plant = generalized_plant(model, weights, [[theta_lo, 1.0]])
         try:
-            row["gamma"] = float(synthesize(plant, "common").gamma)
+            result = synthesize(plant, "common")
+            row["gamma"], row["status"] = float(result.gamma), result.report.status  # says if balanced
         except SynthesisError as exc:
             row["gamma"] = None
             row["reason"] = str(exc)

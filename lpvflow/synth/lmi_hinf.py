@@ -155,6 +155,76 @@ def _scalings(vertices: list[VertexPlant]) -> tuple[np.ndarray, np.ndarray, np.n
     return s, du, dy
 
 
+#: γ tried, in turn, by :func:`_balancing_transform` when no earlier γ is known (the separate (X_i), (Y_i)
+#: LMIs only get easier as γ grows). Starting at 1e2, not 1e1: on the ADIP ±60° box (bench_adip_reach,
+#: W_S arm hf_gain 0.5) X, Y at γ = 1e2 balance to a certified γ of 108, those at γ = 1e1 to 1277.
+_BALANCING_GAMMAS = (1e2, 1e3, 1e4, 1e1)
+
+
+def _balancing_transform(plant: GeneralizedPlant, gammas: tuple[float, ...]) -> np.ndarray | None:
+    """A full state transform x = T x̄ that balances X and Y of the eliminated LMIs; None if none found.
+
+    On the :func:`_scalings` coordinates, the (X_i) and (Y_i) LMIs are solved *separately* (no coupling
+    (C), so they stay solvable where the coupled problem is reported infeasible by round-off), each
+    ⪰ t·I with t·I ⪯ X, Y ⪯ β·I (β = 1e6 as in :func:`synthesize`), t ≤ 1 maximised, at the first γ
+    of ``gammas`` with t > 0. Then with X = L Lᵀ
+    and LᵀYL = V Σ² Vᵀ, T = S L V Σ^(−1/2) (S the diagonal scaling) makes T⁻¹XT⁻ᵀ = TᵀYT = Σ
+    (Moore's balancing applied to the Lyapunov matrices instead of Gramians).
+
+    Why it is exact: a state transform of the generalized plant (A → T⁻¹AT, B → T⁻¹B, C → CT) leaves
+    every controller's closed-loop transfer from w to z unchanged (controllers map y to u, which are not
+    transformed); a certificate (𝒫, 𝒢) found in x̄ is one in x after the congruence D = diag(T, I):
+    𝒫 = D𝒫̄Dᵀ, 𝒢 = D𝒢̄Dᵀ (:func:`_untransformed`), and the re-check runs in x. What changes is only the
+    conditioning: with ADIP-like weights (plant poles at |z| ≈ 1.04, a W_S pole at 1 − 1e-4) X and Y of
+    the :func:`_scalings` coordinates have eigenvalues spread over 1e-7…1 and [X I; I Y] ≻ 0 is nearly
+    singular in directions where X is small and Y is not.
+    """
+    s, du, dy = _scalings(plant.vertices)
+    verts = [_scaled(v, s, du, dy) for v in plant.vertices]
+    n = verts[0].dims[0]
+    I = np.eye(n)
+    for gamma in gammas:
+        lmis = _eliminated_lmis(verts, gamma)
+        t = cp.Variable()
+        constraints = [psd(M, t) for M in lmis.matrices[1:]]  # (X_i), (Y_i) without (C)
+        constraints += [psd(lmis.X, t), psd(lmis.Y, t), lmis.X << _BOUND * I, lmis.Y << _BOUND * I, t <= 1]
+        try:
+            solve(cp.Problem(cp.Maximize(t), constraints), "CLARABEL", "the separate (X_i), (Y_i) LMIs")
+        except SynthesisError:
+            continue
+        if t.value is None or not t.value > 0:
+            continue
+        X, Y = (0.5 * (M.value + M.value.T) for M in (lmis.X, lmis.Y))
+        try:
+            Lx = np.linalg.cholesky(X)
+        except np.linalg.LinAlgError:
+            continue
+        w, V = np.linalg.eigh(Lx.T @ Y @ Lx)
+        if not w[0] > 0:
+            continue
+        return s[:, None] * (Lx @ V / w[None, :] ** 0.25)
+    return None
+
+
+def _transformed(plant: GeneralizedPlant, T: np.ndarray) -> GeneralizedPlant:
+    """The generalized plant in x̄ = T⁻¹x (every vertex; controllers from y to u are unaffected)."""
+    Ti = np.linalg.inv(T)
+    return replace(plant, vertices=[VertexPlant(Ti @ v.A @ T, Ti @ v.B1, Ti @ v.B2, v.C1 @ T, v.C2 @ T, v.D11,
+                                                v.D12, v.D21, v.D22) for v in plant.vertices])
+
+
+def _untransformed(result: HinfResult, plant: GeneralizedPlant, T: np.ndarray) -> HinfResult:
+    """A result on :func:`_transformed` ``(plant, T)`` as one on ``plant``, re-checked there."""
+    from lpvflow.synth.certify import vertex_lmi_max_eig
+
+    nk = result.P[0].shape[0] - T.shape[0]
+    D = scipy.linalg.block_diag(T, np.eye(nk))
+    out = replace(result, plant=plant, P=[D @ P @ D.T for P in result.P], G=D @ result.G @ D.T)
+    out.lmi_max_eig = vertex_lmi_max_eig(out)
+    out.controller = implementable_controller(out)
+    return out
+
+
 def _scaled(v: VertexPlant, s: np.ndarray, du: np.ndarray, dy: np.ndarray) -> VertexPlant:
     """The plant in x̃ = S⁻¹x, ũ = D_u⁻¹u, ỹ = D_y⁻¹y (S = diag s, D_u = diag du, D_y = diag dy)."""
     return VertexPlant(v.A * s[None, :] / s[:, None], v.B1 / s[:, None], v.B2 / s[:, None] * du[None, :],
@@ -450,8 +520,10 @@ def synthesize(
 
     For ``"common"`` steps 1 and 2 and the bisection solve the eliminated LMIs (X_i), (Y_i), (C) of the
     module docstring (Clarabel tolerance :data:`lpvflow.synth.sdp.COARSE`) and the vertex controllers are
-    reconstructed at the returned X, Y, γ; if that path fails or needs the bisection, the full LMIs are
-    solved too and the lower certified γ is returned (:func:`_synthesize_common`; the status says so).
+    reconstructed at the returned X, Y, γ; if that path fails, needs the bisection or its γ minimisation
+    is inexact, the full LMIs are solved too and the lower certified γ is returned (and, if still
+    ill-conditioned, balanced state coordinates are tried: :func:`_synthesize_common`; the status says
+    which).
 
     Args:
         margin: strictness of step 1, every LMI ⪰ margin·I.
@@ -497,34 +569,81 @@ def _common_as_dilated(common: HinfResult) -> HinfResult:
 def _synthesize_common(plant: GeneralizedPlant, *args) -> HinfResult:
     """``"common"`` by the eliminated LMIs when their two steps agree; else also by the full LMIs.
 
-    The eliminated result is returned when γ minimisation and the margin problem gave a certified point
-    without the bisection fallback. When the eliminated path raised (ill-conditioned S − YX, a failed
-    re-check, infeasible) or needed the bisection — where its smaller SDP loses the margin's sign at a
-    larger γ than the full LMIs on badly scaled plants (maglev_like: 2.26 against 1.70) — the full LMIs
+    The eliminated result is returned when γ minimisation ended ``optimal`` and the margin problem gave a
+    certified point without the bisection fallback. When the eliminated path raised (ill-conditioned
+    S − YX, a failed re-check, infeasible), needed the bisection — where its smaller SDP loses the
+    margin's sign at a larger γ than the full LMIs on badly scaled plants (maglev_like: 2.26 against
+    1.70) — or its γ minimisation ended inexact (``optimal_inaccurate``: the margin problem then accepts
+    a γ far above the optimum, tanks design with a 3 s dead time 8.18 against 3.56) the full LMIs
     are solved too, and the lower certified γ of the two is returned (both are common-Lyapunov
-    certificates, re-checked independently); the status says what happened.
+    certificates, re-checked independently); the status says what happened. When the better of these
+    still needed the bisection, or both failed, the plant is solved once more in balanced state
+    coordinates (:func:`_balanced_common`), and that result is returned if its certified γ is lower.
     """
     try:
         eliminated = _synthesize_one(plant, "common", *args, eliminate=True)
     except SynthesisError as exc:
         eliminated, reason = None, str(exc)[:120]
     else:
-        if "bisection used" not in eliminated.report.status:
+        bisected = "bisection used" in eliminated.report.status
+        if not bisected and "γ minimisation" not in eliminated.report.status:
             return eliminated
-        reason = f"bisection used, γ = {eliminated.gamma:.6g}"
+        reason = f"{'bisection used' if bisected else 'γ minimisation inexact'}, γ = {eliminated.gamma:.6g}"
+    first_error = None
     try:
         result = _synthesize_one(plant, "common", *args, eliminate=False)
-    except SynthesisError:
-        if eliminated is None:
-            raise
-        result = None
-    if result is None or (eliminated is not None and eliminated.gamma < result.gamma):
+    except SynthesisError as exc:
+        first_error, result = exc, None
+    ill_conditioned = True  # the returned point needed the bisection, or there is none
+    if eliminated is not None and (result is None or eliminated.gamma < result.gamma):
         result, eliminated.report.status = eliminated, eliminated.report.status + "; full LMIs: " + (
             "failed" if result is None else f"γ = {result.gamma:.6g}")
-    else:
+    elif result is not None:
+        ill_conditioned = "bisection used" in result.report.status
         result.report.status += f"; full LMIs (eliminated: {reason})"
+    balanced = None
+    if ill_conditioned:
+        gammas = _BALANCING_GAMMAS if result is None else (result.gamma, 2.0 * result.gamma)
+        balanced = _balanced_common(plant, gammas, *args)
+    if balanced is not None and (result is None or balanced.gamma < result.gamma):
+        unbalanced = "failed" if result is None else f"γ = {result.gamma:.6g}"
+        balanced.report.status += f"; unbalanced: {unbalanced}"
+        return balanced
+    if result is None:
+        raise first_error
     result.controller = implementable_controller(result)
     return result
+
+
+def _balanced_common(plant: GeneralizedPlant, gammas: tuple[float, ...], *args) -> HinfResult | None:
+    """``"common"`` (eliminated, then full LMIs as in :func:`_synthesize_common`) in the balanced state
+    coordinates of :func:`_balancing_transform`, returned in the original ones; None if it fails.
+
+    Used only when the unbalanced attempt needed the bisection or failed (ill-conditioned LMIs), so
+    well-conditioned plants are solved exactly as before. The returned γ is the lower certified one of
+    the two attempts, so it can only improve. ADIP (bench_adip_reach.affine_model, adip.toml
+    weights), certified γ unbalanced → balanced: θ = cos φ1 ∈ [0.85, 1] 5.511 → 1.796, [0.7, 1] 30.18 →
+    4.089, [0.6, 1] 247.1 → 14.63, [0.5, 1] infeasible → 116.7; [0.25, 1] stays infeasible.
+    """
+    T = _balancing_transform(plant, gammas)
+    if T is None:
+        return None
+    moved = _transformed(plant, T)
+    candidates = []
+    for eliminate in (True, False):  # the full LMIs only if the eliminated ones failed or needed bisection
+        try:
+            candidates.append(_synthesize_one(moved, "common", *args, eliminate=eliminate))
+        except SynthesisError:
+            continue
+        if "bisection used" not in candidates[-1].report.status:
+            break
+    candidates = [_untransformed(r, plant, T) for r in candidates]
+    candidates = [r for r in candidates if r.lmi_max_eig < 0]
+    if not candidates:
+        return None
+    best = min(candidates, key=lambda r: r.gamma)
+    best.report = replace(best.report, status=best.report.status + "; balanced state coordinates")
+    return best
 
 
 def _synthesize_one(

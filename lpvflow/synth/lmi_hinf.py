@@ -577,8 +577,9 @@ def _synthesize_common(plant: GeneralizedPlant, *args) -> HinfResult:
     a γ far above the optimum, tanks design with a 3 s dead time 8.18 against 3.56) the full LMIs
     are solved too, and the lower certified γ of the two is returned (both are common-Lyapunov
     certificates, re-checked independently); the status says what happened. When the better of these
-    still needed the bisection, or both failed, the plant is solved once more in balanced state
-    coordinates (:func:`_balanced_common`), and that result is returned if its certified γ is lower.
+    is still ill-conditioned — the eliminated one (it bisected or was inexact), full LMIs that needed
+    the bisection, or both failed — the plant is solved once more in balanced state coordinates
+    (:func:`_balanced_common`), and that result is returned if its certified γ is lower.
     """
     try:
         eliminated = _synthesize_one(plant, "common", *args, eliminate=True)
@@ -594,7 +595,7 @@ def _synthesize_common(plant: GeneralizedPlant, *args) -> HinfResult:
         result = _synthesize_one(plant, "common", *args, eliminate=False)
     except SynthesisError as exc:
         first_error, result = exc, None
-    ill_conditioned = True  # the returned point needed the bisection, or there is none
+    ill_conditioned = True  # the better point is the eliminated one (bisected or inexact), or there is none
     if eliminated is not None and (result is None or eliminated.gamma < result.gamma):
         result, eliminated.report.status = eliminated, eliminated.report.status + "; full LMIs: " + (
             "failed" if result is None else f"γ = {result.gamma:.6g}")
@@ -619,7 +620,7 @@ def _balanced_common(plant: GeneralizedPlant, gammas: tuple[float, ...], *args) 
     """``"common"`` (eliminated, then full LMIs as in :func:`_synthesize_common`) in the balanced state
     coordinates of :func:`_balancing_transform`, returned in the original ones; None if it fails.
 
-    Used only when the unbalanced attempt needed the bisection or failed (ill-conditioned LMIs), so
+    Used only when the unbalanced attempt bisected, was inexact or failed (ill-conditioned LMIs), so
     well-conditioned plants are solved exactly as before. The returned γ is the lower certified one of
     the two attempts, so it can only improve. ADIP (bench_adip_reach.affine_model, adip.toml
     weights), certified γ unbalanced → balanced: θ = cos φ1 ∈ [0.85, 1] 5.511 → 1.796, [0.7, 1] 30.18 →

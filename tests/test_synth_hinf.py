@@ -127,7 +127,8 @@ def test_a_point_failing_the_recheck_is_an_error_not_a_controller(monkeypatch):
 @pytest.mark.slow
 def test_a_box_no_common_controller_covers_is_refused_with_the_reason():  # ~19 s: bisection up to 4000·γ
     model, weights = adip_like()  # unstable, B(θ) varies strongly over θ ∈ [−0.96, 0.96]
-    with pytest.raises(SynthesisError, match=r"no strictly feasible point.*shrink the scheduling box"):
+    reason = r"no strictly feasible point.*with a common Lyapunov matrix.*shrink the scheduling box"
+    with pytest.raises(SynthesisError, match=reason):
         synthesize(generalized_plant(model, weights), "common")
 
 

@@ -667,7 +667,7 @@ def _synthesize_one(
         gamma_opt = float(g.value)
     except SynthesisError as exc:
         if "infeasible" in str(exc):
-            raise SynthesisError(f"{exc}: {_infeasibility_hint(plant, gamma_max)}") from None
+            raise SynthesisError(f"{exc}: {_infeasibility_hint(plant, method, gamma_max)}") from None
         report1 = SolveReport(solver, str(exc), 0.0, [])
     mp = _MarginProblem(verts, method, solver, what, eliminate)
     result = None
@@ -679,7 +679,7 @@ def _synthesize_one(
         try:
             lo, hi, val = _bisect(mp, gamma_opt or 1.0, 0.5 * suboptimality, gamma_max)
         except SynthesisError as exc:
-            raise SynthesisError(f"{exc}: {_infeasibility_hint(plant, gamma_max)}") from None
+            raise SynthesisError(f"{exc}: {_infeasibility_hint(plant, method, gamma_max)}") from None
         t, val_final = mp.margin(hi * (1.0 + suboptimality))  # room for a margin, as in step 2
         gamma, val = (hi * (1.0 + suboptimality), val_final) if t > 0 else (hi, val)
         result = _result(plant, method, verts, s, du, dy, gamma, lo, val)
@@ -691,7 +691,7 @@ def _synthesize_one(
             result = _result(plant, method, verts, s, du, dy, result.gamma * back_off, result.gamma_opt, val)
     if gamma_max is not None and result.gamma > gamma_max:
         raise SynthesisError(f"{what} are infeasible (smallest γ found {result.gamma:.4g}): "
-                             f"{_infeasibility_hint(plant, gamma_max)}")
+                             f"{_infeasibility_hint(plant, method, gamma_max)}")
     attempts = report1.attempts + [a for r in mp.reports for a in r.attempts]
     status = mp.reports[-1].status
     if report1.status != cp.OPTIMAL or result.gamma_opt != gamma_opt:
@@ -749,12 +749,15 @@ def implementable_controller(result: HinfResult) -> LPVController:
     return LPVController(*stacks, plant.polytope, plant.basis, plant.Ts, info=info)
 
 
-def _infeasibility_hint(plant: GeneralizedPlant, gamma_max: float | None) -> str:
-    """Why the LMIs may be infeasible, in terms of the plant."""
+def _infeasibility_hint(plant: GeneralizedPlant, method: str, gamma_max: float | None) -> str:
+    """Why the LMIs may be infeasible, in terms of the plant (the LMIs are sufficient conditions: what
+    is excluded is a controller with this method's Lyapunov certificate, not every controller)."""
     n_g = plant.n_plant_states
     radius = max(np.max(np.abs(np.linalg.eigvals(v.A[:n_g, :n_g]))) for v in plant.vertices)
     unstable = f"the plant has vertex poles up to |z| = {radius:.4g}" + (" (unstable)" if radius >= 1 else "")
     if gamma_max is not None:
         return (f"no controller reaches γ ≤ {gamma_max:g}; {unstable}: lower the W_S bandwidth/gain or the "
                 "W_K penalty, or drop gamma_max")
-    return f"no common controller stabilizes all vertices; {unstable}: shrink the scheduling box"
+    certificate = "a common Lyapunov matrix" if method == "common" else "vertex Lyapunov matrices"
+    return (f"no vertex controllers with {certificate} stabilize all vertices; {unstable}: shrink the "
+            "scheduling box")

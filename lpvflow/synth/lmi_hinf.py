@@ -124,6 +124,8 @@ class HinfResult:
         gamma: the γ the returned controller is certified for; gamma_opt: the minimum found by the SDP.
         P: closed-loop Lyapunov matrices 𝒫_i (one, repeated, for ``"common"``); G: slack 𝒢.
         controller: the implementable controller (W_B in series when the design has one).
+        bisected: γ_opt came from the bisection fallback, not from the γ minimisation.
+        gamma_min_exact: the γ minimisation ended ``optimal`` (not inaccurate, not failed).
     """
 
     method: str
@@ -136,6 +138,8 @@ class HinfResult:
     gamma_opt: float = float("nan")
     lmi_max_eig: float = float("nan")
     controller: LPVController | None = None
+    bisected: bool = False
+    gamma_min_exact: bool = True
 
 
 def _scalings(vertices: list[VertexPlant]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -214,14 +218,15 @@ def _transformed(plant: GeneralizedPlant, T: np.ndarray) -> GeneralizedPlant:
 
 
 def _untransformed(result: HinfResult, plant: GeneralizedPlant, T: np.ndarray) -> HinfResult:
-    """A result on :func:`_transformed` ``(plant, T)`` as one on ``plant``, re-checked there."""
+    """A result on :func:`_transformed` ``(plant, T)`` as one on ``plant``, re-checked there (its
+    controller is built by the caller, once the status is final)."""
     from lpvflow.synth.certify import vertex_lmi_max_eig
 
     nk = result.P[0].shape[0] - T.shape[0]
     D = scipy.linalg.block_diag(T, np.eye(nk))
-    out = replace(result, plant=plant, P=[D @ P @ D.T for P in result.P], G=D @ result.G @ D.T)
+    out = replace(result, plant=plant, P=[D @ P @ D.T for P in result.P], G=D @ result.G @ D.T,
+                  controller=None)
     out.lmi_max_eig = vertex_lmi_max_eig(out)
-    out.controller = implementable_controller(out)
     return out
 
 
@@ -285,7 +290,7 @@ class _Lmis:
 
 
 def _lmis(verts: list[VertexPlant], method: str, g: cp.Expression) -> _Lmis:
-    """The vertex LMI matrices (E_ij) with γ² = g, and the blocks bounded by ``_BOUND`` (P̄_i, 𝒢 sym)."""
+    """The vertex LMI matrices (E_ij) with γ = g, and the blocks bounded by ``_BOUND`` (P̄_i, 𝒢 sym)."""
     n, nw, nu, nz, ny = verts[0].dims
     N = len(verts)
     dilated = method == "dilated"
@@ -376,15 +381,13 @@ def _theta_factors(v: VertexPlant) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _vertex_lmi_at_zero(v: VertexPlant, X: np.ndarray, Y: np.ndarray, gamma: float) -> np.ndarray:
-    """M_i(0): the ``"common"`` vertex LMI with Q_i = L_i = F_i = R_i = 0 (module docstring)."""
-    n, nw, _, nz, _ = v.dims
+    """M_i(0): the ``"common"`` vertex LMI (:func:`_lmi` of :func:`_vertex_blocks`) with
+    Q_i = L_i = F_i = R_i = 0 (module docstring), as numbers."""
+    n, nw, nu, nz, ny = v.dims
     Pbar = np.block([[X, np.eye(n)], [np.eye(n), Y]])
-    Phi = np.block([[v.A @ X, v.A], [np.zeros((n, n)), Y @ v.A]])
-    Psi, Omega = np.vstack([v.B1, Y @ v.B1]), np.hstack([v.C1 @ X, v.C1])
-    M = np.block([[Pbar, Phi, Psi, np.zeros((2 * n, nz))],
-                  [Phi.T, Pbar, np.zeros((2 * n, nw)), Omega.T],
-                  [Psi.T, np.zeros((nw, 2 * n)), gamma * np.eye(nw), v.D11.T],
-                  [np.zeros((nz, 2 * n)), Omega, v.D11, gamma * np.eye(nz)]])
+    Phi, Psi, Omega, Delta = _vertex_blocks(v, X, Y, np.zeros((n, n)), np.zeros((nu, n)),
+                                            np.zeros((n, ny)), np.zeros((nu, ny)))
+    M = np.asarray(_lmi(Pbar, Phi, Pbar, Psi, Omega, Delta, gamma, nw, nz).value, dtype=float)
     return 0.5 * (M + M.T)
 
 
@@ -586,10 +589,10 @@ def _synthesize_common(plant: GeneralizedPlant, *args) -> HinfResult:
     except SynthesisError as exc:
         eliminated, reason = None, str(exc)[:120]
     else:
-        bisected = "bisection used" in eliminated.report.status
-        if not bisected and "γ minimisation" not in eliminated.report.status:
+        if not eliminated.bisected and eliminated.gamma_min_exact:
             return eliminated
-        reason = f"{'bisection used' if bisected else 'γ minimisation inexact'}, γ = {eliminated.gamma:.6g}"
+        why = "bisection used" if eliminated.bisected else "γ minimisation inexact"
+        reason = f"{why}, γ = {eliminated.gamma:.6g}"
     first_error = None
     try:
         result = _synthesize_one(plant, "common", *args, eliminate=False)
@@ -600,7 +603,7 @@ def _synthesize_common(plant: GeneralizedPlant, *args) -> HinfResult:
         result, eliminated.report.status = eliminated, eliminated.report.status + "; full LMIs: " + (
             "failed" if result is None else f"γ = {result.gamma:.6g}")
     elif result is not None:
-        ill_conditioned = "bisection used" in result.report.status
+        ill_conditioned = result.bisected
         result.report.status += f"; full LMIs (eliminated: {reason})"
     balanced = None
     if ill_conditioned:
@@ -609,6 +612,7 @@ def _synthesize_common(plant: GeneralizedPlant, *args) -> HinfResult:
     if balanced is not None and (result is None or balanced.gamma < result.gamma):
         unbalanced = "failed" if result is None else f"γ = {result.gamma:.6g}"
         balanced.report.status += f"; unbalanced: {unbalanced}"
+        balanced.controller = implementable_controller(balanced)  # its info carries the final status
         return balanced
     if result is None:
         raise first_error
@@ -636,7 +640,7 @@ def _balanced_common(plant: GeneralizedPlant, gammas: tuple[float, ...], *args) 
             candidates.append(_synthesize_one(moved, "common", *args, eliminate=eliminate))
         except SynthesisError:
             continue
-        if "bisection used" not in candidates[-1].report.status:
+        if not candidates[-1].bisected:
             break
     candidates = [_untransformed(r, plant, T) for r in candidates]
     candidates = [r for r in candidates if r.lmi_max_eig < 0]
@@ -694,9 +698,9 @@ def _synthesize_one(
                              f"{_infeasibility_hint(plant, method, gamma_max)}")
     attempts = report1.attempts + [a for r in mp.reports for a in r.attempts]
     status = mp.reports[-1].status
-    if report1.status != cp.OPTIMAL or result.gamma_opt != gamma_opt:
-        status += f"; γ minimisation: {report1.status[:60]}" + (
-            ", bisection used" if result.gamma_opt != gamma_opt else "")
+    result.bisected, result.gamma_min_exact = result.gamma_opt != gamma_opt, report1.status == cp.OPTIMAL
+    if not result.gamma_min_exact or result.bisected:
+        status += f"; γ minimisation: {report1.status[:60]}" + (", bisection used" if result.bisected else "")
     result.report = SolveReport(mp.reports[-1].solver, status, sum(a[2] for a in attempts), attempts)
     if not result.lmi_max_eig < 0:
         raise SynthesisError(f"{what}: the solver's point ({status}) fails the independent vertex-LMI "

@@ -33,12 +33,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from lpvflow.validate import extensions
 from lpvflow.validate.diagnose import diagnose
 from lpvflow.validate.extensions import Structure
-from tests import test_diagnose_fmu
 from tests.diagnosis_cases import NOMINAL, make_case
 from tests.test_diagnose_fmu import (
     ADIP,
     ADIP_SCHEDULING,
     AIRPATH,
+    DEAD_ZONE_PUMP,
     SRV02_TORQUE_PER_VOLT,
     TANKS,
     adip_controller,
@@ -89,9 +89,6 @@ def hit_rates(seeds: int, snrs: list[float]) -> dict:
     return table
 
 
-#: Pump design of the dead-zone cases (tests/test_diagnose_fmu.py): a quarter of the levels inside
-#: the 3 V dead zone, each held 20–60 s so that the tanks settle (10–60 s: 6/10 noise-free).
-DEAD_ZONE_PUMP = test_diagnose_fmu.DEAD_ZONE_PUMP
 #: Angle-sensor noise levels [rad] of the ADIP cases.
 ADIP_NOISE = [0.0, 1e-4]
 

@@ -165,7 +165,8 @@ def test_tanks_first_order_model_under_sensor_noise_is_raised(fmus):
     assert result.bfr_after[0] > result.bfr_before[0] + 10
 
 
-#: Pump design of the dead-zone case (as benchmarks/bench_diagnose.py's DEAD_ZONE_PUMP).
+#: Pump design of the dead-zone cases (also benchmarks/bench_diagnose.py's): a quarter of the levels
+#: inside the 3 V dead zone, each held 20–60 s so that the tanks settle (10–60 s: 6/10 noise-free).
 DEAD_ZONE_PUMP = "levels:lo=1,hi=9,min_hold=20,max_hold=60"
 
 

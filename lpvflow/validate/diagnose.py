@@ -228,6 +228,37 @@ def _noise_share(ranked: list[dict], nominal: Fit, candidates: dict[str, Candida
     return float(max(shares))
 
 
+def _refits_in_loop(candidates: dict[str, Candidate], est: Dataset, loop: Loop) -> dict[str, Candidate]:
+    """Closed loop: every extension refitted by closed-loop IV with its own drive in the loop
+    (:func:`~lpvflow.validate.extensions.refit_in_loop`); the nominal refit's loop simulation gives
+    the first instruments of an extension whose LS fit diverges there."""
+    refits = {}
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        fallback = simulate_in_loop(candidates["colored_noise"].fit.model, est, loop)
+        for c, cand in candidates.items():
+            if c != "colored_noise" and (refit := refit_in_loop(cand, est, loop, fallback)) is not None:
+                refits[c] = refit
+    return refits
+
+
+def _refits_by_output_error(candidates: dict[str, Candidate], ctx_oe: Context) -> dict[str, Candidate]:
+    """Open loop: every extension fitted again with ``ctx_oe`` (its variants refined by output error)."""
+    refits = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        for c in candidates:
+            if c == "colored_noise":
+                continue
+            try:
+                cand = EXTENSIONS[c](ctx_oe)
+            except LpvflowError:
+                continue
+            if cand is not None:
+                refits[c] = cand
+    return refits
+
+
 def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[str, np.ndarray]) -> str:
     """The verdict (module docstring, steps 4–5) from the ranking, best gain first.
 
@@ -336,47 +367,26 @@ def diagnose(
             noisy["ruled_out"] = (f"noise share {share:.2g} < {NOISE_SHARE}: the data predict one step "
                                   "ahead far better than an output-error refit simulates")
     if loop is not None and noisy is not None and noisy["significant"]:
-        # Closed loop: the noise round with every extension refitted by closed-loop IV (its own
-        # drive in the loop), scored against the closed-loop IV fit of the nominal structure.
-        base = candidates["colored_noise"]
-        refits = {}
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore", SchedulingRangeWarning)
-            fallback = simulate_in_loop(base.fit.model, est, loop)  # instruments if an LS fit diverges
-            for c, cand in candidates.items():
-                if c != "colored_noise" and (refit := refit_in_loop(cand, est, loop, fallback)) is not None:
-                    refits[c] = refit
-        refit_ranked, refit_losses = _rank(est, val, base.fit, refits, min_gain, alpha)
-        structural = _choose(refit_ranked, refits, refit_losses)
-        cause = structural if structural != "none" else "colored_noise"
-        winner = refits.get(structural, base)
+        refits = _refits_in_loop(candidates, est, loop)
     elif share is not None and share >= NOISE_SHARE and loop is None:
-        # Noise round (docstring of _choose): every extension refitted by output error, scored
-        # against the output-error fit of the nominal structure.
-        base = candidates["colored_noise"]
-        ctx_oe = Context(est, val, structure, base.fit, split_channels, None, estimator="oe")
-        refits = {}
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SchedulingRangeWarning)
-            for c in candidates:
-                if c == "colored_noise":
-                    continue
-                try:
-                    cand = EXTENSIONS[c](ctx_oe)
-                except LpvflowError:
-                    continue
-                if cand is not None:
-                    refits[c] = cand
-        refit_ranked, refit_losses = _rank(est, val, base.fit, refits, min_gain, alpha)
+        ctx_oe = Context(est, val, structure, candidates["colored_noise"].fit, split_channels, None,
+                         estimator="oe")
+        refits = _refits_by_output_error(candidates, ctx_oe)
+    else:
+        refits = None
+    if refits is None:
+        cause = _choose(ranked, candidates, losses)
+        winner = candidates.get(cause)
+    else:
+        # The noise round (module docstring, step 5; docstring of _choose): every extension refitted
+        # consistently, scored against the consistent refit of the nominal structure.
+        refit_ranked, refit_losses = _rank(est, val, candidates["colored_noise"].fit, refits, min_gain, alpha)
         structural = _choose(refit_ranked, refits, refit_losses)
         if structural != "none":
             cause, winner = structural, refits[structural]
         else:
             cause = "colored_noise" if noisy["significant"] else "none"
             winner = candidates.get(cause)
-    else:
-        cause = _choose(ranked, candidates, losses)
-        winner = candidates.get(cause)
     after = winner.fit.y_val if winner else nominal.y_val
     result = Diagnosis(
         bfr_before=bfr_nom.tolist(), bfr_after=bfr(val.y, after).tolist(),

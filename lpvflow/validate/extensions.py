@@ -86,6 +86,15 @@ class Fit:
     reference: np.ndarray = field(repr=False)  # measured validation outputs, to bound the simulation
     data: Dataset | None = field(default=None, repr=False)  # the estimation data it was fitted on
 
+    @classmethod
+    def scored(cls, model: LPVIO, loss: float, n_params: int, n_samples: int,
+               simulate: Callable[[LPVIO], np.ndarray], reference: np.ndarray,
+               data: Dataset | None = None) -> Fit:
+        """The fit with BIC = n_eff·loss + k·ln n_eff (n_eff = n_samples − max_lag, k = n_params)."""
+        n_eff = n_samples - model.max_lag
+        return cls(model, float(loss), n_params, float(n_eff * loss + n_params * np.log(n_eff)), simulate,
+                   reference, data)
+
     @cached_property
     def _validation(self) -> tuple[np.ndarray, bool]:
         with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
@@ -157,12 +166,22 @@ def loop_simulator(est: Dataset, val: Dataset, loop: Loop | None, p: np.ndarray 
     whole = joined(est, val)
     if p is not None:
         whole = replace(whole, p=p, p_names=p_names)
-    def run(model: LPVIO) -> np.ndarray:
-        return simulate_in_loop(model, whole, loop, **drive)[est.N :]
+    return LoopSimulation(whole, loop, drive, est.N, rescheduled=p is not None)
 
-    run.drive = drive  # read back by refit_in_loop
-    run.rescheduled = p is not None
-    return run
+
+@dataclass
+class LoopSimulation:
+    """``model`` → the validation part (from sample ``start``) of its simulation over ``whole`` in
+    ``loop`` with the extension's ``drive``; :func:`refit_in_loop` reads the drive back."""
+
+    whole: Dataset
+    loop: Loop
+    drive: dict
+    start: int
+    rescheduled: bool = False  # the scheduling of the record was replaced (an added channel)
+
+    def __call__(self, model: LPVIO) -> np.ndarray:
+        return simulate_in_loop(model, self.whole, self.loop, **self.drive)[self.start :]
 
 
 def fit(est: Dataset, val: Dataset, na, nb, nk, basis: Basis | str, form: str = "shifted",
@@ -179,9 +198,8 @@ def fit(est: Dataset, val: Dataset, na, nb, nk, basis: Basis | str, form: str = 
         model = output_error(est, model)
     sign, logdet = np.linalg.slogdet(model.noise_cov)
     loss = logdet if sign > 0 else -np.inf
-    n_eff = est.N - model.max_lag
-    return Fit(model, float(loss), n_params, float(n_eff * loss + n_params * np.log(n_eff)),
-               simulate or (lambda m: simulate_validation(m, est, val)), val.y, est)
+    return Fit.scored(model, loss, n_params, est.N, simulate or (lambda m: simulate_validation(m, est, val)),
+                      val.y, est)
 
 
 #: Function evaluations of the output-error refinement (from the ARX fit, which is close).
@@ -610,8 +628,7 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLO
             break
     if best_theta is None:
         raise LpvflowError("closed-loop IV: every iterate diverged in the loop")
-    best = (best_loss, struct.model(best_theta))
-    return best[1], best[0]
+    return struct.model(best_theta), best_loss
 
 
 def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop,
@@ -619,9 +636,9 @@ def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop,
     """``cand`` refitted by :func:`closed_loop_iv` with its own loop drive (diagnose's noise round on
     closed-loop data); None for an extension that changes the scheduling or cannot be refitted."""
     run = cand.fit.simulate
-    drive = getattr(run, "drive", None)
-    if drive is None or getattr(run, "rescheduled", False) or cand.fit.data is None:
+    if not isinstance(run, LoopSimulation) or run.rescheduled or cand.fit.data is None:
         return None
+    drive = run.drive
     exogenous = drive.get("exogenous")
     try:
         model, loss = closed_loop_iv(est, loop, cand.fit.model, data=cand.fit.data,
@@ -630,8 +647,7 @@ def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop,
                                      fallback=fallback)
     except (LpvflowError, np.linalg.LinAlgError):
         return None
-    k, n_eff = cand.fit.n_params, est.N - model.max_lag
-    refit = Fit(model, loss, k, n_eff * loss + k * np.log(n_eff), run, cand.fit.reference, cand.fit.data)
+    refit = Fit.scored(model, loss, cand.fit.n_params, est.N, run, cand.fit.reference, cand.fit.data)
     params = dict(cand.parameters)
     if cand.cause == "friction":
         level = _coulomb_level(model, drive["sign_of"])
@@ -673,8 +689,7 @@ def colored_noise(ctx: Context) -> Candidate | None:
             model, loss = closed_loop_iv(ctx.est, ctx.loop, ctx.nominal.model)
         except (LpvflowError, np.linalg.LinAlgError):
             return None  # the cause stays untested
-        n_eff, k = ctx.est.N - model.max_lag, ctx.nominal.n_params
-        refit = Fit(model, loss, k, n_eff * loss + k * np.log(n_eff), simulate, ctx.val.y, ctx.est)
+        refit = Fit.scored(model, loss, ctx.nominal.n_params, ctx.est.N, simulate, ctx.val.y, ctx.est)
         return Candidate("colored_noise", {"estimator": "closed-loop iv"}, refit,
                          "re-estimating the same structure by closed-loop IV (instruments from the "
                          "model's own loop simulation, driven by the excitation alone)")
@@ -690,9 +705,7 @@ def colored_noise(ctx: Context) -> Candidate | None:
     if not trials:
         return None
     loss, label, model = min(trials, key=lambda t: t[0])
-    n_eff = ctx.est.N - model.max_lag
-    refit = Fit(model, loss, ctx.nominal.n_params, n_eff * loss + ctx.nominal.n_params * np.log(n_eff),
-                simulate, ctx.val.y)
+    refit = Fit.scored(model, loss, ctx.nominal.n_params, ctx.est.N, simulate, ctx.val.y)
     return Candidate("colored_noise", {"estimator": "output-error", "started_from": label}, refit,
                      "re-estimating the same structure by output error (simulation-error fit)")
 

@@ -56,10 +56,14 @@ def read_data(ctx: StageContext) -> tuple[Dataset, Dataset]:
     est, val = Dataset.read(ctx.path("data.csv"), cfg["u"], cfg["y"], cfg["p"]).split(cfg["split"])
     if not cfg["remove_offsets"]:
         return est, val
+    return without_offsets(est, est), without_offsets(val, est)
+
+
+def without_offsets(data: Dataset, est: Dataset) -> Dataset:
+    """``data`` minus the mean inputs and outputs of ``est`` (the operating point), recorded in
+    ``offsets``."""
     u0, y0 = est.u.mean(axis=0), est.y.mean(axis=0)
-    offsets = {"u": u0.tolist(), "y": y0.tolist()}
-    return (replace(est, u=est.u - u0, y=est.y - y0, offsets=offsets),
-            replace(val, u=val.u - u0, y=val.y - y0, offsets=offsets))
+    return replace(data, u=data.u - u0, y=data.y - y0, offsets={"u": u0.tolist(), "y": y0.tolist()})
 
 
 # -------------------------------------------------------------------------------------- identify
@@ -122,7 +126,8 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     With an experiment controller (closed-loop data) every model is simulated in the identification
     loop with the experiment's scheduling expressions (as :func:`closed_loop_simulation` does).
     With ``remove_offsets`` the diagnosed record has the same offsets subtracted as the identify stage's
-    data (:func:`read_data`), so an adopted model works in the same deviation coordinates.
+    data (:func:`read_data`, :func:`without_offsets`), so an adopted model works in the same deviation
+    coordinates.
     """
     from lpvflow.data import read_columns
     from lpvflow.experiment.controller import load_controller
@@ -137,8 +142,7 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
         if experiment["controller"]:
             raise DataError("[diagnose] with [identify] remove_offsets needs open-loop data (the experiment "
                             "controller acts on the measured signals, not on deviations)")
-        offsets = read_data(ctx)[0].offsets
-        data = replace(data, u=data.u - offsets["u"], y=data.y - offsets["y"], offsets=offsets)
+        data = without_offsets(data, data.split(ident["split"])[0])  # the identify stage's operating point
     table = read_columns(ctx.path("data.csv"))
     missing = [c for c in cfg["candidates"] if c not in table]
     if missing:

@@ -97,10 +97,7 @@ def simulate_in_loop(
                         "coefficients of past outputs depend on the current, simulated scheduling")
     K = loop.controller
     n, ny = data.N, data.y.shape[1]
-    y_index = [data.y_names.index(name) for name in K.inputs]
-    u_index = [data.u_names.index(name) for name in K.outputs]
-    computed = [(i, compile_expression(loop.scheduling[name], data.y_names))
-                for i, name in enumerate(data.p_names) if name in loop.scheduling]
+    y_index, u_index, computed = _wiring(data, loop)
     extra = np.zeros((n, 0)) if exogenous is None else np.asarray(exogenous, float).reshape(n, -1)
     n_a, n_b, n_psi = model.A.shape[0], model.B.shape[0], model.basis.n_psi
     a_flat = np.moveaxis(model.A, 1, 0).reshape(n_psi, -1)  # ψ @ a_flat = A_1 … A_na at ψ, flattened
@@ -153,16 +150,24 @@ def loop_signals(y: np.ndarray, data: Dataset, loop: Loop) -> tuple[np.ndarray, 
     the signals :func:`simulate_in_loop` fed its model, rebuilt from its output.
     """
     K = loop.controller
-    y_index = [data.y_names.index(name) for name in K.inputs]
-    u_index = [data.u_names.index(name) for name in K.outputs]
+    y_index, u_index, computed = _wiring(data, loop)
     u, p = data.u.copy(), data.p.copy()
     xc = np.zeros(K.A.shape[0])
     for k in range(data.N):
         dy = y[k, y_index] - K.y_op
         u[k, u_index] = K.u_op + K.C @ xc + K.D @ dy + loop.excitation[k]
         xc = K.A @ xc + K.B @ dy
-    for i, name in enumerate(data.p_names):
-        if name in loop.scheduling:
-            expression = compile_expression(loop.scheduling[name], data.y_names)
-            p[:, i] = [expression(row) for row in y]
+    for i, expression in computed:
+        p[:, i] = [expression(row) for row in y]
     return u, p
+
+
+def _wiring(data: Dataset, loop: Loop) -> tuple[list[int], list[int], list[tuple[int, Callable]]]:
+    """Columns of the controller's measured outputs in ``data.y`` and of its driven inputs in
+    ``data.u``, and the scheduling columns recomputed in the loop with their compiled expressions."""
+    K = loop.controller
+    y_index = [data.y_names.index(name) for name in K.inputs]
+    u_index = [data.u_names.index(name) for name in K.outputs]
+    computed = [(i, compile_expression(loop.scheduling[name], data.y_names))
+                for i, name in enumerate(data.p_names) if name in loop.scheduling]
+    return y_index, u_index, computed

@@ -172,6 +172,17 @@ def test_malformed_cli_options_give_one_line(argv, message, tanks, tmp_path, cap
     assert status == 2 and stdout == "" and err.count("\n") == 1 and message in err, err
 
 
+def test_a_loop_that_loses_the_pendulum_is_named_as_diverged_not_written(adip, tmp_path, capsys):
+    # 2.5 V rms on top of the regulator throws the pendulum over (1.5 V rms keeps it up); the arm then
+    # spins up without bound. The line names the state and the likely cause, not the solver first.
+    out = tmp_path / "lost.csv"
+    status, _, err = _cli(capsys, adip, "--duration", 10, "--controller", ADIP_CONTROLLER, "--excitation",
+                          "voltage=multisine:f_lo=0.02,f_hi=20,rms=2.5", "--seed", 1, "-o", out)
+    assert status == 2 and not out.exists()
+    assert len(err.strip().splitlines()) == 1
+    assert re.search(r"diag_state_\w+ became non-finite: the simulated plant diverged \(an unstable", err)
+
+
 def test_output_never_overwrites_the_fmu_or_controller(adip, tmp_path, capsys):
     fmu_copy = tmp_path / "adip.fmu"
     fmu_copy.write_bytes(adip.read_bytes())

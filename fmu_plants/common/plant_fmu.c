@@ -392,7 +392,11 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     const double hs = h / (double)(n_sub < 1 ? 1 : n_sub);
     for (long k = 0; k < (n_sub < 1 ? 1 : n_sub); ++k) rk4_step(in, hs);
     for (int i = 0; i < PLANT.n_states; ++i) {
-        if (!isfinite(in->x[i])) return fail(in, "state %d became non-finite; reduce solver_max_step", i);
+        if (!isfinite(in->x[i])) {
+            return fail(in, "%s became non-finite: the simulated plant diverged (an unstable closed loop or inputs "
+                        "far outside the operating range; if neither, reduce solver_max_step)",
+                        PLANT.real_name[PLANT.state_vr[i]]);
+        }
     }
     compute_outputs(in);
     return fmi2OK;

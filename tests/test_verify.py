@@ -20,8 +20,15 @@ from lpvflow.errors import DataError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.export import export_fmu
-from lpvflow.pipeline.scenarios import Loop, Scenario, Signal, load_scenarios
-from lpvflow.pipeline.verify import plot_runs, run_verification, verify
+from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal, load_scenarios
+from lpvflow.pipeline.verify import (
+    ClosedLoopRun,
+    after_settling_peaks,
+    plot_runs,
+    requirement_failures,
+    run_verification,
+    verify,
+)
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.polytope import Polytope
 from tests.test_export import _adip_lpv_controller
@@ -158,6 +165,57 @@ def test_exogenous_inputs_follow_their_signal_and_can_schedule(plants: dict) -> 
     np.testing.assert_allclose(run.scheduling[:, 0], 2 * ramp.sample(run.time), atol=1e-12)
 
 
+@pytest.mark.parametrize(
+    ("c", "requirements", "missed"),
+    [
+        (0.9, Requirements(settling_time=0.3), ["y settles in 0.38 s > 0.3 s"]),  # 38 samples, see above
+        (-0.5, Requirements(settling_time=0.3, overshoot=0.1), ["y overshoot 0.5 > 0.1"]),
+        (-0.5, Requirements(settling_time=0.07, overshoot=0.6), []),
+    ],
+)
+def test_requirements_are_checked_on_the_analytic_loop(
+    plants: dict, c: float, requirements: Requirements, missed: list[str]
+) -> None:
+    result = run_verification(_gain((1.0 - c) / B), plants[1.0], [_step(requirements=requirements)], LOOP)
+    metrics = result.to_dict()["scenarios"][0]["controller"]
+    assert metrics["stable"] and metrics["requirements_failed"] == missed
+    assert result.passed == (not missed) and result.to_dict()["passed"] == (not missed)
+    assert metrics["after_settling"] == {}  # the only output is tracked
+
+
+def test_after_settling_is_the_untracked_output_peak_once_the_tracked_ones_settled() -> None:
+    time = np.arange(100) * TS
+    pendulum = np.where(time < 0.5, 0.3 * np.sin(20 * time), 0.05 * np.cos(7 * time))
+    none = np.zeros((100, 1))
+    run = ClosedLoopRun("lpv", time, np.zeros((100, 2)), np.column_stack([time, pendulum]), none, none, none,
+                        ("arm", "pendulum"), ("u",))
+    loop = Loop(("arm", "pendulum"), ("u",), ("arm",))
+    scenario = Scenario("s", 1.0)
+    arm = {"change_time": 0.1, "settling_time": 0.4}  # settled at t = 0.5
+    peaks = after_settling_peaks(run, scenario, loop, {"arm": arm})
+    assert peaks == {"pendulum": pytest.approx(np.max(np.abs(0.05 * np.cos(7 * time[50:]))))}
+    spec = Requirements(after_settling={"pendulum": 0.04})
+    assert requirement_failures(spec, {"arm": arm | {"overshoot": 0.0}}, peaks) == [
+        f"pendulum after settling {peaks['pendulum']:.3g} > 0.04"]
+    never = after_settling_peaks(run, scenario, loop, {"arm": arm | {"settling_time": None}})
+    assert never == {"pendulum": None}
+    assert requirement_failures(spec, {"arm": arm | {"settling_time": None, "overshoot": 0.0}}, never) == [
+        "pendulum after settling: the tracked outputs never settle"]
+
+
+def test_requirements_on_an_unknown_output_give_one_line(plants: dict) -> None:
+    scenario = _step(requirements=Requirements(after_settling={"z": 0.1}))
+    with pytest.raises(DataError, match=r"unknown requirements\.after_settling output 'z'; known: y") as info:
+        verify(_gain(1.0), plants[1.0], [scenario], LOOP)
+    assert "\n" not in str(info.value)
+
+
+def test_a_failed_run_misses_its_requirements(plants: dict) -> None:
+    bounded = _step(output_bounds={"y": (-100.0, 100.0)}, requirements=Requirements(settling_time=1.0))
+    metrics = verify(_gain(2.5 / B), plants[1.0], [bounded], LOOP)["scenarios"][0]["controller"]
+    assert metrics["requirements_failed"][0].startswith("run failed (unbounded: y left its output_bounds")
+
+
 def test_adip_lpv_loop_with_noise_is_stable_and_plotted(tmp_path: Path) -> None:
     loop = Loop(
         ("arm_angle", "pendulum_angle"),
@@ -223,6 +281,9 @@ def test_scenario_file_round_trip(tmp_path: Path) -> None:
         ("[[scenario]]\nduration = 'long'\n", "must be a finite number"),
         ("[loop]\nmeasured = ['y']\n[[scenario]]\nduration = 1.0\n", "[loop] lacks 'actuated'"),
         ("x = 1\n", "unknown key 'x'"),
+        ("[[scenario]]\nduration = 1.0\nrequirements = { settling_time = -1.5 }\n", "= -1.5 must be > 0"),
+        ("[[scenario]]\nduration = 1.0\nrequirements = { rise_time = 1 }\n", "unknown key 'rise_time'"),
+        ("[[scenario]]\nduration = 1.0\nrequirements = 2\n", "requirements must be a table"),
     ],
 )
 def test_bad_scenario_files_give_one_line(tmp_path: Path, text: str, message: str) -> None:
@@ -257,6 +318,13 @@ def test_verify_cli_exit_codes_and_one_line_errors(
     assert report["scenarios"][1]["controller"]["outputs"]["y"]["change_time"] == pytest.approx(0.1)
     assert (tmp_path / "fig" / "scenario_2.png").exists()
     assert _cli(capsys, [*base, str(unstable)])[0] == 1
+    demanding = tmp_path / "demanding.toml"  # the stable loop settles in 0.06 s; 10 ms is not enough
+    demanding.write_text(SCENARIO_TOML.replace('"ramp"', '"ramp"\nrequirements = { settling_time = 0.01 }'))
+    argv = ["verify", "--plant", plant, "--scenario", str(demanding), "--json", str(tmp_path / "d.json")]
+    argv.append(str(stable))
+    assert _cli(capsys, argv)[0] == 1
+    report = json.loads((tmp_path / "d.json").read_text())
+    assert report["stable"] and not report["passed"]
 
     def one_line(argv: list[str], fragment: str) -> None:
         status, err = _cli(capsys, argv)

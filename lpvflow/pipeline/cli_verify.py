@@ -19,6 +19,11 @@ def _summary(name: str, metrics: dict) -> str:
         overshoot = "" if m["overshoot_percent"] is None else f", overshoot {m['overshoot_percent']:.3g} %"
         parts.append(f"{output} {settling}{overshoot}")
     verdict = "stable" if metrics["stable"] else f"FAILED ({metrics['reason']})"
+    missed = metrics.get("requirements_failed")
+    if missed:
+        verdict += f", misses its requirements: {', '.join(missed)}"
+    elif missed is not None:
+        verdict += ", meets its requirements"
     return f"  {name} [{metrics['controller']}]: {verdict}; " + "; ".join(parts)
 
 
@@ -41,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
         for metrics in result.metrics:
             print(_summary(result.scenario.name, metrics))
     print(f"wrote {args.json}" + (f" and figures in {args.figures}" if args.figures else ""))
-    return 0 if verification.stable else 1
+    return 0 if verification.passed else 1
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -50,7 +55,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="co-simulate a controller with a plant FMU on scenarios; metrics and stability verdicts",
         description="Run the controller (and an optional LTI baseline) in closed loop with the plant FMU "
         "on every [[scenario]] of the TOML file (layout: lpvflow/pipeline/scenarios.py); exit 1 when "
-        "the controller fails a scenario's stability verdict.",
+        "the controller fails a scenario's stability verdict or misses its requirements.",
     )
     parser.add_argument("controller", help="lpvflow/lpv-controller JSON (or an exported controller .fmu)")
     parser.add_argument("--plant", required=True, help="FMI 2.0 Co-Simulation FMU of the plant")

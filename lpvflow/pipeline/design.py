@@ -104,6 +104,8 @@ def _verdict(summary: dict) -> dict:
     scenarios = summary["stages"].get("verify", {}).get("outputs", {}).get("scenarios", [])
     failing = [f"{r['name']}: {r['controller']['reason']}"
                for r in scenarios if not r["controller"]["stable"]]
+    failing += [f"{r['name']}: misses {', '.join(missed)}" for r in scenarios
+                if r["controller"]["stable"] and (missed := r["controller"].get("requirements_failed"))]
     if failing:
         return {"pass": False, "reason": "; ".join(failing)}
     return {"pass": True, "reason": "every configured stage ran and every scenario passed"}

@@ -94,9 +94,10 @@ def _number(value: object, unit: str = "", digits: int = 3) -> str:
 
 def _scenario_table(scenarios: list[dict]) -> str:
     """One row per scenario and controller: verdict, and per tracked output and actuated input the
-    settling time, overshoot, steady-state error, IAE and peak control (:mod:`lpvflow.pipeline.verify`)."""
+    settling time, overshoot, steady-state error, IAE and peak control, the untracked outputs' largest
+    deviation after settling, and the requirements missed (:mod:`lpvflow.pipeline.verify`)."""
     head = ["scenario", "controller", "stable", "output", "settling [s]", "overshoot", "steady-state error",
-            "IAE", "peak control", "saturated [s]", "reason"]
+            "IAE", "peak control", "saturated [s]", "after settling", "requirements", "reason"]
     body = []
     for scenario in scenarios:
         for key in ("controller", "baseline"):
@@ -106,14 +107,18 @@ def _scenario_table(scenarios: list[dict]) -> str:
             inputs = run.get("controls", {})
             controls = "; ".join(f"{u} {_number(c['peak_control'])}" for u, c in inputs.items())
             saturated = "; ".join(_number(c["saturation_time"]) for c in inputs.values())
+            after = "; ".join(f"{y} {_number(peak)}" for y, peak in run.get("after_settling", {}).items())
+            missed = run.get("requirements_failed")
+            requirements = "–" if missed is None else "; ".join(missed) or "met"
             tracked = run.get("outputs", {}) or {"–": {}}
             for output, m in tracked.items():
                 overshoot = (f"{_number(m['overshoot'])} ({_number(m['overshoot_percent'], ' %', 2)})"
                              if "overshoot" in m else "–")
                 cells = [scenario["name"], run["controller"], "yes" if run["stable"] else "no", output,
                          _number(m.get("settling_time")), overshoot, _number(m.get("steady_state_error")),
-                         _number(m.get("iae"), "", 4), controls, saturated, run.get("reason", "")]
-                css = "" if run["stable"] else ' class="fail"'
+                         _number(m.get("iae"), "", 4), controls, saturated, after or "–", requirements,
+                         run.get("reason", "")]
+                css = "" if run["stable"] and not missed else ' class="fail"'
                 body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells)
                             + "</tr>")
     return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(body) + "</table>")

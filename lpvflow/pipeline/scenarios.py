@@ -35,6 +35,12 @@ TOML layout::
     settling_band = { arm_angle = 0.0175 }     # optional absolute band; default 2 % of the last step
     output_bounds = { pendulum_angle = [-0.5, 0.5] }   # optional; leaving them is "unbounded"
     tracked = ["arm_angle"]                    # optional; default: outputs whose reference changes
+    requirements = { settling_time = 1.5, overshoot = 0.035, after_settling = { pendulum_angle = 0.0175 } }
+                                               # optional specification, checked besides the verdict:
+                                               # every tracked output settles within settling_time (s)
+                                               # with at most overshoot (output units); after they have
+                                               # settled, |y − r| of each after_settling output stays
+                                               # within its bound
 
 A signal is a number (constant) or ``{ initial = V, steps = [[t, size], ...],
 ramps = [[t_start, t_stop, size], ...] }``: s(t) = initial + Σ size·[t ≥ t_step] +
@@ -129,6 +135,21 @@ class Loop:
 
 
 @dataclass(frozen=True)
+class Requirements:
+    """A specification a run must meet besides the stability verdict (module docstring, ``requirements``):
+    ``settling_time`` (s) and ``overshoot`` (output units) bound every tracked output; ``after_settling``
+    bounds |y − r| of the named outputs from the moment every tracked output has settled."""
+
+    settling_time: float | None = None
+    overshoot: float | None = None
+    after_settling: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"settling_time": self.settling_time, "overshoot": self.overshoot,
+                "after_settling": dict(self.after_settling)}
+
+
+@dataclass(frozen=True)
 class Scenario:
     """One closed-loop run: references, disturbances, exogenous inputs, plant parameters, checks."""
 
@@ -142,6 +163,7 @@ class Scenario:
     settling_band: dict[str, float] = field(default_factory=dict)
     output_bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     tracked: tuple[str, ...] | None = None
+    requirements: Requirements | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.duration) and self.duration > 0):
@@ -266,6 +288,25 @@ def parse_loop(doc: dict) -> Loop:
     )
 
 
+def _positive(value: object, where: str) -> float:
+    number = _number(value, where)
+    if not number > 0:
+        raise DataError(f"{where} = {number} must be > 0")
+    return number
+
+
+def parse_requirements(doc: object, where: str) -> Requirements:
+    """A ``requirements`` table -> :class:`Requirements`; every bound must be a positive number."""
+    if not isinstance(doc, dict):
+        raise DataError(f"{where} must be a table {{ settling_time = S, overshoot = O, after_settling = … }}")
+    _check_keys(doc, {"settling_time", "overshoot", "after_settling"}, where)
+    optional = {key: _positive(doc[key], f"{where}.{key}")
+                for key in ("settling_time", "overshoot") if key in doc}
+    after = {name: _positive(bound, f"{where}.after_settling.{name}")
+             for name, bound in _table(doc, "after_settling", where).items()}
+    return Requirements(**optional, after_settling=after)
+
+
 def parse_scenario(doc: dict, index: int) -> Scenario:
     """One [[scenario]] table -> :class:`Scenario`."""
     name = doc.get("name", f"scenario {index + 1}")
@@ -283,6 +324,7 @@ def parse_scenario(doc: dict, index: int) -> Scenario:
             "settling_band",
             "output_bounds",
             "tracked",
+            "requirements",
         },
         where,
     )
@@ -304,6 +346,8 @@ def parse_scenario(doc: dict, index: int) -> Scenario:
         settling_band=bands,
         output_bounds=_limits(doc, "output_bounds", where),
         tracked=tracked,
+        requirements=(parse_requirements(doc["requirements"], f"{where}.requirements")
+                      if "requirements" in doc else None),
     )
 
 

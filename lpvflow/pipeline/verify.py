@@ -23,9 +23,12 @@ final reference; the final window is the last 10 % of the run, at least one samp
                         units·s) and Ts·Σ(r_f − y)² (units²·s): one number for speed, overshoot and
                         oscillation together, comparable between controllers on the same scenario
 
+per measured output that is not tracked: after_settling = max |y − r| from the instant the last tracked
+output settled to the end of the run (None if one never settles) — e.g. the pendulum while the arm holds;
 per actuated input: peak_control max |u| (after the limits) and saturation_time = Ts·#{k: u_c(k) outside
 the limits}. Verdict: stable ⇔ the run finished with finite signals inside ``output_bounds`` and every
-tracked output settled.
+tracked output settled. A scenario's ``requirements`` (settling time, overshoot, after-settling bounds)
+are checked besides: ``requirements_failed`` lists what the run misses; ``passed`` ⇔ stable and none.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ from lpvflow.experiment.controller import LtiController, load_controller
 from lpvflow.experiment.plant import Plant, open_plant
 from lpvflow.experiment.run import step_count
 from lpvflow.pipeline.export import load_lpv_controller
-from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
+from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal
 from lpvflow.synth.controller import LPVController
 
 FORMAT = "lpvflow/verification"
@@ -240,6 +243,8 @@ def _check_scenario(scenario: Scenario, loop: Loop, plant_inputs: Sequence[str])
         ("output_disturbance output", scenario.output_disturbance),
         ("output_bounds output", scenario.output_bounds),
         ("tracked output", scenario.tracked or ()),
+        ("requirements.after_settling output", scenario.requirements.after_settling if scenario.requirements
+         else ()),
     ):
         _check_subset(what, list(names), loop.measured, where)
     _check_subset("input_disturbance input", list(scenario.input_disturbance), loop.actuated, where)
@@ -433,6 +438,8 @@ def run_metrics(run: ClosedLoopRun, scenario: Scenario, loop: Loop) -> dict:
         "controls": controls,
     }
     if run.failure is not None:
+        if scenario.requirements is not None:
+            result["requirements_failed"] = [f"run failed ({run.failure})"]
         return result
     for name in _tracked(scenario, loop):
         i = loop.measured.index(name)
@@ -447,7 +454,52 @@ def run_metrics(run: ClosedLoopRun, scenario: Scenario, loop: Loop) -> dict:
     unsettled = [name for name, m in result["outputs"].items() if not m["settled"]]
     result["stable"] = not unsettled
     result["reason"] = f"not settled: {', '.join(unsettled)}" if unsettled else "bounded and settled"
+    result["after_settling"] = after_settling_peaks(run, scenario, loop, result["outputs"])
+    if scenario.requirements is not None:
+        result["requirements_failed"] = requirement_failures(
+            scenario.requirements, result["outputs"], result["after_settling"])
     return result
+
+
+def after_settling_peaks(run: ClosedLoopRun, scenario: Scenario, loop: Loop, tracked: Mapping[str, dict]
+                         ) -> dict[str, float | None]:
+    """max |y − r| of every measured output that is not tracked, from the instant the last tracked output
+    settled (t_c + settling_time) to the end of the run; None for all when a tracked output never settled."""
+    settled_at = [m["change_time"] + m["settling_time"] for m in tracked.values()
+                  if m["settling_time"] is not None]
+    others = [name for name in loop.measured if name not in tracked]
+    if len(settled_at) < len(tracked):
+        return dict.fromkeys(others)
+    k = int(np.searchsorted(run.time, max(settled_at, default=run.time[0]) - 1e-9))
+    y_op = loop.y_operating_point or (0.0,) * len(loop.measured)
+    peaks = {}
+    for name in others:
+        i = loop.measured.index(name)
+        signal = scenario.reference.get(name)
+        r = signal.sample(run.time[k:]) if signal is not None else y_op[i]
+        peaks[name] = float(np.max(np.abs(run.outputs[k:, i] - r)))
+    return peaks
+
+
+def requirement_failures(requirements: Requirements, tracked: Mapping[str, dict],
+                         after_settling: Mapping[str, float | None]) -> list[str]:
+    """The requirements a finished run misses, one phrase each (empty: all met)."""
+    failures = []
+    for name, m in tracked.items():
+        limit = requirements.settling_time
+        if limit is not None and (m["settling_time"] is None or m["settling_time"] > limit):
+            took = "never settles" if m["settling_time"] is None else f"settles in {m['settling_time']:.3g} s"
+            failures.append(f"{name} {took} > {limit:g} s")
+        limit = requirements.overshoot
+        if limit is not None and m["overshoot"] is not None and m["overshoot"] > limit:
+            failures.append(f"{name} overshoot {m['overshoot']:.3g} > {limit:g}")
+    for name, limit in requirements.after_settling.items():
+        peak = after_settling.get(name)
+        if peak is None:
+            failures.append(f"{name} after settling: the tracked outputs never settle")
+        elif peak > limit:
+            failures.append(f"{name} after settling {peak:.3g} > {limit:g}")
+    return failures
 
 
 # ---------------------------------------------------------------------------------- verification
@@ -470,8 +522,13 @@ class Verification:
 
     @property
     def stable(self) -> bool:
-        """True when the controller (not the baseline) passes every scenario's verdict."""
+        """True when the controller (not the baseline) passes every scenario's stability verdict."""
         return all(r.metrics[0]["stable"] for r in self.results)
+
+    @property
+    def passed(self) -> bool:
+        """True when the controller is stable on every scenario and meets every scenario's requirements."""
+        return self.stable and not any(r.metrics[0].get("requirements_failed") for r in self.results)
 
     def to_dict(self) -> dict:
         return {
@@ -480,10 +537,12 @@ class Verification:
             "plant": self.plant,
             "loop": self.loop.to_dict(),
             "stable": self.stable,
+            "passed": self.passed,
             "scenarios": [
                 {
                     "name": r.scenario.name,
                     "duration": r.scenario.duration,
+                    "requirements": r.scenario.requirements and r.scenario.requirements.to_dict(),
                     "controller": r.metrics[0],
                     "baseline": r.metrics[1] if len(r.metrics) > 1 else None,
                 }

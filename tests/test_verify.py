@@ -213,7 +213,8 @@ def test_requirements_on_an_unknown_output_give_one_line(plants: dict) -> None:
 def test_a_failed_run_misses_its_requirements(plants: dict) -> None:
     bounded = _step(output_bounds={"y": (-100.0, 100.0)}, requirements=Requirements(settling_time=1.0))
     metrics = verify(_gain(2.5 / B), plants[1.0], [bounded], LOOP)["scenarios"][0]["controller"]
-    assert metrics["requirements_failed"][0].startswith("run failed (unbounded: y left its output_bounds")
+    assert metrics["requirements_failed"] == ["the run failed (see reason)"]
+    assert metrics["reason"].startswith("unbounded: y left its output_bounds")
 
 
 def test_adip_lpv_loop_with_noise_is_stable_and_plotted(tmp_path: Path) -> None:

@@ -64,7 +64,7 @@ import reference_models as rm  # noqa: E402
 from lpvflow.fmu import open_fmu  # noqa: E402
 
 P = rm.default_parameters("adip")
-F = mt.adip_derivatives_batch
+F = rm.adip_derivatives
 TS = 0.005  # FMU communication step
 INTERVAL = 0.02
 SPEC_SECONDS, SPEC_OVERSHOOT_DEG, SPEC_BAND_DEG = 1.5, 2.0, 1.0

@@ -61,16 +61,20 @@ def adip_motor_gain(p: dict) -> float:
 
 
 def adip_derivatives(x: np.ndarray, u: np.ndarray, p: dict) -> np.ndarray:
+    """dx/dt of README "Equations"; x of shape (4,) or (4, K) and u of shape (1,) or (1, K) (one column
+    per point, as the minimum-time solver evaluates them), complex-safe for the complex-step Jacobians.
+    The 2×2 mass matrix [[a, c cos Δ], [c cos Δ, b]] is inverted by Cramer's rule."""
     phi1, phi2, w1, w2 = x
     a, b, c, d1, d2 = adip_coefficients(p)
     tau = adip_motor_gain(p) * (u[0] - p["gear_ratio"] * p["motor_emf_constant"] * w1)
     joint = p["pendulum_damping"] * (w2 - w1)
     friction = p["effect_coulomb"] * np.tanh(w1 / p["coulomb_velocity"])
-    rhs = np.array([tau - p["arm_damping"] * w1 + joint - c * np.sin(phi1 - phi2) * w2**2
-                    + d1 * np.sin(phi1) - friction,
-                    -joint + c * np.sin(phi1 - phi2) * w1**2 + d2 * np.sin(phi2)])
-    mass = np.array([[a, c * np.cos(phi1 - phi2)], [c * np.cos(phi1 - phi2), b]])
-    return np.concatenate([[w1, w2], np.linalg.solve(mass, rhs)])
+    coupling = c * np.sin(phi1 - phi2)
+    r1 = tau - p["arm_damping"] * w1 + joint - coupling * w2**2 + d1 * np.sin(phi1) - friction
+    r2 = -joint + coupling * w1**2 + d2 * np.sin(phi2)
+    m12 = c * np.cos(phi1 - phi2)
+    det = a * b - m12**2
+    return np.array([w1, w2, (b * r1 - m12 * r2) / det, (a * r2 - m12 * r1) / det])
 
 
 def adip_outputs(x: np.ndarray, u: np.ndarray, p: dict) -> np.ndarray:

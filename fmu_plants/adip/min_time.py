@@ -26,24 +26,18 @@ variables u/vmax and x/state_scale; a solution is accepted when SLSQP reports su
 defect is below 1e-8 and |u| ≤ vmax. SLSQP finds a local minimum: start it from several guesses.
 
 For the ADIP (fmu_plants/adip/README.md, "Equations"): x = (φ1, φ2, ω1, ω2), u = (V,),
-f = `adip_derivatives_batch`, a vectorised copy of `reference_models.adip_derivatives` (the 2×2 mass
-matrix solved by Cramer's rule), x0 = 0, xf = (φt, 0, 0, 0), u_eq = V_eq(φ) = −d1 sin φ / k_τ, and
-`ADIP_STATE_SCALE` (rates ~10× the angles) halves SLSQP's iterations.
+f = `reference_models.adip_derivatives` (it takes columns of points), x0 = 0, xf = (φt, 0, 0, 0),
+u_eq = V_eq(φ) = −d1 sin φ / k_τ, and `ADIP_STATE_SCALE` (rates ~10× the angles) halves SLSQP's iterations.
 """
 
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import Bounds, minimize
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import reference_models as rm
 
 BatchModel = Callable[[np.ndarray, np.ndarray, dict], np.ndarray]
 STEP = 1e-30  # complex step
@@ -130,21 +124,6 @@ class _Problem:
             lower.append((self.xf - self.band) / self.scale)
             upper.append((self.xf + self.band) / self.scale)
         return Bounds(np.concatenate(lower), np.concatenate(upper))
-
-
-def adip_derivatives_batch(x: np.ndarray, u: np.ndarray, p: dict) -> np.ndarray:
-    """reference_models.adip_derivatives for x of shape (4, K) and u of shape (1, K), complex-safe."""
-    phi1, phi2, w1, w2 = x
-    a, b, c, d1, d2 = rm.adip_coefficients(p)
-    tau = rm.adip_motor_gain(p) * (u[0] - p["gear_ratio"] * p["motor_emf_constant"] * w1)
-    joint = p["pendulum_damping"] * (w2 - w1)
-    friction = p["effect_coulomb"] * np.tanh(w1 / p["coulomb_velocity"])
-    coupling = c * np.sin(phi1 - phi2)
-    r1 = tau - p["arm_damping"] * w1 + joint - coupling * w2**2 + d1 * np.sin(phi1) - friction
-    r2 = -joint + coupling * w1**2 + d2 * np.sin(phi2)
-    m12 = c * np.cos(phi1 - phi2)
-    det = a * b - m12**2
-    return np.array([w1, w2, (b * r1 - m12 * r2) / det, (a * r2 - m12 * r1) / det])
 
 
 def rk4(

@@ -7,8 +7,7 @@ import argparse
 from lpvflow.pipeline.config import bundled_config
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("design", help="run experiment → identify → … → export → report on a design file")
+def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", nargs="?", help="design TOML (default: the bundled ADIP example)")
     p.add_argument("--example", choices=["adip", "maglev", "airpath"],
                    help="run a bundled example instead of a file")

@@ -17,8 +17,7 @@ from lpvflow.validate.diagnose import MIN_VALIDATION, diagnose
 from lpvflow.validate.extensions import EXTENSIONS, Structure
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("diagnose", help="find what a model structure's simulation gets wrong and why")
+def configure(p: argparse.ArgumentParser) -> None:
     _add_data_arguments(p)
     p.add_argument("--na", default="2", help="output lags of the structure (default 2)")
     p.add_argument("--nb", default="2", help="input lags of the structure (default 2)")

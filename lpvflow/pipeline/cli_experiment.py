@@ -56,15 +56,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "experiment",
-        help="run an open- or closed-loop identification experiment on an FMU plant",
-        description="Drive an FMU with excitation signals (open loop) or with a stabilising LTI "
-        "controller plus an excitation on its output (closed loop); write CSV + <CSV>.json.",
-        epilog=SPEC_HELP,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Drive an FMU with excitation signals (open loop) or with a stabilising LTI controller plus an "
+        "excitation on its output (closed loop); write CSV + <CSV>.json."
     )
+    parser.epilog = SPEC_HELP
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("fmu", help="FMI 2.0 Co-Simulation FMU of the plant")
     parser.add_argument("--Ts", type=float, default=None,
                         help="communication step in seconds (default: the controller's Ts)")

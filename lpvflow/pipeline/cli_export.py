@@ -19,13 +19,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "export",
-        help="export a controller as an FMI 2.0 Co-Simulation FMU, MATLAB .mat or JSON",
-        description="fmu: inputs e (r - y) and p, outputs u, step = Ts, binary and sources inside, validated "
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "fmu: inputs e (r - y) and p, outputs u, step = Ts, binary and sources inside, validated "
         "with fmpy; mat: Ak (n,n,N), Bk, Ck, Dk, psi_vertices, polytope, basis, Ts, names; json: the "
-        "controller file, re-validated. Layouts: lpvflow/pipeline/export.py.",
+        "controller file, re-validated. Layouts: lpvflow/pipeline/export.py."
     )
     parser.add_argument("controller", help="lpvflow/lpv-controller JSON file")
     parser.add_argument("--format", required=True, choices=FORMATS)

@@ -47,8 +47,7 @@ def _add_data_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--Ts", type=float, help="sampling time in seconds when there is no time column")
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("identify", help="identify an LPV-ARX model and realize it as an LPV state space")
+def configure_identify(p: argparse.ArgumentParser) -> None:
     _add_data_arguments(p)
     p.add_argument("--na", default="2", help="output lags: N or a matrix N,N;N,N (default 2)")
     p.add_argument("--nb", default="2", help="number of input lags: N or a matrix (default 2)")
@@ -69,7 +68,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, help="model file to write (JSON)")
     p.set_defaults(func=run_identify)
 
-    s = sub.add_parser("simulate", help="simulate a model on data and report BFR/VAF/MSE per output")
+
+def configure_simulate(s: argparse.ArgumentParser) -> None:
     s.add_argument("model", help="model file written by `lpvflow identify`")
     _add_data_arguments(s)
     s.add_argument("--json", dest="json_out", help="write the fit report here")

@@ -28,8 +28,7 @@ from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS, load
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("synth", help="polytopic gain-scheduled H∞ controller by LMIs")
+def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("model", help="identified LPVSS model (JSON)")
     p.add_argument("--config", required=True, help="design spec (TOML)")
     p.add_argument("-o", "--output", required=True, help="controller file to write (JSON)")

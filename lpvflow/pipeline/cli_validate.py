@@ -42,8 +42,7 @@ from lpvflow.validate.stability import quadratic_stability
 BODE_POINTS = 5
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("validate", help="fit, frozen nu-gap vs b(P,K), margins and stability certificate")
+def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("model", help="model file (lpvflow/lpvss or lpvflow/lpvio)")
     _add_data_arguments(p)
     p.add_argument("--reference", metavar="MODEL.json|PLANT.fmu",

@@ -49,13 +49,11 @@ def run(args: argparse.Namespace) -> int:
     return 0 if verification.passed else 1
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "verify",
-        help="co-simulate a controller with a plant FMU on scenarios; metrics and stability verdicts",
-        description="Run the controller (and an optional LTI baseline) in closed loop with the plant FMU "
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Run the controller (and an optional LTI baseline) in closed loop with the plant FMU "
         "on every [[scenario]] of the TOML file (layout: lpvflow/pipeline/scenarios.py); exit 1 when "
-        "the controller fails a scenario's stability verdict or misses its requirements.",
+        "the controller fails a scenario's stability verdict or misses its requirements."
     )
     parser.add_argument("controller", help="lpvflow/lpv-controller JSON (or an exported controller .fmu)")
     parser.add_argument("--plant", required=True, help="FMI 2.0 Co-Simulation FMU of the plant")

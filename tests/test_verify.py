@@ -168,8 +168,8 @@ def test_exogenous_inputs_follow_their_signal_and_can_schedule(plants: dict) -> 
 @pytest.mark.parametrize(
     ("c", "requirements", "missed"),
     [
-        (0.9, Requirements(settling_time=0.3), ["y settles in 0.38 s > 0.3 s"]),  # 38 samples, see above
-        (-0.5, Requirements(settling_time=0.3, overshoot=0.1), ["y overshoot 0.5 > 0.1"]),
+        (0.9, Requirements(settling_time=0.3), ["y settles in 0.38 s (limit 0.3 s)"]),  # 38 samples
+        (-0.5, Requirements(settling_time=0.3, overshoot=0.1), ["y overshoot 0.5 (limit 0.1)"]),
         (-0.5, Requirements(settling_time=0.07, overshoot=0.6), []),
     ],
 )
@@ -196,11 +196,11 @@ def test_after_settling_is_the_untracked_output_peak_once_the_tracked_ones_settl
     assert peaks == {"pendulum": pytest.approx(np.max(np.abs(0.05 * np.cos(7 * time[50:]))))}
     spec = Requirements(after_settling={"pendulum": 0.04})
     assert requirement_failures(spec, {"arm": arm | {"overshoot": 0.0}}, peaks) == [
-        f"pendulum after settling {peaks['pendulum']:.3g} > 0.04"]
+        f"pendulum after settling {peaks['pendulum']:.3g} (limit 0.04)"]
     never = after_settling_peaks(run, scenario, loop, {"arm": arm | {"settling_time": None}})
     assert never == {"pendulum": None}
     assert requirement_failures(spec, {"arm": arm | {"settling_time": None, "overshoot": 0.0}}, never) == [
-        "pendulum after settling: the tracked outputs never settle"]
+        "pendulum after settling: not measured, the tracked outputs do not settle"]
 
 
 def test_requirements_on_an_unknown_output_give_one_line(plants: dict) -> None:

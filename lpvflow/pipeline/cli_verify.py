@@ -20,11 +20,11 @@ def _summary(name: str, metrics: dict) -> str:
         parts.append(f"{output} {settling}{overshoot}")
     verdict = "stable" if metrics["stable"] else f"FAILED ({metrics['reason']})"
     missed = metrics.get("requirements_failed")
-    if missed:
+    if missed and metrics["stable"]:
         verdict += f", misses its requirements: {', '.join(missed)}"
-    elif missed is not None:
+    elif missed is not None and not missed:
         verdict += ", meets its requirements"
-    return f"  {name} [{metrics['controller']}]: {verdict}; " + "; ".join(parts)
+    return f"  {name} [{metrics['controller']}]: " + "; ".join([verdict, *parts])
 
 
 def run(args: argparse.Namespace) -> int:

@@ -488,17 +488,18 @@ def requirement_failures(requirements: Requirements, tracked: Mapping[str, dict]
     for name, m in tracked.items():
         limit = requirements.settling_time
         if limit is not None and (m["settling_time"] is None or m["settling_time"] > limit):
-            took = "never settles" if m["settling_time"] is None else f"settles in {m['settling_time']:.3g} s"
-            failures.append(f"{name} {took} > {limit:g} s")
+            settling = m["settling_time"]
+            took = "does not settle" if settling is None else f"settles in {settling:.3g} s"
+            failures.append(f"{name} {took} (limit {limit:g} s)")
         limit = requirements.overshoot
         if limit is not None and m["overshoot"] is not None and m["overshoot"] > limit:
-            failures.append(f"{name} overshoot {m['overshoot']:.3g} > {limit:g}")
+            failures.append(f"{name} overshoot {m['overshoot']:.3g} (limit {limit:g})")
     for name, limit in requirements.after_settling.items():
         peak = after_settling.get(name)
         if peak is None:
-            failures.append(f"{name} after settling: the tracked outputs never settle")
+            failures.append(f"{name} after settling: not measured, the tracked outputs do not settle")
         elif peak > limit:
-            failures.append(f"{name} after settling {peak:.3g} > {limit:g}")
+            failures.append(f"{name} after settling {peak:.3g} (limit {limit:g})")
     return failures
 
 

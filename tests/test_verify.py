@@ -210,6 +210,13 @@ def test_requirements_on_an_unknown_output_give_one_line(plants: dict) -> None:
     assert "\n" not in str(info.value)
 
 
+def test_an_after_settling_bound_on_a_tracked_output_gives_one_line(plants: dict) -> None:
+    scenario = _step(requirements=Requirements(after_settling={"y": 0.1}))
+    with pytest.raises(DataError, match="names the tracked output 'y'") as info:
+        verify(_gain(1.0), plants[1.0], [scenario], LOOP)
+    assert "\n" not in str(info.value)
+
+
 def test_a_failed_run_misses_its_requirements(plants: dict) -> None:
     bounded = _step(output_bounds={"y": (-100.0, 100.0)}, requirements=Requirements(settling_time=1.0))
     metrics = verify(_gain(2.5 / B), plants[1.0], [bounded], LOOP)["scenarios"][0]["controller"]

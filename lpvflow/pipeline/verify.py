@@ -247,6 +247,12 @@ def _check_scenario(scenario: Scenario, loop: Loop, plant_inputs: Sequence[str])
          else ()),
     ):
         _check_subset(what, list(names), loop.measured, where)
+    if scenario.requirements is not None:
+        tracked = set(_tracked(scenario, loop))
+        both = [name for name in scenario.requirements.after_settling if name in tracked]
+        if both:
+            raise DataError(f"{where}: requirements.after_settling names the tracked output {both[0]!r}; "
+                            "a tracked output is bounded by settling_time and overshoot instead")
     _check_subset("input_disturbance input", list(scenario.input_disturbance), loop.actuated, where)
     exogenous = [n for n in plant_inputs if n not in loop.actuated]
     _check_subset("exogenous input", list(scenario.exogenous), exogenous, where)

@@ -38,8 +38,9 @@ class _Parser(argparse.ArgumentParser):
     """argparse with exit status 2 and one line for usage errors (argparse's own convention)."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        where = " ".join(self.prog.split()[-1:]) if self.prog != "lpvflow" else ""
-        sys.stderr.write(f"lpvflow{' ' + where if where else ''}: error: {message}\n")
+        command = self.prog.split()[-1]  # "lpvflow" for the top-level parser
+        prefix = "lpvflow" if command == "lpvflow" else f"lpvflow {command}"
+        sys.stderr.write(f"{prefix}: error: {message}\n")
         raise SystemExit(2)
 
 

@@ -33,9 +33,9 @@ from lpvflow.models import (
     FORMAT_VERSION,
     LPVSS,
     _as_2d,
-    _atomic_write_json,
     _check_format,
     _check_width,
+    atomic_write_json,
     default_names,
     register_format,
 )
@@ -261,7 +261,7 @@ class LPVLFR:
             raise ModelError(f"LFR model file lacks the field {exc.args[0]!r}") from None
 
     def save(self, path: str | os.PathLike) -> None:
-        _atomic_write_json(path, self.to_dict())
+        atomic_write_json(path, self.to_dict())
 
 
 register_format("lpvlfr", LPVLFR.from_dict)

@@ -82,7 +82,7 @@ def _lagged_sum(psi: np.ndarray, coeffs: np.ndarray, signal: np.ndarray, shifted
     return out
 
 
-def _atomic_write_json(path: str | os.PathLike, payload: dict) -> None:
+def atomic_write_json(path: str | os.PathLike, payload: dict) -> None:
     """Write JSON to ``path`` via a temporary file and rename: a failure never truncates ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -226,7 +226,7 @@ class LPVIO:
                    param_cov=cov, **opt)
 
     def save(self, path: str | os.PathLike) -> None:
-        _atomic_write_json(path, self.to_dict())
+        atomic_write_json(path, self.to_dict())
 
 
 # ======================================================================================= LPVSS
@@ -372,7 +372,7 @@ class LPVSS:
             raise ModelError(f"model file lacks the field {exc.args[0]!r}") from None
 
     def save(self, path: str | os.PathLike) -> None:
-        _atomic_write_json(path, self.to_dict())
+        atomic_write_json(path, self.to_dict())
 
 
 def _check_format(d: dict, kind: str) -> None:

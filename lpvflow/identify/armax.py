@@ -19,25 +19,27 @@ import numpy as np
 from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
-from lpvflow.identify.arx import _Column, _fill_regressor
-from lpvflow.identify.iv import Structure, _solve, least_squares_thetas
+from lpvflow.identify.arx import RegressorColumn, fill_regressor
+from lpvflow.identify.iv import Structure, least_squares_thetas, solve_instrumental
 from lpvflow.models import LPVIO
 from lpvflow.simulate import io_recursion
 
 
-def _noise_columns(ny: int, nc: int, n_psi: int) -> list[_Column]:
+def _noise_columns(ny: int, nc: int, n_psi: int) -> list[RegressorColumn]:
     # "u"-type columns (no sign flip) read from the residual signal ê.
-    return [_Column("u", c, m, l) for c in range(ny) for m in range(1, nc + 1) for l in range(n_psi)]
+    return [RegressorColumn("u", c, m, l) for c in range(ny) for m in range(1, nc + 1) for l in range(n_psi)]
 
 
-def _noise_regressor(cols: list[_Column], e: np.ndarray, psi: np.ndarray, shifted: bool) -> np.ndarray:
+def _noise_regressor(
+    cols: list[RegressorColumn], e: np.ndarray, psi: np.ndarray, shifted: bool
+) -> np.ndarray:
     """Columns ê_c(k−m) ψ_l(k−m or k) for every sample, zero past before k = 0."""
     n, pad = len(e), max(c.lag for c in cols)
     # F order: contiguous columns (numpy 2.4 in-place negative on strided views is wrong)
     out = np.empty((n, len(cols)), order="F")
     epad = np.vstack([np.zeros((pad, e.shape[1])), e])
     psipad = np.vstack([np.zeros((pad, psi.shape[1])), psi])
-    _fill_regressor(out, cols, epad, epad, psipad, pad, pad + n, 0, shifted)
+    fill_regressor(out, cols, epad, epad, psipad, pad, pad + n, 0, shifted)
     return out
 
 
@@ -66,7 +68,7 @@ def identify_armax(data: Dataset, na: int | np.ndarray, nb: int | np.ndarray, nk
     previous = None
     for _ in range(iterations):
         phi_e = _noise_regressor(e_cols, e_hat, psi, shifted)
-        thetas = [_solve(phi, phi, data.y[start:, r])
+        thetas = [solve_instrumental(phi, phi, data.y[start:, r])
                   for r, phi in enumerate(np.hstack([p, phi_e])[start:] for p in phi_ab)]
         C = np.zeros((nc, n_psi, ny, ny))
         for r, theta in enumerate(thetas):

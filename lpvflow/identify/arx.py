@@ -36,14 +36,18 @@ RANK_TOL = 1e-11
 
 
 @dataclass(frozen=True)
-class _Column:
+class RegressorColumn:
+    """One column of the LPV-ARX regressor: signal(channel)(k − lag) · ψ_psi (at k, or at k − lag when
+    shifted); shared by the ARX, IV, ARMAX and spline estimators."""
+
     signal: str  # "y" or "u"
     channel: int
     lag: int
     psi: int  # basis-function index
 
 
-def _order_matrix(name: str, value: int | np.ndarray, shape: tuple[int, int], minimum: int) -> np.ndarray:
+def order_matrix(name: str, value: int | np.ndarray, shape: tuple[int, int], minimum: int) -> np.ndarray:
+    """An order given as N or as a matrix, as an integer matrix of ``shape`` with entries ≥ ``minimum``."""
     m = np.asarray(value)
     if m.ndim == 0:
         m = np.full(shape, int(m))
@@ -54,19 +58,21 @@ def _order_matrix(name: str, value: int | np.ndarray, shape: tuple[int, int], mi
     return m.astype(int)
 
 
-def _row_columns(r: int, na: np.ndarray, nb: np.ndarray, nk: np.ndarray, n_psi: int, shifted: bool
-                 ) -> list[_Column]:
-    cols = [_Column("y", c, i, l) for c in range(na.shape[1]) for i in range(1, na[r, c] + 1)
+def row_columns(r: int, na: np.ndarray, nb: np.ndarray, nk: np.ndarray, n_psi: int, shifted: bool
+                 ) -> list[RegressorColumn]:
+    """The regressor columns of output equation r: y lags 1..na, u lags nk..nk+nb−1, each times every
+    basis function (the instantaneous input in the shifted form only times ψ_0 = 1)."""
+    cols = [RegressorColumn("y", c, i, l) for c in range(na.shape[1]) for i in range(1, na[r, c] + 1)
             for l in range(n_psi)]
     for j in range(nb.shape[1]):
         for lag in range(nk[r, j], nk[r, j] + nb[r, j]):
             n_l = 1 if (lag == 0 and shifted) else n_psi
-            cols += [_Column("u", j, lag, l) for l in range(n_l)]
+            cols += [RegressorColumn("u", j, lag, l) for l in range(n_l)]
     return cols
 
 
-def _fill_regressor(out: np.ndarray, cols: list[_Column], y: np.ndarray, u: np.ndarray, psi: np.ndarray,
-                    k0: int, k1: int, w0: int, shifted: bool) -> None:
+def fill_regressor(out: np.ndarray, cols: list[RegressorColumn], y: np.ndarray, u: np.ndarray,
+                   psi: np.ndarray, k0: int, k1: int, w0: int, shifted: bool) -> None:
     """Write the regressor rows k0..k1-1 into ``out`` (rows, len(cols)); psi covers samples w0..k1-1."""
     for idx, col in enumerate(cols):
         sig = y[k0 - col.lag : k1 - col.lag, col.channel] if col.signal == "y" else \
@@ -77,7 +83,7 @@ def _fill_regressor(out: np.ndarray, cols: list[_Column], y: np.ndarray, u: np.n
         np.multiply(sig, psi[t0 : t0 + (k1 - k0), col.psi], out=out[:, idx])
 
 
-def _tsqr(cols: list[_Column], outputs: list[int], data: Dataset, basis: Basis, first: int,
+def _tsqr(cols: list[RegressorColumn], outputs: list[int], data: Dataset, basis: Basis, first: int,
           max_lag: int, shifted: bool, ridge: float) -> np.ndarray:
     """Upper-triangular R of [Φ | Y_outputs] (with √ridge·I on top), accumulated chunk by chunk."""
     n, m = len(cols), len(cols) + len(outputs)
@@ -94,7 +100,7 @@ def _tsqr(cols: list[_Column], outputs: list[int], data: Dataset, basis: Basis, 
         top = len(R)
         buf[:top] = R
         block = buf[top : top + rows]
-        _fill_regressor(block[:, :n], cols, data.y, data.u, psi, k0, k1, w0, shifted)
+        fill_regressor(block[:, :n], cols, data.y, data.u, psi, k0, k1, w0, shifted)
         block[:, n:] = data.y[k0:k1, outputs]
         R = scipy.linalg.qr(buf[: top + rows], mode="r", overwrite_a=True, check_finite=False)[0][:m]
         R = np.triu(R)
@@ -128,13 +134,13 @@ def identify_arx(
     if basis.n_p != data.p.shape[1]:
         raise DataError(f"the basis is for {basis.n_p} scheduling signal(s), the data has {data.p.shape[1]}")
     basis = basis.with_range(data.p)
-    na = _order_matrix("na", na, (ny, ny), 0)
-    nb = _order_matrix("nb", nb, (ny, nu), 0)
-    nk = _order_matrix("nk", nk, (ny, nu), 0)
+    na = order_matrix("na", na, (ny, ny), 0)
+    nb = order_matrix("nb", nb, (ny, nu), 0)
+    nk = order_matrix("nk", nk, (ny, nu), 0)
     shifted = form == "shifted"
     n_psi = basis.n_psi
     max_lag = int(max(na.max(initial=0), (nk + nb - 1)[nb > 0].max(initial=0)))
-    row_cols = [_row_columns(r, na, nb, nk, n_psi, shifted) for r in range(ny)]
+    row_cols = [row_columns(r, na, nb, nk, n_psi, shifted) for r in range(ny)]
     n_max = max(len(c) for c in row_cols)
     if n_max == 0:
         raise DataError("the model has no parameters: raise na or nb")

@@ -40,7 +40,7 @@ import scipy.signal
 from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
-from lpvflow.identify.arx import _Column, _fill_regressor, _order_matrix, _row_columns
+from lpvflow.identify.arx import RegressorColumn, fill_regressor, order_matrix, row_columns
 from lpvflow.models import LPVIO, _lagged_sum
 from lpvflow.simulate import io_recursion
 
@@ -62,7 +62,7 @@ class Structure:
     nk: np.ndarray
     basis: Basis
     form: str
-    columns: tuple[tuple[_Column, ...], ...]
+    columns: tuple[tuple[RegressorColumn, ...], ...]
     max_lag: int
     Ts: float
     names: dict
@@ -91,11 +91,11 @@ class Structure:
             raise DataError(f"the basis is for {basis.n_p} scheduling signal(s), "
                             f"the data has {data.p.shape[1]}")
         basis = basis.with_range(data.p)
-        na = _order_matrix("na", na, (ny, ny), 0)
-        nb = _order_matrix("nb", nb, (ny, nu), 0)
-        nk = _order_matrix("nk", nk, (ny, nu), 0)
+        na = order_matrix("na", na, (ny, ny), 0)
+        nb = order_matrix("nb", nb, (ny, nu), 0)
+        nk = order_matrix("nk", nk, (ny, nu), 0)
         shifted = form == "shifted"
-        columns = tuple(tuple(_row_columns(r, na, nb, nk, basis.n_psi, shifted)) for r in range(ny))
+        columns = tuple(tuple(row_columns(r, na, nb, nk, basis.n_psi, shifted)) for r in range(ny))
         max_lag = int(max(na.max(initial=0), (nk + nb - 1)[nb > 0].max(initial=0)))
         n_max = max(len(c) for c in columns)
         if n_max == 0:
@@ -118,7 +118,7 @@ class Structure:
         ypad = np.vstack([np.zeros((pad, y.shape[1])), y])
         upad = np.vstack([np.zeros((pad, u.shape[1])), u])
         psipad = np.vstack([np.zeros((pad, psi.shape[1])), psi])
-        _fill_regressor(out, cols, ypad, upad, psipad, pad, pad + n, 0, self.shifted)
+        fill_regressor(out, cols, ypad, upad, psipad, pad, pad + n, 0, self.shifted)
         return out
 
     def model(self, thetas: list[np.ndarray], C: np.ndarray | None = None) -> LPVIO:
@@ -155,7 +155,7 @@ def parameter_vector(io: LPVIO) -> np.ndarray:
     shifted = io.form == "shifted"
     parts = []
     for r in range(io.ny):
-        for c in _row_columns(r, np.asarray(na), np.asarray(nb), np.asarray(nk), io.basis.n_psi, shifted):
+        for c in row_columns(r, np.asarray(na), np.asarray(nb), np.asarray(nk), io.basis.n_psi, shifted):
             parts.append(io.A[c.lag - 1, c.psi, r, c.channel] if c.signal == "y"
                          else io.B[c.lag, c.psi, r, c.channel])
     return np.asarray(parts)
@@ -173,11 +173,11 @@ def least_squares_thetas(struct: Structure, data: Dataset, psi: np.ndarray) -> l
     out = []
     for r in range(struct.ny):
         phi = struct.regressor(r, data.y, data.u, psi)[start:]
-        out.append(_solve(phi, phi, data.y[start:, r]))
+        out.append(solve_instrumental(phi, phi, data.y[start:, r]))
     return out
 
 
-def _solve(zeta: np.ndarray, phi: np.ndarray, y: np.ndarray) -> np.ndarray:
+def solve_instrumental(zeta: np.ndarray, phi: np.ndarray, y: np.ndarray) -> np.ndarray:
     """θ = (ζᵀφ)⁻¹ ζᵀ y, refusing near-singular instrument matrices with one line."""
     if phi.shape[1] == 0:
         return np.zeros(0)
@@ -210,7 +210,7 @@ def iv_thetas(struct: Structure, data: Dataset, y_aux: np.ndarray, psi: np.ndarr
     for r in range(struct.ny):
         phi = struct.regressor(r, data.y, data.u, psi_iv)[start:]
         zeta = struct.regressor(r, y_aux, data.u, psi_iv)[start:]
-        out.append(_solve(zeta, phi, data.y[start:, r]))
+        out.append(solve_instrumental(zeta, phi, data.y[start:, r]))
     return out
 
 
@@ -368,7 +368,7 @@ def oe_pseudolinear(struct: Structure, data: Dataset, psi: np.ndarray, iteration
     for _ in range(iterations):
         if not _is_bounded(y_sim, data):
             break
-        new = [_solve(phi, phi, data.y[start:, r])
+        new = [solve_instrumental(phi, phi, data.y[start:, r])
                for r, phi in enumerate(struct.regressor(r, y_sim, data.u, psi)[start:]
                                        for r in range(struct.ny))]
         y_new = simulate_psi(struct.model(new), data.u, psi)
@@ -467,7 +467,7 @@ def identify_riv(data: Dataset, na: int, nb: int, nk: int, basis: Basis | str = 
         num = np.ones(1) if simplified else _ar_noise_model(y[start:] - chi[start:, 0], noise_order)
         den = _stable_monic(a0)
         filt = [scipy.signal.lfilter(num, den, x[start:], axis=0) for x in (phi, zeta, y)]
-        new = _solve(filt[1], filt[0], filt[2])
+        new = solve_instrumental(filt[1], filt[0], filt[2])
         chi_new = simulate_psi(struct.model([new]), data.u, psi)
         if not _is_bounded(chi_new, data):
             break  # keep the last iterate whose simulation stayed bounded

@@ -48,7 +48,7 @@ import scipy.linalg
 from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
-from lpvflow.identify.arx import _Column, _fill_regressor, _order_matrix, _row_columns, identify_arx
+from lpvflow.identify.arx import RegressorColumn, fill_regressor, identify_arx, order_matrix, row_columns
 from lpvflow.models import LPVIO
 
 #: Levenberg–Marquardt schedule (thesis §3.3.1): initial damping and its growth/shrink factor.
@@ -92,9 +92,9 @@ class SeparableProblem:
             raise DataError(f"n_knots must be a whole number >= 1, got {n_knots}")
         ny, nu, n_p = data.y.shape[1], data.u.shape[1], data.p.shape[1]
         self.data, self.n_knots, self.shifted = data, int(n_knots), form == "shifted"
-        self.na = _order_matrix("na", na, (ny, ny), 0)
-        self.nb = _order_matrix("nb", nb, (ny, nu), 0)
-        self.nk = _order_matrix("nk", nk, (ny, nu), 0)
+        self.na = order_matrix("na", na, (ny, ny), 0)
+        self.nb = order_matrix("nb", nb, (ny, nu), 0)
+        self.nk = order_matrix("nk", nk, (ny, nu), 0)
         self.lo, self.hi = data.p.min(axis=0), data.p.max(axis=0)
         flat = [data.p_names[i] for i in range(n_p) if not self.hi[i] > self.lo[i]]
         if flat:
@@ -104,13 +104,13 @@ class SeparableProblem:
         self.slots = [_Slot(i, 1 + i * (1 + self.n_knots) + 1 + j)
                       for i in range(n_p) for j in range(self.n_knots)]
         self.max_lag = int(max(self.na.max(initial=0), (self.nk + self.nb - 1)[self.nb > 0].max(initial=0)))
-        row_cols = [_row_columns(r, self.na, self.nb, self.nk, n_psi, self.shifted) for r in range(ny)]
+        row_cols = [row_columns(r, self.na, self.nb, self.nk, n_psi, self.shifted) for r in range(ny)]
         n_max = max(len(c) for c in row_cols)
         if n_max == 0:
             raise DataError("the model has no parameters: raise na or nb")
         data.require_samples(self.max_lag + n_max,
                              f"{n_max} parameters per output with lags up to {self.max_lag}")
-        groups: dict[tuple[_Column, ...], list[int]] = {}
+        groups: dict[tuple[RegressorColumn, ...], list[int]] = {}
         for r, cols in enumerate(row_cols):
             groups.setdefault(tuple(cols), []).append(r)
         self.groups = [(list(cols), outputs) for cols, outputs in groups.items()]
@@ -165,7 +165,7 @@ class SeparableProblem:
         J = np.zeros((self.n_eff, data.y.shape[1], len(self.slots))) if jacobian else None
         for cols, outputs in self.groups:
             phi = np.empty((self.n_eff, len(cols)))
-            _fill_regressor(phi, cols, data.y, data.u, psi, k0, k1, 0, self.shifted)
+            fill_regressor(phi, cols, data.y, data.u, psi, k0, k1, 0, self.shifted)
             Q, R = scipy.linalg.qr(phi, mode="economic", check_finite=False)
             diag = np.abs(np.diag(R))
             if diag.min() <= RANK_TOL * diag.max():
@@ -181,7 +181,7 @@ class SeparableProblem:
                 if not idx:
                     continue
                 dphi = np.empty((self.n_eff, len(idx)))
-                _fill_regressor(dphi, [cols[c] for c in idx], data.y, data.u,
+                fill_regressor(dphi, [cols[c] for c in idx], data.y, data.u,
                                 self.psi_derivative(data.p, z, m), k0, k1, 0, self.shifted)
                 j_nl = -dphi @ theta[idx]  # ∂E/∂z_m at fixed 𝔓, one column per output of the group
                 J[:, outputs, m] = j_nl - Q @ (Q.T @ j_nl)
@@ -254,12 +254,12 @@ def _recursive_lm(problem: SeparableProblem, z: np.ndarray, forgetting: float, p
             G[:] = 0.0
             for r, cols in enumerate(problem.row_cols):
                 block = slice(offsets[r], offsets[r + 1])
-                _fill_regressor(G[r : r + 1, block], cols, data.y, data.u, psi, k, k + 1, k - L,
+                fill_regressor(G[r : r + 1, block], cols, data.y, data.u, psi, k, k + 1, k - L,
                                 problem.shifted)
                 for m, idx in enumerate(knot_columns[r]):
                     if idx:
                         row = np.empty((1, len(idx)))
-                        _fill_regressor(row, [cols[c] for c in idx], data.y, data.u, dpsi[m], k, k + 1, k - L,
+                        fill_regressor(row, [cols[c] for c in idx], data.y, data.u, dpsi[m], k, k + 1, k - L,
                                         problem.shifted)
                         G[r, n_lin + m] = row[0] @ theta[offsets[r] + np.asarray(idx)]
             eps = data.y[k] - np.array([G[r, offsets[r] : offsets[r + 1]] @ theta[offsets[r] : offsets[r + 1]]

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from lpvflow.experiment.plant import sha256_of
-from lpvflow.models import _atomic_write_json
+from lpvflow.models import atomic_write_json
 
 
 def code_digest() -> str:
@@ -53,5 +53,5 @@ def load_record(folder: Path, stage: str, key: str) -> dict | None:
 def save_record(folder: Path, stage: str, key: str, outputs: dict, artifacts: list[str],
                 seconds: float) -> dict:
     record = {"key": key, "outputs": outputs, "artifacts": artifacts, "seconds": seconds}
-    _atomic_write_json(folder / f"{stage}.json", record)
+    atomic_write_json(folder / f"{stage}.json", record)
     return record

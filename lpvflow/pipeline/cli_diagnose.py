@@ -11,14 +11,14 @@ from lpvflow.errors import DataError
 from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.run import sidecar_path
 from lpvflow.experiment.scheduling import parse_assignment
-from lpvflow.models import _atomic_write_json
-from lpvflow.pipeline.cli_identify import _add_data_arguments, _refuse_overwrite, parse_order
+from lpvflow.models import atomic_write_json
+from lpvflow.pipeline.cli_identify import add_data_arguments, parse_order, refuse_overwrite
 from lpvflow.validate.diagnose import MIN_VALIDATION, diagnose
 from lpvflow.validate.extensions import EXTENSIONS, Structure
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    _add_data_arguments(p)
+    add_data_arguments(p)
     p.add_argument("--na", default="2", help="output lags of the structure (default 2)")
     p.add_argument("--nb", default="2", help="input lags of the structure (default 2)")
     p.add_argument("--nk", default="1", help="input delay of the structure (default 1)")
@@ -43,7 +43,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     model_out = args.model_out or str(Path(args.json_out).with_suffix("")) + ".extended.json"
     for out in (args.json_out, model_out, args.plot):
         if out:
-            _refuse_overwrite(out, args.data)
+            refuse_overwrite(out, args.data)
     table = read_columns(args.data)
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
     used = {*args.u, *args.y, *args.p, args.time if args.time != "auto" else time_column(table)}
@@ -64,7 +64,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
         model = result.winner.fit.model
         (model.to_ss() if model.form == "shifted" else model).save(model_out)
         report["extended_model"] = model_out
-    _atomic_write_json(args.json_out, report)
+    atomic_write_json(args.json_out, report)
     if args.plot:
         from lpvflow.validate.diagnose_plot import plot_diagnosis
 

@@ -14,7 +14,7 @@ from lpvflow.data import Dataset, read_columns
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.lfr import LPVLFR
-from lpvflow.models import LPVIO, LPVSS, _atomic_write_json, load
+from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load
 from lpvflow.validate.metrics import fit_report
 
 #: IO methods: name → (estimator kind, form). The state-space and LFR methods are handled apart.
@@ -37,7 +37,7 @@ def parse_order(text: str) -> int | np.ndarray:
         raise DataError(f"bad order {text!r}: use a whole number or a matrix like 2,2;1,1") from None
 
 
-def _add_data_arguments(p: argparse.ArgumentParser) -> None:
+def add_data_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", help="CSV (header row), Parquet or .mat file")
     p.add_argument("--u", nargs="+", required=True, metavar="COL", help="input column(s)")
     p.add_argument("--y", nargs="+", required=True, metavar="COL", help="output column(s)")
@@ -48,7 +48,7 @@ def _add_data_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def configure_identify(p: argparse.ArgumentParser) -> None:
-    _add_data_arguments(p)
+    add_data_arguments(p)
     p.add_argument("--na", default="2", help="output lags: N or a matrix N,N;N,N (default 2)")
     p.add_argument("--nb", default="2", help="number of input lags: N or a matrix (default 2)")
     p.add_argument("--nk", default="1", help="input delay in samples: N or a matrix (default 1)")
@@ -71,13 +71,13 @@ def configure_identify(p: argparse.ArgumentParser) -> None:
 
 def configure_simulate(s: argparse.ArgumentParser) -> None:
     s.add_argument("model", help="model file written by `lpvflow identify`")
-    _add_data_arguments(s)
+    add_data_arguments(s)
     s.add_argument("--json", dest="json_out", help="write the fit report here")
     s.add_argument("--plot", help="write a PNG of measured vs simulated outputs here")
     s.set_defaults(func=run_simulate)
 
 
-def _refuse_overwrite(output: str, *inputs: str) -> None:
+def refuse_overwrite(output: str, *inputs: str) -> None:
     out = Path(output).resolve()
     for path in inputs:
         if Path(path).resolve() == out:
@@ -138,7 +138,7 @@ def _identify_state_space(args: argparse.Namespace, data: Dataset):
 
 
 def run_identify(args: argparse.Namespace) -> int:
-    _refuse_overwrite(args.output, args.data)
+    refuse_overwrite(args.output, args.data)
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
     if args.method in SS_METHODS:
         model = _identify_state_space(args, data)
@@ -169,7 +169,7 @@ def run_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-def _simulate_any(model: LPVSS | LPVIO | LPVLFR, data: Dataset) -> np.ndarray:
+def simulate_any(model: LPVSS | LPVIO | LPVLFR, data: Dataset) -> np.ndarray:
     if model.nu != data.u.shape[1] or model.ny != data.y.shape[1] or model.basis.n_p != data.p.shape[1]:
         raise DataError(
             f"the model is {model.ny}x{model.nu} with {model.basis.n_p} scheduling signal(s); the data "
@@ -181,17 +181,17 @@ def _simulate_any(model: LPVSS | LPVIO | LPVLFR, data: Dataset) -> np.ndarray:
 def run_simulate(args: argparse.Namespace) -> int:
     for out in (args.json_out, args.plot):
         if out:
-            _refuse_overwrite(out, args.data, args.model)
+            refuse_overwrite(out, args.data, args.model)
     model = load(args.model)
     if not isinstance(model, LPVSS | LPVIO | LPVLFR):
         raise ModelError(f"{args.model} holds no LPV model (it is a {type(model).__name__})")
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
-    y_sim = _simulate_any(model, data)
+    y_sim = simulate_any(model, data)
     report = fit_report(data.y, y_sim, data.y_names)
     for name, b, v, m in zip(report["outputs"], report["bfr"], report["vaf"], report["mse"], strict=True):
         print(f"{name}: BFR {b:.2f} %  VAF {v:.2f} %  MSE {m:.4g}")
     if args.json_out:
-        _atomic_write_json(args.json_out, {"model": args.model, "data": args.data, **report})
+        atomic_write_json(args.json_out, {"model": args.model, "data": args.data, **report})
     if args.plot:
         plot_fit(args.plot, data, y_sim)
         print(f"plot written to {args.plot}", file=sys.stderr)

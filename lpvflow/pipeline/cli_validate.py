@@ -29,8 +29,8 @@ from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment.controller import FORMAT as LTI_CONTROLLER_FORMAT
 from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.scheduling import parse_assignment
-from lpvflow.models import LPVIO, LPVSS, _atomic_write_json, load
-from lpvflow.pipeline.cli_identify import _add_data_arguments, _refuse_overwrite, _simulate_any
+from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load
+from lpvflow.pipeline.cli_identify import add_data_arguments, refuse_overwrite, simulate_any
 from lpvflow.synth.controller import LPVController
 from lpvflow.validate.fmu_reference import FmuLinearization, FmuLocalModels
 from lpvflow.validate.frozen import compare_frozen, scheduling_grid
@@ -44,7 +44,7 @@ BODE_POINTS = 5
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("model", help="model file (lpvflow/lpvss or lpvflow/lpvio)")
-    _add_data_arguments(p)
+    add_data_arguments(p)
     p.add_argument("--reference", metavar="MODEL.json|PLANT.fmu",
                    help="reference for the frozen nu-gap: another model file or an FMU plant")
     p.add_argument("--fmu-scheduling", nargs="+", metavar="EXPR",
@@ -66,16 +66,16 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run_validate(args: argparse.Namespace) -> int:
     inputs = [args.model, args.data] + [f for f in (args.reference, args.controller) if f]
-    _refuse_overwrite(args.json_out, *inputs)
+    refuse_overwrite(args.json_out, *inputs)
     figure_paths = {}
     if args.figures:
         figure_paths = {"bode": Path(args.figures) / "frozen_bode.png",
                         "nugap": Path(args.figures) / "nugap_vs_b.png"}
         for path in figure_paths.values():
-            _refuse_overwrite(str(path), *inputs)
+            refuse_overwrite(str(path), *inputs)
     model = _load_model(args.model)
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
-    fit = fit_report(data.y, _simulate_any(model, data), data.y_names)
+    fit = fit_report(data.y, simulate_any(model, data), data.y_names)
     frozen_model = _frozen_model(model)
     controller, controller_note = _load_loop_controller(args.controller)
     if isinstance(controller, LPVController) and controller.basis.n_p != frozen_model.basis.n_p:
@@ -124,7 +124,7 @@ def run_validate(args: argparse.Namespace) -> int:
         "quadratic_stability": certificate,
         "figures": {name: str(path) for name, path in figure_paths.items()},
     }
-    _atomic_write_json(args.json_out, _json_safe(report))
+    atomic_write_json(args.json_out, _json_safe(report))
     _print_summary(fit, rows, failing, unstabilized, certificate, args.json_out)
     return 1 if failing or unstabilized else 0
 

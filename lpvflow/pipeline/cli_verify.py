@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from lpvflow.errors import DataError
-from lpvflow.models import _atomic_write_json
+from lpvflow.models import atomic_write_json
 from lpvflow.pipeline.export import check_output_path
 from lpvflow.pipeline.scenarios import load_scenarios
 from lpvflow.pipeline.verify import load_controller_file, plot_runs, run_verification
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     if args.figures:
         for i, result in enumerate(verification.results):
             plot_runs(result.runs, Path(args.figures) / f"scenario_{i + 1}.png", result.scenario.name)
-    _atomic_write_json(args.json, verification.to_dict())
+    atomic_write_json(args.json, verification.to_dict())
     for result in verification.results:
         for metrics in result.metrics:
             print(_summary(result.scenario.name, metrics))

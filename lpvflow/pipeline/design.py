@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lpvflow.errors import LpvflowError
-from lpvflow.models import _atomic_write_json
+from lpvflow.models import atomic_write_json
 from lpvflow.pipeline import cache, stages
 from lpvflow.pipeline.config import load_config
 
@@ -91,7 +91,7 @@ def run_design(config_path: str | Path, log=print) -> dict:
     summary["failed"] = failed
     summary["verdict"] = _verdict(summary)
     summary["stage_seconds"] = {n: s.get("seconds") for n, s in summary["stages"].items()}
-    _atomic_write_json(folder / "summary.json", summary)
+    atomic_write_json(folder / "summary.json", summary)
     write_report(folder, summary)
     log(f"report: {folder / 'report.html'}")
     return summary

@@ -17,7 +17,7 @@ import numpy as np
 
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, ModelError
-from lpvflow.models import FORMAT_VERSION, _atomic_write_json, _check_format, register_format
+from lpvflow.models import FORMAT_VERSION, _check_format, atomic_write_json, register_format
 from lpvflow.synth.polytope import Polytope
 
 
@@ -141,7 +141,7 @@ class LPVController:
             raise ModelError(f"controller file has inconsistent matrix sizes ({exc})") from None
 
     def save(self, path: str | os.PathLike) -> None:
-        _atomic_write_json(path, self.to_dict())
+        atomic_write_json(path, self.to_dict())
 
 
 def series_input_filter(K: tuple[np.ndarray, ...], WB: control.StateSpace) -> tuple[np.ndarray, ...]:

@@ -573,7 +573,7 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLO
     instruments when ``start`` itself diverges in the loop.
     """
     from lpvflow.identify.iv import Structure as IvStructure
-    from lpvflow.identify.iv import _solve
+    from lpvflow.identify.iv import solve_instrumental
     from lpvflow.validate.closed_loop import loop_signals
 
     data = est if data is None else data
@@ -613,7 +613,7 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLO
             u_phi = data.u.copy()
             u_phi[:, -1] = v_sim[:, -1]
             phis = [struct.regressor(r, data.y, u_phi, psi)[struct.max_lag :] for r in range(struct.ny)]
-        target = [_solve(struct.regressor(r, y_best, v_sim, psi_sim)[struct.max_lag :], phis[r],
+        target = [solve_instrumental(struct.regressor(r, y_best, v_sim, psi_sim)[struct.max_lag :], phis[r],
                          est.y[struct.max_lag :, r]) for r in range(struct.ny)]
         step, improved = 1.0, False
         for _ in range(4):  # the IV step, halved until the loop-simulation error decreases

@@ -33,9 +33,9 @@ from lpvflow.models import (
     FORMAT_VERSION,
     LPVSS,
     _as_2d,
-    _check_format,
     _check_width,
     atomic_write_json,
+    check_format,
     default_names,
     register_format,
 )
@@ -253,7 +253,7 @@ class LPVLFR:
 
     @classmethod
     def from_dict(cls, d: dict) -> LPVLFR:
-        _check_format(d, "lpvlfr")
+        check_format(d, "lpvlfr")
         try:
             return cls(*(d[name] for name in _BLOCKS), delta=d["delta"], basis=Basis.from_dict(d["basis"]),
                        Ts=float(d["Ts"]), u_names=d["u_names"], y_names=d["y_names"], p_names=d["p_names"])

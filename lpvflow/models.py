@@ -67,7 +67,7 @@ def default_names(model: Any, nu: int, ny: int, n_p: int) -> None:
     model.p_names = model.p_names or [f"p{i}" for i in range(n_p)]
 
 
-def _lagged_sum(psi: np.ndarray, coeffs: np.ndarray, signal: np.ndarray, shifted: bool) -> np.ndarray:
+def lagged_sum(psi: np.ndarray, coeffs: np.ndarray, signal: np.ndarray, shifted: bool) -> np.ndarray:
     """Σ_j M_j(ψ(k−j) or ψ(k)) s(k−j) for coefficient stack ``coeffs`` (n_lag, n_psi, ny, ns)."""
     n = len(signal)
     out = np.zeros((n, coeffs.shape[2]))
@@ -171,11 +171,11 @@ class LPVIO:
         _check_width("input u", u, self.nu)
         psi = self.basis.eval(p)
         shifted = self.form == "shifted"
-        forced = _lagged_sum(psi, self.B, u, shifted)
+        forced = lagged_sum(psi, self.B, u, shifted)
         if e is not None:
             e = _as_2d("noise e", e, len(p))
             _check_width("noise e", e, self.ny)
-            forced += e + _lagged_sum(psi, np.concatenate([np.zeros_like(self.C[:1]), self.C]), e, shifted)
+            forced += e + lagged_sum(psi, np.concatenate([np.zeros_like(self.C[:1]), self.C]), e, shifted)
         return io_recursion(forced, psi, self.A, shifted)
 
     def to_ss(self) -> LPVSS:
@@ -209,7 +209,7 @@ class LPVIO:
 
     @classmethod
     def from_dict(cls, d: dict) -> LPVIO:
-        _check_format(d, "lpvio")
+        check_format(d, "lpvio")
         basis = Basis.from_dict(d["basis"])
         n_psi = basis.n_psi
         B = np.asarray(d["B"], dtype=float)
@@ -361,7 +361,7 @@ class LPVSS:
 
     @classmethod
     def from_dict(cls, d: dict) -> LPVSS:
-        _check_format(d, "lpvss")
+        check_format(d, "lpvss")
         try:
             return cls(
                 d["A"], d["B"], d["C"], d["D"], Basis.from_dict(d["basis"]), float(d["Ts"]),
@@ -375,7 +375,8 @@ class LPVSS:
         atomic_write_json(path, self.to_dict())
 
 
-def _check_format(d: dict, kind: str) -> None:
+def check_format(d: dict, kind: str) -> None:
+    """Refuse (one line) a dictionary that is not an ``lpvflow/<kind>`` document of this format version."""
     fmt, version = d.get("format"), d.get("version")
     if fmt != f"lpvflow/{kind}":
         raise ModelError(f"expected a lpvflow/{kind} file, got format {fmt!r}")

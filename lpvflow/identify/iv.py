@@ -41,7 +41,7 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.arx import RegressorColumn, fill_regressor, order_matrix, row_columns
-from lpvflow.models import LPVIO, _lagged_sum
+from lpvflow.models import LPVIO, lagged_sum
 from lpvflow.simulate import io_recursion
 
 Scheduling = Callable[[np.ndarray], np.ndarray]
@@ -163,7 +163,7 @@ def parameter_vector(io: LPVIO) -> np.ndarray:
 
 def simulate_psi(io: LPVIO, u: np.ndarray, psi: np.ndarray) -> np.ndarray:
     """Noise-free simulated output of ``io`` for given basis values ψ (N, n_psi), zero initial past."""
-    forced = _lagged_sum(psi, io.B, u, io.form == "shifted")
+    forced = lagged_sum(psi, io.B, u, io.form == "shifted")
     return io_recursion(forced, psi, io.A, io.form == "shifted")
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, ModelError
-from lpvflow.models import FORMAT_VERSION, _check_format, atomic_write_json, register_format
+from lpvflow.models import FORMAT_VERSION, atomic_write_json, check_format, register_format
 from lpvflow.synth.polytope import Polytope
 
 
@@ -114,7 +114,7 @@ class LPVController:
 
     @classmethod
     def from_dict(cls, d: dict) -> LPVController:
-        _check_format(d, "lpv-controller")
+        check_format(d, "lpv-controller")
         try:
             pd = d["polytope"]
             poly = Polytope(pd["kind"], np.asarray(pd["box"], float), np.asarray(pd["psi_vertices"], float),

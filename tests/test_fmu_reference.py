@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from lpvflow.errors import DataError, ModelError
-from lpvflow.validate.fmu_reference import FmuLinearization, FmuLocalModels, arx_statespace, sample_like_fmu
+from lpvflow.validate.fmu_reference import (
+    FmuLinearization,
+    FmuLocalModels,
+    FmuOperatingPoints,
+    arx_statespace,
+    sample_like_fmu,
+)
 from lpvflow.validate.nugap import nugap
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,6 +58,19 @@ def test_finite_difference_linearization_equals_analytic_one_after_zoh(tanks):
             for M, E in ((G.A, sampled.A), (G.B, sampled.B), (G.C, sampled.C)):
                 assert relative_error(M, E) < 1e-5
             assert np.all(G.D == 0)
+
+
+def test_adip_equilibria_are_found_across_the_upright_point_in_grid_order():
+    # Regression: θ = 0 solved from θ < 0 comes out as ~1e-22 in every entry; started from there,
+    # least_squares' first trust region had that size and the θ > 0 points were refused.
+    grid = np.linspace(-0.6, 0.6, 9)
+    adip = ROOT / "fmu_plants" / "build" / "adip.fmu"
+    with FmuOperatingPoints(adip, 0.005, ["sin(arm_angle)"]) as reference:
+        points = [reference.equilibrium(np.array([theta])) for theta in grid]
+    np.testing.assert_allclose([op.x[0] for op in points], np.arcsin(grid), atol=1e-9)
+    # holding voltage −d1 sin φ1 / k_τ (fmu_plants/adip/README.md): odd in θ, 4.07 V at sin 75°
+    holding = -4.070791 * grid / np.sin(np.radians(75))
+    np.testing.assert_allclose([op.u[0] for op in points], holding, rtol=1e-6, atol=1e-9)
 
 
 def test_the_fmu_input_dead_time_is_part_of_the_linearization(tanks):

@@ -47,6 +47,8 @@ from lpvflow.models import LPVIO
 
 #: Equilibrium acceptance: ‖f‖∞·Ts ≤ TOL (1 + ‖x‖∞) and |s − p| ≤ TOL (1 + |p|).
 EQUILIBRIUM_TOL = 1e-9
+#: Start values below this magnitude are taken as exactly zero by the equilibrium search.
+ROUND_OFF = 1e-12
 
 
 @dataclass(frozen=True)
@@ -120,27 +122,34 @@ class FmuOperatingPoints:
         return plant.get([f"diag_der_{s}" for s in self.states]), y, s
 
     def equilibrium(self, p: np.ndarray) -> OperatingPoint:
-        """The equilibrium with scheduling value p, from the start values or the nearest solved point."""
+        """The equilibrium with scheduling value p, from the nearest solved point, else the start values."""
         p = np.atleast_1d(np.asarray(p, dtype=float))
         if p.shape != (len(self.expressions),):
             raise DataError(f"scheduling value {p.tolist()} has {p.size} entries; the FMU reference has "
                             f"{len(self.expressions)} scheduling expression(s)")
         n = len(self.states)
-        z0 = self.start if not self._solved else min(
-            self._solved, key=lambda op: float(np.linalg.norm(op.p - p)))
-        if isinstance(z0, OperatingPoint):
-            z0 = np.concatenate([z0.x, z0.u])
+        starts = [self.start]
+        if self._solved:
+            nearest = min(self._solved, key=lambda op: float(np.linalg.norm(op.p - p)))
+            starts.insert(0, np.concatenate([nearest.x, nearest.u]))
 
         def residual(z: np.ndarray) -> np.ndarray:
             dx, _, s = self.evaluate(z[:n], z[n:])
             return np.concatenate([dx * self.Ts, s - p])
 
-        solution = least_squares(residual, z0, x_scale=np.maximum(np.abs(z0), 1e-3), xtol=1e-15, ftol=1e-15,
-                                 gtol=1e-15, max_nfev=400)
-        x, u = solution.x[:n], solution.x[n:]
-        dx, y, s = self.evaluate(x, u)
-        if not (np.max(np.abs(dx)) * self.Ts <= EQUILIBRIUM_TOL * (1 + np.max(np.abs(x)))
-                and np.all(np.abs(s - p) <= EQUILIBRIUM_TOL * (1 + np.abs(p)))):
+        for z0 in starts:
+            # Round-off entries (an equilibrium at 0 solved as 1e-22) would make least_squares' first trust
+            # region ‖z0 / x_scale‖ that small, and it stops at once on xtol.
+            z0 = np.where(np.abs(z0) < ROUND_OFF, 0.0, z0)
+            solution = least_squares(residual, z0, x_scale=np.maximum(np.abs(z0), 1e-3), xtol=1e-15,
+                                     ftol=1e-15, gtol=1e-15, max_nfev=400)
+            x, u = solution.x[:n], solution.x[n:]
+            dx, y, s = self.evaluate(x, u)
+            ok = (np.max(np.abs(dx)) * self.Ts <= EQUILIBRIUM_TOL * (1 + np.max(np.abs(x)))
+                  and np.all(np.abs(s - p) <= EQUILIBRIUM_TOL * (1 + np.abs(p))))
+            if ok:
+                break
+        if not ok:
             raise ModelError(
                 f"{self.plant.name}: no equilibrium with scheduling {p.tolist()} found from the start values "
                 f"(residual |dx/dt| {np.max(np.abs(dx)):.3g}, scheduling error {np.max(np.abs(s - p)):.3g}); "

@@ -219,13 +219,12 @@ def _transformed(plant: GeneralizedPlant, T: np.ndarray) -> GeneralizedPlant:
 
 def _untransformed(result: HinfResult, plant: GeneralizedPlant, T: np.ndarray) -> HinfResult:
     """A result on :func:`_transformed` ``(plant, T)`` as one on ``plant``, re-checked there (its
-    controller is built by the caller, once the status is final)."""
+    controller is built by :func:`synthesize`, once the status is final)."""
     from lpvflow.synth.certify import vertex_lmi_max_eig
 
     nk = result.P[0].shape[0] - T.shape[0]
     D = scipy.linalg.block_diag(T, np.eye(nk))
-    out = replace(result, plant=plant, P=[D @ P @ D.T for P in result.P], G=D @ result.G @ D.T,
-                  controller=None)
+    out = replace(result, plant=plant, P=[D @ P @ D.T for P in result.P], G=D @ result.G @ D.T)
     out.lmi_max_eig = vertex_lmi_max_eig(out)
     return out
 
@@ -539,7 +538,13 @@ def synthesize(
     """
     if method not in METHODS:
         raise ModelError(f"unknown output-feedback method {method!r}; use one of {', '.join(METHODS)}")
-    args = (solver, margin, gamma_max, suboptimality)
+    result = _best_certified(plant, method, (solver, margin, gamma_max, suboptimality))
+    result.controller = implementable_controller(result)  # once, so its info carries the final status
+    return result
+
+
+def _best_certified(plant: GeneralizedPlant, method: str, args: tuple) -> HinfResult:
+    """The returned point of :func:`synthesize`, without its implementable controller."""
     if method == "common":
         return _synthesize_common(plant, *args)
     try:
@@ -612,11 +617,9 @@ def _synthesize_common(plant: GeneralizedPlant, *args) -> HinfResult:
     if balanced is not None and (result is None or balanced.gamma < result.gamma):
         unbalanced = "failed" if result is None else f"γ = {result.gamma:.6g}"
         balanced.report.status += f"; unbalanced: {unbalanced}"
-        balanced.controller = implementable_controller(balanced)  # its info carries the final status
         return balanced
     if result is None:
         raise first_error
-    result.controller = implementable_controller(result)
     return result
 
 
@@ -706,7 +709,6 @@ def _synthesize_one(
         raise SynthesisError(f"{what}: the solver's point ({status}) fails the independent vertex-LMI "
                              f"re-check (max eigenvalue {result.lmi_max_eig:.3g} ≥ 0); "
                              "increase suboptimality")
-    result.controller = implementable_controller(result)
     return result
 
 

@@ -54,6 +54,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "fmu_plants"))
 sys.path.insert(0, str(ROOT / "fmu_plants" / "adip"))
+import min_time as mt  # noqa: E402
 import reference_models as rm  # noqa: E402
 import stabilizing_controller  # noqa: E402
 
@@ -197,18 +198,6 @@ MOVE_TIMES = (0.0, 1.0, 1.5, 2.0, 2.5)
 SIM_SECONDS = 6.0
 
 
-def _rk4(x: np.ndarray, u: float, steps: int = 5) -> np.ndarray:
-    """One Ts of the nonlinear model (reference_models.adip_derivatives), RK4 with Ts/steps sub-steps."""
-    h, uu = TS / steps, np.array([u])
-    for _ in range(steps):
-        k1 = rm.adip_derivatives(x, uu, PARAMETERS)
-        k2 = rm.adip_derivatives(x + h / 2 * k1, uu, PARAMETERS)
-        k3 = rm.adip_derivatives(x + h / 2 * k2, uu, PARAMETERS)
-        k4 = rm.adip_derivatives(x + h * k3, uu, PARAMETERS)
-        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return x
-
-
 def scheduled_lqr_move(target_deg: float, weights: tuple, move_time: float) -> dict | None:
     """Section 5: one move of the arm from 0 to target_deg; None when the pendulum passes 0.9 rad."""
     grid = np.deg2rad(np.arange(-85, 86, 5))
@@ -221,7 +210,7 @@ def scheduled_lqr_move(target_deg: float, weights: tuple, move_time: float) -> d
         K = np.array([np.interp(x[0], grid, gains[:, i]) for i in range(4)])
         u = float(np.clip(u_eq[0] - K @ (x - x_eq), -10.0, 10.0))
         rows.append((k * TS, x[0], x[1], u))
-        x = _rk4(x, u)
+        x = mt.rk4(rm.adip_derivatives, x, np.array([u]), TS / 5, 5, PARAMETERS)  # 1 ms sub-steps
         if abs(x[1]) > 0.9:
             return None
     t, arm, pendulum, u = np.array(rows).T

@@ -30,11 +30,16 @@ PROCESS_NOISE = np.diag([1e-6, 1e-6, 1e-2, 1e-2])  # observer design weights
 SENSOR_NOISE = np.diag([1e-6, 1e-6])
 
 
-def design(parameters: dict | None = None) -> dict:
-    """The controller dictionary in the lpvflow/lti-controller format (version 1)."""
+def design(parameters: dict | None = None, design_angle: float = 0.0) -> dict:
+    """The controller dictionary in the lpvflow/lti-controller format (version 1).
+
+    ``design_angle`` (rad): take the gains from the linearization at the upright equilibrium with that
+    arm angle instead of 0 (the operating point stays φ1 = φ2 = 0, V = 0); benchmarks/bench_adip_scheduling.py
+    uses it for identification controllers that hold a wider arm range.
+    """
     p = parameters or rm.default_parameters("adip")
     x_op, u_op = rm.adip_equilibrium(0.0, p)
-    a, b = rm.jacobians(rm.adip_derivatives, x_op, u_op, p)
+    a, b = rm.jacobians(rm.adip_derivatives, *rm.adip_equilibrium(design_angle, p), p)
     c = np.eye(2, 4)
     plant = control.c2d(control.ss(a, b, c, np.zeros((2, 1))), TS, method="zoh")
     k, _, _ = control.dlqr(plant.A, plant.B, STATE_WEIGHT, INPUT_WEIGHT)

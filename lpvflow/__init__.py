@@ -9,8 +9,7 @@ _LAZY = {"Basis": "lpvflow.basis", "Dataset": "lpvflow.data", "identify_arx": "l
          "LPVLFR": "lpvflow.lfr", "LPVIO": "lpvflow.models", "LPVSS": "lpvflow.models",
          "load": "lpvflow.models"}
 
-__all__ = ["LPVIO", "LPVLFR", "LPVSS", "Basis", "DataError", "Dataset", "LpvflowError", "ModelError",
-           "identify_arx", "load"]
+__all__ = ["DataError", "LpvflowError", "ModelError", *_LAZY]
 __version__ = "0.1.0"
 
 

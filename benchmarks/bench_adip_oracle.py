@@ -8,9 +8,10 @@ lpvflow/pipeline/examples/adip.toml, and the controllers are run on the nonlinea
 1. Frozen optimum: ``synthesize`` on one node alone — the H∞ γ of the best LTI controller there with these
    weights, a lower bound for every polytopic design whose polytope contains that plant — with the bound β
    on the scaled Lyapunov matrices (lmi_hinf._BOUND) as shipped (1e6) and raised to 1e8, against the
-   Riccati solution of the same problem (SLICOT SB10DD through slycot, bisected on γ to 0.5 %, each
-   controller accepted only if python-control finds the closed loop stable with peak singular value
-   ≤ γ on 3000 frequencies): an answer independent of the LMIs.
+   Riccati solution of the same problem (lpvflow.synth.certify.riccati_gamma: SLICOT SB10DD, bisected on
+   γ to 0.5 %, each controller accepted only if python-control finds the closed loop stable with
+   ‖·‖∞ ≤ γ): an answer independent of the LMIs. Then the LMI γ at θ = 0.2495, cos 75.5°, 0.2505 (arm
+   angles 0.02° apart): how sensitive the returned γ is to the plant near the hardest point.
 2. Polytopic, common Lyapunov matrix, on the node set θ_1 = 1 > θ_2 > … (the plant between two adjacent
    nodes taken as their convex combination; the controller vertices interpolated with the same
    piecewise-linear hat coordinates λ_i(cos φ1), so one common certificate covers every segment). The
@@ -25,7 +26,7 @@ lpvflow/pipeline/examples/adip.toml, and the controllers are run on the nonlinea
    from the step, overshoot, largest pendulum angle after settling) or when the pendulum passed 0.5 rad.
    The plant and the controller are odd-symmetric, so −φ gives the same numbers as +φ; only + is run.
 
-Run: .venv/bin/python benchmarks/bench_adip_oracle.py   → results/adip_oracle.json (about 5 minutes)
+Run: .venv/bin/python benchmarks/bench_adip_oracle.py   → results/adip_oracle.json (about 6 minutes)
 """
 
 from __future__ import annotations
@@ -37,7 +38,6 @@ from pathlib import Path
 
 import control
 import numpy as np
-import slycot
 import tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,6 +48,7 @@ import min_time  # noqa: E402
 import reference_models  # noqa: E402
 
 import lpvflow.synth.lmi_hinf as lmi_hinf  # noqa: E402
+from lpvflow.synth.certify import riccati_gamma  # noqa: E402
 from lpvflow.synth.controller import series_input_filter  # noqa: E402
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, augment, check_a3, weight_systems  # noqa: E402
 from lpvflow.synth.polytope import Polytope  # noqa: E402
@@ -59,6 +60,8 @@ DURATION = 4.0
 SUBSTEPS = 5
 PENDULUM_LOST = 0.5  # rad, as the bundled scenarios' output_bounds
 TARGETS_DEG = (30, 45, 60, 75)
+#: θ within ±0.0005 of 0.25 (arm 75.48…75.56°; cos 75.5° = 0.25038): section 1's LMI γ there.
+SENSITIVITY_COS = (0.2495, float(np.cos(np.deg2rad(75.5))), 0.2505)
 
 
 def weights(k_scale: float = 1.0) -> dict:
@@ -109,31 +112,6 @@ def polytopic(nodes: tuple[float, ...], weight_table: dict, bound: float = 1e6) 
     return row, [series_input_filter(k, plant.input_filter) for k in result.K_vertices]
 
 
-def riccati_gamma(theta: float, weight_table: dict) -> float:
-    """Smallest γ (to 0.5 %) for which SB10DD returns a controller with a stable closed loop, ‖·‖∞ ≤ γ."""
-    v = node_plant((theta,), weight_table).vertices[0]
-    n, nw, nu, nz, ny = v.dims
-    B, C = np.hstack([v.B1, v.B2]), np.vstack([v.C1, v.C2])
-    D = np.block([[v.D11, v.D12], [v.D21, v.D22]])
-    frequencies = np.logspace(-5, np.log10(np.pi / TS), 3000)
-
-    def achieved(gamma: float) -> bool:
-        try:
-            K = slycot.sb10dd(n, nw + nu, nz + ny, nu, ny, gamma, A=v.A, B=B, C=C, D=D)[1:5]
-        except slycot.exceptions.SlycotError:
-            return False
-        loop = v.ss(TS).lft(control.ss(*K, TS), nu, ny)
-        response = np.moveaxis(loop.frequency_response(frequencies).fresp, -1, 0)
-        peak = np.linalg.svd(response, compute_uv=False).max()
-        return np.max(np.abs(np.linalg.eigvals(loop.A))) < 1.0 and peak <= gamma * 1.001
-
-    lo, hi = 1.0, 100.0
-    while hi / lo > 1.005:
-        mid = np.sqrt(lo * hi)
-        lo, hi = (lo, mid) if achieved(mid) else (mid, hi)
-    return hi
-
-
 def interpolated(K: list, lam: np.ndarray) -> list[np.ndarray]:
     return [sum(w * k[m] for w, k in zip(lam, K, strict=True)) for m in range(4)]
 
@@ -164,25 +142,24 @@ def arm_step(K: list, nodes: np.ndarray, target_deg: float) -> dict:
         if not abs(x[1]) < PENDULUM_LOST:
             return {"target_deg": target_deg, "pendulum_lost_at_s": round((k + 1) * TS, 3),
                     "peak_voltage": max(map(abs, voltage))}
-    arm, pendulum = np.array(arm), np.array(pendulum)
-    outside = np.nonzero(np.abs(arm - target) > np.deg2rad(1.0))[0]
-    settled = outside[-1] + 1 < len(arm)
+    t = TS * np.arange(len(arm))
     return {"target_deg": target_deg,
-            "settling_s": round((outside[-1] + 1) * TS - STEP_AT, 3) if settled else None,
-            "overshoot_deg": float(np.rad2deg(max(0.0, np.max(arm - target)))),
-            "pendulum_after_settling_deg": float(np.rad2deg(np.max(np.abs(pendulum[outside[-1] + 1:]))))
-            if settled else None,
-            "peak_voltage": max(map(abs, voltage))}
+            **reach.move_metrics(t, np.array(arm), np.array(pendulum), np.array(voltage), target, STEP_AT)}
 
 
 def main() -> None:
     default = weights()
-    results: dict = {"frozen_optimum": [], "polytopic": [], "nonlinear": []}
+    results: dict = {"frozen_optimum": [], "frozen_sensitivity_near_75deg": [], "polytopic": [],
+                     "nonlinear": []}
     for theta in (1.0, 0.7, 0.5, 0.25):
         row, _ = polytopic((theta,), default)
         row["gamma_bound_1e8"] = polytopic((theta,), default, 1e8)[0]["gamma"]
-        row["gamma_riccati"] = riccati_gamma(theta, default)
+        row["gamma_riccati"] = riccati_gamma(node_plant((theta,), default).vertices[0], TS)
         results["frozen_optimum"].append(row)
+        print(row, flush=True)
+    for theta in SENSITIVITY_COS:
+        row, _ = polytopic((theta,), default)
+        results["frozen_sensitivity_near_75deg"].append(row)
         print(row, flush=True)
     cases = [((1.0, 0.7), default, 1e6), ((1.0, 0.7, 0.5), default, 1e6),
              ((1.0, 0.7, 0.5), weights(0.2), 1e6), ((1.0, 0.7, 0.5), default, 1e9),

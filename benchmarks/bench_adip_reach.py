@@ -214,12 +214,21 @@ def scheduled_lqr_move(target_deg: float, weights: tuple, move_time: float) -> d
         if abs(x[1]) > 0.9:
             return None
     t, arm, pendulum, u = np.array(rows).T
+    return {"target_deg": target_deg, "move_time_s": move_time, "lqr_weights": list(weights),
+            **move_metrics(t, arm, pendulum, u, target, start)}
+
+
+def move_metrics(t: np.ndarray, arm: np.ndarray, pendulum: np.ndarray, u: np.ndarray, target: float,
+                 start: float) -> dict:
+    """Issue 7's metrics of an arm move started at ``start``: ±1° settling time (None if the last sample
+    is outside the band), overshoot, largest pendulum angle after settling, peak voltage."""
     outside = np.flatnonzero(np.abs(arm - target) > np.deg2rad(1.0))
-    settling = t[outside[-1]] + TS - start if outside.size else 0.0
-    after = t >= start + settling
-    return {"target_deg": target_deg, "settling_s": float(settling), "move_time_s": move_time,
-            "lqr_weights": list(weights), "overshoot_deg": float(np.rad2deg(max(0.0, np.max(arm - target)))),
-            "pendulum_after_settling_deg": float(np.rad2deg(np.max(np.abs(pendulum[after])))),
+    settled = not outside.size or outside[-1] + 1 < len(t)
+    settling = (t[outside[-1]] + TS - start if outside.size else 0.0) if settled else None
+    return {"settling_s": None if settling is None else float(settling),
+            "overshoot_deg": float(np.rad2deg(max(0.0, np.max(arm - target)))),
+            "pendulum_after_settling_deg": None if settling is None
+            else float(np.rad2deg(np.max(np.abs(pendulum[t >= start + settling])))),
             "peak_voltage": float(np.max(np.abs(u)))}
 
 
@@ -229,7 +238,8 @@ def scheduled_lqr_reach() -> list[dict]:
     for target in (60, 70, 75):
         runs = [scheduled_lqr_move(target, w, m) for w in LQR_WEIGHTS for m in MOVE_TIMES]
         held = [r for r in runs if r is not None]
-        best = min(held, key=lambda r: r["settling_s"]) if held else {"target_deg": target}
+        settled = [r for r in held if r["settling_s"] is not None]
+        best = min(settled, key=lambda r: r["settling_s"]) if settled else {"target_deg": target}
         rows.append(best | {"runs": len(runs), "pendulum_lost": len(runs) - len(held)})
         print(rows[-1], flush=True)
     return rows

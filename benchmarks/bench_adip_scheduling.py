@@ -26,12 +26,12 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import control
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "fmu_plants"))
 sys.path.insert(0, str(ROOT / "fmu_plants" / "adip"))
+import bench_adip_reach as reach  # noqa: E402  (same TS and plant parameters)
 import reference_models as rm  # noqa: E402
 import stabilizing_controller  # noqa: E402
 
@@ -57,11 +57,6 @@ def controller(design_deg: float) -> LtiController:
     return LtiController(*(np.asarray(doc[k], float) for k in "ABCD"), doc["Ts"], tuple(doc["inputs"]),
                          tuple(doc["outputs"]), np.asarray(doc["y_operating_point"], float),
                          np.asarray(doc["u_operating_point"], float))
-
-
-def linearization(deg: float) -> control.StateSpace:
-    a, b = rm.jacobians(rm.adip_derivatives, *rm.adip_equilibrium(np.deg2rad(deg), P), P)
-    return control.c2d(control.ss(a, b, np.eye(2, 4), np.zeros((2, 1))), TS, method="zoh")
 
 
 def unstable_poles(A: np.ndarray) -> list[float]:
@@ -112,7 +107,7 @@ def stable_up_to(design_deg: float) -> int | None:
     K = controller(design_deg)
     reached = None
     for deg in range(0, 90, 5):
-        G = linearization(deg)
+        G = reach.linearised(np.deg2rad(deg))
         loop = np.block([[G.A + G.B @ K.D @ G.C, G.B @ K.C], [K.B @ G.C, K.A]])
         if np.max(np.abs(np.linalg.eigvals(loop))) >= 1:
             break
@@ -122,7 +117,7 @@ def stable_up_to(design_deg: float) -> int | None:
 
 def main() -> None:
     start = time.perf_counter()
-    exact = {deg: unstable_poles(linearization(deg).A) for deg in ANGLES_DEG}
+    exact = {deg: unstable_poles(reach.linearised(np.deg2rad(deg)).A) for deg in ANGLES_DEG}
     results: dict = {"exact_unstable_poles_rad_s": exact, "fits": {}, "experiments": []}
     for design_deg in (0, WIDE_DESIGN_DEG):
         run = experiment(design_deg, 1.5)

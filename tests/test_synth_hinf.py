@@ -8,8 +8,9 @@ import control
 import numpy as np
 import pytest
 
+from lpvflow.errors import ModelError
 from lpvflow.models import load
-from lpvflow.synth.certify import certify, vertex_lmi_max_eig
+from lpvflow.synth.certify import certify, riccati_gamma, vertex_lmi_max_eig
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.examples import adip_like, maglev_like, random_lpv
 from lpvflow.synth.lmi_hinf import synthesize
@@ -401,42 +402,19 @@ def _adip_point(phi1_degrees: float):
     return generalized_plant(model, weights, [[0.0, 0.0]])
 
 
-def _riccati_gamma(gp) -> float:
-    """Smallest γ (to 0.5 %) at which SLICOT SB10DD (discrete H∞, Riccati) returns a controller whose
-    closed loop python-control finds stable with peak singular value ≤ γ: independent of the LMIs."""
-    import slycot
-
-    v = gp.vertices[0]
-    n, nw, nu, nz, ny = v.dims
-    B, C = np.hstack([v.B1, v.B2]), np.vstack([v.C1, v.C2])
-    D = np.block([[v.D11, v.D12], [v.D21, v.D22]])
-    frequencies = np.logspace(-5, np.log10(np.pi / gp.Ts), 2000)
-
-    def achieved(gamma: float) -> bool:
-        try:
-            K = slycot.sb10dd(n, nw + nu, nz + ny, nu, ny, gamma, A=v.A, B=B, C=C, D=D)[1:5]
-        except slycot.exceptions.SlycotError:
-            return False
-        loop = v.ss(gp.Ts).lft(control.ss(*K, gp.Ts), nu, ny)
-        response = np.moveaxis(loop.frequency_response(frequencies).fresp, -1, 0)
-        stable = np.max(np.abs(np.linalg.eigvals(loop.A))) < 1.0
-        return stable and np.linalg.svd(response, compute_uv=False).max() <= gamma * 1.001
-
-    lo, hi = 1.0, 100.0
-    assert achieved(hi)
-    while hi / lo > 1.005:
-        mid = np.sqrt(lo * hi)
-        lo, hi = (lo, mid) if achieved(mid) else (mid, hi)
-    return hi
-
-
 def test_frozen_adip_upright_reaches_the_riccati_gamma():
     """The bundled ADIP weights on the exact upright linearization: the certified LMI γ within 2 % of the
-    Riccati optimum (1.452; unbalanced coordinates alone give 1.63, benchmarks/README.md, 'ADIP synthesis
-    on the exact model', where the 75.5° point is shown to be round-off sensitive: 2.78 or 12.6)."""
+    Riccati optimum (1.452; unbalanced coordinates alone give 1.63; benchmarks/README.md, 'ADIP synthesis
+    on the exact model': near 75.5° the LMI γ jumps between 2.78 and 12.6 within 0.02° of arm angle)."""
     gp = _adip_point(0.0)
     assert gp.polytope.kind == "point"
-    gamma_ric = _riccati_gamma(gp)
+    gamma_ric = riccati_gamma(gp.vertices[0], gp.Ts)
     res = synthesize(gp, "common")
     assert 1.3 < gamma_ric < 1.6  # the reference itself (1.452 recorded)
     assert gamma_ric <= res.gamma * 1.005 and res.gamma <= 1.02 * gamma_ric
+
+
+def test_riccati_reference_refuses_an_unreachable_gamma():
+    gp = _adip_point(0.0)
+    with pytest.raises(ModelError, match=r"no controller with γ ≤ 1\.2"):
+        riccati_gamma(gp.vertices[0], gp.Ts, hi=1.2)

@@ -16,6 +16,9 @@
    designs only poly-quadratic stability is guaranteed, so this may legitimately fail there).
 4. **Switching simulation**: the LPVSS plant and the implementable ``LPVController`` under a scheduling
    value drawn afresh every sample, uniformly over the box.
+
+:func:`riccati_gamma` gives an LMI-free reference for one vertex: the optimal γ of the same discrete H∞
+problem by the Riccati solution (SLICOT SB10DD), a lower bound for every polytope containing that plant.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from dataclasses import dataclass
 import control
 import numpy as np
 
+from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
 from lpvflow.synth.lmi_hinf import HinfResult
 from lpvflow.synth.plant import VertexPlant, augment
@@ -86,6 +90,40 @@ def frozen_hinf_norms(result: HinfResult, model: LPVSS, weights: dict, grid: np.
         K = control.ss(*mats, model.Ts)
         norms.append(float(control.norm(P.lft(K, nu, ny), "inf")))
     return np.array(norms)
+
+
+def riccati_gamma(vertex: VertexPlant, Ts: float, lo: float = 1.0, hi: float = 100.0,
+                  rel: float = 0.005) -> float:
+    """Smallest γ in [lo, hi] (to relative width ``rel``) at which SLICOT SB10DD (slycot; discrete-time
+    H∞ controller formulae from two Riccati equations) returns a controller
+    whose closed loop with ``vertex`` is stable with ‖T_zw‖∞ ≤ γ (``StateSpace.lft``, ``control.norm``):
+    the frozen optimum the LMI synthesis should reach at one vertex, found without any LMI.
+
+    Raises:
+        ModelError: not even ``hi`` is achieved.
+    """
+    import slycot
+
+    n, nw, nu, nz, ny = vertex.dims
+    B, C = np.hstack([vertex.B1, vertex.B2]), np.vstack([vertex.C1, vertex.C2])
+    D = np.block([[vertex.D11, vertex.D12], [vertex.D21, vertex.D22]])
+    plant = vertex.ss(Ts)
+
+    def achieved(gamma: float) -> bool:
+        try:
+            K = slycot.sb10dd(n, nw + nu, nz + ny, nu, ny, gamma, A=vertex.A, B=B, C=C, D=D)[1:5]
+        except slycot.exceptions.SlycotError:
+            return False
+        loop = plant.lft(control.ss(*K, Ts), nu, ny)
+        stable = np.max(np.abs(np.linalg.eigvals(loop.A))) < 1.0
+        return stable and float(control.norm(loop, "inf")) <= gamma * (1 + 1e-3)
+
+    if not achieved(hi):
+        raise ModelError(f"SB10DD finds no controller with γ ≤ {hi:g} for this vertex")
+    while hi / lo > 1 + rel:
+        mid = (lo * hi) ** 0.5
+        lo, hi = (lo, mid) if achieved(mid) else (mid, hi)
+    return hi
 
 
 def switching_simulation(

@@ -71,8 +71,7 @@ LOWER_BOUNDS = (0.85, 0.7, 0.6, 0.5, 0.25)  # θ_lo = cos φ1: 31.8°, 45.6°, 5
 
 def linearised(phi1: float) -> control.StateSpace:
     """ZOH discretisation of the linearisation at the upright equilibrium with the arm at φ1."""
-    x_op, u_op = rm.adip_equilibrium(phi1, PARAMETERS)
-    a, b = rm.jacobians(rm.adip_derivatives, x_op, u_op, PARAMETERS)
+    a, b = rm.adip_linearization(phi1, PARAMETERS)
     return control.c2d(control.ss(a, b, np.eye(2, 4), np.zeros((2, 1))), TS, method="zoh")
 
 

@@ -87,6 +87,11 @@ def adip_equilibrium(phi1: float, p: dict) -> tuple[np.ndarray, np.ndarray]:
     return np.array([phi1, 0.0, 0.0, 0.0]), np.array([-d1 * np.sin(phi1) / adip_motor_gain(p)])
 
 
+def adip_linearization(phi1: float, p: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of dx/dt = A x + B u at the upright equilibrium with the arm at phi1 (complex step)."""
+    return jacobians(adip_derivatives, *adip_equilibrium(phi1, p), p)
+
+
 def adip_energy(x: np.ndarray, p: dict) -> float:
     phi1, phi2, w1, w2 = x
     a, b, c, d1, d2 = adip_coefficients(p)

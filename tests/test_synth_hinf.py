@@ -393,8 +393,7 @@ def _adip_point(phi1_degrees: float):
     rm = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(rm)
     parameters = rm.default_parameters("adip")
-    x_op, u_op = rm.adip_equilibrium(np.deg2rad(phi1_degrees), parameters)
-    a, b = rm.jacobians(rm.adip_derivatives, x_op, u_op, parameters)
+    a, b = rm.adip_linearization(np.deg2rad(phi1_degrees), parameters)
     G = control.c2d(control.ss(a, b, np.eye(2, 4), np.zeros((2, 1))), 0.005, method="zoh")
     model = LPVSS(np.array([G.A, 0 * G.A]), np.array([G.B, 0 * G.B]), np.array([G.C, 0 * G.C]),
                   np.zeros((2, 2, 1)), Basis("affine", 1), 0.005)

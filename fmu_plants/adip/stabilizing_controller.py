@@ -39,7 +39,7 @@ def design(parameters: dict | None = None, design_angle: float = 0.0) -> dict:
     """
     p = parameters or rm.default_parameters("adip")
     x_op, u_op = rm.adip_equilibrium(0.0, p)
-    a, b = rm.jacobians(rm.adip_derivatives, *rm.adip_equilibrium(design_angle, p), p)
+    a, b = rm.adip_linearization(design_angle, p)
     c = np.eye(2, 4)
     plant = control.c2d(control.ss(a, b, c, np.zeros((2, 1))), TS, method="zoh")
     k, _, _ = control.dlqr(plant.A, plant.B, STATE_WEIGHT, INPUT_WEIGHT)

@@ -23,7 +23,18 @@ the linearisation, so θ = cos φ1 is the natural scheduling variable and ±φ1 
      frozen (rate 0, same G):    as poly-quadratic with i = j only.
    t > 0 certifies; t ≤ 0 (to solver accuracy ~1e-8) means that family of Lyapunov functions
    cannot certify that range whatever the controller. For scale: one frozen LTI point at 75° has
-   t ≈ 1e-6, at 0° t ≈ 2e-5.
+   t ≈ 1e-6, at 0° t ≈ 2e-5. All three share one slack G for the whole range. Then, with the slack
+   depending on θ too (gridded, rate-bounded; :func:`gridded_margin`): P(θ), G(θ), W(θ) affine in
+   θ, the controller K(θ) = W(θ)G(θ)⁻¹, the exact linearisations A(θ) on a grid of step 0.01 and
+   |θ(k+1) − θ(k)| ≤ ν,
+     [[P(θ⁺), A(θ)G(θ) + B W(θ)], [⋆, G(θ) + G(θ)ᵀ − P(θ)]] ⪰ t I  at θ⁺ ∈ {θ − ν, θ, θ + ν},
+   which gives V = xᵀP(θ)⁻¹x decreasing along every scheduling trajectory with that rate bound
+   (de Oliveira, Bernussou & Geromel 1999 dilation; G(θ(k)) is allowed because it multiplies only
+   time-k data). A(θ)G(θ) is quadratic in θ, so the grid is not a proof between its points: the
+   solved P, G, W are re-checked on a 10× finer grid (smallest eigenvalue reported). These margins
+   are computed in the coordinates of a dlqr design at the box centre (x = T x̄, TTᵀ its closed-loop
+   Lyapunov matrix): a state transform changes t, not whether t > 0, and lifts t from ~1e-7 to ~1e-4
+   here, far above the solver's accuracy; the shared-slack families are given there too.
 5. An idealised upper bound for linear gain-scheduled control, no identification and no certificate:
    full-state LQR gains K(φ1) (python-control ``dlqr`` on the ZOH linearisations every 5°, interpolated
    linearly in the measured arm angle), u = V_eq(r) − K(φ1)(x − x_eq(r)), |u| ≤ 10 V, on the nonlinear
@@ -32,7 +43,8 @@ the linearisation, so θ = cos φ1 is the natural scheduling variable and ±φ1 
    target (from the start of the move), with the overshoot, the pendulum's largest angle after
    settling and the peak voltage. A step (T_r = 0) or T_r ≤ 1.2 s loses the pendulum at 75°.
 
-Run: .venv/bin/python benchmarks/bench_adip_reach.py   → results/adip_reach.json
+Run: .venv/bin/python benchmarks/bench_adip_reach.py [SECTION ...]   → results/adip_reach.json (only the
+named sections, e.g. state_feedback_certifiable_margin, are re-run and replaced)
 """
 
 from __future__ import annotations
@@ -50,6 +62,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import control
 import cvxpy as cp
 import numpy as np
+import scipy.linalg
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "fmu_plants"))
@@ -145,19 +158,31 @@ def synthesis_reach(weights: dict) -> list[dict]:
     return rows
 
 
+def filtered_plant(theta: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact linearisation at θ = cos φ1 with the input filter x_f⁺ = 0.7 x_f + 0.3 v, u = x_f (A3)."""
+    G = linearised(np.arccos(min(theta, 1.0)))
+    A = np.block([[G.A, G.B], [np.zeros((1, 4)), np.array([[0.7]])]])
+    return A, np.vstack([np.zeros((4, 1)), [[0.3]]])
+
+
 def filtered_vertices(theta_lo: float) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Exact linearisations at θ_lo and 1 with the input filter x_f⁺ = 0.7 x_f + 0.3 v, u = x_f (A3)."""
-    vertices = []
-    for theta in (theta_lo, 1.0):
-        G = linearised(np.arccos(theta))
-        A = np.block([[G.A, G.B], [np.zeros((1, 4)), np.array([[0.7]])]])
-        vertices.append((A, np.vstack([np.zeros((4, 1)), [[0.3]]])))
-    return vertices
+    """:func:`filtered_plant` at θ_lo and 1."""
+    return [filtered_plant(theta) for theta in (theta_lo, 1.0)]
 
 
-def certifiable_margin(theta_lo: float, kind: str) -> float:
-    """Largest t of the state-feedback LMIs of item 4 (module docstring)."""
+def lqr_coordinates(theta: float) -> np.ndarray:
+    """T with TTᵀ = X, the closed-loop Lyapunov matrix (A_cl X A_clᵀ − X = −I) of a dlqr design at θ."""
+    A, B = filtered_plant(theta)
+    K, _, _ = control.dlqr(A, B, np.diag([10.0, 60.0, 0.1, 0.1, 0.01]), np.eye(1))
+    return np.linalg.cholesky(scipy.linalg.solve_discrete_lyapunov(A - B @ K, np.eye(A.shape[0])))
+
+
+def certifiable_margin(theta_lo: float, kind: str, coordinates: np.ndarray | None = None) -> float:
+    """Largest t of the state-feedback LMIs of item 4 (module docstring), in x̄ = T⁻¹x if T is given."""
     vertices = filtered_vertices(theta_lo)
+    if coordinates is not None:
+        Ti = np.linalg.inv(coordinates)
+        vertices = [(Ti @ A @ coordinates, Ti @ B) for A, B in vertices]
     n = vertices[0][0].shape[0]
     t = cp.Variable()
     W = [cp.Variable((1, n)) for _ in vertices]
@@ -180,12 +205,70 @@ def certifiable_margin(theta_lo: float, kind: str) -> float:
     return float(t.value)
 
 
+#: Rate bounds ν on |θ(k+1) − θ(k)| per 5 ms sample for :func:`gridded_margin`. 0.02 (4 s⁻¹) covers the
+#: fastest arm moves: |d cos φ1/dt| ≤ |φ1'| and the time-optimal 0 → 75° transfer peaks near 4 rad/s
+#: (bench_adip_limits).
+RATES = (0.05, 0.02, 0.005)
+GRID_STEP = 0.01
+RECHECK_STEP = 0.001
+
+
+def _dilated_lmi(A, B, P_next, P_now, G, W) -> np.ndarray | cp.Expression:
+    """[[P(θ⁺), AG + BW], [⋆, G + Gᵀ − P(θ)]] (numbers or cvxpy expressions)."""
+    H = A @ G + B @ W
+    if isinstance(H, cp.Expression):
+        return cp.bmat([[P_next, H], [H.T, G + G.T - P_now]])
+    return np.block([[P_next, H], [H.T, G + G.T - P_now]])
+
+
+def _rate_pairs(grid: np.ndarray, rate: float, lo: float) -> list[tuple[float, float]]:
+    """(θ, θ⁺) with θ on ``grid`` and θ⁺ ∈ {θ − ν, θ, θ + ν} ∩ [lo, 1]."""
+    return [(th, float(np.clip(th + d, lo, 1.0))) for th in grid for d in (-rate, 0.0, rate)]
+
+
+def gridded_margin(theta_lo: float, rate: float) -> dict:
+    """Item 4's gridded, rate-bounded margin t on [θ_lo, 1] and the re-check on a 10× finer grid."""
+    T = lqr_coordinates(0.5 * (theta_lo + 1.0))
+    n = T.shape[0]
+    P = [cp.Variable((n, n), symmetric=True) for _ in range(2)]  # at θ_lo and 1, affine in between
+    G = [cp.Variable((n, n)) for _ in range(2)]
+    W = [cp.Variable((1, n)) for _ in range(2)]
+
+    def at(values, theta):
+        s = (theta - theta_lo) / (1.0 - theta_lo)
+        return (1.0 - s) * values[0] + s * values[1]
+
+    t = cp.Variable()
+    constraints = [t <= 1] + [c for Pi in P for c in (Pi >> t * np.eye(n), Pi << np.eye(n))]
+    grid = np.linspace(theta_lo, 1.0, round((1.0 - theta_lo) / GRID_STEP) + 1)
+    for th, th_next in _rate_pairs(grid, rate, theta_lo):
+        M = _dilated_lmi(*filtered_plant_in(T, th), at(P, th_next), at(P, th), at(G, th), at(W, th))
+        constraints.append((M + M.T) / 2 >> t * np.eye(2 * n))
+    cp.Problem(cp.Maximize(t), constraints).solve(solver="CLARABEL")
+    values = [[np.array(v.value) for v in var] for var in (P, G, W)]
+    fine = np.linspace(theta_lo, 1.0, round((1.0 - theta_lo) / RECHECK_STEP) + 1)
+    recheck = min(np.linalg.eigvalsh(_dilated_lmi(*filtered_plant_in(T, th), at(values[0], th_next),
+                                                  at(values[0], th), at(values[1], th), at(values[2], th)))[0]
+                  for th, th_next in _rate_pairs(fine, rate, theta_lo))
+    return {"rate_per_sample": rate, "margin": float(t.value), "recheck_min_eig": float(recheck)}
+
+
+def filtered_plant_in(T: np.ndarray, theta: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`filtered_plant` in x̄ = T⁻¹x."""
+    A, B = filtered_plant(theta)
+    Ti = np.linalg.inv(T)
+    return Ti @ A @ T, Ti @ B
+
+
 def lyapunov_reach() -> list[dict]:
     rows = []
     for theta_lo in LOWER_BOUNDS:
         row = {"theta_lo": theta_lo, "arm_deg": float(np.rad2deg(np.arccos(theta_lo)))}
         kinds = ("quadratic", "poly-quadratic", "frozen")
         row |= {kind: certifiable_margin(theta_lo, kind) for kind in kinds}
+        T = lqr_coordinates(0.5 * (theta_lo + 1.0))
+        row["lqr_coordinates"] = {kind: certifiable_margin(theta_lo, kind, T) for kind in kinds}
+        row["lqr_coordinates"]["gridded"] = [gridded_margin(theta_lo, rate) for rate in RATES]
         rows.append(row)
         print(row, flush=True)
     return rows
@@ -244,19 +327,23 @@ def scheduled_lqr_reach() -> list[dict]:
     return rows
 
 
-def main() -> None:
+def main(sections: list[str]) -> None:
+    """Run every section, or only the named ones (keys of results/adip_reach.json), updating the file."""
     config = tomllib.loads((ROOT / "lpvflow" / "pipeline" / "examples" / "adip.toml").read_text())
-    results = {"authority": authority(), "lti_controller": lti_reach(),
-               "state_feedback_certifiable_margin": lyapunov_reach(),
-               "common_lyapunov_synthesis": synthesis_reach(config["synth"]["weights"]),
-               "scheduled_lqr_on_the_nonlinear_model": scheduled_lqr_reach()}
-    for row in results["authority"]:
-        print(row)
-    print(results["lti_controller"])
+    runners = {"authority": authority, "lti_controller": lti_reach,
+               "state_feedback_certifiable_margin": lyapunov_reach,
+               "common_lyapunov_synthesis": lambda: synthesis_reach(config["synth"]["weights"]),
+               "scheduled_lqr_on_the_nonlinear_model": scheduled_lqr_reach}
+    unknown = sorted(set(sections) - set(runners))
+    if unknown:
+        raise SystemExit(f"unknown section(s) {', '.join(unknown)}; use any of {', '.join(runners)}")
     out = Path(__file__).parent / "results" / "adip_reach.json"
+    results = json.loads(out.read_text()) if sections and out.exists() else {}
+    for name in sections or runners:
+        results[name] = runners[name]()
     out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(results, indent=1))
+    out.write_text(json.dumps({name: results[name] for name in runners if name in results}, indent=1))
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -630,8 +630,8 @@ def _balanced_common(plant: GeneralizedPlant, gammas: tuple[float, ...], *args) 
     Used only when the unbalanced attempt bisected, was inexact or failed (ill-conditioned LMIs), so
     well-conditioned plants are solved exactly as before. The returned γ is the lower certified one of
     the two attempts, so it can only improve. ADIP (bench_adip_reach.affine_model, adip.toml
-    weights), certified γ unbalanced → balanced: θ = cos φ1 ∈ [0.85, 1] 5.511 → 1.796, [0.7, 1] 30.18 →
-    4.089, [0.6, 1] 247.1 → 14.63, [0.5, 1] infeasible → 116.7; [0.25, 1] stays infeasible.
+    weights), certified γ unbalanced → balanced: θ = cos φ1 ∈ [0.85, 1] 5.429 → 1.795, [0.7, 1] 30.76 →
+    4.089, [0.6, 1] 240.7 → 14.62, [0.5, 1] infeasible → 117.1; [0.25, 1] stays infeasible.
     """
     T = _balancing_transform(plant, gammas)
     if T is None:

@@ -86,17 +86,17 @@ def symmetry_error(samples: int = 200) -> float:
     return float(max(errors))
 
 
-def endpoints(phi_deg: float) -> tuple[np.ndarray, ...]:
+def endpoints(phi_deg: float, p: dict = P) -> tuple[np.ndarray, ...]:
     """x0, xf, u_eq0, u_eq_f of the transfer 0 → phi_deg (the order of `minimum_time_transfer`)."""
-    (x0, u0), (xf, uf) = rm.adip_equilibrium(0.0, P), rm.adip_equilibrium(np.deg2rad(phi_deg), P)
+    (x0, u0), (xf, uf) = rm.adip_equilibrium(0.0, p), rm.adip_equilibrium(np.deg2rad(phi_deg), p)
     return x0, xf, u0, uf
 
 
-def smoothstep_guess(phi_t: float, T: float, N: int) -> tuple[np.ndarray, np.ndarray]:
+def smoothstep_guess(phi_t: float, T: float, N: int, p: dict = P) -> tuple[np.ndarray, np.ndarray]:
     """φ1 = φt s(t/T), s = 3τ² − 2τ³, its rate, φ2 = ω2 = 0, and the equilibrium voltage V_eq(φ1)."""
     tau = np.linspace(0.0, 1.0, N + 1)
     mid = (tau[:-1] + tau[1:]) / 2
-    voltage = np.array([rm.adip_equilibrium(phi_t * s * s * (3 - 2 * s), P)[1][0] for s in mid])
+    voltage = np.array([rm.adip_equilibrium(phi_t * s * s * (3 - 2 * s), p)[1][0] for s in mid])
     states = np.array([phi_t * tau**2 * (3 - 2 * tau), 0 * tau, phi_t * 6 * tau * (1 - tau) / T, 0 * tau])
     return voltage[None, :], states
 
@@ -126,9 +126,9 @@ def transfer(
     )
 
 
-def dense(result: mt.Transfer) -> tuple[np.ndarray, np.ndarray]:
-    """Times and states at every RK4 sub-step of the transfer."""
-    return mt.simulate(F, result.states[0], result.voltage, result.interval, result.substeps, P)
+def dense(result: mt.Transfer, p: dict = P) -> tuple[np.ndarray, np.ndarray]:
+    """Times and states at every RK4 sub-step of the transfer (on the plant with parameters p)."""
+    return mt.simulate(F, result.states[0], result.voltage, result.interval, result.substeps, p)
 
 
 def solve_ivp_end(result: mt.Transfer) -> np.ndarray:
@@ -213,21 +213,23 @@ def band_bounds(phi_deg: float, vmax: float) -> list[dict]:
     return rows
 
 
-def spec_violation(result: mt.Transfer, settle_time: float, phi_deg: float) -> float:
+def spec_violation(result: mt.Transfer, settle_time: float, phi_deg: float, p: dict = P) -> float:
     """Largest excess (deg) over the spec on the sub-step trajectory: overshoot beyond 2°, arm or
     pendulum outside ±1° after settle_time. ≤ 0 when the transfer meets the spec."""
-    t, x = dense(result)
+    t, x = dense(result, p)
     error = np.rad2deg(x[:, :2] - [np.deg2rad(phi_deg), 0.0])
     after = t >= settle_time - 1e-9
     return float(max(error[:, 0].max() - SPEC_OVERSHOOT_DEG, np.abs(error[after]).max() - SPEC_BAND_DEG))
 
 
-def settling_transfer(phi_deg: float, vmax: float, settle_guess: float) -> tuple[mt.Transfer, float, float]:
-    """Item 3 (c) from one guess: (transfer, T_s = K h, node-bound margin in deg)."""
+def settling_transfer(
+    phi_deg: float, vmax: float, settle_guess: float, p: dict = P
+) -> tuple[mt.Transfer, float, float]:
+    """Item 3 (c) from one guess: (transfer, T_s = K h, node-bound margin in deg), on parameters p."""
     phi_t = np.deg2rad(phi_deg)
-    x0, xf, u0, uf = endpoints(phi_deg)
+    x0, xf, u0, uf = endpoints(phi_deg, p)
     K, M = round(settle_guess / INTERVAL), SETTLE_TAIL
-    u, x = smoothstep_guess(phi_t, settle_guess, K)
+    u, x = smoothstep_guess(phi_t, settle_guess, K, p)
     guess = (
         np.hstack([u, np.repeat(uf[:, None], M, axis=1)]),
         np.hstack([x, np.repeat(xf[:, None], M, axis=1)]),
@@ -245,7 +247,7 @@ def settling_transfer(phi_deg: float, vmax: float, settle_guess: float) -> tuple
             u0,
             uf,
             vmax,
-            P,
+            p,
             interval=settle_guess / K,
             T_guess=T_start,
             guess=guess,
@@ -253,7 +255,7 @@ def settling_transfer(phi_deg: float, vmax: float, settle_guess: float) -> tuple
             state_scale=mt.ADIP_STATE_SCALE,
             max_iterations=1500,
         )
-        excess = spec_violation(result, result.grid[K], phi_deg)
+        excess = spec_violation(result, result.grid[K], phi_deg, p)
         if not result.success or excess <= 0 or margin + excess + 0.02 >= SPEC_BAND_DEG / 2:
             break  # met, failed, or not to be met by shrinking the node bounds
         margin += excess + 0.02

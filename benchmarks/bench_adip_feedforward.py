@@ -5,11 +5,14 @@ pendulum or settles in ≥ 2 s (bench_adip_reach section 5: scheduled full-state
 reference ramped over 2 s). The thesis's controller is 2-DOF (notes_002 §6.4). This bench measures the
 idealised 2-DOF: full state measured, no identification, no certificate.
 
-Feed-forward: the spec-compliant minimum-time transfer 0 → 75° of bench_adip_limits (item 3 c:
-settling_transfer, multiple shooting on the plant equations, |V| ≤ V_ff, arm within ±1° and overshoot
-≤ 2° from the settling time on), computed on a *designer's model* with parameters p_d. Its voltage
-u_ff(k) (averaged over each 5 ms sample) and state x_ref(k) (the transfer simulated on p_d) are played
-from the step time t = 0.5 s; afterwards u_ff = V_eq(75°), x_ref = x_eq(75°).
+Feed-forward: a transfer 0 → 75° at rest on the plant equations (fmu_plants/adip/min_time.py, multiple
+shooting), computed on a *designer's model* with parameters p_d, either
+  * minimum time and spec-compliant (bench_adip_limits item 3 c, settling_transfer: arm within ±1° and
+    overshoot ≤ 2° from the settling time on), |V| ≤ 5 V or 8 V, or
+  * minimum input energy h Σ u_k² over a fixed T = 1.2 s, |V| ≤ 6 V, with or without the node bound
+    φ1 ≤ 75° + 1.5° (no overshoot).
+Its voltage u_ff(k) (averaged over each 5 ms sample) and state x_ref(k) (the transfer simulated on p_d)
+are played from the step time t = 0.5 s; afterwards u_ff = V_eq(75°), x_ref = x_eq(75°).
 
 Feedback: time-varying discrete LQR along (x_ref, u_ff) — backward Riccati recursion
 S_k = Q + A_kᵀS_{k+1}(A_k − B_kK_k), K_k = (R + B_kᵀS_{k+1}B_k)⁻¹B_kᵀS_{k+1}A_k on the ZOH Jacobians of the
@@ -18,10 +21,10 @@ is also the gain after the transfer — and u = u_ff − K_k (x − x_ref), |u| 
 (RK4, 1 ms sub-steps). Metrics of bench_adip_reach.move_metrics from the step; "lost" when the pendulum
 is 0.5 rad off its reference.
 
-Rows: designer's model = the plant (exact feed-forward), and ±10 % pendulum mass, +50 % arm damping with
-−10 % pendulum inertia (a feed-forward from an imperfect model), at V_ff = 5 V and 8 V.
+Rows: every feed-forward above × designer's model = the plant (exact feed-forward), ±10 % pendulum mass,
++50 % arm damping with −10 % pendulum inertia (a feed-forward from an imperfect model).
 
-Run: .venv/bin/python benchmarks/bench_adip_feedforward.py   → results/adip_feedforward.json (about 1 minute)
+Run: .venv/bin/python benchmarks/bench_adip_feedforward.py  → results/adip_feedforward.json (1.5 minutes)
 """
 
 from __future__ import annotations
@@ -52,7 +55,9 @@ SECONDS = 4.0
 SUBSAMPLES = 50  # for averaging the feed-forward voltage over one 5 ms sample
 Q_LQR = np.diag([100.0, 300.0, 1.0, 1.0])  # arm, pendulum [1/rad²], their rates [s²/rad²]
 R_LQR = np.array([[0.3]])  # [1/V²]
-VOLTAGES = (5.0, 8.0)
+ENERGY_DURATION = 1.2  # s
+ENERGY_VOLTAGE = 6.0  # V
+OVERSHOOT_BOUND_DEG = 1.5
 DESIGNER_MODELS = {
     "exact": {},
     "pendulum mass +10 %": {"pendulum_mass": 1.1 * limits.P["pendulum_mass"]},
@@ -93,16 +98,41 @@ def tracking_gains(x_ref: np.ndarray, u_ff: np.ndarray, x_end: np.ndarray, u_end
     return gains[::-1], K_end
 
 
-def move(designer: dict, v_ff: float) -> dict:
+def minimum_time(p: dict, vmax: float) -> mt.Transfer:
+    """bench_adip_limits' spec-compliant minimum-time transfer (first guess: settling in 1 s)."""
+    return limits.settling_transfer(TARGET_DEG, vmax, 1.0, p)[0]
+
+
+def minimum_energy(p: dict, bound_deg: float | None) -> mt.Transfer:
+    """Minimum-energy transfer of duration ENERGY_DURATION, |V| ≤ ENERGY_VOLTAGE, φ1 ≤ target + bound."""
+    intervals = round(ENERGY_DURATION / limits.INTERVAL)
+    guess = limits.smoothstep_guess(np.deg2rad(TARGET_DEG), ENERGY_DURATION, intervals, p)
+    path = None
+    if bound_deg is not None:
+        path = (np.full(4, -np.inf), np.array([np.deg2rad(TARGET_DEG + bound_deg), np.inf, np.inf, np.inf]))
+    return mt.minimum_time_transfer(rm.adip_derivatives, *limits.endpoints(TARGET_DEG, p), ENERGY_VOLTAGE, p,
+                                    interval=limits.INTERVAL, T_guess=ENERGY_DURATION, guess=guess,
+                                    duration=ENERGY_DURATION, path=path, state_scale=mt.ADIP_STATE_SCALE)
+
+
+_ENERGY = f"minimum energy, T = {ENERGY_DURATION} s, |V| ≤ {ENERGY_VOLTAGE:g} V"
+FEEDFORWARDS = {
+    "minimum time, spec-compliant, |V| ≤ 5 V": lambda p: minimum_time(p, 5.0),
+    "minimum time, spec-compliant, |V| ≤ 8 V": lambda p: minimum_time(p, 8.0),
+    _ENERGY: lambda p: minimum_energy(p, None),
+    f"{_ENERGY}, φ1 ≤ target + {OVERSHOOT_BOUND_DEG}°": lambda p: minimum_energy(p, OVERSHOOT_BOUND_DEG),
+}
+
+
+def move(designer: dict, feedforward: str) -> dict:
     """One 0 → 75° move on the nominal plant with feed-forward and gains from the designer's model."""
     p = limits.P | designer
     t0 = time.perf_counter()
-    transfer, settle, _ = limits.settling_transfer(TARGET_DEG, v_ff, 1.0, p)
+    transfer = FEEDFORWARDS[feedforward](p)
     x_ref, u_ff = reference(transfer, p)
     x_end, u_end = rm.adip_equilibrium(np.deg2rad(TARGET_DEG), p)
     gains, K_end = tracking_gains(x_ref, u_ff, x_end, u_end[0], p)
-    row = {"feedforward_voltage": v_ff, "transfer_ok": bool(transfer.success),
-           "designed_settling_s": float(settle)}
+    row = {"transfer_ok": bool(transfer.success), "transfer_T_s": float(transfer.T)}
     x, rows = np.zeros(4), []
     for k in range(round(SECONDS / TS)):
         j = k - round(STEP_AT / TS)
@@ -124,9 +154,9 @@ def move(designer: dict, v_ff: float) -> dict:
 
 def main() -> None:
     rows = []
-    for name, designer in DESIGNER_MODELS.items():
-        for v_ff in VOLTAGES:
-            rows.append({"designer_model": name} | move(designer, v_ff))
+    for feedforward in FEEDFORWARDS:
+        for name, designer in DESIGNER_MODELS.items():
+            rows.append({"feedforward": feedforward, "designer_model": name} | move(designer, feedforward))
             print(rows[-1], flush=True)
     out = Path(__file__).parent / "results" / "adip_feedforward.json"
     out.parent.mkdir(exist_ok=True)

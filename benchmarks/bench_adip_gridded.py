@@ -33,7 +33,7 @@ Nonlinear check of certified designs: controllers tabulated every 0.0025 in θ a
 run on the nonlinear ADIP (bench_adip_oracle.arm_step: RK4, ±10 V, arm steps at t = 0.5 s, issue 7's
 metrics) for targets up to the range's end.
 
-Run: .venv/bin/python benchmarks/bench_adip_gridded.py   → results/adip_gridded.json (about 20 minutes)
+Run: .venv/bin/python benchmarks/bench_adip_gridded.py   → results/adip_gridded.json (about 15 minutes)
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ lpvflow/pipeline/examples/adip.toml, and the controllers are run on the nonlinea
 
 1. Frozen optimum: ``synthesize`` on one node alone — the H∞ γ of the best LTI controller there with these
    weights, a lower bound for every polytopic design whose polytope contains that plant — with the bound β
-   on the scaled Lyapunov matrices (lmi_hinf._BOUND) as shipped (1e6) and raised to 1e8, against the
+   on the scaled Lyapunov matrices (lyapunov_bound) as shipped (1e6) and raised to 1e8, against the
    Riccati solution of the same problem (lpvflow.synth.certify.riccati_gamma: SLICOT SB10DD, bisected on
    γ to 0.5 %, each controller accepted only if python-control finds the closed loop stable with
    ‖·‖∞ ≤ γ): an answer independent of the LMIs. Then the LMI γ at θ = 0.2495, cos 75.5°, 0.2505 (arm
@@ -16,7 +16,7 @@ lpvflow/pipeline/examples/adip.toml, and the controllers are run on the nonlinea
    nodes taken as their convex combination; the controller vertices interpolated with the same
    piecewise-linear hat coordinates λ_i(cos φ1), so one common certificate covers every segment). The
    node set {1, 0.7, 0.5} is solved with the bundled weights, with W_K five times smaller, and with the
-   bound β on the scaled Lyapunov matrices (lmi_hinf._BOUND, 1e6) raised to 1e9. In exact arithmetic a
+   bound β on the scaled Lyapunov matrices (lyapunov_bound, 1e6) raised to 1e9. In exact arithmetic a
    smaller W_K cannot raise the optimal γ (every certificate stays feasible: the bounded-real LMI only
    loses a positive semidefinite C1ᵀC1 part), and neither can a larger β; a γ that moves the other way
    is the solver's inaccuracy, not the plant's.
@@ -94,20 +94,18 @@ def hat_coordinates(nodes: np.ndarray, theta: float) -> np.ndarray:
     return np.ones(1)  # one node
 
 
-def polytopic(nodes: tuple[float, ...], weight_table: dict, bound: float = 1e6) -> tuple[dict, list | None]:
+def polytopic(nodes: tuple[float, ...], weight_table: dict,
+              bound: float = lmi_hinf.LYAPUNOV_BOUND) -> tuple[dict, list | None]:
     """γ, status and time of the common-Lyapunov synthesis on ``nodes``; vertex controllers with W_B."""
     row = {"nodes_cos": list(nodes), "arm_up_to_deg": float(np.rad2deg(np.arccos(min(nodes)))),
            "W_K": weight_table["K"]["num"][0], "lyapunov_bound": bound}
     plant = node_plant(nodes, weight_table)
-    saved, lmi_hinf._BOUND = lmi_hinf._BOUND, bound
     t0 = time.perf_counter()
     try:
-        result = lmi_hinf.synthesize(plant, "common")
+        result = lmi_hinf.synthesize(plant, "common", lyapunov_bound=bound)
     except SynthesisError as exc:
         row.update(gamma=None, reason=str(exc), seconds=time.perf_counter() - t0)
         return row, None
-    finally:
-        lmi_hinf._BOUND = saved
     row.update(gamma=float(result.gamma), status=result.report.status, seconds=time.perf_counter() - t0)
     return row, [series_input_filter(k, plant.input_filter) for k in result.K_vertices]
 
@@ -168,7 +166,7 @@ def main() -> None:
         row, K = polytopic(nodes, table, bound)
         results["polytopic"].append(row)
         print(row, flush=True)
-        if K is None or table is not default or bound != 1e6:
+        if K is None or table is not default or bound != lmi_hinf.LYAPUNOV_BOUND:
             continue
         node_array = np.array(nodes)
         runs = {"nodes_cos": list(nodes), "gamma": row["gamma"],

@@ -13,7 +13,7 @@ from lpvflow.models import load
 from lpvflow.synth.certify import certify, riccati_gamma, vertex_lmi_max_eig
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.examples import adip_like, maglev_like, random_lpv
-from lpvflow.synth.lmi_hinf import synthesize
+from lpvflow.synth.lmi_hinf import LYAPUNOV_BOUND, synthesize
 from lpvflow.synth.plant import augment, generalized_plant, weight_systems
 from lpvflow.synth.polytope import polytope_of
 from lpvflow.synth.sdp import SynthesisError
@@ -272,7 +272,7 @@ def test_eliminated_common_gamma_equals_the_full_change_of_variables_gamma(desig
     verts, _ = _scaled_vertices(common.plant)
     g = cp.Variable(nonneg=True)
     full = _lmis(verts, "common", g)
-    solve(cp.Problem(cp.Minimize(g), [psd(M, 1e-7) for M in full.matrices] + _bounded(full)))
+    solve(cp.Problem(cp.Minimize(g), [psd(M, 1e-7) for M in full.matrices] + _bounded(full, LYAPUNOV_BOUND)))
     assert abs(common.gamma_opt - g.value) <= 0.01 * g.value
     assert common.gamma <= 1.011 * g.value and common.lmi_max_eig < 0
 
@@ -286,8 +286,8 @@ def test_eliminated_lmis_strictly_feasible_iff_the_reconstructed_controller_pass
     common = results["common"]
     gp = common.plant
     verts, (s, du, dy) = _scaled_vertices(gp)
-    eliminated = _MarginProblem(verts, "common", "CLARABEL", "eliminated", eliminate=True)
-    full = _MarginProblem(verts, "common", "CLARABEL", "full", eliminate=False)
+    eliminated = _MarginProblem(verts, "common", "CLARABEL", "eliminated", True, LYAPUNOV_BOUND)
+    full = _MarginProblem(verts, "common", "CLARABEL", "full", False, LYAPUNOV_BOUND)
     for factor in (1.05, 1.5):
         gamma = factor * common.gamma_opt
         t, val = eliminated.margin(gamma)
@@ -417,3 +417,14 @@ def test_riccati_reference_refuses_an_unreachable_gamma():
     gp = _adip_point(0.0)
     with pytest.raises(ModelError, match=r"no controller with γ ≤ 1\.2"):
         riccati_gamma(gp.vertices[0], gp.Ts, hi=1.2)
+
+
+def test_lyapunov_bound_is_honoured_and_checked():
+    """[X I; I Y] ⪯ β·I needs β ≥ 1 (its eigenvalues straddle those of XY ⪰ I): β = 0.5 must leave no
+    certificate, which only happens if the bound reaches every LMI set solved (unbalanced and balanced);
+    a non-positive β is refused with one line."""
+    gp = _adip_point(0.0)
+    with pytest.raises(SynthesisError):
+        synthesize(gp, "common", lyapunov_bound=0.5)
+    with pytest.raises(ModelError, match="lyapunov_bound must be positive"):
+        synthesize(gp, "common", lyapunov_bound=0.0)

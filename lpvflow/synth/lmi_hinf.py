@@ -112,7 +112,7 @@ from lpvflow.synth.plant import GeneralizedPlant, VertexPlant
 from lpvflow.synth.sdp import COARSE, SolveReport, SynthesisError, psd, solve
 
 METHODS = ("common", "dilated")
-_BOUND = 1e6  # P̄_i, sym 𝒢 ⪯ β·I in the scaled coordinates (synthesize, step 1 and 2)
+LYAPUNOV_BOUND = 1e6  # default β: P̄_i, sym 𝒢 ⪯ β·I in the scaled coordinates (synthesize, steps 1 and 2)
 
 
 @dataclass
@@ -165,12 +165,13 @@ def _scalings(vertices: list[VertexPlant]) -> tuple[np.ndarray, np.ndarray, np.n
 _BALANCING_GAMMAS = (1e2, 1e3, 1e4, 1e1)
 
 
-def _balancing_transform(plant: GeneralizedPlant, gammas: tuple[float, ...]) -> np.ndarray | None:
+def _balancing_transform(plant: GeneralizedPlant, gammas: tuple[float, ...],
+                         bound: float = LYAPUNOV_BOUND) -> np.ndarray | None:
     """A full state transform x = T x̄ that balances X and Y of the eliminated LMIs; None if none found.
 
     On the :func:`_scalings` coordinates, the (X_i) and (Y_i) LMIs are solved *separately* (no coupling
     (C), so they stay solvable where the coupled problem is reported infeasible by round-off), each
-    ⪰ t·I with t·I ⪯ X, Y ⪯ β·I (β = 1e6 as in :func:`synthesize`), t ≤ 1 maximised, at the first γ
+    ⪰ t·I with t·I ⪯ X, Y ⪯ β·I (β = ``bound``, as in :func:`synthesize`), t ≤ 1 maximised, at the first γ
     of ``gammas`` with t > 0. Then with X = L Lᵀ
     and LᵀYL = V Σ² Vᵀ, T = S L V Σ^(−1/2) (S the diagonal scaling) makes T⁻¹XT⁻ᵀ = TᵀYT = Σ
     (Moore's balancing applied to the Lyapunov matrices instead of Gramians).
@@ -191,7 +192,7 @@ def _balancing_transform(plant: GeneralizedPlant, gammas: tuple[float, ...]) -> 
         lmis = _eliminated_lmis(verts, gamma)
         t = cp.Variable()
         constraints = [psd(M, t) for M in lmis.matrices[1:]]  # (X_i), (Y_i) without (C)
-        constraints += [psd(lmis.X, t), psd(lmis.Y, t), lmis.X << _BOUND * I, lmis.Y << _BOUND * I, t <= 1]
+        constraints += [psd(lmis.X, t), psd(lmis.Y, t), lmis.X << bound * I, lmis.Y << bound * I, t <= 1]
         try:
             solve(cp.Problem(cp.Maximize(t), constraints), "CLARABEL", "the separate (X_i), (Y_i) LMIs")
         except SynthesisError:
@@ -289,7 +290,7 @@ class _Lmis:
 
 
 def _lmis(verts: list[VertexPlant], method: str, g: cp.Expression) -> _Lmis:
-    """The vertex LMI matrices (E_ij) with γ = g, and the blocks bounded by ``_BOUND`` (P̄_i, 𝒢 sym)."""
+    """The vertex LMI matrices (E_ij) with γ = g, and the blocks bounded by β (P̄_i, 𝒢 sym)."""
     n, nw, nu, nz, ny = verts[0].dims
     N = len(verts)
     dilated = method == "dilated"
@@ -317,9 +318,9 @@ def _lmis(verts: list[VertexPlant], method: str, g: cp.Expression) -> _Lmis:
     return _Lmis(X, Y, S, Q, L, F, R, Pbar, matrices, bounds)
 
 
-def _bounded(lmis: _Lmis) -> list[cp.Constraint]:
+def _bounded(lmis: _Lmis, bound: float) -> list[cp.Constraint]:
     n2 = lmis.bounds[0].shape[0]
-    return [0.5 * (B + B.T) << _BOUND * np.eye(n2) for B in lmis.bounds]
+    return [0.5 * (B + B.T) << bound * np.eye(n2) for B in lmis.bounds]
 
 
 def _values(lmis: _Lmis) -> dict:
@@ -438,11 +439,11 @@ class _MarginProblem:
     """max t s.t. every vertex LMI ⪰ t·I at a fixed γ (a cvxpy Parameter: compiled once)."""
 
     def __init__(self, verts: list[VertexPlant], method: str, solver: str, what: str,
-                 eliminate: bool) -> None:
+                 eliminate: bool, bound: float) -> None:
         self.gamma = cp.Parameter(pos=True)
         self.t = cp.Variable()
         self.lmis = _lmi_set(verts, method, self.gamma, eliminate)
-        constraints = [psd(M, self.t) for M in self.lmis.matrices] + _bounded(self.lmis)
+        constraints = [psd(M, self.t) for M in self.lmis.matrices] + _bounded(self.lmis, bound)
         self.problem = cp.Problem(cp.Maximize(self.t), constraints)
         self.solver, self.what = solver, what
         self.tolerance = COARSE if eliminate else None
@@ -498,7 +499,7 @@ def _bisect(
 
 def synthesize(
     plant: GeneralizedPlant, method: str = "dilated", solver: str = "CLARABEL", margin: float = 1e-7,
-    gamma_max: float | None = None, suboptimality: float = 1e-2,
+    gamma_max: float | None = None, suboptimality: float = 1e-2, lyapunov_bound: float = LYAPUNOV_BOUND,
 ) -> HinfResult:
     """γ-optimal vertex controllers of ``method`` (``"common"`` or ``"dilated"``).
 
@@ -507,8 +508,8 @@ def synthesize(
     in exact arithmetic (near the optimum the larger dilated margin problem loses its sign earlier:
     adip_like ±0.3 gave 27.65 against 25.83). Either solve may fail if the other one succeeds.
 
-    1. minimise γ subject to the vertex LMIs ⪰ margin·I, with P̄_i (and sym 𝒢) ⪯ β·I (β = 1e6 in the
-       scaled coordinates, which keeps the near-singular H∞ optimum bounded): γ_opt;
+    1. minimise γ subject to the vertex LMIs ⪰ margin·I, with P̄_i (and sym 𝒢) ⪯ β·I (β =
+       ``lyapunov_bound`` in the scaled coordinates, which keeps the near-singular H∞ optimum bounded): γ_opt;
     2. fix γ = (1 + suboptimality)·γ_opt and maximise the common margin t of every LMI ⪰ t·I under the
        same bounds: a strictly feasible, well-conditioned point (the controller's certified γ).
     When step 1 fails (H∞-optimal LMIs are degenerate at the optimum, e.g. weights with poles near
@@ -532,13 +533,18 @@ def synthesize(
         gamma_max: demand γ ≤ gamma_max (a design spec ‖·‖∞ ≤ 1 is gamma_max = 1); infeasible then means
             the weights ask for more than the plant allows.
         suboptimality: relative distance of the returned controller's γ from γ_opt.
+        lyapunov_bound: β above. In exact arithmetic a larger β only enlarges the feasible set; on
+            ill-conditioned plants the returned γ can move either way with it (benchmarks/README.md,
+            "ADIP synthesis on the exact model").
 
     Raises:
         SynthesisError: infeasible LMIs (with the reason), a failed solve or a failed re-check.
     """
     if method not in METHODS:
         raise ModelError(f"unknown output-feedback method {method!r}; use one of {', '.join(METHODS)}")
-    result = _best_certified(plant, method, (solver, margin, gamma_max, suboptimality))
+    if not lyapunov_bound > 0:
+        raise ModelError(f"lyapunov_bound must be positive, got {lyapunov_bound!r}")
+    result = _best_certified(plant, method, (solver, margin, gamma_max, suboptimality, lyapunov_bound))
     result.controller = implementable_controller(result)  # once, so its info carries the final status
     return result
 
@@ -623,7 +629,8 @@ def _synthesize_common(plant: GeneralizedPlant, *args) -> HinfResult:
     return result
 
 
-def _balanced_common(plant: GeneralizedPlant, gammas: tuple[float, ...], *args) -> HinfResult | None:
+def _balanced_common(plant: GeneralizedPlant, gammas: tuple[float, ...], solver: str, margin: float,
+                     gamma_max: float | None, suboptimality: float, bound: float) -> HinfResult | None:
     """``"common"`` (eliminated, then full LMIs as in :func:`_synthesize_common`) in the balanced state
     coordinates of :func:`_balancing_transform`, returned in the original ones; None if it fails.
 
@@ -633,14 +640,15 @@ def _balanced_common(plant: GeneralizedPlant, gammas: tuple[float, ...], *args) 
     weights), certified γ unbalanced → balanced: θ = cos φ1 ∈ [0.85, 1] 5.429 → 1.795, [0.7, 1] 30.76 →
     4.089, [0.6, 1] 240.7 → 14.62, [0.5, 1] infeasible → 117.1; [0.25, 1] stays infeasible.
     """
-    T = _balancing_transform(plant, gammas)
+    T = _balancing_transform(plant, gammas, bound)
     if T is None:
         return None
     moved = _transformed(plant, T)
     candidates = []
     for eliminate in (True, False):  # the full LMIs only if the eliminated ones failed or needed bisection
         try:
-            candidates.append(_synthesize_one(moved, "common", *args, eliminate=eliminate))
+            candidates.append(_synthesize_one(moved, "common", solver, margin, gamma_max, suboptimality,
+                                              bound, eliminate=eliminate))
         except SynthesisError:
             continue
         if not candidates[-1].bisected:
@@ -656,7 +664,7 @@ def _balanced_common(plant: GeneralizedPlant, gammas: tuple[float, ...], *args) 
 
 def _synthesize_one(
     plant: GeneralizedPlant, method: str, solver: str, margin: float, gamma_max: float | None,
-    suboptimality: float, eliminate: bool = False,
+    suboptimality: float, bound: float, eliminate: bool = False,
 ) -> HinfResult:
     """One method's γ-optimal vertex controllers (:func:`synthesize` describes the steps)."""
     s, du, dy = _scalings(plant.vertices)
@@ -665,7 +673,7 @@ def _synthesize_one(
         f" with γ ≤ {gamma_max:g}" if gamma_max is not None else "")
     g = cp.Variable(nonneg=True)
     first = _lmi_set(verts, method, g, eliminate)
-    constraints = [psd(M, margin) for M in first.matrices] + _bounded(first)
+    constraints = [psd(M, margin) for M in first.matrices] + _bounded(first, bound)
     if gamma_max is not None:
         constraints.append(g <= gamma_max)
     gamma_opt = None
@@ -676,7 +684,7 @@ def _synthesize_one(
         if "infeasible" in str(exc):
             raise SynthesisError(f"{exc}: {_infeasibility_hint(plant, method, gamma_max)}") from None
         report1 = SolveReport(solver, str(exc), 0.0, [])
-    mp = _MarginProblem(verts, method, solver, what, eliminate)
+    mp = _MarginProblem(verts, method, solver, what, eliminate, bound)
     result = None
     if gamma_opt is not None:
         gamma = gamma_opt * (1.0 + suboptimality)

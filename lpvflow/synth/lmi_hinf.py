@@ -538,6 +538,7 @@ def synthesize(
             "ADIP synthesis on the exact model").
 
     Raises:
+        ModelError: an unknown ``method`` or a non-positive ``lyapunov_bound``.
         SynthesisError: infeasible LMIs (with the reason), a failed solve or a failed re-check.
     """
     if method not in METHODS:

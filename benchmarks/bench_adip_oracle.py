@@ -25,6 +25,9 @@ lpvflow/pipeline/examples/adip.toml, and the controllers are run on the nonlinea
    the exact linearisations, and arm steps at t = 0.5 s to ±30…75° with issue 7's metrics (±1° settling
    from the step, overshoot, largest pendulum angle after settling) or when the pendulum passed 0.5 rad.
    The plant and the controller are odd-symmetric, so −φ gives the same numbers as +φ; only + is run.
+4. The same steps (30°, 45°) with the best LTI controllers at 0° of section 1 — the LMI one and the
+   Riccati one (lpvflow.synth.certify.riccati_controller at 1.05 × the Riccati γ), W_B in series: whether
+   the bundled weights allow issue 7's 1.5 s at all, with any synthesis.
 
 Run: .venv/bin/python benchmarks/bench_adip_oracle.py   → results/adip_oracle.json (about 6 minutes)
 """
@@ -48,7 +51,7 @@ import min_time  # noqa: E402
 import reference_models  # noqa: E402
 
 import lpvflow.synth.lmi_hinf as lmi_hinf  # noqa: E402
-from lpvflow.synth.certify import riccati_gamma  # noqa: E402
+from lpvflow.synth.certify import riccati_controller, riccati_gamma  # noqa: E402
 from lpvflow.synth.controller import series_input_filter  # noqa: E402
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, augment, check_a3, weight_systems  # noqa: E402
 from lpvflow.synth.polytope import Polytope  # noqa: E402
@@ -145,10 +148,28 @@ def arm_step(K: list, nodes: np.ndarray, target_deg: float) -> dict:
             **reach.move_metrics(t, np.array(arm), np.array(pendulum), np.array(voltage), target, STEP_AT)}
 
 
+def frozen_upright_steps(weight_table: dict) -> dict:
+    """Section 1's best LTI controllers at 0° (LMI, and SB10DD at 1.05 × its optimum γ) on the nonlinear
+    plant: are the weights themselves compatible with issue 7's 1.5 s?"""
+    plant = node_plant((1.0,), weight_table)
+    vertex, node = plant.vertices[0], np.array([1.0])
+    gamma_ric = riccati_gamma(vertex, TS)
+    lmi = lmi_hinf.synthesize(plant, "common")
+    controllers = {"lmi": (lmi.gamma, lmi.K_vertices[0]),
+                   "riccati": (1.05 * gamma_ric, riccati_controller(vertex, TS, 1.05 * gamma_ric))}
+    out = {}
+    for name, (gamma, K) in controllers.items():
+        K = series_input_filter(K, plant.input_filter)
+        out[name] = {"gamma": gamma, "frozen_radius_0deg": frozen_radius([K], node, 0.0),
+                     "steps": [arm_step([K], node, d) for d in (30, 45)]}
+    print(out, flush=True)
+    return out
+
+
 def main() -> None:
     default = weights()
     results: dict = {"frozen_optimum": [], "frozen_sensitivity_near_75deg": [], "polytopic": [],
-                     "nonlinear": []}
+                     "nonlinear": [], "frozen_upright_on_the_nonlinear_plant": frozen_upright_steps(default)}
     for theta in (1.0, 0.7, 0.5, 0.25):
         row, _ = polytopic((theta,), default)
         row["gamma_bound_1e8"] = polytopic((theta,), default, 1e8)[0]["gamma"]

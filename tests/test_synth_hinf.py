@@ -10,7 +10,7 @@ import pytest
 
 from lpvflow.errors import ModelError
 from lpvflow.models import load
-from lpvflow.synth.certify import certify, riccati_gamma, vertex_lmi_max_eig
+from lpvflow.synth.certify import certify, riccati_controller, riccati_gamma, vertex_lmi_max_eig
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.examples import adip_like, maglev_like, random_lpv
 from lpvflow.synth.lmi_hinf import LYAPUNOV_BOUND, synthesize
@@ -428,3 +428,16 @@ def test_lyapunov_bound_is_honoured_and_checked():
         synthesize(gp, "common", lyapunov_bound=0.5)
     with pytest.raises(ModelError, match="lyapunov_bound must be positive"):
         synthesize(gp, "common", lyapunov_bound=0.0)
+
+
+def test_riccati_controller_meets_its_level_and_none_below_the_optimum():
+    """SB10DD's controller at 1.05 γ_opt: stable closed loop with ‖T_zw‖∞ ≤ γ by an independent lft;
+    at 0.9 γ_opt (below the optimum) no controller is returned."""
+    gp = _adip_point(0.0)
+    vertex = gp.vertices[0]
+    gamma_opt = riccati_gamma(vertex, gp.Ts)
+    K = riccati_controller(vertex, gp.Ts, 1.05 * gamma_opt)
+    loop = vertex.ss(gp.Ts).lft(control.ss(*K, gp.Ts), 1, 2)
+    assert np.max(np.abs(np.linalg.eigvals(loop.A))) < 1
+    assert control.norm(loop, "inf") <= 1.05 * gamma_opt * (1 + 1e-3)
+    assert riccati_controller(vertex, gp.Ts, 0.9 * gamma_opt) is None

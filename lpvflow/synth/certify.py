@@ -18,7 +18,8 @@
    value drawn afresh every sample, uniformly over the box.
 
 :func:`riccati_gamma` gives an LMI-free reference for one vertex: the optimal γ of the same discrete H∞
-problem by the Riccati solution (SLICOT SB10DD), a lower bound for every polytope containing that plant.
+problem by the Riccati solution (SLICOT SB10DD, :func:`riccati_controller`), a lower bound for every
+polytope containing that plant.
 """
 
 from __future__ import annotations
@@ -92,31 +93,35 @@ def frozen_hinf_norms(result: HinfResult, model: LPVSS, weights: dict, grid: np.
     return np.array(norms)
 
 
-def riccati_gamma(vertex: VertexPlant, Ts: float, lo: float = 1.0, hi: float = 100.0,
-                  rel: float = 0.005) -> float:
-    """Smallest γ in [lo, hi] (to relative width ``rel``) at which SLICOT SB10DD (slycot; discrete-time
-    H∞ controller formulae from two Riccati equations) returns a controller
-    whose closed loop with ``vertex`` is stable with ‖T_zw‖∞ ≤ γ (``StateSpace.lft``, ``control.norm``):
-    the frozen optimum the LMI synthesis should reach at one vertex, found without any LMI.
-
-    Raises:
-        ModelError: not even ``hi`` is achieved.
-    """
+def riccati_controller(vertex: VertexPlant, Ts: float, gamma: float) -> tuple[np.ndarray, ...] | None:
+    """(Ak, Bk, Ck, Dk) from y to u of SLICOT SB10DD (slycot; the discrete-time H∞ controller formulae
+    from two Riccati equations) for ``vertex`` at level γ, if its closed loop is stable with
+    ‖T_zw‖∞ ≤ γ (``StateSpace.lft``, ``control.norm``, relative slack 1e-3); None otherwise."""
     import slycot
 
     n, nw, nu, nz, ny = vertex.dims
     B, C = np.hstack([vertex.B1, vertex.B2]), np.vstack([vertex.C1, vertex.C2])
     D = np.block([[vertex.D11, vertex.D12], [vertex.D21, vertex.D22]])
-    plant = vertex.ss(Ts)
+    try:
+        K = tuple(np.asarray(m) for m in slycot.sb10dd(n, nw + nu, nz + ny, nu, ny, gamma,
+                                                        A=vertex.A, B=B, C=C, D=D)[1:5])
+    except slycot.exceptions.SlycotError:
+        return None
+    loop = vertex.ss(Ts).lft(control.ss(*K, Ts), nu, ny)
+    stable = np.max(np.abs(np.linalg.eigvals(loop.A))) < 1.0
+    return K if stable and float(control.norm(loop, "inf")) <= gamma * (1 + 1e-3) else None
 
+
+def riccati_gamma(vertex: VertexPlant, Ts: float, lo: float = 1.0, hi: float = 100.0,
+                  rel: float = 0.005) -> float:
+    """Smallest γ in [lo, hi] (to relative width ``rel``) at which :func:`riccati_controller` returns a
+    controller: the frozen optimum the LMI synthesis should reach at one vertex, found without any LMI.
+
+    Raises:
+        ModelError: not even ``hi`` is achieved.
+    """
     def achieved(gamma: float) -> bool:
-        try:
-            K = slycot.sb10dd(n, nw + nu, nz + ny, nu, ny, gamma, A=vertex.A, B=B, C=C, D=D)[1:5]
-        except slycot.exceptions.SlycotError:
-            return False
-        loop = plant.lft(control.ss(*K, Ts), nu, ny)
-        stable = np.max(np.abs(np.linalg.eigvals(loop.A))) < 1.0
-        return stable and float(control.norm(loop, "inf")) <= gamma * (1 + 1e-3)
+        return riccati_controller(vertex, Ts, gamma) is not None
 
     if not achieved(hi):
         raise ModelError(f"SB10DD finds no controller with γ ≤ {hi:g} for this vertex")

@@ -39,7 +39,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import control
 import numpy as np
-import scipy.linalg
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "benchmarks")]
@@ -86,9 +85,7 @@ def _zoh(x: np.ndarray, u: float, p: dict) -> tuple[np.ndarray, np.ndarray]:
 def tracking_gains(x_ref: np.ndarray, u_ff: np.ndarray, x_end: np.ndarray, u_end: float,
                    p: dict) -> tuple[list[np.ndarray], np.ndarray]:
     """TV-LQR gains along the reference (module docstring) and the stationary gain at the target."""
-    A, B = _zoh(x_end, u_end, p)
-    S = scipy.linalg.solve_discrete_are(A, B, Q_LQR, R_LQR)
-    K_end = np.linalg.solve(R_LQR + B.T @ S @ B, B.T @ S @ A)
+    K_end, S, _ = control.dlqr(*_zoh(x_end, u_end, p), Q_LQR, R_LQR)
     gains = []
     for k in range(len(u_ff) - 1, -1, -1):
         A, B = _zoh(x_ref[k], u_ff[k], p)
@@ -105,14 +102,11 @@ def minimum_time(p: dict, vmax: float) -> mt.Transfer:
 
 def minimum_energy(p: dict, bound_deg: float | None) -> mt.Transfer:
     """Minimum-energy transfer of duration ENERGY_DURATION, |V| ≤ ENERGY_VOLTAGE, φ1 ≤ target + bound."""
-    intervals = round(ENERGY_DURATION / limits.INTERVAL)
-    guess = limits.smoothstep_guess(np.deg2rad(TARGET_DEG), ENERGY_DURATION, intervals, p)
     path = None
     if bound_deg is not None:
         path = (np.full(4, -np.inf), np.array([np.deg2rad(TARGET_DEG + bound_deg), np.inf, np.inf, np.inf]))
-    return mt.minimum_time_transfer(rm.adip_derivatives, *limits.endpoints(TARGET_DEG, p), ENERGY_VOLTAGE, p,
-                                    interval=limits.INTERVAL, T_guess=ENERGY_DURATION, guess=guess,
-                                    duration=ENERGY_DURATION, path=path, state_scale=mt.ADIP_STATE_SCALE)
+    return limits.transfer(TARGET_DEG, ENERGY_VOLTAGE, T_guess=ENERGY_DURATION, p=p, duration=ENERGY_DURATION,
+                           path=path)
 
 
 _ENERGY = f"minimum energy, T = {ENERGY_DURATION} s, |V| ≤ {ENERGY_VOLTAGE:g} V"

@@ -54,13 +54,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_adip_oracle as oracle  # noqa: E402
+import bench_adip_reach as reach  # noqa: E402
 
 from lpvflow.synth import lmi_hinf  # noqa: E402
-from lpvflow.synth.certify import closed_loop  # noqa: E402
+from lpvflow.synth.certify import bounded_real_lmi, closed_loop, jacobi_min_eig  # noqa: E402
 from lpvflow.synth.controller import series_input_filter  # noqa: E402
 from lpvflow.synth.sdp import SynthesisError, psd, solve  # noqa: E402
 
-BOUND = 1e6
 RECHECK_REFINE = 4
 TABLE_STEP = 0.0025
 #: (nodes θ = cos φ1, synthesis grid points, rate ν per sample, γ values, arm targets for the nonlinear check)
@@ -72,18 +72,15 @@ CASES = (
 )
 
 
-def hat(nodes: np.ndarray, theta: float) -> np.ndarray:
-    """Piecewise-linear convex coordinates on descending ``nodes`` (θ clipped to their range)."""
-    return oracle.hat_coordinates(nodes, theta)
-
-
 def mix(lam: np.ndarray, values: list):
     return sum(w * v for w, v in zip(lam, values, strict=True) if w != 0)
 
 
 def rate_pairs(grid: np.ndarray, rate: float) -> list[tuple[float, float]]:
-    lo, hi = grid.min(), grid.max()
-    return sorted({(float(th), float(np.clip(th + d, lo, hi))) for th in grid for d in (-rate, 0.0, rate)})
+    """(θ, θ⁺), θ ascending on ``grid``, θ⁺ from bench_adip_reach.next_thetas within the grid's range."""
+    lo, hi = float(grid.min()), float(grid.max())
+    return [(float(th), th_next) for th in sorted(grid)
+            for th_next in reach.next_thetas(float(th), rate, lo, hi)]
 
 
 class Gridded:
@@ -101,6 +98,7 @@ class Gridded:
         self.scalings = lmi_hinf._scalings(self._plants(self.grid))
         self.values: dict | None = None
         self.gamma = float("nan")
+        self._vertices: dict[float, tuple] = {}
 
     def _plants(self, thetas) -> list:
         plant = oracle.node_plant(tuple(float(t) for t in thetas), self.weights)
@@ -108,6 +106,13 @@ class Gridded:
 
     def _scaled(self, thetas) -> list:
         return [lmi_hinf._scaled(v, *self.scalings) for v in self._plants(thetas)]
+
+    def vertices(self, theta: float) -> tuple:
+        """(the generalized plant at θ, the same in the synthesis coordinates), computed once per θ."""
+        if theta not in self._vertices:
+            self._vertices[theta] = (oracle.node_plant((theta,), self.weights).vertices[0],
+                                     self._scaled([theta])[0])
+        return self._vertices[theta]
 
     def solve(self, gamma: float) -> dict:
         verts = self._scaled(self.grid)
@@ -117,16 +122,16 @@ class Gridded:
         P = [cp.Variable((2 * n, 2 * n), symmetric=True) for _ in range(N)]
         L, F, R = ([cp.Variable(shape) for _ in range(N)] for shape in ((nu, n), (n, ny), (nu, ny)))
         Y, t = cp.Variable((n, n)), cp.Variable()
-        constraints = [t <= 1] + [Pi << BOUND * np.eye(2 * n) for Pi in P]
+        constraints = [t <= 1] + [Pi << lmi_hinf.LYAPUNOV_BOUND * np.eye(2 * n) for Pi in P]
         constraints += [0.5 * cp.bmat([[X[i] + X[i].T, I + S[i].T], [I + S[i], Y + Y.T]])
-                        << BOUND * np.eye(2 * n) for i in range(N)]
+                        << lmi_hinf.LYAPUNOV_BOUND * np.eye(2 * n) for i in range(N)]
         by_theta = dict(zip(self.grid.tolist(), verts, strict=True))
         for th, th_next in rate_pairs(self.grid, self.rate):
-            lam = hat(self.nodes, th)
+            lam = oracle.hat_coordinates(self.nodes, th)
             Xg, Sg, Pg = mix(lam, X), mix(lam, S), mix(lam, P)
             blocks = lmi_hinf._vertex_blocks(by_theta[th], Xg, Y, *(mix(lam, V) for V in (Q, L, F, R)))
             current = cp.bmat([[Xg + Xg.T, I + Sg.T], [I + Sg, Y + Y.T]]) - Pg
-            P_next = mix(hat(self.nodes, th_next), P)
+            P_next = mix(oracle.hat_coordinates(self.nodes, th_next), P)
             M = lmi_hinf._lmi(P_next, blocks[0], current, *blocks[1:], gamma, nw, nz)
             constraints.append(psd(M, t))
         report = solve(cp.Problem(cp.Maximize(t), constraints), "CLARABEL", "the gridded LMIs")
@@ -139,8 +144,8 @@ class Gridded:
 
     def at(self, theta: float) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray]:
         """(K(θ) from e to u, 𝒢(θ), 𝒫(θ)) in the closed-loop coordinates of the original plant."""
-        v = self._scaled([theta])[0]
-        lam = hat(self.nodes, theta)
+        v = self.vertices(theta)[1]
+        lam = oracle.hat_coordinates(self.nodes, theta)
         X, S, Q, P, L, F, R = (mix(lam, self.values[k]) for k in ("X", "S", "Q", "P", "L", "F", "R"))
         Y = self.values["Y"]
         n = Y.shape[0]
@@ -156,23 +161,15 @@ class Gridded:
     def recheck(self, refine: int) -> float:
         """Smallest Jacobi-scaled eigenvalue of (E) over the rate pairs of a ``refine``× finer grid."""
         fine = np.linspace(self.grid.min(), 1.0, refine * (len(self.grid) - 1) + 1)[::-1]
-        cache = {}
-        worst = np.inf
-        for th, th_next in rate_pairs(fine, self.rate):
-            for key in (th, th_next):
-                if key not in cache:
-                    cache[key] = self.at(key)
-            K, G, P = cache[th]
-            A, B, C, D = closed_loop(oracle.node_plant((th,), self.weights).vertices[0], K)
-            n2, nw, nz = A.shape[0], B.shape[1], C.shape[0]
-            M = np.block([[cache[th_next][2], A @ G, B, np.zeros((n2, nz))],
-                          [G.T @ A.T, G + G.T - P, np.zeros((n2, nw)), G.T @ C.T],
-                          [B.T, np.zeros((nw, n2)), np.eye(nw), D.T],
-                          [np.zeros((nz, n2)), C @ G, D, self.gamma**2 * np.eye(nz)]])
-            M = 0.5 * (M + M.T)
-            d = np.sqrt(np.clip(np.diag(M), 1e-300, None))
-            worst = min(worst, float(np.linalg.eigvalsh(M / d[:, None] / d[None, :])[0]))
-        return worst
+        pairs = rate_pairs(fine, self.rate)
+        points = {th: self.at(th) for pair in pairs for th in pair}  # (K, 𝒢, 𝒫) at θ
+
+        def min_eig(th: float, th_next: float) -> float:
+            (K, G, P), P_next = points[th], points[th_next][2]
+            loop = closed_loop(self.vertices(th)[0], K)
+            return jacobi_min_eig(bounded_real_lmi(loop, P_next, P, G, self.gamma))
+
+        return min(min_eig(*pair) for pair in pairs)
 
     def table(self) -> tuple[list, np.ndarray]:
         """Implementable controllers (W_B in series) every TABLE_STEP in θ, descending."""

@@ -107,17 +107,21 @@ def transfer(
     T_guess: float = 1.5,
     interval: float = INTERVAL,
     generic: bool = False,
+    p: dict = P,
     **options,
 ) -> mt.Transfer:
-    """0 → phi_deg, |V| ≤ vmax, from `smoothstep_guess` or (generic=True) the solver's default guess."""
+    """0 → phi_deg, |V| ≤ vmax, on the plant with parameters p, from `smoothstep_guess` or (generic=True)
+    the solver's default guess; `options` go to `minimum_time_transfer` (duration, path, ...)."""
     guess = (
-        None if generic else smoothstep_guess(np.deg2rad(phi_deg), T_guess, max(2, round(T_guess / interval)))
+        None
+        if generic
+        else smoothstep_guess(np.deg2rad(phi_deg), T_guess, max(2, round(T_guess / interval)), p)
     )
     return mt.minimum_time_transfer(
         F,
-        *endpoints(phi_deg),
+        *endpoints(phi_deg, p),
         vmax,
-        P,
+        p,
         interval=interval,
         T_guess=T_guess,
         guess=guess,
@@ -185,7 +189,7 @@ def best_of(phi_deg: float, vmax: float, starts: tuple = (1.5,), **options) -> t
 def lqr_hold(x_start: np.ndarray, phi_t: float, vmax: float, seconds: float = 3.0) -> dict:
     """Item 3 (b): u = V_eq − K (x − x_eq), |u| ≤ vmax, 5 ms ZOH, from x_start; largest deviations in deg."""
     x_eq, u_eq = rm.adip_equilibrium(phi_t, P)
-    a, b = rm.jacobians(rm.adip_derivatives, x_eq, u_eq, P)
+    a, b = rm.adip_linearization(phi_t, P)
     Q, R = HOLD_WEIGHTS
     K = np.linalg.solve(R, b.T @ scipy.linalg.solve_continuous_are(a, b, Q, R))
     x, worst, peak = np.asarray(x_start, dtype=float)[:, None], np.zeros(2), 0.0

@@ -92,8 +92,8 @@ def authority() -> list[dict]:
     rows = []
     for degrees in (0, 30, 45, 60, 75, 85):
         phi1 = np.deg2rad(degrees)
-        x_op, u_op = rm.adip_equilibrium(phi1, PARAMETERS)
-        a, b = rm.jacobians(rm.adip_derivatives, x_op, u_op, PARAMETERS)
+        u_op = rm.adip_equilibrium(phi1, PARAMETERS)[1]
+        a, b = rm.adip_linearization(phi1, PARAMETERS)
         poles = np.linalg.eigvals(a)
         rows.append({"arm_deg": degrees, "holding_voltage": float(u_op[0]),
                      "unstable_poles_rad_s": sorted(float(s.real) for s in poles if s.real > 0),
@@ -101,14 +101,18 @@ def authority() -> list[dict]:
     return rows
 
 
+def frozen_radius(K: control.StateSpace, phi1: float, sign: int) -> float:
+    """Spectral radius of the linearisation at φ1 in feedback with the LTI controller K: u = K y for
+    sign = +1 (the identification controllers), u = K (r − y) for sign = −1 (the H∞ designs)."""
+    loop = control.feedback(linearised(phi1), K, sign=sign)
+    return float(np.max(np.abs(np.linalg.eigvals(loop.A))))
+
+
 def lti_reach() -> dict:
     """Largest φ1 (1° grid) up to which the φ1 = 0 LQR/observer controller keeps every frozen loop stable."""
     doc = stabilizing_controller.design(PARAMETERS)
     K = control.ss(*(np.array(doc[k]) for k in "ABCD"), TS)
-    radii = []
-    for degrees in range(0, 86):
-        loop = control.feedback(linearised(np.deg2rad(degrees)), K, sign=+1)  # u = K y
-        radii.append(float(np.max(np.abs(np.linalg.eigvals(loop.A)))))
+    radii = [frozen_radius(K, np.deg2rad(degrees), +1) for degrees in range(0, 86)]
     unstable = [d for d, r in enumerate(radii) if r >= 1.0]
     return {"stable_up_to_deg": (unstable[0] - 1) if unstable else 85,
             "spectral_radius_at_75deg": radii[75]}
@@ -158,16 +162,21 @@ def synthesis_reach(weights: dict) -> list[dict]:
     return rows
 
 
-def filtered_plant(theta: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact linearisation at θ = cos φ1 with the input filter x_f⁺ = 0.7 x_f + 0.3 v, u = x_f (A3)."""
+def filtered_plant(theta: float, coordinates: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Exact linearisation at θ = cos φ1 with the input filter x_f⁺ = 0.7 x_f + 0.3 v, u = x_f (A3);
+    in x̄ = T⁻¹x when ``coordinates`` T are given."""
     G = linearised(np.arccos(min(theta, 1.0)))
     A = np.block([[G.A, G.B], [np.zeros((1, 4)), np.array([[0.7]])]])
-    return A, np.vstack([np.zeros((4, 1)), [[0.3]]])
+    B = np.vstack([np.zeros((4, 1)), [[0.3]]])
+    if coordinates is None:
+        return A, B
+    Ti = np.linalg.inv(coordinates)
+    return Ti @ A @ coordinates, Ti @ B
 
 
-def filtered_vertices(theta_lo: float) -> list[tuple[np.ndarray, np.ndarray]]:
+def filtered_vertices(theta_lo: float, coordinates: np.ndarray | None = None) -> list[tuple[np.ndarray, ...]]:
     """:func:`filtered_plant` at θ_lo and 1."""
-    return [filtered_plant(theta) for theta in (theta_lo, 1.0)]
+    return [filtered_plant(theta, coordinates) for theta in (theta_lo, 1.0)]
 
 
 def lqr_coordinates(theta: float) -> np.ndarray:
@@ -179,10 +188,7 @@ def lqr_coordinates(theta: float) -> np.ndarray:
 
 def certifiable_margin(theta_lo: float, kind: str, coordinates: np.ndarray | None = None) -> float:
     """Largest t of the state-feedback LMIs of item 4 (module docstring), in x̄ = T⁻¹x if T is given."""
-    vertices = filtered_vertices(theta_lo)
-    if coordinates is not None:
-        Ti = np.linalg.inv(coordinates)
-        vertices = [(Ti @ A @ coordinates, Ti @ B) for A, B in vertices]
+    vertices = filtered_vertices(theta_lo, coordinates)
     n = vertices[0][0].shape[0]
     t = cp.Variable()
     W = [cp.Variable((1, n)) for _ in vertices]
@@ -221,14 +227,14 @@ def _dilated_lmi(A, B, P_next, P_now, G, W) -> np.ndarray | cp.Expression:
     return np.block([[P_next, H], [H.T, G + G.T - P_now]])
 
 
-def _rate_pairs(grid: np.ndarray, rate: float, lo: float) -> list[tuple[float, float]]:
-    """(θ, θ⁺) with θ on ``grid`` and θ⁺ ∈ {θ − ν, θ, θ + ν} ∩ [lo, 1]."""
-    return [(th, float(np.clip(th + d, lo, 1.0))) for th in grid for d in (-rate, 0.0, rate)]
+def next_thetas(theta: float, rate: float, lo: float, hi: float = 1.0) -> list[float]:
+    """The θ⁺ checked after θ under |θ⁺ − θ| ≤ ν: {θ − ν, θ, θ + ν} ∩ [lo, hi], ascending."""
+    return sorted({float(np.clip(theta + d, lo, hi)) for d in (-rate, 0.0, rate)})
 
 
-def gridded_margin(theta_lo: float, rate: float) -> dict:
-    """Item 4's gridded, rate-bounded margin t on [θ_lo, 1] and the re-check on a 10× finer grid."""
-    T = lqr_coordinates(0.5 * (theta_lo + 1.0))
+def gridded_margin(theta_lo: float, rate: float, T: np.ndarray) -> dict:
+    """Item 4's gridded, rate-bounded margin t on [θ_lo, 1] in the coordinates x = T x̄, and the
+    re-check on a 10× finer grid."""
     n = T.shape[0]
     P = [cp.Variable((n, n), symmetric=True) for _ in range(2)]  # at θ_lo and 1, affine in between
     G = [cp.Variable((n, n)) for _ in range(2)]
@@ -241,23 +247,20 @@ def gridded_margin(theta_lo: float, rate: float) -> dict:
     t = cp.Variable()
     constraints = [t <= 1] + [c for Pi in P for c in (Pi >> t * np.eye(n), Pi << np.eye(n))]
     grid = np.linspace(theta_lo, 1.0, round((1.0 - theta_lo) / GRID_STEP) + 1)
-    for th, th_next in _rate_pairs(grid, rate, theta_lo):
-        M = _dilated_lmi(*filtered_plant_in(T, th), at(P, th_next), at(P, th), at(G, th), at(W, th))
-        constraints.append((M + M.T) / 2 >> t * np.eye(2 * n))
+    for th in grid:
+        A, B = filtered_plant(th, T)
+        for th_next in next_thetas(th, rate, theta_lo):
+            M = _dilated_lmi(A, B, at(P, th_next), at(P, th), at(G, th), at(W, th))
+            constraints.append((M + M.T) / 2 >> t * np.eye(2 * n))
     cp.Problem(cp.Maximize(t), constraints).solve(solver="CLARABEL")
-    values = [[np.array(v.value) for v in var] for var in (P, G, W)]
-    fine = np.linspace(theta_lo, 1.0, round((1.0 - theta_lo) / RECHECK_STEP) + 1)
-    recheck = min(np.linalg.eigvalsh(_dilated_lmi(*filtered_plant_in(T, th), at(values[0], th_next),
-                                                  at(values[0], th), at(values[1], th), at(values[2], th)))[0]
-                  for th, th_next in _rate_pairs(fine, rate, theta_lo))
+    P, G, W = ([np.array(v.value) for v in var] for var in (P, G, W))
+    recheck = np.inf
+    for th in np.linspace(theta_lo, 1.0, round((1.0 - theta_lo) / RECHECK_STEP) + 1):
+        A, B = filtered_plant(th, T)
+        for th_next in next_thetas(th, rate, theta_lo):
+            M = _dilated_lmi(A, B, at(P, th_next), at(P, th), at(G, th), at(W, th))
+            recheck = min(recheck, np.linalg.eigvalsh(M)[0])
     return {"rate_per_sample": rate, "margin": float(t.value), "recheck_min_eig": float(recheck)}
-
-
-def filtered_plant_in(T: np.ndarray, theta: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`filtered_plant` in x̄ = T⁻¹x."""
-    A, B = filtered_plant(theta)
-    Ti = np.linalg.inv(T)
-    return Ti @ A @ T, Ti @ B
 
 
 def lyapunov_reach() -> list[dict]:
@@ -268,7 +271,7 @@ def lyapunov_reach() -> list[dict]:
         row |= {kind: certifiable_margin(theta_lo, kind) for kind in kinds}
         T = lqr_coordinates(0.5 * (theta_lo + 1.0))
         row["lqr_coordinates"] = {kind: certifiable_margin(theta_lo, kind, T) for kind in kinds}
-        row["lqr_coordinates"]["gridded"] = [gridded_margin(theta_lo, rate) for rate in RATES]
+        row["lqr_coordinates"]["gridded"] = [gridded_margin(theta_lo, rate, T) for rate in RATES]
         rows.append(row)
         print(row, flush=True)
     return rows

@@ -26,6 +26,7 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+import control
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -104,12 +105,11 @@ def fits(record) -> dict:
 def stable_up_to(design_deg: float) -> int | None:
     """Section 2: the largest angle of the 5° grid up to which the frozen loops are all stable (None:
     not even at 0°)."""
-    K = controller(design_deg)
+    doc = stabilizing_controller.design(P, np.deg2rad(design_deg))
+    K = control.ss(*(np.asarray(doc[k], float) for k in "ABCD"), TS)
     reached = None
     for deg in range(0, 90, 5):
-        G = reach.linearised(np.deg2rad(deg))
-        loop = np.block([[G.A + G.B @ K.D @ G.C, G.B @ K.C], [K.B @ G.C, K.A]])
-        if np.max(np.abs(np.linalg.eigvals(loop))) >= 1:
+        if reach.frozen_radius(K, np.deg2rad(deg), +1) >= 1:
             break
         reached = deg
     return reached

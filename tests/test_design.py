@@ -324,3 +324,24 @@ def test_lti_baseline_defaults_to_the_centre_of_the_box(tmp_path, monkeypatch):
     outputs, _ = stages.synth(stages.StageContext(tmp_path, config))
     assert outputs["baseline_at"] == pytest.approx([0.08])
     assert boxes[0] == [[0.072, 0.088]] and boxes[1][0] == pytest.approx([0.08, 0.08])
+
+
+def test_a_failed_verdict_names_where_the_scheduling_left_the_design_box():
+    from lpvflow.pipeline.design import _verdict
+
+    coverage = {"range": [[-0.02, 0.97]], "box": [[-0.5, 0.5]], "time_outside_box": 1.1,
+                "first_outside_box": 0.71}
+    inside = coverage | {"range": [[0.0, 0.45]], "time_outside_box": 0.0, "first_outside_box": None}
+    scenarios = [
+        {"name": "far", "controller": {"stable": False, "scheduling": coverage,
+                                       "reason": "unbounded: y left its output_bounds at t = 1.6 s"}},
+        {"name": "near", "controller": {"stable": True, "reason": "bounded and settled",
+                                        "requirements_failed": ["y settles in 1.8 s (limit 1.5 s)"],
+                                        "scheduling": inside}},
+    ]
+    summary = {"failed": None, "stages": {"identify": {"outputs": {"scheduling_range": [[-0.56], [0.61]]}},
+                                          "verify": {"outputs": {"scenarios": scenarios}}}}
+    assert _verdict(summary) == {"pass": False, "reason": (
+        "far: unbounded: y left its output_bounds at t = 1.6 s; scheduling left the design box [-0.5, 0.5] "
+        "at t = 0.71 s and spanned [-0.02, 0.97] (1.1 s outside) (identification data [-0.56, 0.61]); "
+        "near: misses y settles in 1.8 s (limit 1.5 s)")}

@@ -24,6 +24,7 @@ from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal, loa
 from lpvflow.pipeline.verify import (
     ClosedLoopRun,
     after_settling_peaks,
+    coverage_note,
     plot_runs,
     requirement_failures,
     run_verification,
@@ -88,6 +89,32 @@ def test_settling_time_and_overshoot_match_the_analytic_loop(
     assert metrics["ise"] == pytest.approx(TS * np.sum(c ** (2 * j)), rel=1e-9)
     assert result["controls"]["u"]["peak_control"] == pytest.approx(kp)  # kp·e at the step
     assert result["controls"]["u"]["saturation_time"] == 0.0
+
+
+def test_scheduling_outside_the_design_box_is_measured_and_named(plants: dict) -> None:
+    # c = 0.9, scheduled on y itself: y = 1 − 0.9^j after the step at k = 10 leaves the box [−0.5, 0.5]
+    # when 0.9^j < 0.5, i.e. from j = 7 (k = 17) to the end of the 100-sample run: 83 samples outside
+    kp = 0.1 / B
+    narrow = Polytope("box", np.array([[-0.5, 0.5]]), np.array([[1.0, -0.5], [1.0, 0.5]]))
+    basis = Basis("affine", 1, p_min=(-0.5,), p_max=(0.5,))
+    zero = np.zeros((2, 1, 1))
+    controller = LPVController(zero, zero, zero, np.full((2, 1, 1), kp), narrow, basis, TS)  # u = kp e
+    verification = run_verification(controller, plants[1.0], [_step()], LOOP,
+                                    baseline=control.ss([], [], [], [[kp]], TS))
+    lpv, base = (verification.to_dict()["scenarios"][0][key] for key in ("controller", "baseline"))
+    coverage = lpv["scheduling"]
+    assert coverage["box"] == [[-0.5, 0.5]]
+    assert coverage["first_outside_box"] == pytest.approx(0.17, abs=1e-12)
+    assert coverage["time_outside_box"] == pytest.approx(83 * TS, abs=1e-12)
+    assert coverage["range"] == [[0.0, pytest.approx(1 - 0.9**89, abs=1e-12)]]
+    assert coverage_note(lpv) == ("scheduling left the design box [-0.5, 0.5] at t = 0.17 s and spanned "
+                                  f"[0, {1 - 0.9**89:.3g}] (0.83 s outside)")
+    # the same loop inside its box, and an LTI baseline (no box): the range only, no note
+    assert base["scheduling"] == {"range": coverage["range"], "box": None, "time_outside_box": None,
+                                  "first_outside_box": None} and coverage_note(base) == ""
+    inside = verify(_gain(kp), plants[1.0], [_step()], LOOP)["scenarios"][0]["controller"]["scheduling"]
+    assert inside["box"] == [[-1.0, 1.0]] and inside["time_outside_box"] == 0.0
+    assert inside["first_outside_box"] is None
 
 
 def test_steady_state_error_of_a_proportional_loop(plants: dict) -> None:
@@ -318,11 +345,13 @@ def test_verify_cli_exit_codes_and_one_line_errors(
     scenario.write_text(SCENARIO_TOML)
     plant, out = str(plants[1.0]), tmp_path / "out.json"
     base = ["verify", "--plant", plant, "--scenario", str(scenario), "--json", str(out)]
-    status, _ = _cli(
-        capsys, [*base, str(stable), "--baseline", str(stable), "--figures", str(tmp_path / "fig")]
-    )
+    status = main([*base, str(stable), "--baseline", str(stable), "--figures", str(tmp_path / "fig")])
+    printed = capsys.readouterr().out
     report = json.loads(out.read_text())
     assert status == 0 and report["stable"] and len(report["scenarios"]) == 2
+    # the ramp to 1.5 leaves the controllers' box [−1, 1] (both runs); the step to 1 stays inside it
+    assert printed.count("scheduling left the design box [-1, 1] at t = ") == 2
+    assert all("ramp [" in line for line in printed.splitlines() if "design box" in line)
     assert report["scenarios"][1]["controller"]["outputs"]["y"]["change_time"] == pytest.approx(0.1)
     assert (tmp_path / "fig" / "scenario_2.png").exists()
     assert _cli(capsys, [*base, str(unstable)])[0] == 1

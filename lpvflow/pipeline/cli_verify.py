@@ -9,7 +9,7 @@ from lpvflow.errors import DataError
 from lpvflow.models import atomic_write_json
 from lpvflow.pipeline.export import check_output_path
 from lpvflow.pipeline.scenarios import load_scenarios
-from lpvflow.pipeline.verify import load_controller_file, plot_runs, run_verification
+from lpvflow.pipeline.verify import coverage_note, load_controller_file, plot_runs, run_verification
 
 
 def _summary(name: str, metrics: dict) -> str:
@@ -24,7 +24,8 @@ def _summary(name: str, metrics: dict) -> str:
         verdict += f", misses its requirements: {', '.join(missed)}"
     elif missed is not None and not missed:
         verdict += ", meets its requirements"
-    return f"  {name} [{metrics['controller']}]: " + "; ".join([verdict, *parts])
+    note = coverage_note(metrics)
+    return f"  {name} [{metrics['controller']}]: " + "; ".join([verdict, *parts, *([note] if note else [])])
 
 
 def run(args: argparse.Namespace) -> int:

@@ -102,12 +102,20 @@ def _verdict(summary: dict) -> dict:
     if summary["failed"]:
         return {"pass": False, "reason": f"stage {summary['failed']['stage']} failed"}
     scenarios = summary["stages"].get("verify", {}).get("outputs", {}).get("scenarios", [])
-    failing = [f"{r['name']}: {r['controller']['reason']}"
-               for r in scenarios if not r["controller"]["stable"]]
-    failing += [f"{r['name']}: misses {', '.join(missed)}" for r in scenarios
+    failing = [(r, r["controller"]["reason"]) for r in scenarios if not r["controller"]["stable"]]
+    failing += [(r, f"misses {', '.join(missed)}") for r in scenarios
                 if r["controller"]["stable"] and (missed := r["controller"].get("requirements_failed"))]
     if failing:
-        return {"pass": False, "reason": "; ".join(failing)}
+        from lpvflow.pipeline.verify import coverage_note, interval_text
+
+        data = summary["stages"].get("identify", {}).get("outputs", {}).get("scheduling_range")
+        data_note = "" if not data else " (identification data " + " × ".join(
+            interval_text(b) for b in zip(*data, strict=True)) + ")"
+        reasons = []
+        for r, reason in failing:
+            note = coverage_note(r["controller"])
+            reasons.append(f"{r['name']}: {reason}" + (f"; {note}{data_note}" if note else ""))
+        return {"pass": False, "reason": "; ".join(reasons)}
     return {"pass": True, "reason": "every configured stage ran and every scenario passed"}
 
 

@@ -92,12 +92,26 @@ def _number(value: object, unit: str = "", digits: int = 3) -> str:
     return "–" if value is None else f"{value:.{digits}g}{unit}"
 
 
+def _scheduling_cell(coverage: dict | None) -> str:
+    """Visited range per scheduling signal; for an LPV controller, its design box and the time outside it."""
+    from lpvflow.pipeline.verify import interval_text
+
+    if not coverage:
+        return "–"
+    cell = " × ".join(interval_text(r) for r in coverage["range"])
+    if coverage["box"] is not None:
+        box = " × ".join(interval_text(b) for b in coverage["box"])
+        cell += f" (box {box}: {_number(coverage['time_outside_box'])} s outside)"
+    return cell
+
+
 def _scenario_table(scenarios: list[dict]) -> str:
     """One row per scenario and controller: verdict, and per tracked output and actuated input the
     settling time, overshoot, steady-state error, IAE and peak control, the untracked outputs' largest
-    deviation after settling, and the requirements missed (:mod:`lpvflow.pipeline.verify`)."""
+    deviation after settling, the requirements missed, and the scheduling range visited with the time spent
+    outside the controller's design box (:mod:`lpvflow.pipeline.verify`)."""
     head = ["scenario", "controller", "stable", "output", "settling [s]", "overshoot", "steady-state error",
-            "IAE", "peak control", "saturated [s]", "after settling", "requirements", "reason"]
+            "IAE", "peak control", "saturated [s]", "after settling", "requirements", "scheduling", "reason"]
     body = []
     for scenario in scenarios:
         for key in ("controller", "baseline"):
@@ -117,7 +131,7 @@ def _scenario_table(scenarios: list[dict]) -> str:
                 cells = [scenario["name"], run["controller"], "yes" if run["stable"] else "no", output,
                          _number(m.get("settling_time")), overshoot, _number(m.get("steady_state_error")),
                          _number(m.get("iae"), "", 4), controls, saturated, after or "–", requirements,
-                         run.get("reason", "")]
+                         _scheduling_cell(run.get("scheduling")), run.get("reason", "")]
                 css = "" if run["stable"] and not missed else ' class="fail"'
                 body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells)
                             + "</tr>")

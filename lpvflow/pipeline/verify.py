@@ -26,7 +26,11 @@ final reference; the final window is the last 10 % of the run, at least one samp
 per measured output that is not tracked: after_settling = max |y − r| from the instant the last tracked
 output settled to the end of the run (None if one never settles) — e.g. the pendulum while the arm holds;
 per actuated input: peak_control max |u| (after the limits) and saturation_time = Ts·#{k: u_c(k) outside
-the limits}. Verdict: stable ⇔ the run finished with finite signals inside ``output_bounds`` and every
+the limits}; per run, the scheduling the loop visited: ``range`` [min p_i, max p_i] per signal and, for a
+scheduled LPV controller, its design ``box`` (the scheduling box of its polytope, inside which the
+synthesis certificate holds; outside it the convex coordinates are clipped to the nearest face),
+``time_outside_box`` = Ts·#{k: p(k) ∉ box} and ``first_outside_box`` (s, or None).
+Verdict: stable ⇔ the run finished with finite signals inside ``output_bounds`` and every
 tracked output settled. A scenario's ``requirements`` (settling time, overshoot, after-settling bounds)
 are checked besides: ``requirements_failed`` lists what the run misses; ``passed`` ⇔ stable and none.
 """
@@ -216,6 +220,8 @@ class ClosedLoopRun:
     measured: tuple[str, ...]
     actuated: tuple[str, ...]
     failure: str | None = None
+    #: (n_p, 2) design box of a scheduled LPV controller (None for LTI laws and controller FMUs).
+    scheduling_box: np.ndarray | None = None
 
 
 def _sampled(
@@ -365,7 +371,50 @@ def _run(
     n_p = len(p_log[0]) if p_log else 0
     p_arr = np.full((n, n_p), np.nan)
     p_arr[: len(p_log)] = p_log
-    return ClosedLoopRun(label, t, r, y, u_c, u, p_arr, loop.measured, loop.actuated, failure)
+    return ClosedLoopRun(label, t, r, y, u_c, u, p_arr, loop.measured, loop.actuated, failure,
+                         _design_box(law))
+
+
+def _design_box(law: LPVController | _FixedLaw | FmuController) -> np.ndarray | None:
+    """The scheduling box of an LPV controller's polytope; None when the law does not schedule."""
+    if isinstance(law, LPVController) and law.polytope.kind != "point":
+        return np.asarray(law.polytope.box, dtype=float)
+    return None
+
+
+def scheduling_coverage(run: ClosedLoopRun) -> dict | None:
+    """Visited scheduling range, and the time spent outside the controller's design box (module docstring);
+    None when the loop has no scheduling signal."""
+    p = run.scheduling[np.all(np.isfinite(run.scheduling), axis=1)] if run.scheduling.size else run.scheduling
+    if p.shape[1] == 0 or p.shape[0] == 0:
+        return None
+    coverage: dict = {"range": np.column_stack([p.min(axis=0), p.max(axis=0)]).tolist(), "box": None,
+                      "time_outside_box": None, "first_outside_box": None}
+    if run.scheduling_box is None:
+        return coverage
+    lo, hi = run.scheduling_box[:, 0], run.scheduling_box[:, 1]
+    slack = 1e-9 * np.maximum(1.0, np.abs(run.scheduling_box)).max(axis=1)
+    outside = np.any((p < lo - slack) | (p > hi + slack), axis=1)
+    Ts = float(run.time[1] - run.time[0])
+    coverage.update(box=run.scheduling_box.tolist(), time_outside_box=float(Ts * outside.sum()),
+                    first_outside_box=float(run.time[np.argmax(outside)]) if outside.any() else None)
+    return coverage
+
+
+def interval_text(bounds: Sequence[float]) -> str:
+    """[lo, hi] to 3 significant digits."""
+    return f"[{bounds[0]:.3g}, {bounds[1]:.3g}]"
+
+
+def coverage_note(metrics: Mapping) -> str:
+    """One phrase when a run's scheduling left the controller's design box, else "": where and how far."""
+    coverage = metrics.get("scheduling")
+    if not coverage or coverage.get("first_outside_box") is None:
+        return ""
+    boxes = " × ".join(interval_text(b) for b in coverage["box"])
+    visited = " × ".join(interval_text(r) for r in coverage["range"])
+    return (f"scheduling left the design box {boxes} at t = {coverage['first_outside_box']:.3g} s and "
+            f"spanned {visited} ({coverage['time_outside_box']:.3g} s outside)")
 
 
 # --------------------------------------------------------------------------------------- metrics
@@ -442,6 +491,7 @@ def run_metrics(run: ClosedLoopRun, scenario: Scenario, loop: Loop) -> dict:
         "reason": run.failure,
         "outputs": {},
         "controls": controls,
+        "scheduling": scheduling_coverage(run),
     }
     if run.failure is not None:
         if scenario.requirements is not None:

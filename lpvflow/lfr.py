@@ -32,12 +32,11 @@ from lpvflow.errors import ModelError
 from lpvflow.models import (
     FORMAT_VERSION,
     LPVSS,
-    _as_2d,
-    _check_width,
     atomic_write_json,
     check_format,
     default_names,
     register_format,
+    simulation_inputs,
 )
 
 if TYPE_CHECKING:
@@ -181,10 +180,7 @@ class LPVLFR:
     def simulate(self, u: np.ndarray, p: np.ndarray, x0: np.ndarray | None = None,
                  return_states: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Simulate the closed LFR along a scheduling trajectory; returns y (N, ny) [and x (N+1, nx)]."""
-        p = _as_2d("scheduling p", p)
-        u = _as_2d("input u", u, len(p))
-        _check_width("input u", u, self.nu)
-        _check_width("scheduling p", p, self.basis.n_p)
+        u, p = simulation_inputs(u, p, self.nu, self.basis.n_p)
         Ak, Bk, Ck, Dk = (np.ascontiguousarray(M) for M in self.pointwise_matrices(p))
         x0 = np.zeros(self.nx) if x0 is None else np.asarray(x0, dtype=float).reshape(self.nx)
         y, x = _ltv_recursion(Ak, Bk, Ck, Dk, np.ascontiguousarray(u), x0)

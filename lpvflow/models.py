@@ -60,6 +60,23 @@ def _check_width(name: str, a: np.ndarray, n: int) -> None:
         raise DataError(f"{name} has {a.shape[1]} column(s) but the model expects {n}")
 
 
+def simulation_inputs(u: Any, p: Any, nu: int, n_p: int) -> tuple[np.ndarray, np.ndarray]:
+    """``u`` (N, nu) and ``p`` (N, n_p) as float arrays for a model's ``simulate``; one DataError naming the
+    signal for a wrong shape, a length mismatch or a non-finite sample."""
+    p = _as_2d("scheduling p", p)
+    u = _as_2d("input u", u, len(p))
+    _check_width("input u", u, nu)
+    _check_width("scheduling p", p, n_p)
+    return u, p
+
+
+def noise_input(e: Any, n_samples: int, ny: int) -> np.ndarray:
+    """The innovation ``e`` (N, ny) of a model with a noise model, checked as :func:`simulation_inputs`."""
+    e = _as_2d("noise e", e, n_samples)
+    _check_width("noise e", e, ny)
+    return e
+
+
 def default_names(model: Any, nu: int, ny: int, n_p: int) -> None:
     """Fill empty ``u_names``/``y_names``/``p_names`` of a model with u0…, y0…, p0…."""
     model.u_names = model.u_names or [f"u{i}" for i in range(nu)]
@@ -166,15 +183,12 @@ class LPVIO:
 
         ``e`` (N, ny) is the innovation of an ARMAX model (added at the output with C(q) filtering).
         """
-        p = _as_2d("scheduling p", p)
-        u = _as_2d("input u", u, len(p))
-        _check_width("input u", u, self.nu)
+        u, p = simulation_inputs(u, p, self.nu, self.basis.n_p)
         psi = self.basis.eval(p)
         shifted = self.form == "shifted"
         forced = lagged_sum(psi, self.B, u, shifted)
         if e is not None:
-            e = _as_2d("noise e", e, len(p))
-            _check_width("noise e", e, self.ny)
+            e = noise_input(e, len(p), self.ny)
             forced += e + lagged_sum(psi, np.concatenate([np.zeros_like(self.C[:1]), self.C]), e, shifted)
         return io_recursion(forced, psi, self.A, shifted)
 
@@ -300,16 +314,13 @@ class LPVSS:
         return_states: bool = False,
     ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Simulate along a scheduling trajectory; returns y (N, ny) [and x (N+1, nx)]."""
-        p = _as_2d("scheduling p", p)
-        u = _as_2d("input u", u, len(p))
-        _check_width("input u", u, self.nu)
+        u, p = simulation_inputs(u, p, self.nu, self.basis.n_p)
         psi = self.basis.eval(p)
         A, B, C, D = self.A, self.B, self.C, self.D
         if e is not None:
             if self.K is None:
                 raise ModelError("this model has no noise gain K; simulate without e")
-            e = _as_2d("noise e", e, len(p))
-            _check_width("noise e", e, self.ny)
+            e = noise_input(e, len(p), self.ny)
             eye = np.zeros((self.basis.n_psi, self.ny, self.ny))
             eye[0] = np.eye(self.ny)
             B, D, u = np.concatenate([B, self.K], axis=2), np.concatenate([D, eye], axis=2), np.hstack([u, e])

@@ -92,8 +92,10 @@ def endpoints(phi_deg: float, p: dict = P) -> tuple[np.ndarray, ...]:
     return x0, xf, u0, uf
 
 
-def smoothstep_guess(phi_t: float, T: float, N: int, p: dict = P) -> tuple[np.ndarray, np.ndarray]:
-    """φ1 = φt s(t/T), s = 3τ² − 2τ³, its rate, φ2 = ω2 = 0, and the equilibrium voltage V_eq(φ1)."""
+def quasi_static_guess(phi_t: float, T: float, N: int, p: dict = P) -> tuple[np.ndarray, np.ndarray]:
+    """Quasi-static path: φ1 = φt s(t/T), s = 3τ² − 2τ³, its rate, φ2 = ω2 = 0, and the voltage V_eq(φ1)
+    that would hold the arm at rest at each point (min_time.smoothstep_guess interpolates states and
+    voltages between two given end points instead)."""
     tau = np.linspace(0.0, 1.0, N + 1)
     mid = (tau[:-1] + tau[1:]) / 2
     voltage = np.array([rm.adip_equilibrium(phi_t * s * s * (3 - 2 * s), p)[1][0] for s in mid])
@@ -110,12 +112,12 @@ def transfer(
     p: dict = P,
     **options,
 ) -> mt.Transfer:
-    """0 → phi_deg, |V| ≤ vmax, on the plant with parameters p, from `smoothstep_guess` or (generic=True)
+    """0 → phi_deg, |V| ≤ vmax, on the plant with parameters p, from `quasi_static_guess` or (generic=True)
     the solver's default guess; `options` go to `minimum_time_transfer` (duration, path, ...)."""
     guess = (
         None
         if generic
-        else smoothstep_guess(np.deg2rad(phi_deg), T_guess, max(2, round(T_guess / interval)), p)
+        else quasi_static_guess(np.deg2rad(phi_deg), T_guess, max(2, round(T_guess / interval)), p)
     )
     return mt.minimum_time_transfer(
         F,
@@ -233,7 +235,7 @@ def settling_transfer(
     phi_t = np.deg2rad(phi_deg)
     x0, xf, u0, uf = endpoints(phi_deg, p)
     K, M = round(settle_guess / INTERVAL), SETTLE_TAIL
-    u, x = smoothstep_guess(phi_t, settle_guess, K, p)
+    u, x = quasi_static_guess(phi_t, settle_guess, K, p)
     guess = (
         np.hstack([u, np.repeat(uf[:, None], M, axis=1)]),
         np.hstack([x, np.repeat(xf[:, None], M, axis=1)]),

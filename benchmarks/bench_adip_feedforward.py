@@ -21,10 +21,16 @@ is also the gain after the transfer — and u = u_ff − K_k (x − x_ref), |u| 
 (RK4, 1 ms sub-steps). Metrics of bench_adip_reach.move_metrics from the step; "lost" when the pendulum
 is 0.5 rad off its reference.
 
+Re-planned (receding horizon on the designer's model, the bounded minimum-energy reference): every 0.1 s
+of the transfer, while at least 0.3 s of it remain, the transfer is solved again from the measured state to
+rest at the target in the remaining time and the TV-LQR gains recomputed along it; a re-plan SLSQP does not
+solve keeps the previous plan (counted). An answer to whether the feed-forward's sensitivity to the
+designer's model is cured by feedback on the plan itself — not a controller the chain can export.
+
 Rows: every feed-forward above × designer's model = the plant (exact feed-forward), ±10 % pendulum mass,
 +50 % arm damping with −10 % pendulum inertia (a feed-forward from an imperfect model).
 
-Run: .venv/bin/python benchmarks/bench_adip_feedforward.py  → results/adip_feedforward.json (1.5 minutes)
+Run: .venv/bin/python benchmarks/bench_adip_feedforward.py  → results/adip_feedforward.json (about 4 minutes)
 """
 
 from __future__ import annotations
@@ -100,40 +106,78 @@ def minimum_time(p: dict, vmax: float) -> mt.Transfer:
     return limits.settling_transfer(TARGET_DEG, vmax, 1.0, p)[0]
 
 
+def _arm_bound(bound_deg: float | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """Node bounds φ1 ≤ target + bound_deg (None: free)."""
+    if bound_deg is None:
+        return None
+    return np.full(4, -np.inf), np.array([np.deg2rad(TARGET_DEG + bound_deg), np.inf, np.inf, np.inf])
+
+
 def minimum_energy(p: dict, bound_deg: float | None) -> mt.Transfer:
     """Minimum-energy transfer of duration ENERGY_DURATION, |V| ≤ ENERGY_VOLTAGE, φ1 ≤ target + bound."""
-    path = None
-    if bound_deg is not None:
-        path = (np.full(4, -np.inf), np.array([np.deg2rad(TARGET_DEG + bound_deg), np.inf, np.inf, np.inf]))
     return limits.transfer(TARGET_DEG, ENERGY_VOLTAGE, T_guess=ENERGY_DURATION, p=p, duration=ENERGY_DURATION,
-                           path=path)
+                           path=_arm_bound(bound_deg))
+
+
+def replanned_energy(x0: np.ndarray, duration: float, p: dict, bound_deg: float | None) -> mt.Transfer:
+    """Minimum-energy transfer from the measured state x0 (not at rest) to rest at the target in
+    ``duration``, on the designer's model p, |V| ≤ ENERGY_VOLTAGE, φ1 ≤ target + bound (min_time's own guess:
+    interpolation from x0 and the holding voltage there)."""
+    xf, u_f = rm.adip_equilibrium(np.deg2rad(TARGET_DEG), p)
+    u_0 = rm.adip_equilibrium(float(x0[0]), p)[1]
+    intervals = max(2, round(duration / limits.INTERVAL))
+    return mt.minimum_time_transfer(limits.F, x0, xf, u_0, u_f, ENERGY_VOLTAGE, p,
+                                    interval=duration / intervals, T_guess=duration, duration=duration,
+                                    path=_arm_bound(bound_deg), state_scale=mt.ADIP_STATE_SCALE)
 
 
 _ENERGY = f"minimum energy, T = {ENERGY_DURATION} s, |V| ≤ {ENERGY_VOLTAGE:g} V"
+_BOUNDED = f"{_ENERGY}, φ1 ≤ target + {OVERSHOOT_BOUND_DEG}°"
 FEEDFORWARDS = {
     "minimum time, spec-compliant, |V| ≤ 5 V": lambda p: minimum_time(p, 5.0),
     "minimum time, spec-compliant, |V| ≤ 8 V": lambda p: minimum_time(p, 8.0),
     _ENERGY: lambda p: minimum_energy(p, None),
-    f"{_ENERGY}, φ1 ≤ target + {OVERSHOOT_BOUND_DEG}°": lambda p: minimum_energy(p, OVERSHOOT_BOUND_DEG),
+    _BOUNDED: lambda p: minimum_energy(p, OVERSHOOT_BOUND_DEG),
 }
+#: Re-planning: every REPLAN_EVERY seconds of the transfer, until REPLAN_UNTIL before its end, the bounded
+#: minimum-energy transfer is solved again from the measured state over the remaining time (on the designer's
+#: model) and the TV-LQR gains along it recomputed; a re-plan SLSQP does not solve keeps the previous one.
+REPLAN_EVERY = 0.1  # s
+REPLAN_UNTIL = 0.3  # s
+REPLANNED = {f"{_BOUNDED}, re-planned every {REPLAN_EVERY:g} s from the measured state": _BOUNDED}
 
 
 def move(designer: dict, feedforward: str) -> dict:
-    """One 0 → 75° move on the nominal plant with feed-forward and gains from the designer's model."""
+    """One 0 → 75° move on the nominal plant with feed-forward and gains from the designer's model
+    (re-planned during the transfer for the REPLANNED feed-forwards)."""
     p = limits.P | designer
     t0 = time.perf_counter()
-    transfer = FEEDFORWARDS[feedforward](p)
+    replan = feedforward in REPLANNED
+    transfer = FEEDFORWARDS[REPLANNED.get(feedforward, feedforward)](p)
     x_ref, u_ff = reference(transfer, p)
     x_end, u_end = rm.adip_equilibrium(np.deg2rad(TARGET_DEG), p)
     gains, K_end = tracking_gains(x_ref, u_ff, x_end, u_end[0], p)
     row = {"transfer_ok": bool(transfer.success), "transfer_T_s": float(transfer.T)}
-    x, rows = np.zeros(4), []
+    x, rows, planned_at = np.zeros(4), [], 0
+    every, last = round(REPLAN_EVERY / TS), (transfer.T - REPLAN_UNTIL) / TS
+    if replan:
+        row |= {"replans": 0, "replans_unsolved": 0}
     for k in range(round(SECONDS / TS)):
         j = k - round(STEP_AT / TS)
+        if replan and 0 < j <= last and j % every == 0:
+            new = replanned_energy(x, transfer.T - j * TS, p, OVERSHOOT_BOUND_DEG)
+            row["replans"] += 1
+            if new.success:
+                x_ref, u_ff = reference(new, p)
+                gains, _ = tracking_gains(x_ref, u_ff, x_end, u_end[0], p)
+                planned_at = j
+            else:
+                row["replans_unsolved"] += 1
+        i = j - planned_at
         if j < 0:
             xr, uff, K = np.zeros(4), 0.0, gains[0]
-        elif j < len(u_ff):
-            xr, uff, K = x_ref[j], u_ff[j], gains[j]
+        elif i < len(u_ff):
+            xr, uff, K = x_ref[i], u_ff[i], gains[i]
         else:
             xr, uff, K = x_end, u_end[0], K_end
         u = float(np.clip(uff - (K @ (x - xr))[0], -10.0, 10.0))
@@ -148,7 +192,7 @@ def move(designer: dict, feedforward: str) -> dict:
 
 def main() -> None:
     rows = []
-    for feedforward in FEEDFORWARDS:
+    for feedforward in [*FEEDFORWARDS, *REPLANNED]:
         for name, designer in DESIGNER_MODELS.items():
             rows.append({"feedforward": feedforward, "designer_model": name} | move(designer, feedforward))
             print(rows[-1], flush=True)

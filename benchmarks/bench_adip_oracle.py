@@ -47,8 +47,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "benchmarks"), str(ROOT / "fmu_plants"), str(ROOT / "fmu_plants" / "adip")]
 
 import bench_adip_reach as reach  # noqa: E402
-import min_time  # noqa: E402
-import reference_models  # noqa: E402
 
 import lpvflow.synth.lmi_hinf as lmi_hinf  # noqa: E402
 from lpvflow.synth.certify import riccati_controller, riccati_gamma  # noqa: E402
@@ -60,7 +58,6 @@ from lpvflow.synth.sdp import SynthesisError  # noqa: E402
 TS = reach.TS
 STEP_AT = 0.5
 DURATION = 4.0
-SUBSTEPS = 5
 PENDULUM_LOST = 0.5  # rad, as the bundled scenarios' output_bounds
 TARGETS_DEG = (30, 45, 60, 75)
 #: θ within ±0.0005 of 0.25 (arm 75.48…75.56°; cos 75.5° = 0.25038): section 1's LMI γ there.
@@ -127,24 +124,20 @@ def frozen_radius(K: list, nodes: np.ndarray, degrees: float) -> float:
 def arm_step(K: list, nodes: np.ndarray, target_deg: float) -> dict:
     """Arm step 0 → target at STEP_AT on the nonlinear model; issue 7's metrics or when the pendulum fell."""
     target = np.deg2rad(target_deg)
-    x = np.zeros(4)
-    xk = np.zeros(K[0][0].shape[0])
-    arm, pendulum, voltage = [], [], []
-    for k in range(round(DURATION / TS)):
-        reference = target if k * TS >= STEP_AT else 0.0
-        e = np.array([reference - x[0], -x[1]])
+    state = {"xk": np.zeros(K[0][0].shape[0])}
+
+    def law(k: int, x: np.ndarray) -> float:
+        e = np.array([(target if k * TS >= STEP_AT else 0.0) - x[0], -x[1]])
         Ak, Bk, Ck, Dk = interpolated(K, hat_coordinates(nodes, np.cos(x[0])))
-        u = float(np.clip((Ck @ xk + Dk @ e)[0], -10.0, 10.0))
-        xk = Ak @ xk + Bk @ e
-        arm.append(x[0]), pendulum.append(x[1]), voltage.append(u)
-        x = min_time.rk4(reference_models.adip_derivatives, x[:, None], np.array([[u]]), TS / SUBSTEPS,
-                         SUBSTEPS, reach.PARAMETERS)[:, 0]
-        if not abs(x[1]) < PENDULUM_LOST:
-            return {"target_deg": target_deg, "pendulum_lost_at_s": round((k + 1) * TS, 3),
-                    "peak_voltage": max(map(abs, voltage))}
-    t = TS * np.arange(len(arm))
-    return {"target_deg": target_deg,
-            **reach.move_metrics(t, np.array(arm), np.array(pendulum), np.array(voltage), target, STEP_AT)}
+        u = (Ck @ state["xk"] + Dk @ e)[0]
+        state["xk"] = Ak @ state["xk"] + Bk @ e
+        return u
+
+    rows, lost_at = reach.nonlinear_run(law, DURATION, lambda k, x: not abs(x[1]) < PENDULUM_LOST)
+    if lost_at is not None:
+        peak = float(np.abs(rows[:, 3]).max())
+        return {"target_deg": target_deg, "pendulum_lost_at_s": lost_at, "peak_voltage": peak}
+    return {"target_deg": target_deg, **reach.move_metrics(*rows.T, target, STEP_AT)}
 
 
 def frozen_upright_steps(lmi_gamma: float, lmi_K: list, riccati_gamma_opt: float, weight_table: dict) -> dict:

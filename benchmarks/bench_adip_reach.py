@@ -53,6 +53,7 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import tomllib
@@ -283,24 +284,39 @@ MOVE_TIMES = (0.0, 1.0, 1.5, 2.0, 2.5)
 SIM_SECONDS = 6.0
 
 
+def nonlinear_run(law: Callable[[int, np.ndarray], float], seconds: float,
+                  lost: Callable[[int, np.ndarray], bool]) -> tuple[np.ndarray, float | None]:
+    """The nonlinear ADIP from rest at 0 under u(k) = clip(law(k, x(k)), ±10 V), held over each 5 ms sample
+    (RK4, 1 ms sub-steps), for ``seconds``: rows (t, arm, pendulum, u) up to the sample at which
+    ``lost(k, x(k + 1))`` first holds, and that time (s), or None when it never does."""
+    x, rows = np.zeros(4), []
+    for k in range(round(seconds / TS)):
+        u = float(np.clip(law(k, x), -10.0, 10.0))
+        rows.append((k * TS, x[0], x[1], u))
+        x = mt.rk4(rm.adip_derivatives, x, np.array([u]), TS / 5, 5, PARAMETERS)
+        if lost(k, x):
+            return np.array(rows), round((k + 1) * TS, 3)
+    return np.array(rows), None
+
+
 def scheduled_lqr_move(target_deg: float, weights: tuple, move_time: float) -> dict | None:
     """Section 5: one move of the arm from 0 to target_deg; None when the pendulum passes 0.9 rad."""
     grid = np.deg2rad(np.arange(-85, 86, 5))
     Q, R = np.diag([weights[0], weights[1], 0.1, 0.1]), np.array([[weights[2]]])
     gains = np.array([control.dlqr(linearised(g).A, linearised(g).B, Q, R)[0][0] for g in grid])
-    target, start, x, rows = np.deg2rad(target_deg), 0.5, np.zeros(4), []
-    for k in range(int(SIM_SECONDS / TS)):
+    target, start = np.deg2rad(target_deg), 0.5
+
+    def law(k: int, x: np.ndarray) -> float:
         s = float(np.clip((k * TS - start) / move_time, 0, 1)) if move_time > 0 else float(k * TS >= start)
         x_eq, u_eq = rm.adip_equilibrium(target * s * s * (3 - 2 * s), PARAMETERS)
         K = np.array([np.interp(x[0], grid, gains[:, i]) for i in range(4)])
-        u = float(np.clip(u_eq[0] - K @ (x - x_eq), -10.0, 10.0))
-        rows.append((k * TS, x[0], x[1], u))
-        x = mt.rk4(rm.adip_derivatives, x, np.array([u]), TS / 5, 5, PARAMETERS)  # 1 ms sub-steps
-        if abs(x[1]) > 0.9:
-            return None
-    t, arm, pendulum, u = np.array(rows).T
+        return u_eq[0] - K @ (x - x_eq)
+
+    rows, lost_at = nonlinear_run(law, SIM_SECONDS, lambda k, x: abs(x[1]) > 0.9)
+    if lost_at is not None:
+        return None
     return {"target_deg": target_deg, "move_time_s": move_time, "lqr_weights": list(weights),
-            **move_metrics(t, arm, pendulum, u, target, start)}
+            **move_metrics(*rows.T, target, start)}
 
 
 def move_metrics(t: np.ndarray, arm: np.ndarray, pendulum: np.ndarray, u: np.ndarray, target: float,

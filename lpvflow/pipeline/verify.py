@@ -385,8 +385,8 @@ def _design_box(law: LPVController | _FixedLaw | FmuController) -> np.ndarray | 
 def scheduling_coverage(run: ClosedLoopRun) -> dict | None:
     """Visited scheduling range, and the time spent outside the controller's design box (module docstring);
     None when the loop has no scheduling signal."""
-    p = run.scheduling[np.all(np.isfinite(run.scheduling), axis=1)] if run.scheduling.size else run.scheduling
-    if p.shape[1] == 0 or p.shape[0] == 0:
+    p = run.scheduling[np.isfinite(run.scheduling).all(axis=1)]  # the samples before a failure
+    if p.size == 0:
         return None
     coverage: dict = {"range": np.column_stack([p.min(axis=0), p.max(axis=0)]).tolist(), "box": None,
                       "time_outside_box": None, "first_outside_box": None}

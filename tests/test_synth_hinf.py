@@ -361,9 +361,8 @@ def test_balanced_state_coordinates_are_exact_and_used_when_the_first_attempt_fa
 
 @pytest.mark.slow
 def test_adip_60_degree_box_is_certified_in_balanced_state_coordinates():  # ~1–2 min; infeasible before
-    from pathlib import Path
-
     import tomllib
+    from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
     sys.path.insert(0, str(root / "benchmarks"))
@@ -381,9 +380,8 @@ def test_adip_60_degree_box_is_certified_in_balanced_state_coordinates():  # ~1�
 def _adip_point(phi1_degrees: float):
     """Generalized plant of the exact ADIP linearization at arm angle φ1 (ZOH, 5 ms), adip.toml weights."""
     import importlib.util
-    from pathlib import Path
-
     import tomllib
+    from pathlib import Path
 
     from lpvflow.basis import Basis
     from lpvflow.models import LPVSS

@@ -20,9 +20,8 @@ Prints γ, the independent certificate checks and the solve time; exit 1 when a 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
-
 import tomllib
+from pathlib import Path
 
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS, load

@@ -7,11 +7,10 @@ default. The bundled default is ``lpvflow/pipeline/examples/adip.toml``.
 
 from __future__ import annotations
 
+import tomllib
 from importlib import resources
 from pathlib import Path
 from typing import Any
-
-import tomllib
 
 from lpvflow.errors import DataError
 

@@ -50,12 +50,12 @@ ramps = [[t_start, t_stop, size], ...] }``: s(t) = initial + Σ size·[t ≥ t_s
 from __future__ import annotations
 
 import math
+import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import tomllib
 
 from lpvflow.errors import DataError
 

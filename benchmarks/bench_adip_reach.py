@@ -53,10 +53,9 @@ import json
 import os
 import sys
 import time
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
-
-import tomllib
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -299,18 +298,30 @@ def nonlinear_run(law: Callable[[int, np.ndarray], float], seconds: float,
     return np.array(rows), None
 
 
-def scheduled_lqr_move(target_deg: float, weights: tuple, move_time: float) -> dict | None:
-    """Section 5: one move of the arm from 0 to target_deg; None when the pendulum passes 0.9 rad."""
+def scheduled_lqr(weights: tuple) -> Callable[[np.ndarray, float], float]:
+    """Section 5's law u(x, r) = V_eq(r) − K(φ1)(x − x_eq(r)): dlqr gains with Q = diag(w_arm, w_pendulum,
+    0.1, 0.1), R = w_u on the ZOH linearisations every 5° of arm angle (−85…85°), interpolated linearly in
+    the measured arm angle φ1 = x[0]; r the arm reference (rad)."""
     grid = np.deg2rad(np.arange(-85, 86, 5))
     Q, R = np.diag([weights[0], weights[1], 0.1, 0.1]), np.array([[weights[2]]])
     gains = np.array([control.dlqr(linearised(g).A, linearised(g).B, Q, R)[0][0] for g in grid])
+
+    def law(x: np.ndarray, reference: float) -> float:
+        x_eq, u_eq = rm.adip_equilibrium(reference, PARAMETERS)
+        K = np.array([np.interp(x[0], grid, gains[:, i]) for i in range(4)])
+        return u_eq[0] - K @ (x - x_eq)
+
+    return law
+
+
+def scheduled_lqr_move(target_deg: float, weights: tuple, move_time: float) -> dict | None:
+    """Section 5: one move of the arm from 0 to target_deg; None when the pendulum passes 0.9 rad."""
+    lqr = scheduled_lqr(weights)
     target, start = np.deg2rad(target_deg), 0.5
 
     def law(k: int, x: np.ndarray) -> float:
         s = float(np.clip((k * TS - start) / move_time, 0, 1)) if move_time > 0 else float(k * TS >= start)
-        x_eq, u_eq = rm.adip_equilibrium(target * s * s * (3 - 2 * s), PARAMETERS)
-        K = np.array([np.interp(x[0], grid, gains[:, i]) for i in range(4)])
-        return u_eq[0] - K @ (x - x_eq)
+        return lqr(x, target * s * s * (3 - 2 * s))
 
     rows, lost_at = nonlinear_run(law, SIM_SECONDS, lambda k, x: abs(x[1]) > 0.9)
     if lost_at is not None:

@@ -93,6 +93,11 @@ def test_bad_simulation_input():
         ss.simulate(np.full((10, 1), np.nan), np.zeros((10, 1)))
     with pytest.raises(DataError, match="has 9 samples"):
         ss.simulate(np.zeros((9, 1)), np.zeros((10, 1)))
+    for model in (small_io(), ss):  # one scheduling signal, two given: named before the basis is evaluated
+        with pytest.raises(DataError, match=r"scheduling p has 2 column\(s\) but the model expects 1"):
+            model.simulate(np.zeros((10, 1)), np.zeros((10, 2)))
+    with pytest.raises(DataError, match="noise e has 3 column"):
+        small_io().simulate(np.zeros((10, 1)), np.zeros((10, 1)), e=np.zeros((10, 3)))
     with pytest.raises(ModelError, match="shape"):
         LPVSS(np.zeros((2, 2, 2)), np.zeros((2, 3, 1)), np.zeros((2, 1, 2)), np.zeros((2, 1, 1)),
               Basis.affine(), 1.0)

@@ -107,6 +107,27 @@ def test_closed_loop_adip_stays_bounded_and_round_trips(adip, tmp_path, capsys):
     assert data.Ts == pytest.approx(controller["Ts"]) and data.N == len(table)
 
 
+def test_arm_setpoint_levels_widen_the_adip_identification_range(adip, tmp_path, capsys):
+    """The bundled identification controller with arm set-points (levels within ±0.6 rad) next to its
+    excitation: the recorded arm range grows from about ±21° to beyond ±45° (60 s, seed 1, 1 V rms) with
+    the pendulum up, and the CLI writes the set-point column."""
+    common = {"controller": ADIP_CONTROLLER, "excitation": {"voltage": "multisine:f_lo=0.02,f_hi=20,rms=1.0"},
+              "seed": 1, "progress": False}
+    plain = run_fmu_experiment(adip, 0.005, 60.0, **common)
+    moved = run_fmu_experiment(adip, 0.005, 60.0, **common,
+                               setpoint={"arm_angle": "levels:lo=-0.6,hi=0.6,min_hold=3,max_hold=6,ramp=1"})
+    reach_plain, reach_moved = (np.rad2deg(np.abs(r.columns["arm_angle"]).max()) for r in (plain, moved))
+    assert reach_plain < 25 and reach_moved > 45
+    assert np.rad2deg(np.abs(moved.columns["pendulum_angle"]).max()) < 25
+    out = tmp_path / "moved.csv"
+    status, _, err = _cli(capsys, adip, "--duration", 5, "--controller", ADIP_CONTROLLER, "--setpoint",
+                          "arm_angle=levels:lo=-0.3,hi=0.3,min_hold=1,max_hold=2,ramp=0.5", "-o", out)
+    assert (status, err) == (0, ""), err
+    header = out.read_text().splitlines()[0].split(",")
+    assert header == ["time", "voltage", "arm_angle", "pendulum_angle", "voltage_excitation",
+                      "arm_angle_setpoint", "sin_arm"]
+
+
 def test_diagnostics_and_fmu_scheduling_output_on_request(tanks):
     rec = run_fmu_experiment(tanks, 0.2, 20, inputs={"pump_voltage": "const:value=6"},
                              scheduling_columns={"h2": "diag_scheduling"}, record_diagnostics=True)
@@ -225,3 +246,18 @@ def test_python_control_controller_gives_the_same_run_as_its_file(adip):
     for name, values in from_file.columns.items():
         np.testing.assert_array_equal(from_object.columns[name], values)
     assert "controller_file" not in from_object.metadata and from_object.metadata["mode"] == "closed-loop"
+
+
+def test_design_experiment_stage_takes_a_setpoint_table(adip, tmp_path):
+    """A design's `[experiment] setpoint = { arm_angle = "..." }` reaches the experiment (data.csv)."""
+    from lpvflow.pipeline.config import bundled_config, load_config
+    from lpvflow.pipeline.stages import StageContext, experiment
+
+    text = bundled_config("adip").read_text().replace("duration = 120.0", "duration = 4.0")
+    text = text.replace("seed = 1\n", 'seed = 1\nsetpoint = { arm_angle = "levels:lo=-0.2,hi=0.2,min_hold=1,'
+                        'max_hold=2,ramp=0.5" }\n')
+    (tmp_path / "design.toml").write_text(text)
+    config = load_config(tmp_path / "design.toml")
+    outputs, artifacts = experiment(StageContext(tmp_path, config))
+    assert artifacts == ["data.csv"] and "arm_angle_setpoint" in outputs["ranges"]
+    assert max(map(abs, outputs["ranges"]["arm_angle_setpoint"])) <= 0.2

@@ -99,6 +99,29 @@ def test_closed_loop_matches_python_control_interconnection():
     assert rec.metadata["controller"]["u_operating_point"] == [0.3]
 
 
+def test_setpoint_replaces_the_operating_point_and_is_recorded_as_an_excitation():
+    """u = u_op + K(y − s): the recorded input equals the controller run offline on y − s, and
+    ``u0_excitation`` is exactly what the y_op-form law needs added (module docstring of run)."""
+    G, K = unstable_plant(), stabilising_controller()
+    y_op, u_op = np.array([0.2]), np.array([0.3])
+    ctrl = LtiController.from_statespace(K, y_op=y_op, u_op=u_op)
+    setpoint = {"y0": "levels:lo=-0.5,hi=0.5,min_hold=0.3,max_hold=0.6,ramp=0.1"}
+    rec = run_experiment(StateSpacePlant(G, u0=[0.0, 0.0]), TS, 3.0, controller=ctrl, setpoint=setpoint,
+                         seed=2, progress=False)
+    s, y, u = rec.columns["y0_setpoint"], rec.columns["y0"], rec.columns["u0"]
+    assert s.min() >= -0.5 and s.max() <= 0.5 and np.ptp(s) > 0.3  # the levels moved
+    law = control.ss(K.A, K.B, K.C, K.D, TS)
+    t = rec.time
+    np.testing.assert_allclose(u, u_op[0] + control.forced_response(law, T=t, U=y - s).outputs, atol=1e-12)
+    y_op_form = u_op[0] + control.forced_response(law, T=t, U=y - y_op[0]).outputs
+    np.testing.assert_allclose(rec.columns["u0_excitation"], u - y_op_form, atol=1e-12)
+    assert rec.metadata["setpoint"]["y0"]["kind"] == "levels"
+    assert rec.metadata["columns"]["setpoint"] == ["y0_setpoint"]
+    centred = run_experiment(StateSpacePlant(G, u0=[0.0, 0.0]), TS, 1.0, controller=ctrl, seed=2,
+                             progress=False, setpoint={"y0": "multisine:f_lo=1,f_hi=5,rms=0.01"})
+    assert abs(centred.columns["y0_setpoint"].mean() - y_op[0]) < 1e-9  # a multisine is centred on y_op
+
+
 def test_diverging_run_is_reported_not_recorded():
     plant = StateSpacePlant(control.ss([[1e150]], [[1.0]], [[1e150]], [[0.0]], TS), u0=[1.0])
     with np.errstate(over="ignore"), pytest.raises(ModelError, match=r"non-finite at t=.*diverged"):
@@ -115,6 +138,8 @@ def test_diverging_run_is_reported_not_recorded():
         ({"inputs": {"throttle": "const:value=1"}}, ModelError, "'throttle' not in FMU toy"),
         ({"inputs": {"u0": "multisine:f_lo=1"}}, DataError, "needs f_hi"),
         ({"excitation": {"u0": "const:value=1"}}, DataError, "give a controller"),
+        ({"setpoint": {"y0": "const:value=1"}}, DataError, "a set-point is what a controller tracks"),
+        ({"setpoint": {"z": "const:value=1"}}, ModelError, "set-point output 'z' not in FMU toy"),
         ({"seed": -1}, DataError, "non-negative integer"),
         ({"scheduling_columns": {"p": "sin(arm)"}}, DataError, "unknown name 'arm'"),
         ({"scheduling_columns": {"y0": "u0"}}, DataError, "clashes"),
@@ -136,10 +161,12 @@ def test_bad_open_loop_arguments(kwargs, error, message):
         (control.ss(0.5, 1.0, 1.0, 0.0, TS, inputs=["pos"], outputs=["u0"]), {}, "'pos' not in"),
         (control.ss(0.5, 1.0, 1.0, 0.0, TS, inputs=["y0"], outputs=["volt"]), {}, "'volt' not in"),
         (control.ss(0.5, 1.0, 1.0, 0.0, 0.02, inputs=["y0"], outputs=["u0"]), {}, "differs"),
+        (stabilising_controller(), {"setpoint": {"y1": "const:value=1"}}, "y1: the controller does not read"),
     ],
 )
 def test_bad_closed_loop_arguments(controller, kwargs, message):
-    plant = StateSpacePlant(unstable_plant(), u0=[0.0, 0.0])
+    plant = StateSpacePlant(control.ss(unstable_plant().A, unstable_plant().B, [[1.0, 0.0], [0.0, 1.0]],
+                                       np.zeros((2, 2)), TS), u0=[0.0, 0.0])  # outputs y0 (read), y1
     with pytest.raises((DataError, ModelError), match=message):
         run_experiment(plant, TS, 0.5, controller=LtiController.from_statespace(controller), progress=False,
                        **kwargs)

@@ -28,6 +28,7 @@ def run_fmu_experiment(
     output: str | Path | None = None,
     progress: bool | None = None,
     record_diagnostics: bool = False,
+    setpoint: Mapping[str, str | SignalSpec] | None = None,
 ) -> ExperimentRecord:
     """Run :func:`~lpvflow.experiment.run.run_experiment` on the FMU at ``fmu`` with ``parameters``
     set before initialisation, and write ``output`` (+ ``<output>.json``) when given.
@@ -54,7 +55,7 @@ def run_fmu_experiment(
     plant = open_plant(fmu, dict(parameters or {}))
     try:
         record = run_experiment(plant, Ts, duration, inputs, controller, excitation, scheduling_columns, seed,
-                                progress, record_diagnostics)
+                                progress, record_diagnostics, setpoint)
     finally:
         plant.close()
     effects = {k: v for k, v in record.metadata["parameters"].items() if k.startswith("effect_")}

@@ -13,6 +13,13 @@ value. Closed loop with an :class:`~lpvflow.experiment.controller.LtiController`
 where y_K are the plant outputs K reads, u_K the plant inputs it drives, and r the excitation added
 to its output (recorded as ``<input>_excitation``); inputs K does not drive may still get a signal
 (e.g. an exogenous engine speed). This is the setting of Boonto (2011), Fig. 3.2 (r_2 added to u).
+
+Set-points move the operating point during the run: a signal s_i(k) on an output K reads replaces
+y_op,i (multisine and prbs are centred on y_op,i, the other kinds are absolute; recorded as
+``<output>_setpoint``). K is linear, so K acting on y − s equals K acting on y − y_op plus the signal
+r_s = K(y_op − s) — K's response, from rest, to y_op − s alone — added to its output; r + r_s is what
+``<input>_excitation`` records, so every consumer of the record (the closed-loop validation, the
+diagnosis loops) sees the set-point as part of the one external signal at the controller output.
 """
 
 from __future__ import annotations
@@ -106,10 +113,12 @@ def run_experiment(
     seed: int = 0,
     progress: bool | None = None,
     record_diagnostics: bool = False,
+    setpoint: Mapping[str, str | SignalSpec] | None = None,
 ) -> ExperimentRecord:
     """Drive ``plant`` for ``duration`` seconds at step Ts; see the module docstring for the law.
 
-    ``inputs``/``excitation`` map plant input names to signal specs (text or :class:`SignalSpec`);
+    ``inputs``/``excitation`` map plant input names to signal specs (text or :class:`SignalSpec`),
+    ``setpoint`` plant outputs the controller reads;
     ``scheduling_columns`` maps new column names to expressions of input/output names (default:
     :func:`default_scheduling`). Outputs named ``diag_*`` are recorded only with
     ``record_diagnostics``. ``progress=None`` shows a tqdm bar only on a terminal.
@@ -118,11 +127,15 @@ def run_experiment(
     if int(seed) != seed or seed < 0:
         raise DataError(f"seed={seed} must be a non-negative integer")
     input_specs, excitation_specs = _as_specs(inputs), _as_specs(excitation)
+    setpoint_specs = _as_specs(setpoint)
     model = plant.model_name
     _check_names("input", list(input_specs), plant.input_names, model)
     _check_names("excitation input", list(excitation_specs), plant.input_names, model)
-    if controller is None and excitation_specs:
-        raise DataError("an excitation is added to a controller output; give a controller or use --input")
+    _check_names("set-point output", list(setpoint_specs), plant.output_names, model)
+    if controller is None and (excitation_specs or setpoint_specs):
+        what = "an excitation is added to a controller output" if excitation_specs else \
+            "a set-point is what a controller tracks"
+        raise DataError(f"{what}; give a controller (or use --input for an open-loop signal)")
     if controller is not None:
         _check_names("controller input (plant output)", controller.inputs, plant.output_names, model)
         _check_names("controller output (plant input)", controller.outputs, plant.input_names, model)
@@ -134,6 +147,10 @@ def run_experiment(
         not_driven = sorted(set(excitation_specs) - set(controller.outputs))
         if not_driven:
             raise DataError(f"excitation on {', '.join(not_driven)}: the controller does not drive it")
+        not_read = sorted(set(setpoint_specs) - set(controller.inputs))
+        if not_read:
+            raise DataError(f"set-point on {', '.join(not_read)}: the controller does not read it "
+                            f"(it reads {', '.join(controller.inputs)})")
 
     u_open = np.empty((n, len(plant.input_names)))
     for j, name in enumerate(plant.input_names):
@@ -142,6 +159,15 @@ def run_experiment(
         u_open[:, j] = operating if spec is None else generate(spec, n, Ts, signal_rng(seed, name), operating)
     r = {name: generate(spec, n, Ts, signal_rng(seed, "excitation:" + name), 0.0)
          for name, spec in excitation_specs.items()}
+    s: dict[str, np.ndarray] = {}
+    if controller is not None and setpoint_specs:
+        y_op = dict(zip(controller.inputs, controller.y_op, strict=True))
+        s = {name: generate(spec, n, Ts, signal_rng(seed, "setpoint:" + name), y_op[name])
+             for name, spec in setpoint_specs.items()}
+        shift = np.column_stack([y_op[name] - s[name] if name in s else np.zeros(n)
+                                 for name in controller.inputs])
+        r_s = setpoint_signal(controller, shift)
+        r = {name: r.get(name, 0.0) + r_s[:, j] for j, name in enumerate(controller.outputs)}
 
     y = np.empty((n, len(plant.output_names)))
     u = u_open.copy()
@@ -177,6 +203,7 @@ def run_experiment(
     columns: dict[str, np.ndarray] = {"time": np.round(np.arange(n) * Ts, 12)}
     columns |= {name: signals[name] for name in [*plant.input_names, *outputs]}
     columns |= {f"{name}_excitation": values for name, values in r.items()}
+    columns |= {f"{name}_setpoint": values for name, values in s.items()}
     chosen = dict(default_scheduling(plant) if scheduling_columns is None else scheduling_columns)
     for name, expression in chosen.items():
         if name in columns:
@@ -193,13 +220,26 @@ def run_experiment(
         "inputs": {name: spec.to_dict() for name, spec in input_specs.items()},
         "operating_values": {name: plant.start_value(name) for name in plant.input_names},
         "excitation": {name: spec.to_dict() for name, spec in excitation_specs.items()},
+        "setpoint": {name: spec.to_dict() for name, spec in setpoint_specs.items()},
         "controller": None if controller is None else controller.to_dict(),
         "scheduling": chosen,
         "parameters": plant.parameter_values(),
         "columns": {"time": ["time"], "inputs": list(plant.input_names), "outputs": outputs,
-                    "excitation": [f"{name}_excitation" for name in r], "scheduling": list(chosen)},
+                    "excitation": [f"{name}_excitation" for name in r],
+                    "setpoint": [f"{name}_setpoint" for name in s], "scheduling": list(chosen)},
     }
     return ExperimentRecord(columns=columns, Ts=Ts, metadata=metadata)
+
+
+def setpoint_signal(controller: LtiController, shift: np.ndarray) -> np.ndarray:
+    """r_s (N, n_u): the controller's response from rest to ``shift`` = y_op − s (N, n_y) alone,
+    xc(k+1) = A xc(k) + B shift(k), r_s(k) = C xc(k) + D shift(k) (module docstring)."""
+    xc = np.zeros(controller.A.shape[0])
+    out = np.empty((len(shift), controller.C.shape[0]))
+    for k, w in enumerate(shift):
+        out[k] = controller.C @ xc + controller.D @ w
+        xc = controller.A @ xc + controller.B @ w
+    return out
 
 
 def default_scheduling(plant: Plant) -> dict[str, str]:

@@ -41,6 +41,7 @@ def _numbers(items: dict[str, str]) -> dict[str, float]:
 def run(args: argparse.Namespace) -> int:
     inputs = _assignments(args.input, "--input", "throttle=multisine:f_lo=0.1,f_hi=5,rms=0.1")
     excitation = _assignments(args.excitation, "--excitation", "voltage=multisine:f_lo=0.1,f_hi=5,rms=0.2")
+    setpoint = _assignments(args.setpoint, "--setpoint", "arm_angle=levels:lo=-1,hi=1,min_hold=4,max_hold=9")
     parameters = _numbers(_assignments(args.set, "--set", "effect_noise_std=0.01"))
     scheduling = None
     if args.scheduling:
@@ -48,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     record = run_fmu_experiment(
         args.fmu, args.Ts, args.duration, inputs=inputs, controller=args.controller, excitation=excitation,
         parameters=parameters, scheduling_columns=scheduling, seed=args.seed, output=args.output,
-        record_diagnostics=args.diagnostics,
+        record_diagnostics=args.diagnostics, setpoint=setpoint,
     )
     columns = ", ".join(record.columns)
     print(f"wrote {args.output} ({record.metadata['n_samples']} samples; columns {columns}) "
@@ -59,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Drive an FMU with excitation signals (open loop) or with a stabilising LTI controller plus an "
-        "excitation on its output (closed loop); write CSV + <CSV>.json."
+        "excitation on its output and set-points on what it reads (closed loop); write CSV + <CSV>.json."
     )
     parser.epilog = SPEC_HELP
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -73,6 +74,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="stabilising LTI controller, format lpvflow/lti-controller (closed loop)")
     parser.add_argument("--excitation", action="append", metavar="NAME=SPEC",
                         help="signal added to the controller output driving plant input NAME")
+    parser.add_argument("--setpoint", action="append", metavar="NAME=SPEC",
+                        help="set-point for plant output NAME read by the controller, replacing its "
+                        "y_operating_point (moves the operating point; multisine/prbs are centred on it)")
     parser.add_argument("--set", action="append", metavar="PARAM=VALUE",
                         help="FMU parameter set before initialisation, e.g. effect_noise_std=0.01")
     parser.add_argument("--scheduling", action="append", metavar="NAME=EXPR",

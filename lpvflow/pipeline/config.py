@@ -19,7 +19,7 @@ REQUIRED = object()
 SCHEMA: dict[str, dict[str, Any]] = {
     "design": {"name": REQUIRED, "plant": REQUIRED, "output_dir": "build/design"},
     "experiment": {"Ts": REQUIRED, "duration": REQUIRED, "controller": None, "inputs": {}, "excitation": {},
-                   "parameters": {}, "scheduling": {}, "seed": 0},
+                   "setpoint": {}, "parameters": {}, "scheduling": {}, "seed": 0},
     "identify": {"u": REQUIRED, "y": REQUIRED, "p": REQUIRED, "na": 2, "nb": 2, "nk": 1, "basis": "affine",
                  "split": 0.7, "ridge": 0.0, "remove_offsets": False},
     "diagnose": {"adopt": False, "candidates": [], "split": 0.5},

@@ -42,7 +42,7 @@ def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
         ctx.config["design"]["plant"], cfg["Ts"], cfg["duration"], inputs=cfg["inputs"] or None,
         controller=cfg["controller"], excitation=cfg["excitation"] or None,
         parameters=cfg["parameters"] or None, scheduling_columns=cfg["scheduling"] or None,
-        seed=cfg["seed"], output=ctx.path("data.csv"), progress=None,
+        seed=cfg["seed"], output=ctx.path("data.csv"), progress=None, setpoint=cfg["setpoint"] or None,
     )
     ranges = {name: [float(np.min(v)), float(np.max(v))]
               for name, v in record.columns.items() if name != "time"}

@@ -118,7 +118,7 @@ def run_experiment(
     """Drive ``plant`` for ``duration`` seconds at step Ts; see the module docstring for the law.
 
     ``inputs``/``excitation`` map plant input names to signal specs (text or :class:`SignalSpec`),
-    ``setpoint`` plant outputs the controller reads;
+    ``setpoint`` maps plant outputs the controller reads to theirs;
     ``scheduling_columns`` maps new column names to expressions of input/output names (default:
     :func:`default_scheduling`). Outputs named ``diag_*`` are recorded only with
     ``record_diagnostics``. ``progress=None`` shows a tqdm bar only on a terminal.

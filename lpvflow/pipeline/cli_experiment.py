@@ -41,7 +41,8 @@ def _numbers(items: dict[str, str]) -> dict[str, float]:
 def run(args: argparse.Namespace) -> int:
     inputs = _assignments(args.input, "--input", "throttle=multisine:f_lo=0.1,f_hi=5,rms=0.1")
     excitation = _assignments(args.excitation, "--excitation", "voltage=multisine:f_lo=0.1,f_hi=5,rms=0.2")
-    setpoint = _assignments(args.setpoint, "--setpoint", "arm_angle=levels:lo=-1,hi=1,min_hold=4,max_hold=9")
+    setpoint = _assignments(args.setpoint, "--setpoint",
+                            "arm_angle=levels:lo=-0.3,hi=0.3,min_hold=2,max_hold=4,ramp=0.5")
     parameters = _numbers(_assignments(args.set, "--set", "effect_noise_std=0.01"))
     scheduling = None
     if args.scheduling:

@@ -80,6 +80,16 @@ class LtiController:
             u_op=np.zeros(len(outputs)) if u_op is None else np.asarray(u_op, float).reshape(-1),
         )
 
+    def response(self, w: np.ndarray) -> np.ndarray:
+        """The controller's outputs (N, n_u) for the input sequence ``w`` (N, n_y) from rest, without the
+        operating points: xc(k+1) = A xc(k) + B w(k), v(k) = C xc(k) + D w(k)."""
+        xc = np.zeros(self.A.shape[0])
+        out = np.empty((len(w), self.C.shape[0]))
+        for k, w_k in enumerate(w):
+            out[k] = self.C @ xc + self.D @ w_k
+            xc = self.A @ xc + self.B @ w_k
+        return out
+
     def negative_feedback(
         self, y_names: list[str] | None = None, u_names: list[str] | None = None,
     ) -> control.StateSpace:

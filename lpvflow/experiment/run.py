@@ -166,7 +166,7 @@ def run_experiment(
              for name, spec in setpoint_specs.items()}
         shift = np.column_stack([y_op[name] - s[name] if name in s else np.zeros(n)
                                  for name in controller.inputs])
-        r_s = setpoint_signal(controller, shift)
+        r_s = controller.response(shift)
         r = {name: r.get(name, 0.0) + r_s[:, j] for j, name in enumerate(controller.outputs)}
 
     y = np.empty((n, len(plant.output_names)))
@@ -229,17 +229,6 @@ def run_experiment(
                     "setpoint": [f"{name}_setpoint" for name in s], "scheduling": list(chosen)},
     }
     return ExperimentRecord(columns=columns, Ts=Ts, metadata=metadata)
-
-
-def setpoint_signal(controller: LtiController, shift: np.ndarray) -> np.ndarray:
-    """r_s (N, n_u): the controller's response from rest to ``shift`` = y_op − s (N, n_y) alone,
-    xc(k+1) = A xc(k) + B shift(k), r_s(k) = C xc(k) + D shift(k) (module docstring)."""
-    xc = np.zeros(controller.A.shape[0])
-    out = np.empty((len(shift), controller.C.shape[0]))
-    for k, w in enumerate(shift):
-        out[k] = controller.C @ xc + controller.D @ w
-        xc = controller.A @ xc + controller.B @ w
-    return out
 
 
 def default_scheduling(plant: Plant) -> dict[str, str]:

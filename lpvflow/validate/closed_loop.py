@@ -50,12 +50,7 @@ class Loop:
                             f"data (y {data.y_names}, u {data.u_names})")
         y_index = [data.y_names.index(n) for n in controller.inputs]
         u_index = [data.u_names.index(n) for n in controller.outputs]
-        dy = data.y[:, y_index] - controller.y_op
-        xc = np.zeros(controller.A.shape[0])
-        law = np.zeros((data.N, len(u_index)))
-        for k in range(data.N):
-            law[k] = controller.u_op + controller.C @ xc + controller.D @ dy[k]
-            xc = controller.A @ xc + controller.B @ dy[k]
+        law = controller.u_op + controller.response(data.y[:, y_index] - controller.y_op)
         return cls(controller, data.u[:, u_index] - law, dict(scheduling or {}))
 
 

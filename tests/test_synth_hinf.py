@@ -376,7 +376,6 @@ def test_adip_60_degree_box_is_certified_in_balanced_state_coordinates():  # ~1�
     assert np.isfinite(certify(res, model, weights).frozen_hinf_max)
 
 
-
 def _adip_point(phi1_degrees: float):
     """Generalized plant of the exact ADIP linearization at arm angle φ1 (ZOH, 5 ms), adip.toml weights."""
     import importlib.util
@@ -399,41 +398,46 @@ def _adip_point(phi1_degrees: float):
     return generalized_plant(model, weights, [[0.0, 0.0]])
 
 
-def test_frozen_adip_upright_reaches_the_riccati_gamma():
+@pytest.fixture(scope="module")
+def adip_upright():
+    """The upright ADIP point (generalized plant) and its Riccati-optimal γ, built once for the tests."""
+    gp = _adip_point(0.0)
+    return gp, riccati_gamma(gp.vertices[0], gp.Ts)
+
+
+def test_frozen_adip_upright_reaches_the_riccati_gamma(adip_upright):
     """The bundled ADIP weights on the exact upright linearization: the certified LMI γ within 2 % of the
     Riccati optimum (1.452; unbalanced coordinates alone give 1.63; benchmarks/README.md, 'ADIP synthesis
     on the exact model': near 75.5° the LMI γ jumps between 2.78 and 12.6 within 0.02° of arm angle)."""
-    gp = _adip_point(0.0)
+    gp, gamma_ric = adip_upright
     assert gp.polytope.kind == "point"
-    gamma_ric = riccati_gamma(gp.vertices[0], gp.Ts)
     res = synthesize(gp, "common")
     assert 1.3 < gamma_ric < 1.6  # the reference itself (1.452 recorded)
     assert gamma_ric <= res.gamma * 1.005 and res.gamma <= 1.02 * gamma_ric
 
 
-def test_riccati_reference_refuses_an_unreachable_gamma():
-    gp = _adip_point(0.0)
+def test_riccati_reference_refuses_an_unreachable_gamma(adip_upright):
+    gp, _ = adip_upright
     with pytest.raises(ModelError, match=r"no controller with γ ≤ 1\.2"):
         riccati_gamma(gp.vertices[0], gp.Ts, hi=1.2)
 
 
-def test_lyapunov_bound_is_honoured_and_checked():
+def test_lyapunov_bound_is_honoured_and_checked(adip_upright):
     """[X I; I Y] ⪯ β·I needs β ≥ 1 (its eigenvalues straddle those of XY ⪰ I): β = 0.5 must leave no
     certificate, which only happens if the bound reaches every LMI set solved (unbalanced and balanced);
     a non-positive β is refused with one line."""
-    gp = _adip_point(0.0)
+    gp, _ = adip_upright
     with pytest.raises(SynthesisError):
         synthesize(gp, "common", lyapunov_bound=0.5)
     with pytest.raises(ModelError, match="lyapunov_bound must be positive"):
         synthesize(gp, "common", lyapunov_bound=0.0)
 
 
-def test_riccati_controller_meets_its_level_and_none_below_the_optimum():
+def test_riccati_controller_meets_its_level_and_none_below_the_optimum(adip_upright):
     """SB10DD's controller at 1.05 γ_opt: stable closed loop with ‖T_zw‖∞ ≤ γ by an independent lft;
     at 0.9 γ_opt (below the optimum) no controller is returned."""
-    gp = _adip_point(0.0)
+    gp, gamma_opt = adip_upright
     vertex = gp.vertices[0]
-    gamma_opt = riccati_gamma(vertex, gp.Ts)
     K = riccati_controller(vertex, gp.Ts, 1.05 * gamma_opt)
     loop = vertex.ss(gp.Ts).lft(control.ss(*K, gp.Ts), 1, 2)
     assert np.max(np.abs(np.linalg.eigvals(loop.A))) < 1

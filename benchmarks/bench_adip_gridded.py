@@ -126,7 +126,8 @@ class Gridded:
         constraints += [0.5 * cp.bmat([[X[i] + X[i].T, I + S[i].T], [I + S[i], Y + Y.T]])
                         << lmi_hinf.LYAPUNOV_BOUND * np.eye(2 * n) for i in range(N)]
         by_theta = dict(zip(self.grid.tolist(), verts, strict=True))
-        for th, th_next in rate_pairs(self.grid, self.rate):
+        pairs = rate_pairs(self.grid, self.rate)
+        for th, th_next in pairs:
             lam = oracle.hat_coordinates(self.nodes, th)
             Xg, Sg, Pg = mix(lam, X), mix(lam, S), mix(lam, P)
             blocks = lmi_hinf._vertex_blocks(by_theta[th], Xg, Y, *(mix(lam, V) for V in (Q, L, F, R)))
@@ -140,7 +141,7 @@ class Gridded:
         self.values["Y"] = np.array(Y.value)
         self.gamma = gamma
         return {"gamma": gamma, "margin": float(t.value), "status": report.status,
-                "seconds": round(report.seconds, 1), "rate_pairs": len(rate_pairs(self.grid, self.rate))}
+                "seconds": round(report.seconds, 1), "rate_pairs": len(pairs)}
 
     def at(self, theta: float) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray]:
         """(K(θ) from e to u, 𝒢(θ), 𝒫(θ)) in the closed-loop coordinates of the original plant."""

@@ -37,7 +37,6 @@ from __future__ import annotations
 import json
 import sys
 import time
-import tomllib
 from pathlib import Path
 
 import control
@@ -66,8 +65,7 @@ SENSITIVITY_COS = (0.2495, float(np.cos(np.deg2rad(75.5))), 0.2505)
 
 def weights(k_scale: float = 1.0) -> dict:
     """The bundled ADIP weights, W_K multiplied by ``k_scale``."""
-    config = tomllib.loads((ROOT / "lpvflow" / "pipeline" / "examples" / "adip.toml").read_text())
-    table = config["synth"]["weights"]
+    table = reach.bundled_weights()
     return {**table, "K": {**table["K"], "num": [k_scale * v for v in table["K"]["num"]]}}
 
 

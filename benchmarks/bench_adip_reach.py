@@ -73,6 +73,7 @@ import stabilizing_controller  # noqa: E402
 
 from lpvflow.basis import Basis  # noqa: E402
 from lpvflow.models import LPVSS  # noqa: E402
+from lpvflow.pipeline.config import bundled_config  # noqa: E402
 from lpvflow.synth.lmi_hinf import synthesize  # noqa: E402
 from lpvflow.synth.plant import generalized_plant  # noqa: E402
 from lpvflow.synth.sdp import SynthesisError  # noqa: E402
@@ -80,6 +81,11 @@ from lpvflow.synth.sdp import SynthesisError  # noqa: E402
 TS = 0.005
 PARAMETERS = rm.default_parameters("adip")
 LOWER_BOUNDS = (0.85, 0.7, 0.6, 0.5, 0.25)  # θ_lo = cos φ1: 31.8°, 45.6°, 53.1°, 60°, 75.5°
+
+
+def bundled_weights() -> dict:
+    """The ``[synth] weights`` table of the bundled ADIP design (lpvflow/pipeline/examples/adip.toml)."""
+    return tomllib.loads(bundled_config("adip").read_text())["synth"]["weights"]
 
 
 def linearised(phi1: float) -> control.StateSpace:
@@ -359,10 +365,9 @@ def scheduled_lqr_reach() -> list[dict]:
 
 def main(sections: list[str]) -> None:
     """Run every section, or only the named ones (keys of results/adip_reach.json), updating the file."""
-    config = tomllib.loads((ROOT / "lpvflow" / "pipeline" / "examples" / "adip.toml").read_text())
     runners = {"authority": authority, "lti_controller": lti_reach,
                "state_feedback_certifiable_margin": lyapunov_reach,
-               "common_lyapunov_synthesis": lambda: synthesis_reach(config["synth"]["weights"]),
+               "common_lyapunov_synthesis": lambda: synthesis_reach(bundled_weights()),
                "scheduled_lqr_on_the_nonlinear_model": scheduled_lqr_reach}
     unknown = sorted(set(sections) - set(runners))
     if unknown:

@@ -37,7 +37,6 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import tomllib
 
 import control
 import numpy as np
@@ -162,13 +161,12 @@ def sweep() -> dict:
         if (names, basis) == (["sin_arm"], "poly:2"):
             quadratic = model
     box = [[-SWEEP_BOX, SWEEP_BOX]]
-    config = tomllib.loads((ROOT / "lpvflow" / "pipeline" / "examples" / "adip.toml").read_text())
     polytope = polytope_of(quadratic, box)
     synthesis = {"box": box, "polytope": polytope.kind,
                  "vertex_spectral_radius": [float(np.max(np.abs(np.linalg.eigvals(A))))
                                             for A, *_ in vertex_matrices(quadratic, polytope)]}
     try:
-        synthesis["gamma"] = float(synthesize(generalized_plant(quadratic, config["synth"]["weights"], box),
+        synthesis["gamma"] = float(synthesize(generalized_plant(quadratic, reach.bundled_weights(), box),
                                               "common").gamma)
     except SynthesisError as exc:
         synthesis["reason"] = str(exc)

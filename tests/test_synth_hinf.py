@@ -361,14 +361,13 @@ def test_balanced_state_coordinates_are_exact_and_used_when_the_first_attempt_fa
 
 @pytest.mark.slow
 def test_adip_60_degree_box_is_certified_in_balanced_state_coordinates():  # ~1–2 min; infeasible before
-    import tomllib
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
     sys.path.insert(0, str(root / "benchmarks"))
     import bench_adip_reach
 
-    weights = tomllib.loads((root / "lpvflow/pipeline/examples/adip.toml").read_text())["synth"]["weights"]
+    weights = bench_adip_reach.bundled_weights()
     model, _ = bench_adip_reach.affine_model(0.5)  # arm within ±60°
     res = synthesize(generalized_plant(model, weights, [[0.5, 1.0]]), "common")
     assert "balanced state coordinates" in res.report.status
@@ -384,6 +383,7 @@ def _adip_point(phi1_degrees: float):
 
     from lpvflow.basis import Basis
     from lpvflow.models import LPVSS
+    from lpvflow.pipeline.config import bundled_config
 
     root = Path(__file__).resolve().parents[1]
     spec = importlib.util.spec_from_file_location("reference_models", root / "fmu_plants/reference_models.py")
@@ -394,7 +394,7 @@ def _adip_point(phi1_degrees: float):
     G = control.c2d(control.ss(a, b, np.eye(2, 4), np.zeros((2, 1))), 0.005, method="zoh")
     model = LPVSS(np.array([G.A, 0 * G.A]), np.array([G.B, 0 * G.B]), np.array([G.C, 0 * G.C]),
                   np.zeros((2, 2, 1)), Basis("affine", 1), 0.005)
-    weights = tomllib.loads((root / "lpvflow/pipeline/examples/adip.toml").read_text())["synth"]["weights"]
+    weights = tomllib.loads(bundled_config("adip").read_text())["synth"]["weights"]
     return generalized_plant(model, weights, [[0.0, 0.0]])
 
 

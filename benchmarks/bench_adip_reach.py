@@ -238,34 +238,34 @@ def next_thetas(theta: float, rate: float, lo: float, hi: float = 1.0) -> list[f
     return sorted({float(np.clip(theta + d, lo, hi)) for d in (-rate, 0.0, rate)})
 
 
-def gridded_margin(theta_lo: float, rate: float, T: np.ndarray) -> dict:
-    """Item 4's gridded, rate-bounded margin t on [θ_lo, 1] in the coordinates x = T x̄, and the
-    re-check on a 10× finer grid."""
-    n = T.shape[0]
-    P = [cp.Variable((n, n), symmetric=True) for _ in range(2)]  # at θ_lo and 1, affine in between
-    G = [cp.Variable((n, n)) for _ in range(2)]
-    W = [cp.Variable((1, n)) for _ in range(2)]
-
+def rate_lmis(plants: dict[float, tuple[np.ndarray, np.ndarray]], rate: float, theta_lo: float, P, G, W):
+    """Item 4's matrix at every θ of ``plants`` (θ → filtered plant) and θ⁺ of :func:`next_thetas`, with
+    P, G, W given at θ_lo and 1 and affine in between (numbers or cvxpy variables)."""
     def at(values, theta):
         s = (theta - theta_lo) / (1.0 - theta_lo)
         return (1.0 - s) * values[0] + s * values[1]
 
+    for th, (A, B) in plants.items():
+        for th_next in next_thetas(th, rate, theta_lo):
+            yield _dilated_lmi(A, B, at(P, th_next), at(P, th), at(G, th), at(W, th))
+
+
+def theta_grid(theta_lo: float, step: float) -> np.ndarray:
+    return np.linspace(theta_lo, 1.0, round((1.0 - theta_lo) / step) + 1)
+
+
+def gridded_margin(theta_lo: float, rate: float, n: int, plants: dict, fine_plants: dict) -> dict:
+    """Item 4's gridded, rate-bounded margin t on [θ_lo, 1] with the filtered plants (state dimension n)
+    on the synthesis grid (step GRID_STEP) and its re-check on the 10× finer grid (RECHECK_STEP)."""
+    P = [cp.Variable((n, n), symmetric=True) for _ in range(2)]  # at θ_lo and 1, affine in between
+    G = [cp.Variable((n, n)) for _ in range(2)]
+    W = [cp.Variable((1, n)) for _ in range(2)]
     t = cp.Variable()
     constraints = [t <= 1] + [c for Pi in P for c in (Pi >> t * np.eye(n), Pi << np.eye(n))]
-    grid = np.linspace(theta_lo, 1.0, round((1.0 - theta_lo) / GRID_STEP) + 1)
-    for th in grid:
-        A, B = filtered_plant(th, T)
-        for th_next in next_thetas(th, rate, theta_lo):
-            M = _dilated_lmi(A, B, at(P, th_next), at(P, th), at(G, th), at(W, th))
-            constraints.append((M + M.T) / 2 >> t * np.eye(2 * n))
+    constraints += [(M + M.T) / 2 >> t * np.eye(2 * n) for M in rate_lmis(plants, rate, theta_lo, P, G, W)]
     cp.Problem(cp.Maximize(t), constraints).solve(solver="CLARABEL")
     P, G, W = ([np.array(v.value) for v in var] for var in (P, G, W))
-    recheck = np.inf
-    for th in np.linspace(theta_lo, 1.0, round((1.0 - theta_lo) / RECHECK_STEP) + 1):
-        A, B = filtered_plant(th, T)
-        for th_next in next_thetas(th, rate, theta_lo):
-            M = _dilated_lmi(A, B, at(P, th_next), at(P, th), at(G, th), at(W, th))
-            recheck = min(recheck, np.linalg.eigvalsh(M)[0])
+    recheck = min(np.linalg.eigvalsh(M)[0] for M in rate_lmis(fine_plants, rate, theta_lo, P, G, W))
     return {"rate_per_sample": rate, "margin": float(t.value), "recheck_min_eig": float(recheck)}
 
 
@@ -277,7 +277,10 @@ def lyapunov_reach() -> list[dict]:
         row |= {kind: certifiable_margin(theta_lo, kind) for kind in kinds}
         T = lqr_coordinates(0.5 * (theta_lo + 1.0))
         row["lqr_coordinates"] = {kind: certifiable_margin(theta_lo, kind, T) for kind in kinds}
-        row["lqr_coordinates"]["gridded"] = [gridded_margin(theta_lo, rate, T) for rate in RATES]
+        plants, fine_plants = ({float(th): filtered_plant(th, T) for th in theta_grid(theta_lo, step)}
+                               for step in (GRID_STEP, RECHECK_STEP))
+        row["lqr_coordinates"]["gridded"] = [gridded_margin(theta_lo, rate, T.shape[0], plants, fine_plants)
+                                             for rate in RATES]
         rows.append(row)
         print(row, flush=True)
     return rows

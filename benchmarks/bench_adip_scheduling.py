@@ -21,13 +21,17 @@
    linearizations (the arm's gravity torque sin φ1 can be carried by a coefficient sin φ1 / φ1 on φ1 —
    a secant, not the tangent cos φ1), so the pole comparison weakens as the angle grows. Then the
    pipeline's synthesis (common Lyapunov matrix, bundled weights) on the poly:2 model over
-   sin φ1 ∈ [−0.5, 0.5], with the spectral radius of its polytope's vertex plants.
+   sin φ1 ∈ [−0.5, 0.5], with the spectral radius of its polytope's vertex plants; and, to tell the
+   polytope's over-bound from the model's variation, the frozen H∞ optimum (SB10DD Riccati, no LMI: the
+   LMI γ of single ADIP points is known to be inaccurate, bench_adip_oracle) at three points and at the
+   triangle's middle vertex, and the synthesis on tangent polygons of 2 and 4 segments (5 and 9 vertices).
 
-Run: .venv/bin/python benchmarks/bench_adip_scheduling.py   → results/adip_scheduling.json (≈ 2 minutes)
+Run: .venv/bin/python benchmarks/bench_adip_scheduling.py   → results/adip_scheduling.json (≈ 4 minutes)
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import sys
@@ -50,14 +54,22 @@ import stabilizing_controller  # noqa: E402
 
 from lpvflow.basis import SchedulingRangeWarning  # noqa: E402
 from lpvflow.data import Dataset  # noqa: E402
-from lpvflow.errors import LpvflowError  # noqa: E402
+from lpvflow.errors import LpvflowError, ModelError  # noqa: E402
 from lpvflow.experiment import run_fmu_experiment, signals  # noqa: E402
 from lpvflow.experiment.controller import LtiController  # noqa: E402
 from lpvflow.identify.arx import identify_arx, prediction_residuals  # noqa: E402
 from lpvflow.pipeline.stages import without_offsets  # noqa: E402
+from lpvflow.synth.certify import riccati_gamma  # noqa: E402
 from lpvflow.synth.lmi_hinf import synthesize  # noqa: E402
-from lpvflow.synth.plant import generalized_plant  # noqa: E402
-from lpvflow.synth.polytope import polytope_of, vertex_matrices  # noqa: E402
+from lpvflow.synth.plant import (  # noqa: E402
+    GeneralizedPlant,
+    VertexPlant,
+    augment,
+    check_a3,
+    generalized_plant,
+    weight_systems,
+)
+from lpvflow.synth.polytope import Polytope, polytope_of, vertex_matrices  # noqa: E402
 from lpvflow.synth.sdp import SynthesisError  # noqa: E402
 
 FMU = ROOT / "fmu_plants" / "build" / "adip.fmu"
@@ -73,6 +85,7 @@ SWEEP_ANGLES_DEG = (0, 30, 45, 60, 75)
 SWEEP_FITS = ((["sin_arm"], "affine"), (["sin_arm"], "poly:2"), (["sin_arm"], "poly:4"),
               (["cos_arm"], "affine"), (["sin_arm", "cos_arm"], "affine"))
 SWEEP_BOX = 0.5
+TANGENT_SEGMENTS = (2, 4)
 
 
 def controller(design_deg: float) -> LtiController:
@@ -165,13 +178,56 @@ def sweep() -> dict:
     synthesis = {"box": box, "polytope": polytope.kind,
                  "vertex_spectral_radius": [float(np.max(np.abs(np.linalg.eigvals(A))))
                                             for A, *_ in vertex_matrices(quadratic, polytope)]}
-    try:
-        synthesis["gamma"] = float(synthesize(generalized_plant(quadratic, reach.bundled_weights(), box),
-                                              "common").gamma)
-    except SynthesisError as exc:
-        synthesis["reason"] = str(exc)
+    synthesis["gamma"] = common_gamma(generalized_plant(quadratic, reach.bundled_weights(), box))
+    # what makes it infeasible: the frozen optimum (Riccati, LMI-free) at three points and at the triangle's
+    # middle vertex ψ = (0, −0.25) (p² < 0: not a plant), and tighter tangent polygons around the parabola
+    synthesis["frozen_riccati_gamma"] = {p: riccati_optimum(vertex_plants(quadratic, [[1.0, p, p * p]], box))
+                                         for p in (-SWEEP_BOX, 0.0, SWEEP_BOX)}
+    synthesis["middle_vertex_riccati_gamma"] = riccati_optimum(
+        vertex_plants(quadratic, [[1.0, 0.0, -SWEEP_BOX**2]], box))
+    synthesis["tangent_polygon_gamma"] = {
+        m: common_gamma(vertex_plants(quadratic, tangent_polygon(*box[0], m), box)) for m in TANGENT_SEGMENTS}
     out["poly2_synthesis"] = synthesis
     return out
+
+
+def common_gamma(plant: GeneralizedPlant) -> float | str:
+    """γ of the pipeline's common-Lyapunov synthesis, or the reason it fails."""
+    try:
+        return float(synthesize(plant, "common").gamma)
+    except SynthesisError as exc:
+        return str(exc)
+
+
+def tangent_polygon(a: float, b: float, segments: int) -> np.ndarray:
+    """ψ = (1, p, q) vertices of the polygon bounded by the chord of q = p² over [a, b] and its tangents at
+    ``segments`` + 1 equally spaced points (tangents at s, s' meet at ((s + s')/2, s s')); it contains the
+    parabola arc and over-bounds p² by at most ((b − a) / segments)² / 4 (1 segment: the triangle)."""
+    t = np.linspace(a, b, segments + 1)
+    points = [(t[0], t[0] ** 2)]
+    for s0, s1 in itertools.pairwise(t):
+        points += [(0.5 * (s0 + s1), s0 * s1), (s1, s1**2)]
+    return np.array([[1.0, p, q] for p, q in points])
+
+
+def vertex_plants(model, psi_vertices, box: list) -> GeneralizedPlant:
+    """The generalized plants (bundled weights) of ``model`` at the given ψ vertices."""
+    W = weight_systems(reach.bundled_weights(), model.ny, model.nu, model.Ts)
+    polytope = Polytope("box", np.array(box), np.array(psi_vertices, dtype=float))  # labels the vertices
+    vertices = [VertexPlant.from_ss(augment(control.ss(*M, model.Ts), W, model.Ts), nw=model.ny,
+                                    nz=model.ny + model.nu) for M in vertex_matrices(model, polytope)]
+    check_a3(vertices)
+    z_names = ["W_S e[0]", "W_S e[1]", "W_K u[0]"]
+    return GeneralizedPlant(vertices, polytope, model.Ts, model.nx, z_names, W.get("B"))
+
+
+def riccati_optimum(plant: GeneralizedPlant) -> float | str:
+    """The frozen H∞ optimum of a one-vertex plant by SB10DD (lpvflow.synth.certify.riccati_gamma, up to
+    γ = 1000), or why there is none."""
+    try:
+        return riccati_gamma(plant.vertices[0], plant.Ts, hi=1000.0)
+    except ModelError as exc:
+        return str(exc)
 
 
 def stable_up_to(design_deg: float) -> int | None:

@@ -106,11 +106,10 @@ def _verdict(summary: dict) -> dict:
     failing += [(r, f"misses {', '.join(missed)}") for r in scenarios
                 if r["controller"]["stable"] and (missed := r["controller"].get("requirements_failed"))]
     if failing:
-        from lpvflow.pipeline.verify import coverage_note, interval_text
+        from lpvflow.pipeline.verify import box_text, coverage_note
 
         data = summary["stages"].get("identify", {}).get("outputs", {}).get("scheduling_range")
-        data_note = "" if not data else " (identification data " + " × ".join(
-            interval_text(b) for b in zip(*data, strict=True)) + ")"
+        data_note = f" (identification data {box_text(zip(*data, strict=True))})" if data else ""
         reasons = []
         for r, reason in failing:
             note = coverage_note(r["controller"])

@@ -94,14 +94,13 @@ def _number(value: object, unit: str = "", digits: int = 3) -> str:
 
 def _scheduling_cell(coverage: dict | None) -> str:
     """Visited range per scheduling signal; for an LPV controller, its design box and the time outside it."""
-    from lpvflow.pipeline.verify import interval_text
+    from lpvflow.pipeline.verify import box_text
 
     if not coverage:
         return "–"
-    cell = " × ".join(interval_text(r) for r in coverage["range"])
+    cell = box_text(coverage["range"])
     if coverage["box"] is not None:
-        box = " × ".join(interval_text(b) for b in coverage["box"])
-        cell += f" (box {box}: {_number(coverage['time_outside_box'])} s outside)"
+        cell += f" (box {box_text(coverage['box'])}: {_number(coverage['time_outside_box'])} s outside)"
     return cell
 
 

@@ -401,9 +401,9 @@ def scheduling_coverage(run: ClosedLoopRun) -> dict | None:
     return coverage
 
 
-def interval_text(bounds: Sequence[float]) -> str:
-    """[lo, hi] to 3 significant digits."""
-    return f"[{bounds[0]:.3g}, {bounds[1]:.3g}]"
+def box_text(rows: Sequence[Sequence[float]]) -> str:
+    """A box given as [lo, hi] rows, e.g. "[-0.5, 0.5] × [0, 1]", 3 significant digits."""
+    return " × ".join(f"[{lo:.3g}, {hi:.3g}]" for lo, hi in rows)
 
 
 def coverage_note(metrics: Mapping) -> str:
@@ -411,10 +411,9 @@ def coverage_note(metrics: Mapping) -> str:
     coverage = metrics.get("scheduling")
     if not coverage or coverage.get("first_outside_box") is None:
         return ""
-    boxes = " × ".join(interval_text(b) for b in coverage["box"])
-    visited = " × ".join(interval_text(r) for r in coverage["range"])
-    return (f"scheduling left the design box {boxes} at t = {coverage['first_outside_box']:.3g} s and "
-            f"spanned {visited} ({coverage['time_outside_box']:.3g} s outside)")
+    return (f"scheduling left the design box {box_text(coverage['box'])} at t = "
+            f"{coverage['first_outside_box']:.3g} s and spanned {box_text(coverage['range'])} "
+            f"({coverage['time_outside_box']:.3g} s outside)")
 
 
 # --------------------------------------------------------------------------------------- metrics

@@ -5,7 +5,6 @@ DESIGN.toml::
     [polytope]
     box = [[-1.0, 1.0]]          # optional; default: the scheduling range recorded in the model
     [synth]
-    method = "dilated"           # or "common"
     solver = "clarabel"          # or "scs"
     gamma_max = 1.0              # optional: the spec ‖·‖∞ ≤ gamma_max must be met
     [weights]
@@ -44,7 +43,7 @@ def _read_config(path: str) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     from lpvflow.synth.certify import certify
-    from lpvflow.synth.lmi_hinf import synthesize
+    from lpvflow.synth.hinf import synthesize
     from lpvflow.synth.plant import generalized_plant
 
     if Path(args.output).resolve() == Path(args.model).resolve():
@@ -56,10 +55,9 @@ def run(args: argparse.Namespace) -> int:
     weights = config.get("weights", {})
     settings = config.get("synth", {})
     plant = generalized_plant(model, weights, config.get("polytope", {}).get("box"))
-    result = synthesize(plant, method=settings.get("method", "dilated"),
-                        solver=settings.get("solver", "CLARABEL"), gamma_max=settings.get("gamma_max"))
+    result = synthesize(plant, solver=settings.get("solver", "CLARABEL"), gamma_max=settings.get("gamma_max"))
     cert = certify(result, model, weights)
-    print(f"method {result.method}, polytope {plant.polytope.kind} with {plant.polytope.n_vertices} vertices")
+    print(f"common Lyapunov matrix, polytope {plant.polytope.kind} with {plant.polytope.n_vertices} vertices")
     print(f"gamma = {result.gamma:.6g}  ({result.report.solver}, {result.report.status}, "
           f"{result.report.seconds:.2f} s)")
     for line in cert.lines():

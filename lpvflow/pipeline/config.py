@@ -25,7 +25,7 @@ SCHEMA: dict[str, dict[str, Any]] = {
     "diagnose": {"adopt": False, "candidates": [], "split": 0.5},
     "reduce": {"order": None},
     "validate": {"grid": 7, "reference": "none", "operating_point": {}, "scaling": "data"},
-    "synth": {"method": "dilated", "weights": REQUIRED, "box": None, "solver": "CLARABEL",
+    "synth": {"method": "common", "weights": REQUIRED, "box": None, "solver": "CLARABEL",
               "baseline_at": None},
     "verify": {"loop": REQUIRED, "scenario": REQUIRED},
     "export": {"formats": ["fmu", "json", "mat"]},

@@ -16,7 +16,7 @@ import numpy as np
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
-from lpvflow.errors import DataError
+from lpvflow.errors import DataError, ModelError
 from lpvflow.models import LPVSS, load
 
 
@@ -339,45 +339,32 @@ def _fmu_reference(ctx: StageContext, model: LPVSS):
 # ----------------------------------------------------------------------------------------- synth
 def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     """Polytopic H∞ controller and the LTI baseline designed at one frozen point (``baseline_at``,
-    default the centre of the scheduling box), both on the model in balanced state coordinates."""
+    default the centre of the scheduling box), both by :func:`lpvflow.synth.hinf.synthesize`; a design
+    whose certificate fails stops here."""
     from lpvflow.synth.certify import certify
-    from lpvflow.synth.lmi_hinf import synthesize
+    from lpvflow.synth.hinf import synthesize
     from lpvflow.synth.plant import generalized_plant
     from lpvflow.synth.polytope import scheduling_box
 
     cfg = ctx.config["synth"]
+    if cfg["method"] != "common":
+        raise ModelError(f"[synth] method = {cfg['method']!r}: the output-feedback synthesis is the "
+                         "common-Lyapunov polytopic one; use method = \"common\"")
     box = cfg["box"]
     model = load(ctx.path("model.json"))
-    centre = scheduling_box(model, box).mean(axis=1)
-    model = balanced_states(model, centre)
-    result = synthesize(generalized_plant(model, cfg["weights"], box), cfg["method"], cfg["solver"])
+    result = synthesize(generalized_plant(model, cfg["weights"], box), cfg["solver"])
     certificate = certify(result, model, cfg["weights"])
     result.controller.save(ctx.path("controller.json"))
-    at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre.tolist()
+    centre = scheduling_box(model, box).mean(axis=1).tolist()
+    at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre
     nominal = [[v, v] for v in at]
-    baseline = synthesize(generalized_plant(model, cfg["weights"], nominal), cfg["method"], cfg["solver"])
+    baseline = synthesize(generalized_plant(model, cfg["weights"], nominal), cfg["solver"])
     baseline.controller.save(ctx.path("baseline.json"))
-    return ({"gamma": result.gamma, "baseline_gamma": baseline.gamma, "baseline_at": at,
-             "certificate": certificate.lines(), "certificate_ok": bool(certificate.ok),
+    return ({"gamma": result.gamma, "gamma_lower": result.gamma_lower, "baseline_gamma": baseline.gamma,
+             "baseline_at": at, "certificate": certificate.lines(), "certificate_ok": bool(certificate.ok),
              "solve_seconds": result.report.seconds, "order": result.controller.order,
              "polytope": result.plant.polytope.kind},
             ["controller.json", "baseline.json"])
-
-
-def balanced_states(model: LPVSS, p: np.ndarray) -> LPVSS:
-    """The same model in diagonal state coordinates x = T x̃ with ‖row i of B(p)‖ = ‖column i of C(p)‖.
-
-    Controllers (from e to u) do not depend on the plant's state coordinates, but the synthesis LMIs
-    do numerically: an identified realization can carry B ~ 1e-4 against C ~ 0.5 (maglev, m/A), and
-    the solver then returns γ two orders of magnitude above the optimum. States without input or
-    output coupling at p keep their scale.
-    """
-    _, B, C, _ = model.matrices(p)
-    b, c = np.linalg.norm(B, axis=1), np.linalg.norm(C, axis=0)
-    coupled = (b > 0) & (c > 0)
-    t = np.where(coupled, np.sqrt(np.where(coupled, b, 1.0) / np.where(coupled, c, 1.0)), 1.0)
-    return replace(model, A=model.A * t / t[:, None], B=model.B / t[:, None], C=model.C * t,
-                   K=None if model.K is None else model.K / t[:, None])
 
 
 # ---------------------------------------------------------------------------------------- verify

@@ -1,19 +1,14 @@
 """Independent re-check of a synthesized controller, trusting neither the solver nor the change of variables.
 
-1. **Vertex LMIs in closed-loop coordinates.** The closed loop of vertex plant i and vertex controller i,
-
-       𝒜 = [A + B2DkC2  B2Ck; BkC2  Ak],  ℬ = [B1 + B2DkD21; BkD21],
-       𝒞 = [C1 + D12DkC2  D12Ck],          𝒟 = D11 + D12DkD21,
-
-   is built from the returned controller numbers, and the extended bounded-real LMI (E_ij) of
-   :mod:`lpvflow.synth.lmi_hinf` is evaluated with the returned 𝒫_i, 𝒢, γ. Its smallest eigenvalue after
-   a Jacobi (diagonal) scaling, which keeps the sign, must be positive: reported as
-   ``lmi_max_eig`` = −min λ (≤ −ε means satisfied with margin ε).
+1. **Vertex certificates in closed-loop coordinates** (:func:`lpvflow.synth.hinf.certificate_margin`):
+   every vertex closed loop is rebuilt from the returned plant and controller numbers and its
+   bounded-real matrix with the returned Lyapunov factor must be negative definite with a margin above
+   round-off (Jacobi-scaled, in the bilinear image where small Ts does not hide it).
 2. **Frozen H∞ norms** of the true frozen closed loop (the generalized plant rebuilt from
-   ``model.frozen(p)``, the controller at λ(p), ``StateSpace.lft`` and ``control.norm``) on a θ grid.
+   ``model.frozen(p)`` by ``control.interconnect``, the controller at λ(p), ``StateSpace.lft`` and
+   ``control.norm``) on a θ grid.
 3. **Quadratic stability** of the closed-loop vertex matrices 𝒜_i by the common-Lyapunov LMI and
-   eigenvalue re-check of :func:`lpvflow.validate.stability.quadratic_stability` (for ``"dilated"``
-   designs only poly-quadratic stability is guaranteed, so this may legitimately fail there).
+   eigenvalue re-check of :func:`lpvflow.validate.stability.quadratic_stability` (informative).
 4. **Switching simulation**: the LPVSS plant and the implementable ``LPVController`` under a scheduling
    value drawn afresh every sample, uniformly over the box.
 
@@ -31,51 +26,15 @@ import numpy as np
 
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
-from lpvflow.synth.lmi_hinf import HinfResult
+from lpvflow.synth.hinf import HinfResult, certificate_margin, closed_loop
 from lpvflow.synth.plant import VertexPlant, augment
 from lpvflow.validate.stability import quadratic_stability
 
 
-def closed_loop(v: VertexPlant, K: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
-    """(𝒜, ℬ, 𝒞, 𝒟) of the vertex plant with u = K e (module docstring, state [x; x_K])."""
-    Ak, Bk, Ck, Dk = K
-    A = np.block([[v.A + v.B2 @ Dk @ v.C2, v.B2 @ Ck], [Bk @ v.C2, Ak]])
-    B = np.vstack([v.B1 + v.B2 @ Dk @ v.D21, Bk @ v.D21])
-    C = np.hstack([v.C1 + v.D12 @ Dk @ v.C2, v.D12 @ Ck])
-    return A, B, C, v.D11 + v.D12 @ Dk @ v.D21
-
-
-def jacobi_min_eig(M: np.ndarray) -> float:
-    """Smallest eigenvalue of the symmetric part of M after the Jacobi scaling D⁻¹MD⁻¹, D² = diag M (the
-    sign is that of M's smallest eigenvalue; the scaling removes the blocks' disparate magnitudes)."""
-    M = 0.5 * (M + M.T)
-    d = np.sqrt(np.clip(np.diag(M), 1e-300, None))
-    return float(np.linalg.eigvalsh(M / d[:, None] / d[None, :])[0])
-
-
-def bounded_real_lmi(loop: tuple[np.ndarray, ...], P_next: np.ndarray, P_now: np.ndarray, G: np.ndarray,
-                     gamma: float) -> np.ndarray:
-    """The extended bounded-real matrix (E) of :mod:`lpvflow.synth.lmi_hinf` for the closed loop
-    ``loop`` = (𝒜, ℬ, 𝒞, 𝒟), with 𝒫 of the next sample in (1,1), 𝒢 + 𝒢ᵀ − 𝒫 of the current one in (2,2):
-    ‖T_zw‖ < γ is certified where it is positive definite."""
-    A, B, C, D = loop
-    n2, nw, nz = A.shape[0], B.shape[1], C.shape[0]
-    return np.block([
-        [P_next, A @ G, B, np.zeros((n2, nz))],
-        [G.T @ A.T, G + G.T - P_now, np.zeros((n2, nw)), G.T @ C.T],
-        [B.T, np.zeros((nw, n2)), np.eye(nw), D.T],
-        [np.zeros((nz, n2)), C @ G, D, gamma**2 * np.eye(nz)],
-    ])
-
-
-def vertex_lmi_max_eig(result: HinfResult) -> float:
-    """max over vertex pairs of λ_max(−E_ij) (Jacobi-scaled), evaluated with the returned numbers."""
-    N = len(result.K_vertices)
-    dilated = result.method == "dilated"
-    pairs = [(i, j) for i in range(N) for j in (range(N) if dilated else (i,))]
-    return max(-jacobi_min_eig(bounded_real_lmi(closed_loop(result.plant.vertices[i], result.K_vertices[i]),
-                                                result.P[j], result.P[i], result.G, result.gamma))
-               for i, j in pairs)
+def vertex_margins(result: HinfResult) -> list[float]:
+    """:func:`lpvflow.synth.hinf.certificate_margin` at every vertex, recomputed from the result's numbers."""
+    return [certificate_margin(v, K, result.lyapunov_factor, result.gamma)
+            for v, K in zip(result.vertices, result.K_vertices, strict=True)]
 
 
 def scheduling_grid(box: np.ndarray, per_axis: int) -> np.ndarray:
@@ -95,7 +54,7 @@ def frozen_hinf_norms(result: HinfResult, model: LPVSS, weights: dict, grid: np.
         P = augment(model.frozen(p), W, model.Ts)
         lam = result.controller.coordinates(p)
         mats = (sum(li * k[m] for li, k in zip(lam, result.K_vertices, strict=True)) for m in range(4))
-        K = control.ss(*mats, model.Ts)
+        K = control.ss(*mats, model.Ts)  # from e to u, before W_B (augment puts W_B in the plant)
         norms.append(float(control.norm(P.lft(K, nu, ny), "inf")))
     return np.array(norms)
 
@@ -119,19 +78,28 @@ def riccati_controller(vertex: VertexPlant, Ts: float, gamma: float) -> tuple[np
     return K if stable and float(control.norm(loop, "inf")) <= gamma * (1 + 1e-3) else None
 
 
-def riccati_gamma(vertex: VertexPlant, Ts: float, lo: float = 1.0, hi: float = 100.0,
-                  rel: float = 0.005) -> float:
-    """Smallest γ in [lo, hi] (to relative width ``rel``) at which :func:`riccati_controller` returns a
-    controller: the frozen optimum the LMI synthesis should reach at one vertex, found without any LMI.
+def riccati_gamma(vertex: VertexPlant, Ts: float, rel: float = 1e-4) -> float:
+    """Smallest γ (to relative width ``rel``) at which :func:`riccati_controller` returns a controller:
+    the frozen optimum the LMI synthesis should reach at one vertex, found without any LMI.
+
+    The bracket is found first: from γ = 1, doubled until achieved or halved until not achieved (within
+    [1e-6, 1e6]); then geometric bisection.
 
     Raises:
-        ModelError: not even ``hi`` is achieved.
+        ModelError: no γ up to 1e6 is achieved.
     """
     def achieved(gamma: float) -> bool:
         return riccati_controller(vertex, Ts, gamma) is not None
 
-    if not achieved(hi):
-        raise ModelError(f"SB10DD finds no controller with γ ≤ {hi:g} for this vertex")
+    lo = hi = 1.0
+    if achieved(hi):
+        while lo > 1e-6 and achieved(lo):
+            hi, lo = lo, lo / 2.0
+    else:
+        while not achieved(hi):
+            if hi >= 1e6:
+                raise ModelError("SB10DD finds no controller with γ ≤ 1e6 for this vertex")
+            lo, hi = hi, hi * 2.0
     while hi / lo > 1 + rel:
         mid = (lo * hi) ** 0.5
         lo, hi = (lo, mid) if achieved(mid) else (mid, hi)
@@ -169,9 +137,9 @@ def switching_simulation(
 
 @dataclass
 class Certificate:
-    """Results of the independent re-check (module docstring)."""
+    """Results of the independent re-check (module docstring); ``margin`` is the smallest vertex margin."""
 
-    lmi_max_eig: float
+    margin: float
     frozen_hinf_max: float
     gamma: float
     switching_peak: float
@@ -180,13 +148,13 @@ class Certificate:
 
     @property
     def ok(self) -> bool:
-        """Checks 1, 2 and 4 (check 3 is informative for dilated designs)."""
-        return (self.lmi_max_eig < 0 and self.frozen_hinf_max <= self.gamma * (1 + 1e-3)
+        """Checks 1, 2 and 4 (check 3 is informative)."""
+        return (self.margin > 0 and self.frozen_hinf_max <= self.gamma * (1 + 1e-3)
                 and self.switching_final < 1.0)
 
     def lines(self) -> list[str]:
         return [
-            f"vertex LMIs re-evaluated: max eigenvalue {self.lmi_max_eig:.3e} (must be < 0)",
+            f"vertex certificates re-evaluated: smallest margin {self.margin:.3e} (must be > 0)",
             f"frozen closed-loop H∞ max {self.frozen_hinf_max:.6g} vs γ = {self.gamma:.6g}",
             f"closed loop quadratically stable (common Lyapunov LMI): {self.quadratically_stable}",
             f"switching simulation: peak ‖ξ‖/‖ξ0‖ = {self.switching_peak:.3g}, "
@@ -198,6 +166,6 @@ def certify(result: HinfResult, model: LPVSS, weights: dict, per_axis: int = 21)
     """Run checks 1–4 of the module docstring."""
     norms = frozen_hinf_norms(result, model, weights, scheduling_grid(result.plant.polytope.box, per_axis))
     peak, final = switching_simulation(result, model)
-    A_cl = [closed_loop(v, K)[0] for v, K in zip(result.plant.vertices, result.K_vertices, strict=True)]
+    A_cl = [closed_loop(v, K)[0] for v, K in zip(result.vertices, result.K_vertices, strict=True)]
     quadratic = quadratic_stability(A_cl).certified
-    return Certificate(vertex_lmi_max_eig(result), float(norms.max()), result.gamma, peak, final, quadratic)
+    return Certificate(min(vertex_margins(result)), float(norms.max()), result.gamma, peak, final, quadratic)

@@ -1,7 +1,7 @@
 """Solving the synthesis SDPs: Clarabel through cvxpy first, SCS as fallback, honest status.
 
 ``optimal`` is accepted. ``optimal_inaccurate`` is returned as such (never silently): the caller must
-re-check the numbers independently (:func:`lpvflow.synth.certify.vertex_lmi_max_eig`) and refuse
+re-check the numbers independently (:func:`lpvflow.synth.hinf.certificate_margin`) and refuse
 when the re-check fails. ``infeasible``/``unbounded`` and solver errors (after the fallback) raise
 :class:`SynthesisError` with the solver's word and what it means for the design.
 """
@@ -18,18 +18,14 @@ from lpvflow.errors import ModelError
 
 SOLVERS = ("CLARABEL", "SCS")
 ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
-# The synthesis solves a well-posed problem (bounded variables, γ fixed slightly above the optimum,
-# margin maximised: :mod:`lpvflow.synth.lmi_hinf`), so Clarabel's default accuracy is reachable; the
+# The synthesis solves well-posed problems (γ fixed slightly above the optimum, margin maximised:
+# :mod:`lpvflow.synth.hinf`), so Clarabel's default accuracy is reachable; the
 # "reduced" tolerances decide when a stalled solve is reported as optimal_inaccurate (then re-checked).
 # One thread: on a loaded 2-core machine Clarabel's threaded factorisation was 3-5x slower (measured).
 _CLARABEL_SETTINGS = {"tol_gap_abs": 1e-8, "tol_gap_rel": 1e-8, "tol_feas": 1e-8, "max_iter": 200,
                       "reduced_tol_gap_abs": 1e-5, "reduced_tol_gap_rel": 1e-4, "reduced_tol_feas": 1e-6,
                       "max_threads": 1, "chordal_decomposition_enable": False}
 _SCS_SETTINGS = {"max_iters": 20000, "eps_abs": 1e-6, "eps_rel": 1e-6}
-#: Clarabel tolerance for SDPs that need γ to ~1e-6 and a margin's sign, not 8 digits: the eliminated
-#: "common" LMIs of :mod:`lpvflow.synth.lmi_hinf` (issue case: 9.3 instead of 10.3 s CPU, γ the same to
-#: 4e-5, both solves "optimal" where the γ minimisation stalled as optimal_inaccurate at 1e-8).
-COARSE = 1e-6
 
 
 class SynthesisError(ModelError):
@@ -52,12 +48,8 @@ def psd(M: cp.Expression, margin: float | cp.Expression) -> cp.Constraint:
     return 0.5 * (M + M.T) - margin * np.eye(n) >> 0
 
 
-def solve(problem: cp.Problem, solver: str = "CLARABEL", what: str = "the LMIs",
-          tolerance: float | None = None) -> SolveReport:
+def solve(problem: cp.Problem, solver: str = "CLARABEL", what: str = "the LMIs") -> SolveReport:
     """Solve with ``solver``, then with the other one if it fails (status not in :data:`ACCEPTED`).
-
-    ``tolerance`` replaces Clarabel's gap and feasibility tolerances (1e-8), e.g. :data:`COARSE`
-    (the reduced tolerances for optimal_inaccurate stay).
 
     Raises:
         SynthesisError: infeasible (naming ``what``), or no solver returned a solution.
@@ -72,8 +64,6 @@ def solve(problem: cp.Problem, solver: str = "CLARABEL", what: str = "the LMIs",
         start = time.perf_counter()
         try:
             kwargs = _SCS_SETTINGS if name == "SCS" else _CLARABEL_SETTINGS
-            if name == "CLARABEL" and tolerance is not None:
-                kwargs = {**kwargs, "tol_gap_abs": tolerance, "tol_gap_rel": tolerance, "tol_feas": tolerance}
             problem.solve(solver=name, **kwargs)
             status = str(problem.status)
         except cp.error.SolverError as exc:

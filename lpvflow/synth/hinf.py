@@ -23,10 +23,15 @@ straight chain:
 
 1. **Coordinates.** Frequency normalisation s = ω₀s' (A_c/ω₀, B_c/√ω₀, C_c/√ω₀: the continuous LMIs are
    invariant under it with the same 𝒳), diagonal balancing of the mean |A_c|, diagonal scalings of u and
-   y (w and z are not scaled per channel: that would change ‖T_zw‖∞), then the state transform
-   x = T x̄ that balances the Lyapunov pair R, S of a first γ-minimisation (R = LLᵀ, LᵀSL = VΣ²Vᵀ,
-   T = LVΣ^(−1/2), so T⁻¹RT⁻ᵀ = TᵀST = Σ: Moore's balancing applied to R, S). Controllers map y to u,
-   so none of this changes the closed loop's transfer function.
+   y (unit columns of B2, rows of C2; w and z are not scaled per channel: that would change ‖T_zw‖∞),
+   then the state transform x = T x̄ that balances R, S of an interior point: a first γ-minimisation
+   (step 2) gives γ₀; the matrices of step 2 at 2γ₀ with the largest margin relative to their diagonals
+   at the γ₀ minimiser (slow and fast directions get margins in proportion to their size) give a
+   strictly feasible, centred R, S (the γ-optimal pair
+   itself is singular, RS − I loses rank, and balancing on it is unstable); R = LLᵀ, LᵀSL = VΣ²Vᵀ,
+   T = LVΣ^(−1/2), so T⁻¹RT⁻ᵀ = TᵀST = Σ (Moore's balancing applied to R, S). Step 2 is then solved
+   again in the balanced coordinates. Controllers map y to u, so none of this changes the closed
+   loop's transfer function.
 2. **γ lower bound** by the eliminated continuous conditions (Gahinet & Apkarian 1994, Thm. 4.3), per
    vertex with its own null-space bases N_R,i of [B2_iᵀ D12_iᵀ] and N_S,i of [C2_i D21_i] (the Cayley
    images have vertex-dependent B2, C2; the conditions are per vertex, so that is exact):
@@ -47,9 +52,9 @@ straight chain:
 
    maximise t at γ_k = γ_lower·(1 + δ·2^k), k = 0, 1, …, until a level has t > 0 and its controller
    passes the certificate of step 5; then geometric bisection between that level and the one below it
-   to a relative width δ (δ = ``suboptimality``): the lowest passing level is the certified γ.
-   In the balanced, normalised coordinates every block is O(1), so t is a
-   margin relative to block scale, not an absolute one, and no bound on R, S is needed.
+   to a relative width δ (δ = ``suboptimality``): the lowest passing level is the certified γ. In the
+   balanced coordinates R ≈ S ≈ Σ and every block is O(1), so t·I is a margin relative to block scale,
+   and no bound on R, S is needed.
 4. **Controller** per vertex (Scherer et al. 1997, eq. (35)): MNᵀ = I − RS by a balanced SVD,
    D_K = D̂, C_K = (Ĉ − D_KC2R)M⁻ᵀ, B_K = N⁻¹(B̂ − SB2D_K),
    A_K = N⁻¹(Â − NB_KC2R − SB2C_KMᵀ − S(A + B2D_KC2)R)M⁻ᵀ; it is designed for D22 = 0, while the Cayley
@@ -81,6 +86,9 @@ from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 
 #: Relative γ steps of the certified-level search (step 3): γ_lower·(1 + suboptimality·2^k), k < this.
 LEVEL_STEPS = 12
+#: The level, relative to the first γ-minimisation, of the interior point whose R, S balance the
+#: coordinates (step 1).
+INTERIOR_FACTOR = 2.0
 #: A certificate's Jacobi-scaled margin must exceed ROUNDOFF_FACTOR·m·ε_mach·‖|M̃|‖₂ (m the size of the
 #: matrix M̃): a generous multiple of the backward error of forming M̃ and computing its eigenvalues.
 ROUNDOFF_FACTOR = 1e3
@@ -284,10 +292,11 @@ def _lyapunov_balancing(R: np.ndarray, S: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------- LMIs
-def _eliminated(verts: list[VertexPlant], gamma: cp.Expression, R: cp.Variable, S: cp.Variable) -> list:
-    """The constraints of step 2 (every LMI ⪯ 0; strictness is not needed for a lower bound)."""
+def _eliminated(verts: list[VertexPlant], gamma: cp.Expression, R: cp.Variable, S: cp.Variable
+                ) -> list[cp.Expression]:
+    """The matrices of step 2: [R I; I S] (must be ⪰ 0), then per vertex the two projected LMIs (⪯ 0)."""
     n = R.shape[0]
-    out = [cp.bmat([[R, np.eye(n)], [np.eye(n), S]]) >> 0]
+    out = [cp.bmat([[R, np.eye(n)], [np.eye(n), S]])]
     for v in verts:
         nw, nz = v.dims[1], v.dims[3]
         NR = scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.B2.T, v.D12.T])), np.eye(nw))
@@ -298,7 +307,24 @@ def _eliminated(verts: list[VertexPlant], gamma: cp.Expression, R: cp.Variable, 
         MS = cp.bmat([[v.A.T @ S + S @ v.A, S @ v.B1, v.C1.T],
                       [v.B1.T @ S, -gamma * np.eye(nw), v.D11.T],
                       [v.C1, v.D11, -gamma * np.eye(nz)]])
-        out += [_sym(NR.T @ MR @ NR) << 0, _sym(NS.T @ MS @ NS) << 0]
+        out += [_sym(NR.T @ MR @ NR), _sym(NS.T @ MS @ NS)]
+    return out
+
+
+def _strict(matrices: list[cp.Expression], t: cp.Expression | float, scales: list[np.ndarray] | None
+            ) -> list[cp.Constraint]:
+    """matrices[0] ⪰ t·D_0, matrices[k] ⪯ −t·D_k (k ≥ 1), D_k = diag(scales[k]) (identity if None)."""
+    D = [np.diag(d) for d in scales] if scales is not None else [np.eye(M.shape[0]) for M in matrices]
+    return [matrices[0] >> t * D[0]] + [M << -t * Dk for M, Dk in zip(matrices[1:], D[1:], strict=True)]
+
+
+def _jacobi_scales(matrices: list[cp.Expression]) -> list[np.ndarray]:
+    """|diag M| of each matrix at the variables' current values, floored at 1e-9 of its largest entry:
+    the scale a margin is measured against (step 3)."""
+    out = []
+    for M in matrices:
+        d = np.abs(np.diag(np.asarray(M.value, dtype=float)))
+        out.append(np.maximum(d, 1e-9 * max(d.max(), 1e-300)))
     return out
 
 
@@ -307,17 +333,31 @@ def _sym(M: cp.Expression) -> cp.Expression:
 
 
 def _gamma_lower(verts: list[VertexPlant], gamma_max: float | None, solver: str
-                 ) -> tuple[float, np.ndarray, np.ndarray, SolveReport]:
+                 ) -> tuple[float, np.ndarray, np.ndarray, list[np.ndarray], SolveReport]:
+    """γ_lower of step 2, the minimising R, S and the Jacobi scales of every matrix there."""
     n = verts[0].dims[0]
     g = cp.Variable()
     R, S = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True)
-    constraints = _eliminated(verts, g, R, S)
+    matrices = _eliminated(verts, g, R, S)
+    constraints = _strict(matrices, 0.0, None)
     if gamma_max is not None:
         constraints.append(g <= gamma_max)
     report = solve(cp.Problem(cp.Minimize(g), constraints), solver,
                    f"the eliminated H∞ LMIs at {len(verts)} vertices" + (
                        f" with γ ≤ {gamma_max:g}" if gamma_max is not None else ""))
-    return float(g.value), R.value, S.value, report
+    return float(g.value), R.value, S.value, _jacobi_scales(matrices), report
+
+
+def _interior_point(verts: list[VertexPlant], scales: list[np.ndarray], gamma: float, solver: str
+                    ) -> tuple[np.ndarray, np.ndarray, SolveReport]:
+    """R, S of step 1's interior point: the matrices of step 2 at γ with the largest margin relative to
+    their scale, [R I; I S] ⪰ t·D₀, every projected LMI ⪯ −t·D_k, t ≤ 1 (D_k = diag(scales[k]))."""
+    n = verts[0].dims[0]
+    R, S, t = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True), cp.Variable()
+    constraints = [*_strict(_eliminated(verts, gamma, R, S), t, scales), t <= 1]
+    report = solve(cp.Problem(cp.Maximize(t), constraints), solver,
+                   f"the eliminated H∞ LMIs at γ = {gamma:.6g}")
+    return 0.5 * (R.value + R.value.T), 0.5 * (S.value + S.value.T), report
 
 
 class _LevelProblem:
@@ -347,6 +387,7 @@ class _LevelProblem:
         self.problem = cp.Problem(cp.Maximize(t), constraints)
 
     def margin(self, gamma: float, solver: str) -> tuple[float, SolveReport | None]:
+        """(t, report) at γ; t = −inf when no solver returned a point."""
         self.gamma.value = gamma
         try:
             report = solve(self.problem, solver, f"the H∞ controller LMIs at γ = {gamma:.6g}")
@@ -395,18 +436,23 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
                                             permute=False, separate=True)
     first = _Coordinates(np.diag(s), omega, np.ones(vertices[0].dims[2]), np.ones(vertices[0].dims[4]))
     v0 = first.apply(cayleys[0])
-    du = 1.0 / np.maximum(np.linalg.norm(np.vstack([v0.B2, v0.D12]), axis=0), 1e-300)
-    dy = np.maximum(np.linalg.norm(np.hstack([v0.C2, v0.D21]), axis=1), 1e-300)
+    du = 1.0 / np.maximum(np.linalg.norm(v0.B2, axis=0), 1e-300)
+    dy = np.maximum(np.linalg.norm(v0.C2, axis=1), 1e-300)
     coords = _Coordinates(np.diag(s), omega, du, dy)
+    attempts: list = []
     try:
-        _, R0, S0, _ = _gamma_lower([coords.apply(vc) for vc in cayleys], gamma_max, solver)
-        coords = _Coordinates(coords.T @ _lyapunov_balancing(R0, S0), omega, du, dy)
         verts = [coords.apply(vc) for vc in cayleys]
-        gamma_lower, _, _, report = _gamma_lower(verts, gamma_max, solver)
+        gamma0, _, _, scales, report = _gamma_lower(verts, gamma_max, solver)
+        attempts += report.attempts
+        R, S, report = _interior_point(verts, scales, INTERIOR_FACTOR * gamma0, solver)
+        attempts += report.attempts
+        coords = _Coordinates(coords.T @ _lyapunov_balancing(R, S), omega, du, dy)
+        verts = [coords.apply(vc) for vc in cayleys]
+        gamma_lower, _, _, _, report = _gamma_lower(verts, gamma_max, solver)
+        attempts += report.attempts
     except SynthesisError as exc:
         raise SynthesisError(f"{exc}: {_infeasibility_hint(vertices, gamma_max)}") from None
     level = _LevelProblem(verts)
-    attempts: list = list(report.attempts)
 
     def certified(gamma: float) -> HinfResult | None:
         t, level_report = level.margin(gamma, solver)

@@ -44,8 +44,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
     for out in (args.json_out, model_out, args.plot):
         if out:
             refuse_overwrite(out, args.data)
-    table = read_columns(args.data)
-    data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
+    table = read_columns(args.data)  # the file is read once: the dataset and the candidates come from it
+    data = Dataset.from_columns(table, Path(args.data).name, args.u, args.y, args.p, args.time, args.Ts)
     used = {*args.u, *args.y, *args.p, args.time if args.time != "auto" else time_column(table)}
     names = args.candidates if args.candidates is not None else [c for c in table if c not in used]
     missing = [c for c in names if c not in table]

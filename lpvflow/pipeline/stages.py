@@ -136,14 +136,14 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     from lpvflow.validate.extensions import Structure
 
     cfg, ident = ctx.config["diagnose"], ctx.config["identify"]
-    data = Dataset.read(ctx.path("data.csv"), ident["u"], ident["y"], ident["p"])
+    table = read_columns(ctx.path("data.csv"))  # read once: the dataset and the candidate columns
+    data = Dataset.from_columns(table, "data.csv", ident["u"], ident["y"], ident["p"], time="auto")
     experiment = ctx.config["experiment"]
     if ident["remove_offsets"]:
         if experiment["controller"]:
             raise DataError("[diagnose] with [identify] remove_offsets needs open-loop data (the experiment "
                             "controller acts on the measured signals, not on deviations)")
         data = without_offsets(data, data.split(ident["split"])[0])  # the identify stage's operating point
-    table = read_columns(ctx.path("data.csv"))
     missing = [c for c in cfg["candidates"] if c not in table]
     if missing:
         raise DataError(f"[diagnose] candidate column(s) {missing} are not in the experiment data")

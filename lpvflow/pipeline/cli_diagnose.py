@@ -11,7 +11,7 @@ from lpvflow.errors import DataError
 from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.run import sidecar_path
 from lpvflow.experiment.scheduling import parse_assignment
-from lpvflow.models import atomic_write_json
+from lpvflow.models import atomic_write_json, report_header
 from lpvflow.pipeline.cli_identify import add_data_arguments, parse_order, refuse_overwrite
 from lpvflow.validate.diagnose import MIN_VALIDATION, diagnose
 from lpvflow.validate.extensions import EXTENSIONS, Structure
@@ -58,7 +58,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     controller = load_controller(args.controller) if args.controller else None
     result = diagnose(data, structure, {c: table[c] for c in names}, split=args.split, causes=args.causes,
                       controller=controller, scheduling=_scheduling(args) if controller else None)
-    report = result.to_dict()
+    report = report_header("diagnosis") | result.to_dict()
     report["extended_model"] = None
     if result.winner is not None:
         model = result.winner.fit.model

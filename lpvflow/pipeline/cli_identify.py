@@ -14,7 +14,7 @@ from lpvflow.data import Dataset, read_columns
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.lfr import LPVLFR
-from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load
+from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load, report_header
 from lpvflow.validate.metrics import fit_report
 
 #: IO methods: name → (estimator kind, form). The state-space and LFR methods are handled apart.
@@ -191,7 +191,8 @@ def run_simulate(args: argparse.Namespace) -> int:
     for name, b, v, m in zip(report["outputs"], report["bfr"], report["vaf"], report["mse"], strict=True):
         print(f"{name}: BFR {b:.2f} %  VAF {v:.2f} %  MSE {m:.4g}")
     if args.json_out:
-        atomic_write_json(args.json_out, {"model": args.model, "data": args.data, **report})
+        document = {**report_header("simulation"), "model": args.model, "data": args.data, **report}
+        atomic_write_json(args.json_out, document)
     if args.plot:
         plot_fit(args.plot, data, y_sim)
         print(f"plot written to {args.plot}", file=sys.stderr)

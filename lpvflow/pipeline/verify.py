@@ -57,12 +57,11 @@ from lpvflow.experiment.controller import FORMAT as LTI_FORMAT
 from lpvflow.experiment.controller import LtiController, load_controller
 from lpvflow.experiment.plant import Plant, open_plant
 from lpvflow.experiment.run import step_count
+from lpvflow.models import report_header
 from lpvflow.pipeline.export import load_lpv_controller
 from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal
 from lpvflow.synth.controller import LPVController
 
-FORMAT = "lpvflow/verification"
-VERSION = 1
 #: Fraction of the run forming the final window of the steady-state checks.
 FINAL_WINDOW = 0.1
 #: Default settling band, relative to the size of the last reference change.
@@ -588,8 +587,7 @@ class Verification:
 
     def to_dict(self) -> dict:
         return {
-            "format": FORMAT,
-            "version": VERSION,
+            **report_header("verification"),
             "plant": self.plant,
             "loop": self.loop.to_dict(),
             "stable": self.stable,

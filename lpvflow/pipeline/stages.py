@@ -352,6 +352,7 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     model = balanced_states(model, centre)
     result = synthesize(generalized_plant(model, cfg["weights"], box), cfg["method"], cfg["solver"])
     certificate = certify(result, model, cfg["weights"])
+    result.controller.info["signals"] = design_signals(ctx, model)
     result.controller.save(ctx.path("controller.json"))
     at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre.tolist()
     nominal = [[v, v] for v in at]
@@ -362,6 +363,23 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
              "solve_seconds": result.report.seconds, "order": result.controller.order,
              "polytope": result.plant.polytope.kind},
             ["controller.json", "baseline.json"])
+
+
+def design_signals(ctx: StageContext, model: LPVSS) -> dict:
+    """The controller's port record (:func:`lpvflow.pipeline.export.describe_signals`): the model's
+    signal names, the experiment's scheduling expressions, units and descriptions from the plant FMU,
+    operating points from ``[verify.loop]`` (else the FMU's input start values, as verify uses)."""
+    from lpvflow.pipeline.export import describe_signals
+    from lpvflow.pipeline.scenarios import parse_loop
+
+    operating_point = {}
+    if ctx.config["verify"]:
+        loop = parse_loop(ctx.config["verify"]["loop"])
+        pairs = ((loop.measured, loop.y_operating_point), (loop.actuated, loop.u_operating_point))
+        for names, values in pairs:
+            operating_point |= dict(zip(names, values, strict=True)) if values is not None else {}
+    return describe_signals(model, ctx.config["experiment"]["scheduling"], ctx.config["design"]["plant"],
+                            operating_point)
 
 
 def balanced_states(model: LPVSS, p: np.ndarray) -> LPVSS:

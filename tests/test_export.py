@@ -324,3 +324,14 @@ def test_the_bundled_adip_design_names_its_controller_ports(
     assert (signals.actuated[0].name, signals.actuated[0].unit, signals.actuated[0].operating_point) == (
         "voltage", "V", 0.0)
     assert signals.actuated[0].description  # the plant FMU's description of its input
+
+
+def test_data_column_names_become_port_names() -> None:
+    model = _adip_model()
+    model.y_names, model.p_names = ["arm angle", "2nd"], ["sin(arm)"]
+    controller = _adip_lpv_controller()
+    controller.info["signals"] = describe_signals(model)
+    signals = controller_signals(controller)
+    assert [p.name for p in signals.measured] == ["arm_angle", "s_2nd"]
+    assert signals.measured[0].description == "column 'arm angle'"
+    assert (signals.scheduling[0].name, signals.scheduling[0].expression) == ("sin_arm_", "sin(arm)")

@@ -154,8 +154,9 @@ def describe_signals(
     """``info["signals"]`` of a controller synthesized for ``model`` (inputs e = r − y over the model's
     outputs, outputs the model's inputs, scheduling its p): names from the model, scheduling
     expressions from ``expressions`` (name → expression; the name itself otherwise), units and
-    descriptions from the plant FMU's variables of the same name, operating points (signal name →
-    value) from ``operating_point``, else the FMU's start values for the actuated inputs (as
+    descriptions from the plant FMU's variables of the same name (a name that is not an identifier,
+    e.g. a data column ``level (m)``, becomes ``level__m_``), operating points (signal name → value)
+    from ``operating_point``, else the FMU's start values for the actuated inputs (as
     :mod:`lpvflow.pipeline.verify` does) and zero for the outputs."""
     variables = {}
     if plant_fmu is not None:
@@ -167,7 +168,12 @@ def describe_signals(
         declared = getattr(variable, "declaredType", None)
         unit = (getattr(variable, "unit", None) or getattr(declared, "unit", None) or "") if variable else ""
         description = (variable.description or "") if variable is not None else ""
-        return Port(name, unit, description, float(operating_point), expression)
+        port_name = re.sub(r"\W", "_", name)
+        if not _NAME.match(port_name):
+            port_name = f"s_{port_name}"
+        if port_name != name:  # a data column such as "level (m)": the port keeps the column in its text
+            description = f"column {name!r}" + (f"; {description}" if description else "")
+        return Port(port_name, unit, description, float(operating_point), expression)
 
     given = dict(operating_point or {})
     start = {n: float(v.start) for n, v in variables.items()

@@ -97,7 +97,7 @@ def _identify_io(args: argparse.Namespace, data: Dataset) -> LPVIO:
 
         if not args.excitation:
             raise DataError("--method two-step needs --excitation COL (the external excitation signal)")
-        r = read_columns(args.data).get(args.excitation)
+        r = read_columns(args.data, [args.excitation]).get(args.excitation)
         if r is None:
             raise DataError(f"excitation column {args.excitation!r} not found in {args.data}")
         return identify_two_step(data, r, na, nb, nk, args.basis, form=form)

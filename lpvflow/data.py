@@ -18,6 +18,8 @@ from lpvflow.errors import DataError
 
 #: Relative tolerance on the spacing of a time column before it counts as non-uniform.
 TIME_TOLERANCE = 1e-6
+#: MATLAB classes read as data columns (numeric and logical variables).
+_MAT_NUMERIC = {"double", "single", "logical", *(f"{s}int{b}" for s in ("", "u") for b in (8, 16, 32, 64))}
 #: Bytes of CSV text pyarrow parses at a time (whole lines; also the chunk size of the row count).
 CSV_BLOCK_BYTES = 1 << 20
 
@@ -196,7 +198,7 @@ def read_columns(path: str | Path, columns: Iterable[str] | None = None) -> dict
         return _read_csv(path, wanted)
     if suffix in (".parquet", ".pq"):
         return _read_parquet(path, wanted)
-    return {k: v for k, v in _read_mat(path).items() if wanted is None or k in wanted}
+    return _read_mat(path, wanted)
 
 
 def column_names(path: str | Path) -> list[str]:
@@ -213,7 +215,10 @@ def column_names(path: str | Path) -> list[str]:
         except Exception as exc:  # pyarrow raises several unrelated types for a bad file
             raise DataError(f"{path.name} is not a readable Parquet file ({exc.__class__.__name__})") \
                 from None
-    return list(_read_mat(path))
+    try:
+        return [name for name, _, kind in scipy.io.whosmat(path) if kind in _MAT_NUMERIC]
+    except Exception as exc:  # scipy raises ValueError/TypeError/MatReadError for a bad file
+        raise DataError(f"{path.name} is not a readable MATLAB file ({exc.__class__.__name__})") from None
 
 
 def time_column(names: Collection[str]) -> str | None:
@@ -356,9 +361,9 @@ def _read_parquet(path: Path, columns: list[str] | None) -> dict[str, np.ndarray
     return {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
 
 
-def _read_mat(path: Path) -> dict[str, np.ndarray]:
+def _read_mat(path: Path, columns: list[str] | None) -> dict[str, np.ndarray]:
     try:
-        raw = scipy.io.loadmat(path, squeeze_me=True)
+        raw = scipy.io.loadmat(path, squeeze_me=True, variable_names=columns)
     except Exception as exc:  # scipy raises ValueError/TypeError/MatReadError for a bad file
         raise DataError(f"{path.name} is not a readable MATLAB file ({exc.__class__.__name__})") from None
     return {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in raw.items()

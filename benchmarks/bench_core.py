@@ -5,6 +5,11 @@
    on the *prebuilt* regressor (regressor construction not timed for the baseline), and the peak
    memory that ``identify_arx`` allocates (tracemalloc) relative to the bytes of u, y, p.
 2. ``LPVSS.simulate`` throughput with nx = 4, nψ = 3 (samples per second, after JIT warm-up).
+3. ``Dataset.read`` of a CSV with 10⁶ rows, reading 5 of its 6 columns (time, u, two y, p; issue 25):
+   wall time and peak resident-memory growth against pyarrow's ``read_csv`` of the same 5 columns
+   converted to numpy, each in a fresh subprocess (peak = VmHWM after resetting it through
+   /proc/self/clear_refs, minus the resident size before the read), memory relative to the bytes of
+   the 5 float64 columns.
 
 Run: ``.venv/bin/python benchmarks/bench_core.py`` → benchmarks/results/core.json
 """
@@ -12,6 +17,9 @@ Run: ``.venv/bin/python benchmarks/bench_core.py`` → benchmarks/results/core.j
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+import tempfile
 import tracemalloc
 from functools import partial
 from pathlib import Path
@@ -79,8 +87,76 @@ def bench_simulate(n: int = 2_000_000, nx: int = 4, n_psi: int = 3) -> dict:
     return {"N": n, "nx": nx, "n_psi": n_psi, "time_s": t, "samples_per_s": n / t}
 
 
+#: Run in a fresh interpreter by :func:`bench_read_csv`: argv = CSV path, "lpvflow" or "pyarrow";
+#: prints the wall time and the peak resident-memory growth (bytes) of one read as JSON.
+READ_PROBE = """
+import json, sys, time
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+from lpvflow.data import Dataset
+
+COLUMNS = ["time", "u", "y1", "y2", "p"]
+
+def status(key):
+    line = next(l for l in open("/proc/self/status") if l.startswith(key + ":"))
+    return int(line.split()[1]) * 1024
+
+def read(path):
+    if sys.argv[2] == "lpvflow":
+        return Dataset.read(path, ["u"], ["y1", "y2"], ["p"])
+    table = pacsv.read_csv(path, convert_options=pacsv.ConvertOptions(
+        include_columns=COLUMNS, column_types=dict.fromkeys(COLUMNS, pa.float64())))
+    return {name: table.column(name).to_numpy() for name in COLUMNS}
+
+read(sys.argv[3])  # warm-up on a small file: imports and lazy initialisation are not measured
+with open("/proc/self/clear_refs", "w") as f:
+    f.write("5")  # reset the peak resident size (VmHWM) to the current one
+before = status("VmRSS")
+t0 = time.perf_counter()
+result = read(sys.argv[1])
+seconds = time.perf_counter() - t0
+print(json.dumps({"seconds": seconds, "peak_growth_bytes": status("VmHWM") - before}))
+"""
+
+
+def _read_probe(path: Path, small: Path, reader: str, repeats: int = 3) -> dict:
+    """Best time and smallest peak memory growth of ``repeats`` fresh-interpreter reads."""
+    runs = [json.loads(subprocess.run([sys.executable, "-c", READ_PROBE, str(path), reader, str(small)],
+                                      check=True, capture_output=True, text=True).stdout)
+            for _ in range(repeats)]
+    return {"time_s": min(r["seconds"] for r in runs),
+            "peak_growth_bytes": min(r["peak_growth_bytes"] for r in runs)}
+
+
+def bench_read_csv(n: int = 1_000_000) -> dict:
+    rng = np.random.default_rng(2)
+    columns = {"time": np.arange(n) * 0.01, "u": rng.normal(size=n), "y1": rng.normal(size=n),
+               "y2": rng.normal(size=n), "p": rng.uniform(-1, 1, size=n), "unused": rng.normal(size=n)}
+    with tempfile.TemporaryDirectory() as tmp:
+        path, small = Path(tmp) / "data.csv", Path(tmp) / "small.csv"
+        header = ",".join(columns)
+        np.savetxt(path, np.column_stack(list(columns.values())), delimiter=",", header=header,
+                   comments="", fmt="%.17g")
+        np.savetxt(small, np.column_stack(list(columns.values()))[:100], delimiter=",", header=header,
+                   comments="", fmt="%.17g")
+        file_bytes = path.stat().st_size
+        ours, arrow = _read_probe(path, small, "lpvflow"), _read_probe(path, small, "pyarrow")
+    data_bytes = 5 * n * 8
+    return {
+        "N": n, "file_columns": len(columns), "columns_read": 5, "file_bytes": file_bytes,
+        "data_bytes": data_bytes,
+        "time_dataset_read_s": ours["time_s"], "time_pyarrow_s": arrow["time_s"],
+        "time_ratio": ours["time_s"] / arrow["time_s"],
+        "peak_growth_dataset_read_bytes": ours["peak_growth_bytes"],
+        "peak_growth_pyarrow_bytes": arrow["peak_growth_bytes"],
+        "memory_ratio_to_data": ours["peak_growth_bytes"] / data_bytes,
+        "memory_ratio_to_pyarrow": ours["peak_growth_bytes"] / arrow["peak_growth_bytes"],
+    }
+
+
 def main() -> None:
-    results = {"lpr_arx": bench_identify(), "lpvss_simulate": bench_simulate()}
+    results = {"lpr_arx": bench_identify(), "lpvss_simulate": bench_simulate(), "read_csv": bench_read_csv()}
     out = Path(__file__).parent / "results" / "core.json"
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps(results, indent=1))
@@ -92,6 +168,12 @@ def main() -> None:
     print(f"| LPR-ARX peak allocation | {r['peak_alloc_bytes'] / 1e6:.1f} MB | input data "
           f"{r['input_bytes'] / 1e6:.1f} MB | {r['memory_ratio']:.2f}× | ≤ 3× |")
     print(f"| LPVSS.simulate nx=4, nψ=3 | {s['samples_per_s'] / 1e6:.2f}·10⁶ samples/s | — | — | ≥ 2·10⁶ |")
+    c = results["read_csv"]
+    print(f"| Dataset.read CSV 10⁶ × 5 of 6 columns | {c['time_dataset_read_s']:.3f} s | pyarrow "
+          f"{c['time_pyarrow_s']:.3f} s | {c['time_ratio']:.2f}× | ≤ 1 s |")
+    print(f"| Dataset.read peak memory growth | {c['peak_growth_dataset_read_bytes'] / 1e6:.1f} MB | pyarrow "
+          f"{c['peak_growth_pyarrow_bytes'] / 1e6:.1f} MB; data {c['data_bytes'] / 1e6:.1f} MB | "
+          f"{c['memory_ratio_to_data']:.2f}× data | ≤ 2× data |")
 
 
 if __name__ == "__main__":

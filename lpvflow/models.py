@@ -16,7 +16,9 @@ LPVSS, affine in ψ (design.md; Schulz et al. Sec. II):
 
 from __future__ import annotations
 
+import importlib
 import json
+import operator
 import os
 import tempfile
 from collections.abc import Callable
@@ -36,10 +38,28 @@ if TYPE_CHECKING:  # python-control takes ~1 s to import; only frozen models nee
 FORMAT_VERSION = 1
 _LOADERS: dict[str, Callable[[dict], Any]] = {}
 
+#: The loader of each object file kind the commands write, as ``module:attribute``; imported on first use,
+#: so :func:`load` reads every kind in a fresh interpreter without importing synthesis or FMU code first.
+LOADER_PATHS = {
+    "lpvlfr": "lpvflow.lfr:LPVLFR.from_dict",
+    "lpv-controller": "lpvflow.synth.controller:LPVController.from_dict",
+    "lti-controller": "lpvflow.experiment.controller:LtiController.from_dict",
+}
+
+#: JSON reports the commands write (kind → current version); :func:`load` returns them as dictionaries.
+#: validation: ``validate --json``; simulation: ``simulate --json``; diagnosis: ``diagnose --json``;
+#: verification: ``verify --json``; experiment: the sidecar ``<data>.csv.json`` of ``experiment``.
+REPORT_VERSIONS = {"validation": 1, "simulation": 1, "diagnosis": 1, "verification": 1, "experiment": 1}
+
 
 def register_format(kind: str, loader: Callable[[dict], Any]) -> None:
     """Make :func:`load` understand files with ``"format": "lpvflow/<kind>"``."""
     _LOADERS[kind] = loader
+
+
+def report_header(kind: str) -> dict[str, Any]:
+    """``{"format": "lpvflow/<kind>", "version": …}`` that a JSON report of ``kind`` starts with."""
+    return {"format": f"lpvflow/{kind}", "version": REPORT_VERSIONS[kind]}
 
 
 def _as_2d(name: str, x: Any, n_rows: int | None = None) -> np.ndarray:
@@ -386,15 +406,15 @@ class LPVSS:
         atomic_write_json(path, self.to_dict())
 
 
-def check_format(d: dict, kind: str) -> None:
-    """Refuse (one line) a dictionary that is not an ``lpvflow/<kind>`` document of this format version."""
-    fmt, version = d.get("format"), d.get("version")
+def check_format(d: dict, kind: str, version: int = FORMAT_VERSION) -> None:
+    """Refuse (one line) a dictionary that is not an ``lpvflow/<kind>`` document of format ``version``."""
+    fmt, found = d.get("format"), d.get("version")
     if fmt != f"lpvflow/{kind}":
         raise ModelError(f"expected a lpvflow/{kind} file, got format {fmt!r}")
-    if version != FORMAT_VERSION:
+    if found != version:
         raise ModelError(
-            f"lpvflow/{kind} file version {version!r} is not supported (this lpvflow reads version "
-            f"{FORMAT_VERSION}); re-export it with a matching lpvflow"
+            f"lpvflow/{kind} file version {found!r} is not supported (this lpvflow reads version "
+            f"{version}); write it again with a matching lpvflow"
         )
 
 
@@ -403,7 +423,13 @@ register_format("lpvss", LPVSS.from_dict)
 
 
 def load(path: str | os.PathLike) -> Any:
-    """Load any lpvflow JSON file (model, controller, …) by its ``format`` field."""
+    """Load any file an lpvflow command writes, by its ``format`` field.
+
+    Models (``lpvflow/lpvio``, ``lpvss``, ``lpvlfr``) and controllers (``lpv-controller``,
+    ``lti-controller``) come back as objects; the JSON reports of :data:`REPORT_VERSIONS` (validation,
+    simulation, diagnosis, verification, the experiment sidecar) as dictionaries. A file of another
+    version, or not written by lpvflow, is refused with one ModelError line.
+    """
     path = Path(path)
     if not path.exists():
         raise ModelError(f"model file {str(path)!r} does not exist")
@@ -412,8 +438,15 @@ def load(path: str | os.PathLike) -> Any:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ModelError(f"{path} is not a lpvflow JSON file ({exc.__class__.__name__})") from None
     fmt = d.get("format", "") if isinstance(d, dict) else ""
-    kind = fmt.removeprefix("lpvflow/") if fmt.startswith("lpvflow/") else None
+    kind = fmt.removeprefix("lpvflow/") if isinstance(fmt, str) and fmt.startswith("lpvflow/") else None
+    if kind in REPORT_VERSIONS:
+        check_format(d, kind, REPORT_VERSIONS[kind])
+        return d
+    if kind not in _LOADERS and kind in LOADER_PATHS:
+        module, attribute = LOADER_PATHS[kind].split(":")
+        register_format(kind, operator.attrgetter(attribute)(importlib.import_module(module)))
     if kind not in _LOADERS:
+        known = sorted({*_LOADERS, *LOADER_PATHS, *REPORT_VERSIONS})
         raise ModelError(f"{path}: unknown format {fmt!r}; expected one of "
-                         + ", ".join(f"lpvflow/{k}" for k in sorted(_LOADERS)))
+                         + ", ".join(f"lpvflow/{k}" for k in known))
     return _LOADERS[kind](d)

@@ -150,3 +150,46 @@ def test_cli_nonpositive_ts(tmp_path, good_rows, capsys):
                  "-o", str(tmp_path / "m.json")]) == 2
     err = capsys.readouterr().err
     assert "Ts must be a positive" in err and err.count("\n") == 1
+
+
+def test_csv_reads_only_the_named_columns_across_blocks(tmp_path, monkeypatch, good_rows):
+    """Columns not asked for are not converted (text there is no error); blocks cut between lines."""
+    import lpvflow.data
+
+    monkeypatch.setattr(lpvflow.data, "CSV_BLOCK_BYTES", 64)  # many blocks, lines spanning block edges
+    rows = [[*r, "note"] for r in good_rows]
+    path = write_csv(tmp_path / "d.csv", ["time", "u", "y", "p", "comment"], rows)
+    d = Dataset.read(path, ["u"], ["y"], ["p"])
+    np.testing.assert_array_equal(d.p[:, 0], [r[3] for r in good_rows])
+    assert d.N == 200 and d.Ts == pytest.approx(0.1)
+    assert set(lpvflow.data.read_columns(path, ["y", "time"])) == {"y", "time"}
+    assert lpvflow.data.column_names(path) == ["time", "u", "y", "p", "comment"]
+
+
+@pytest.mark.parametrize("newline", ["\r\n", "\r"])
+def test_csv_line_breaks(tmp_path, good_rows, newline):
+    path = tmp_path / "d.csv"
+    lines = ["time,u,y,p", *(",".join(str(float(v)) for v in r) for r in good_rows)]
+    path.write_bytes(newline.join(lines).encode())
+    d = Dataset.read(path, ["u"], ["y"], ["p"])
+    assert d.N == 200
+    np.testing.assert_array_equal(d.u[:, 0], [r[1] for r in good_rows])
+
+
+def test_empty_cell_is_named_like_nan(tmp_path, good_rows):
+    good_rows[12][2] = ""
+    with pytest.raises(DataError, match="'y' has NaN/inf at sample 12"):
+        Dataset.read(write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"], good_rows), ["u"], ["y"], ["p"])
+
+
+def test_diagnose_reads_the_data_file_once(tmp_path, monkeypatch, good_rows, capsys):
+    import lpvflow.data
+
+    reads = []
+    original = lpvflow.data._line_blocks
+    monkeypatch.setattr(lpvflow.data, "_line_blocks", lambda path: reads.append(path) or original(path))
+    path = write_csv(tmp_path / "d.csv", ["time", "u", "y", "p", "q"], [[*r, 0.0] for r in good_rows])
+    assert main(["diagnose", str(path), "--u", "u", "--y", "y", "--p", "p", "--split", "0.5",
+                 "--json", str(tmp_path / "o.json")]) == 2  # too few samples: stops after reading
+    assert "for validation" in capsys.readouterr().err
+    assert reads == [path]

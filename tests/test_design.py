@@ -294,7 +294,7 @@ def test_lti_baseline_defaults_to_the_centre_of_the_box(tmp_path, monkeypatch):
 
     def fake_synthesize(plant, solver):
         boxes.append(plant.polytope.box.tolist())
-        controller = SimpleNamespace(save=lambda path: None, order=0)
+        controller = SimpleNamespace(save=lambda path: None, order=0, info={})
         return SimpleNamespace(gamma=1.0, gamma_lower=1.0, controller=controller,
                                report=SimpleNamespace(seconds=0.0), plant=plant)
 
@@ -305,7 +305,8 @@ def test_lti_baseline_defaults_to_the_centre_of_the_box(tmp_path, monkeypatch):
     weights = {"S": {"num": [0.5], "den": [1]}, "K": {"num": [0.1], "den": [1]},
                "B": {"num": [0, 0.5], "den": [1, -0.5]}}
     config = {"synth": {"weights": weights, "box": [[0.072, 0.088]], "method": "common",
-                        "solver": "CLARABEL", "baseline_at": None}}
+                        "solver": "CLARABEL", "baseline_at": None},
+              "design": {"plant": None}, "experiment": {"scheduling": {}}, "verify": None}
     outputs, _ = stages.synth(stages.StageContext(tmp_path, config))
     assert outputs["baseline_at"] == pytest.approx([0.08])
     assert boxes[0] == [[0.072, 0.088]] and boxes[1][0] == pytest.approx([0.08, 0.08])

@@ -9,14 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
+from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
 from lpvflow.basis import Basis
+from lpvflow.errors import DataError
 from lpvflow.experiment.controller import load_controller
-from lpvflow.models import load
+from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
-from lpvflow.pipeline.export import export_fmu, export_json, export_mat
+from lpvflow.pipeline.config import bundled_config, load_config
+from lpvflow.pipeline.export import controller_signals, describe_signals, export_fmu, export_json, export_mat
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
+from lpvflow.pipeline.stages import StageContext, design_signals
 from lpvflow.pipeline.verify import FmuController, simulate_loop
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.polytope import Polytope, _corners
@@ -108,7 +112,8 @@ def test_exported_fmu_validates_and_carries_binary_and_sources(exported: dict) -
         assert f"sources/{source}" in names
     description = zipfile.ZipFile(path).read("modelDescription.xml").decode()
     assert f'stepSize="{controller.Ts!r}"' in description
-    assert all(f'name="{n}"' in description for n in ("e1", "e2", "p1", "p2", "u1", "u2"))
+    names = ("y1_ref", "y2_ref", "y1", "y2", "p1", "p2", "u1", "u2")  # defaults without a signal record
+    assert all(f'name="{n}"' in description for n in names)
 
 
 def _adip_lpv_controller() -> LPVController:
@@ -158,7 +163,7 @@ def test_exported_fmu_with_the_plant_fmu_reproduces_the_python_closed_loop(tmp_p
 
 def test_mat_round_trip_gives_matlab_layout(tmp_path: Path) -> None:
     controller = _parabola_controller()
-    path = export_mat(controller, tmp_path / "K.mat", names={"input_names": ["r_minus_y1", "r_minus_y2"]})
+    path = export_mat(controller, tmp_path / "K.mat", names={"measured": ["arm", "pendulum"]})
     mat = scipy.io.loadmat(path)
     N, n = controller.polytope.n_vertices, controller.order
     assert mat["Ak"].shape == (n, n, N) and mat["Bk"].shape == (n, 2, N)
@@ -169,14 +174,18 @@ def test_mat_round_trip_gives_matlab_layout(tmp_path: Path) -> None:
     np.testing.assert_array_equal(mat["psi_vertices"], controller.polytope.psi_vertices)
     np.testing.assert_array_equal(mat["scheduling_box"], controller.polytope.box)
     assert mat["Ts"].item() == controller.Ts and str(mat["polytope_kind"][0]) == "parabola-triangle"
-    assert [str(c[0]) for c in mat["input_names"][0]] == ["r_minus_y1", "r_minus_y2"]
-    assert [str(c[0]) for c in mat["output_names"][0]] == ["u1", "u2"]
+    assert [str(c[0]) for c in mat["measured_names"][0]] == ["arm", "pendulum"]
+    assert [str(c[0]) for c in mat["reference_names"][0]] == ["arm_ref", "pendulum_ref"]
+    assert [str(c[0]) for c in mat["actuated_names"][0]] == ["u1", "u2"]
+    assert "vertex_inverse" in str(mat["interpolation"][0])
     exponents = mat["basis"]["exponents"][0, 0]
     np.testing.assert_array_equal(exponents, [[0], [1], [2]])
     # a MATLAB user's interpolation Σ λ_i Ak(:,:,i) gives the controller's frozen matrices
     p = 0.7
     lam = controller.coordinates(np.array([p]))
     np.testing.assert_allclose(mat["Ak"] @ lam, controller.matrices(np.array([p]))[0], atol=1e-14)
+    # the parabola-triangle rule the MAT file states: λ = vertex_inverse ψ(p) (inside: no clipping)
+    np.testing.assert_allclose(mat["vertex_inverse"] @ [1.0, p, p * p], lam, atol=1e-14)
 
 
 def test_json_export_round_trips(tmp_path: Path) -> None:
@@ -220,3 +229,109 @@ def test_export_cli_writes_each_format_and_refuses_bad_input(
         capsys, ["export", str(tmp_path / "bad.json"), "--format", "fmu", "-o", str(tmp_path / "bad.fmu")]
     )
     assert not (tmp_path / "bad.fmu").exists()
+
+
+def _adip_model() -> LPVSS:
+    """A model with the ADIP's signal names (matrices irrelevant: only the names are read)."""
+    basis = Basis("affine", 1, p_min=(-0.5,), p_max=(0.5,))
+    return LPVSS(np.zeros((2, 1, 1)), np.zeros((2, 1, 1)), np.zeros((2, 2, 1)), np.zeros((2, 2, 1)), basis,
+                 0.005, u_names=["voltage"], y_names=["arm_angle", "pendulum_angle"], p_names=["sin_arm"])
+
+
+def _named_adip_controller(trim: float) -> LPVController:
+    controller = _adip_lpv_controller()
+    controller.info["signals"] = describe_signals(_adip_model(), {"sin_arm": "sin(arm_angle)"}, ADIP,
+                                                  {"voltage": trim})
+    return controller
+
+
+def test_fmu_ports_carry_names_units_expressions_trim_and_the_interpolation_rule(tmp_path: Path) -> None:
+    controller = _named_adip_controller(trim=0.7)
+    path = export_fmu(controller, tmp_path / "K.fmu")
+    description = read_model_description(str(path))
+    ports = {v.name: v for v in description.modelVariables}
+    assert list(ports) == ["arm_angle_ref", "pendulum_angle_ref", "arm_angle", "pendulum_angle", "sin_arm",
+                           "voltage"]
+    assert {n: v.unit for n, v in ports.items()} == {"arm_angle_ref": "rad", "pendulum_angle_ref": "rad",
+                                                    "arm_angle": "rad", "pendulum_angle": "rad",
+                                                    "sin_arm": None, "voltage": "V"}
+    assert [v.causality for v in ports.values()] == ["input"] * 5 + ["output"]
+    assert ports["sin_arm"].description == "scheduling sin_arm = sin(arm_angle)"
+    assert ports["arm_angle_ref"].description.startswith("reference for arm_angle")
+    assert "trim 0.7" in ports["voltage"].description
+    assert "box polytope over sin_arm ∈ [-0.96, 0.96]" in description.description
+    # the FMU adds the trim: u = 0.7 + K(r − y); with r = y it outputs the trim alone
+    fmu = FmuController(path)
+    try:
+        fmu.reset()
+        np.testing.assert_allclose(fmu.step(np.zeros(2), np.zeros(1)), [0.7], atol=1e-12)
+        e = np.array([0.1, -0.02])
+        controller.reset()
+        np.testing.assert_allclose(fmu.step(e, np.array([0.3])), 0.7 + controller.step(e, np.array([0.3])),
+                                   atol=1e-12)
+    finally:
+        fmu.close()
+
+
+def test_mat_carries_names_units_expressions_and_operating_points(tmp_path: Path) -> None:
+    mat = scipy.io.loadmat(export_mat(_named_adip_controller(trim=0.7), tmp_path / "K.mat"))
+    cells = lambda key: [str(c[0]) if c.size else "" for c in mat[key][0]]  # noqa: E731
+    assert cells("measured_names") == ["arm_angle", "pendulum_angle"]
+    assert cells("reference_names") == ["arm_angle_ref", "pendulum_angle_ref"]
+    assert cells("scheduling_names") == ["sin_arm"] and cells("scheduling_expressions") == ["sin(arm_angle)"]
+    assert cells("actuated_names") == ["voltage"] and cells("actuated_units") == ["V"]
+    assert cells("measured_units") == ["rad", "rad"]
+    np.testing.assert_array_equal(mat["u_operating_point"], [[0.7]])
+    np.testing.assert_array_equal(mat["y_operating_point"], [[0.0, 0.0]])
+    assert "box polytope" in str(mat["interpolation"][0]) and mat["vertex_inverse"].size == 0
+
+
+def test_signal_names_survive_the_controller_file(tmp_path: Path) -> None:
+    controller = _named_adip_controller(trim=0.0)
+    controller.save(tmp_path / "K.json")
+    signals = controller_signals(load(tmp_path / "K.json"))
+    assert [port.name for port in signals.measured] == ["arm_angle", "pendulum_angle"]
+    assert signals.scheduling[0].expression == "sin(arm_angle)"
+
+
+@pytest.mark.parametrize(
+    ("names", "message"),
+    [
+        ({"measured": ["a"]}, "measured names list 1 names for 2 signals"),
+        ({"actuated": ["arm_angle"]}, "must be distinct"),
+        ({"measured": ["a", "a_ref"], "actuated": ["a_ref_ref"]}, "must be distinct"),
+        ({"scheduling": ["1p"]}, "'1p' is not a valid signal name"),
+        ({"inputs": ["a", "b"]}, "unknown signal role(s) ['inputs']"),
+    ],
+)
+def test_bad_signal_names_give_one_line(names: dict, message: str) -> None:
+    with pytest.raises(DataError) as info:
+        controller_signals(_named_adip_controller(trim=0.0), names)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_the_bundled_adip_design_names_its_controller_ports(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """The synth stage's record: model names, [experiment] scheduling expression, FMU units/descriptions."""
+    monkeypatch.chdir(ROOT)  # the bundled design's plant path is relative to the repository root
+    context = StageContext(tmp_path, load_config(bundled_config("adip")))
+    controller = _adip_lpv_controller()
+    controller.info["signals"] = design_signals(context, _adip_model())
+    signals = controller_signals(controller)
+    assert [(p.name, p.unit) for p in signals.measured] == [("arm_angle", "rad"), ("pendulum_angle", "rad")]
+    assert (signals.scheduling[0].name, signals.scheduling[0].expression) == ("sin_arm", "sin(arm_angle)")
+    assert (signals.actuated[0].name, signals.actuated[0].unit, signals.actuated[0].operating_point) == (
+        "voltage", "V", 0.0)
+    assert signals.actuated[0].description  # the plant FMU's description of its input
+
+
+def test_data_column_names_become_port_names() -> None:
+    model = _adip_model()
+    model.y_names, model.p_names = ["arm angle", "2nd"], ["sin(arm)"]
+    controller = _adip_lpv_controller()
+    controller.info["signals"] = describe_signals(model)
+    signals = controller_signals(controller)
+    assert [p.name for p in signals.measured] == ["arm_angle", "s_2nd"]
+    assert signals.measured[0].description == "column 'arm angle'"
+    assert (signals.scheduling[0].name, signals.scheduling[0].expression) == ("sin_arm_", "sin(arm)")

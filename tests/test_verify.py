@@ -57,9 +57,10 @@ def _gain(kp: float) -> LPVController:
 def plants(tmp_path_factory: pytest.TempPathFactory) -> dict[float, Path]:
     """First-order plant FMUs y(k+1) = a y + B u for a = 1 (integrator) and a = 0.8."""
     folder = tmp_path_factory.mktemp("plants")
-    names = {"input_names": ["u"], "scheduling_names": ["q"], "output_names": ["y"]}
+    # the FMU forms e = u_ref − u with u_ref held at 0 by the loop (an exogenous input): e = −u, so −B
+    names = {"measured": ["u"], "scheduling": ["q"], "actuated": ["y"]}
     return {
-        a: export_fmu(_constant(a, B, 1.0, 0.0), folder / f"plant_{int(10 * a)}.fmu", names)
+        a: export_fmu(_constant(a, -B, 1.0, 0.0), folder / f"plant_{int(10 * a)}.fmu", names)
         for a in (1.0, 0.8)
     }
 

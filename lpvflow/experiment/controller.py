@@ -109,6 +109,27 @@ class LtiController:
         D[np.ix_(rows, cols)] = self.D
         return control.ss(self.A, B, -C, -D, self.Ts)
 
+    @classmethod
+    def from_dict(cls, doc: dict, source: str = "controller") -> LtiController:
+        """The controller of a ``lpvflow/lti-controller`` document (``source`` names it in errors)."""
+        if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+            raise ModelError(f"{source} is not of format {FORMAT!r}")
+        if doc.get("version") != VERSION:
+            raise ModelError(f"{source} has version {doc.get('version')!r}; expected {VERSION}")
+        missing = [k for k in ("Ts", "A", "B", "C", "D", "inputs", "outputs") if k not in doc]
+        if missing:
+            raise ModelError(f"{source} lacks {', '.join(missing)}")
+        inputs, outputs = tuple(doc["inputs"]), tuple(doc["outputs"])
+        A = _matrix(doc, "A", 0, 0)
+        n = A.shape[0]
+        return cls(
+            A=A, B=_matrix(doc, "B", n, len(inputs)), C=_matrix(doc, "C", len(outputs), n),
+            D=_matrix(doc, "D", len(outputs), len(inputs)), Ts=float(doc["Ts"]), inputs=inputs,
+            outputs=outputs,
+            y_op=np.asarray(doc.get("y_operating_point", [0.0] * len(inputs)), float).reshape(-1),
+            u_op=np.asarray(doc.get("u_operating_point", [0.0] * len(outputs)), float).reshape(-1),
+        )
+
     def to_dict(self) -> dict[str, object]:
         return {
             "format": FORMAT, "version": VERSION, "Ts": self.Ts,
@@ -138,19 +159,4 @@ def load_controller(path: str | Path) -> LtiController:
         doc = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError):
         raise ModelError(f"controller file {path} is not valid JSON") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        raise ModelError(f"controller file {path} is not of format {FORMAT!r}")
-    if doc.get("version") != VERSION:
-        raise ModelError(f"controller file {path} has version {doc.get('version')!r}; expected {VERSION}")
-    missing = [k for k in ("Ts", "A", "B", "C", "D", "inputs", "outputs") if k not in doc]
-    if missing:
-        raise ModelError(f"controller file {path} lacks {', '.join(missing)}")
-    inputs, outputs = tuple(doc["inputs"]), tuple(doc["outputs"])
-    A = _matrix(doc, "A", 0, 0)
-    n = A.shape[0]
-    return LtiController(
-        A=A, B=_matrix(doc, "B", n, len(inputs)), C=_matrix(doc, "C", len(outputs), n),
-        D=_matrix(doc, "D", len(outputs), len(inputs)), Ts=float(doc["Ts"]), inputs=inputs, outputs=outputs,
-        y_op=np.asarray(doc.get("y_operating_point", [0.0] * len(inputs)), float).reshape(-1),
-        u_op=np.asarray(doc.get("u_operating_point", [0.0] * len(outputs)), float).reshape(-1),
-    )
+    return LtiController.from_dict(doc, f"controller file {path}")

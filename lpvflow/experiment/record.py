@@ -1,7 +1,8 @@
 """Write an experiment record: a CSV (header row, ``time`` first, one column per signal) and a JSON
-sidecar ``<csv>.json`` with the metadata. Both are written to temporary files in the target folder
-and renamed into place only when complete, so a failed run leaves no partial file; neither may be
-one of the experiment's input files (the FMU, the controller)."""
+sidecar ``<csv>.json`` with the metadata (``"format": "lpvflow/experiment"``, read by ``lpvflow.load``).
+Both are written to temporary files in the target folder and renamed into place only when complete,
+so a failed run leaves no partial file; neither may be one of the experiment's input files (the FMU,
+the controller)."""
 
 from __future__ import annotations
 
@@ -15,9 +16,7 @@ import numpy as np
 
 from lpvflow.errors import DataError
 from lpvflow.experiment.run import ExperimentRecord, sidecar_path
-
-FORMAT = "lpvflow/experiment"
-VERSION = 1
+from lpvflow.models import report_header
 
 
 def csv_text(record: ExperimentRecord) -> str:
@@ -66,7 +65,7 @@ def write_record(
     """Write ``csv_path`` and its sidecar JSON; returns the sidecar path."""
     csv_path = check_output_path(csv_path, protected)
     side = sidecar_path(csv_path)
-    meta = {"format": FORMAT, "version": VERSION, "csv": csv_path.name} | record.metadata
+    meta = report_header("experiment") | {"csv": csv_path.name} | record.metadata
     _atomic_write(side, json.dumps(meta, indent=2, sort_keys=False) + "\n")
     _atomic_write(csv_path, csv_text(record))
     return side

@@ -41,15 +41,18 @@ followed by a rank-1 SVD truncation of each Θ2,i (the paper's (25), truncated t
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 
-from lpvflow.basis import Basis
+from lpvflow.basis import Basis, SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
+from lpvflow.identify.fit_check import UselessFitWarning, useless_fit_message
 from lpvflow.lfr import LPVLFR
+from lpvflow.validate.metrics import fit_report
 
 #: Kernel eigenvalues below this fraction of the largest are treated as zero.
 KERNEL_RANK_TOL = 1e-12
@@ -234,7 +237,9 @@ def identify_kcca_lfr(
             uniformly in [−1, 1] (the paper) with ``seed``.
 
     Returns:
-        An :class:`LPVLFR` on the affine basis of p with the data's range, checked well posed there.
+        An :class:`LPVLFR` on the affine basis of p with the data's range, checked well posed there;
+        a :class:`~lpvflow.identify.fit_check.UselessFitWarning` when its simulation on ``data`` explains
+        none of an output.
     """
     if init not in ("affine", "random"):
         raise DataError(f"init must be 'affine' or 'random', got {init!r}")
@@ -255,4 +260,10 @@ def identify_kcca_lfr(
                    Basis.affine(n_p).with_range(data.p), data.Ts, u_names=data.u_names,
                    y_names=data.y_names, p_names=data.p_names)
     model.check_well_posed()
+    with np.errstate(over="ignore", invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        fit = fit_report(data.y, model.simulate(data.u, data.p), data.y_names)
+    message = useless_fit_message(fit, "kcca-lfr")
+    if message:
+        warnings.warn(UselessFitWarning(message), stacklevel=2)
     return model

@@ -11,7 +11,7 @@ from lpvflow.errors import DataError
 from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.run import sidecar_path
 from lpvflow.experiment.scheduling import parse_assignment
-from lpvflow.models import atomic_write_json
+from lpvflow.models import atomic_write_json, report_header
 from lpvflow.pipeline.cli_identify import add_data_arguments, parse_order, refuse_overwrite
 from lpvflow.validate.diagnose import MIN_VALIDATION, diagnose
 from lpvflow.validate.extensions import EXTENSIONS, Structure
@@ -44,8 +44,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
     for out in (args.json_out, model_out, args.plot):
         if out:
             refuse_overwrite(out, args.data)
-    table = read_columns(args.data)
-    data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
+    table = read_columns(args.data)  # the file is read once: the dataset and the candidates come from it
+    data = Dataset.from_columns(table, Path(args.data).name, args.u, args.y, args.p, args.time, args.Ts)
     used = {*args.u, *args.y, *args.p, args.time if args.time != "auto" else time_column(table)}
     names = args.candidates if args.candidates is not None else [c for c in table if c not in used]
     missing = [c for c in names if c not in table]
@@ -58,7 +58,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     controller = load_controller(args.controller) if args.controller else None
     result = diagnose(data, structure, {c: table[c] for c in names}, split=args.split, causes=args.causes,
                       controller=controller, scheduling=_scheduling(args) if controller else None)
-    report = result.to_dict()
+    report = report_header("diagnosis") | result.to_dict()
     report["extended_model"] = None
     if result.winner is not None:
         model = result.winner.fit.model

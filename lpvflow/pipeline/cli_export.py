@@ -21,8 +21,10 @@ def run(args: argparse.Namespace) -> int:
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "fmu: inputs e (r - y) and p, outputs u, step = Ts, binary and sources inside, validated "
-        "with fmpy; mat: Ak (n,n,N), Bk, Ck, Dk, psi_vertices, polytope, basis, Ts, names; json: the "
+        "fmu: inputs <output>_ref and <output> per measured output and the scheduling signals by name, "
+        "outputs the actuated inputs by name (with their trim), units and descriptions, step = Ts, binary "
+        "and sources inside, validated with fmpy; mat: Ak (n,n,N), Bk, Ck, Dk, psi_vertices, polytope, "
+        "interpolation rule, basis, Ts, names, units, scheduling expressions, operating points; json: the "
         "controller file, re-validated. Layouts: lpvflow/pipeline/export.py."
     )
     parser.add_argument("controller", help="lpvflow/lpv-controller JSON file")

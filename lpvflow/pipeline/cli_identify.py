@@ -13,8 +13,9 @@ from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset, read_columns
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.arx import identify_arx
+from lpvflow.identify.fit_check import UselessFitWarning, useless_fit_message
 from lpvflow.lfr import LPVLFR
-from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load
+from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load, report_header
 from lpvflow.validate.metrics import fit_report
 
 #: IO methods: name → (estimator kind, form). The state-space and LFR methods are handled apart.
@@ -96,7 +97,7 @@ def _identify_io(args: argparse.Namespace, data: Dataset) -> LPVIO:
 
         if not args.excitation:
             raise DataError("--method two-step needs --excitation COL (the external excitation signal)")
-        r = read_columns(args.data).get(args.excitation)
+        r = read_columns(args.data, [args.excitation]).get(args.excitation)
         if r is None:
             raise DataError(f"excitation column {args.excitation!r} not found in {args.data}")
         return identify_two_step(data, r, na, nb, nk, args.basis, form=form)
@@ -141,7 +142,9 @@ def run_identify(args: argparse.Namespace) -> int:
     refuse_overwrite(args.output, args.data)
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
     if args.method in SS_METHODS:
-        model = _identify_state_space(args, data)
+        with warnings.catch_warnings():  # the fit is checked below for every method
+            warnings.simplefilter("ignore", UselessFitWarning)
+            model = _identify_state_space(args, data)
         description = f"state order {getattr(model, 'nx', '?')}"
     else:
         io = _identify_io(args, data)
@@ -151,21 +154,35 @@ def run_identify(args: argparse.Namespace) -> int:
             io.save(args.output)
             print(f"static-dependence LPV-ARX written to {args.output} (no static state-space realization "
                   "exists for this form; use --method lpr-arx for one)")
-            return 0
+            return _fit_status(args.method, _estimation_fit(io, data))
         model = io.to_ss()
         if args.order is not None:
             from lpvflow.identify.reduce import reduce
 
             model = reduce(model, order=args.order)
         description = f"basis {io.basis.kind} ({io.basis.n_psi} functions), state order {model.nx}"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SchedulingRangeWarning)
-        fit = fit_report(data.y, model.simulate(data.u, data.p), data.y_names)
+    fit = _estimation_fit(model, data)
     model.save(args.output)
     print(f"{args.method}: {data.y.shape[1]}x{data.u.shape[1]}, {description}; "
           "estimation-data simulation BFR "
           + ", ".join(f"{n} {v:.2f} %" for n, v in zip(fit["outputs"], fit["bfr"], strict=True))
           + f"; written to {args.output}")
+    return _fit_status(args.method, fit)
+
+
+def _estimation_fit(model: LPVSS | LPVIO | LPVLFR, data: Dataset) -> dict:
+    """BFR, VAF and MSE of the model's simulation on the estimation data."""
+    with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        return fit_report(data.y, model.simulate(data.u, data.p), data.y_names)
+
+
+def _fit_status(method: str, fit: dict) -> int:
+    """1 with a one-line warning on stderr when the fit is useless (a finding), else 0."""
+    message = useless_fit_message(fit, method)
+    if message:
+        print(f"warning: {message}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -191,7 +208,8 @@ def run_simulate(args: argparse.Namespace) -> int:
     for name, b, v, m in zip(report["outputs"], report["bfr"], report["vaf"], report["mse"], strict=True):
         print(f"{name}: BFR {b:.2f} %  VAF {v:.2f} %  MSE {m:.4g}")
     if args.json_out:
-        atomic_write_json(args.json_out, {"model": args.model, "data": args.data, **report})
+        document = {**report_header("simulation"), "model": args.model, "data": args.data, **report}
+        atomic_write_json(args.json_out, document)
     if args.plot:
         plot_fit(args.plot, data, y_sim)
         print(f"plot written to {args.plot}", file=sys.stderr)

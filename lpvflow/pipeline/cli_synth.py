@@ -42,6 +42,7 @@ def _read_config(path: str) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lpvflow.pipeline.export import describe_signals
     from lpvflow.synth.certify import certify
     from lpvflow.synth.hinf import synthesize
     from lpvflow.synth.plant import generalized_plant
@@ -63,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     for line in cert.lines():
         print(line)
     result.controller.info["certificate"] = cert.__dict__ | {"ok": cert.ok}
+    result.controller.info["signals"] = describe_signals(model)  # ports named after the model's signals
     result.controller.save(args.output)
     print(f"controller of order {result.controller.order} written to {args.output}")
     return 0 if cert.ok else 1

@@ -29,7 +29,7 @@ from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment.controller import FORMAT as LTI_CONTROLLER_FORMAT
 from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.scheduling import parse_assignment
-from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load
+from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load, report_header
 from lpvflow.pipeline.cli_identify import add_data_arguments, refuse_overwrite, simulate_any
 from lpvflow.synth.controller import LPVController
 from lpvflow.validate.fmu_reference import FmuLinearization, FmuLocalModels
@@ -102,6 +102,7 @@ def run_validate(args: argparse.Namespace) -> int:
     unstabilized = [r["p"] for r in rows if "stability_margin_b" in r and r["stability_margin_b"] == 0.0]
     failing = [r["p"] for r in rows if r.get("passes") is False]
     report = {
+        **report_header("validation"),
         "model": args.model,
         "data": args.data,
         "fit": fit,

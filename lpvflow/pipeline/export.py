@@ -1,25 +1,34 @@
 """Export an LPVController as an FMI 2.0 Co-Simulation FMU, a MATLAB .mat file or its JSON file.
 
-FMU (:func:`export_fmu`): inputs e (the controller inputs, r − y of the 1-DOF loop) and p (the
-scheduling signals), outputs u, fixed communication step = the controller's Ts. The C engine
-(``controller_fmu/controller_fmu.c``) evaluates ψ(p), the convex coordinates λ(ψ) of the design
-polytope exactly as :meth:`lpvflow.synth.polytope.Polytope.coordinates`, and
+Ports are named after the plant signals (:class:`ControllerSignals`, stored in the controller's
+``info["signals"]`` by the synth stage, :func:`describe_signals`): for every measured output ``y`` the
+inputs ``y_ref`` (its reference) and ``y`` (its measurement), the scheduling signals by name (each
+with the expression that computes it from plant signals, e.g. ``sin_arm = sin(arm_angle)``), the
+actuated plant inputs by name as outputs; each with its unit, description and operating point.
+Controllers without that record get ``y1``, ``p1``, ``u1``….
 
-    u(k) = Σ_i λ_i (Ck_i x(k) + Dk_i e(k)),    x(k+1) = Σ_i λ_i (Ak_i x(k) + Bk_i e(k)),  x(0) = 0.
+FMU (:func:`export_fmu`): fixed communication step = the controller's Ts. The C engine
+(``controller_fmu/controller_fmu.c``) forms e = y_ref − y, evaluates ψ(p), the convex coordinates
+λ(ψ) of the design polytope exactly as :meth:`lpvflow.synth.polytope.Polytope.coordinates` (the
+rule is spelled out in the FMU's description, :func:`interpolation_rule`), and
 
-The vertex data go into a generated ``controller_data.h``; the archive holds the platform binary
-and every source (engine, generated header, FMI 2.0 headers shipped with fmpy) and is checked with
-``fmpy.validation.validate_fmu`` before it replaces the target.
+    u(k) = u_op + Σ_i λ_i (Ck_i x(k) + Dk_i e(k)),    x(k+1) = Σ_i λ_i (Ak_i x(k) + Bk_i e(k)),  x(0) = 0,
+
+u_op the actuated inputs' operating point (trim). The vertex data go into a generated
+``controller_data.h``; the archive holds the platform binary and every source (engine, generated
+header, FMI 2.0 headers shipped with fmpy) and is checked with ``fmpy.validation.validate_fmu``
+before it replaces the target.
 
 MAT (:func:`export_mat`), for ``load('K.mat')`` in MATLAB or ``scipy.io.loadmat``:
 ``Ak`` (n, n, N), ``Bk`` (n, ny, N), ``Ck`` (nu, n, N), ``Dk`` (nu, ny, N) — vertex i is
 ``Ak(:,:,i)`` —, ``psi_vertices`` (N, n_psi) the basis vector at each vertex, ``polytope_kind``,
-``scheduling_box`` (n_p, 2), ``term_box`` (m, 2, empty unless term-box), ``basis`` (struct: kind,
-n_p, degree, cross, exponents (n_psi, n_p), knots, term_names, p_min, p_max), ``Ts``, the cell
-arrays ``input_names``, ``scheduling_names``, ``output_names``, and ``format``/``version``.
-
-Signal names come from the controller's ``info`` (``input_names``, ``scheduling_names``,
-``output_names``) or ``names=``, else ``e1…``, ``p1…``, ``u1…``.
+``interpolation`` (the rule λ(p) as text), ``vertex_inverse`` (N, N: λ = vertex_inverse ψ before
+clipping, parabola-triangle only, else empty), ``scheduling_box`` (n_p, 2), ``term_box`` (m, 2, empty
+unless term-box), ``basis`` (struct: kind, n_p, degree, cross, exponents (n_psi, n_p), knots,
+term_names, p_min, p_max), ``Ts``; per role (``measured``, ``reference``, ``scheduling``,
+``actuated``) the cell arrays ``<role>_names``, ``<role>_units``, ``<role>_descriptions``, and
+``scheduling_expressions``, ``y_operating_point``, ``u_operating_point`` (the trim added to u), and
+``format``/``version``.
 """
 
 from __future__ import annotations
@@ -34,7 +43,7 @@ import tempfile
 import uuid
 import zipfile
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from string import Template
 from xml.sax.saxutils import escape, quoteattr
@@ -45,8 +54,9 @@ import scipy.io
 from fmpy.validation import validate_fmu
 
 from lpvflow.errors import DataError, LpvflowError, ModelError
-from lpvflow.models import load
+from lpvflow.models import LPVSS, load
 from lpvflow.synth.controller import LPVController
+from lpvflow.synth.polytope import Polytope
 
 FORMATS = ("fmu", "json", "mat")
 TEMPLATE_DIR = Path(__file__).resolve().parent / "controller_fmu"
@@ -62,38 +72,150 @@ _POLYTOPE_CODES = {
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
 
+#: Controller port roles in ``info["signals"]``: measured outputs (read with their references),
+#: scheduling signals, actuated plant inputs.
+ROLES = ("measured", "scheduling", "actuated")
+_DEFAULT_PREFIX = {"measured": "y", "scheduling": "p", "actuated": "u"}
+
+
+@dataclass(frozen=True)
+class Port:
+    """One named controller signal. ``operating_point``: for a measured output its value at the design's
+    operating point (start value of the ``y`` and ``y_ref`` ports), for an actuated input the trim the
+    controller adds to its output, for a scheduling signal its start value. ``expression``: how a
+    scheduling signal is computed from plant signals (its own name when it is one)."""
+
+    name: str
+    unit: str = ""
+    description: str = ""
+    operating_point: float = 0.0
+    expression: str = ""
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "unit": self.unit, "description": self.description,
+                "operating_point": self.operating_point, "expression": self.expression}
+
+
 @dataclass(frozen=True)
 class ControllerSignals:
-    """Names of the controller inputs e, scheduling signals p and outputs u."""
+    """The ports of a controller: measured outputs, scheduling signals, actuated inputs (module docstring)."""
 
-    inputs: tuple[str, ...]
-    scheduling: tuple[str, ...]
-    outputs: tuple[str, ...]
+    measured: tuple[Port, ...]
+    scheduling: tuple[Port, ...]
+    actuated: tuple[Port, ...]
+
+    def to_dict(self) -> dict:
+        """The ``info["signals"]`` layout: role → list of port dictionaries."""
+        return {role: [port.to_dict() for port in getattr(self, role)] for role in ROLES}
 
 
 def controller_signals(
     controller: LPVController, names: Mapping[str, Sequence[str]] | None = None
 ) -> ControllerSignals:
-    """Names from ``names`` or ``controller.info`` (keys input_names, scheduling_names, output_names)."""
-    given = {**controller.info, **(names or {})}
-    sizes = {
-        "input_names": ("e", controller.n_in),
-        "scheduling_names": ("p", controller.basis.n_p),
-        "output_names": ("u", controller.n_out),
-    }
-    chosen = {}
-    for key, (prefix, n) in sizes.items():
-        values = tuple(given.get(key) or (f"{prefix}{i + 1}" for i in range(n)))
-        if len(values) != n:
-            raise DataError(f"{key} lists {len(values)} names for {n} signals: {list(values)}")
-        bad = [v for v in values if not isinstance(v, str) or not _NAME.match(v)]
+    """The ports recorded in ``controller.info["signals"]`` (default names ``y1``, ``p1``, ``u1``…), with
+    the names of ``names`` (role → names) replacing the recorded ones; one DataError line for a wrong
+    count, a name that is not an identifier or a name used twice."""
+    recorded = controller.info.get("signals") or {}
+    sizes = {"measured": controller.n_in, "scheduling": controller.basis.n_p, "actuated": controller.n_out}
+    unknown = sorted(set(names or {}) - set(ROLES))
+    if unknown:
+        raise DataError(f"unknown signal role(s) {unknown}; use {', '.join(ROLES)}")
+    ports = {}
+    for role, n in sizes.items():
+        entries = recorded.get(role) or [{"name": f"{_DEFAULT_PREFIX[role]}{i + 1}"} for i in range(n)]
+        if names and role in names:
+            given = list(names[role])
+            if len(given) != len(entries):
+                raise DataError(f"{role} names list {len(given)} names for {n} signals: {given}")
+            entries = [{**entry, "name": name} for entry, name in zip(entries, given, strict=True)]
+        if len(entries) != n:
+            raise DataError(f"the controller has {n} {role} signals but its record names {len(entries)}")
+        try:
+            ports[role] = tuple(Port(**entry) for entry in entries)
+        except TypeError as exc:
+            raise ModelError(f"controller info['signals'][{role!r}] has a malformed entry ({exc})") from None
+        bad = [port.name for port in ports[role]
+               if not isinstance(port.name, str) or not _NAME.match(port.name)]
         if bad:
-            raise DataError(f"{key}: {bad[0]!r} is not a valid signal name (letters, digits, _)")
-        chosen[key] = values
-    every = [*chosen["input_names"], *chosen["scheduling_names"], *chosen["output_names"]]
+            raise DataError(f"{role}: {bad[0]!r} is not a valid signal name (letters, digits, _)")
+    every = [*(f"{port.name}_ref" for port in ports["measured"]),
+             *(port.name for role in ROLES for port in ports[role])]
     if len(set(every)) != len(every):
-        raise DataError(f"controller signal names must be distinct, got {every}")
-    return ControllerSignals(chosen["input_names"], chosen["scheduling_names"], chosen["output_names"])
+        raise DataError(f"controller port names must be distinct, got {every}")
+    return ControllerSignals(ports["measured"], ports["scheduling"], ports["actuated"])
+
+
+def describe_signals(
+    model: LPVSS,
+    expressions: Mapping[str, str] | None = None,
+    plant_fmu: str | Path | None = None,
+    operating_point: Mapping[str, float] | None = None,
+) -> dict:
+    """``info["signals"]`` of a controller synthesized for ``model`` (inputs e = r − y over the model's
+    outputs, outputs the model's inputs, scheduling its p): names from the model, scheduling
+    expressions from ``expressions`` (name → expression; the name itself otherwise), units and
+    descriptions from the plant FMU's variables of the same name (a name that is not an identifier,
+    e.g. a data column ``level (m)``, becomes ``level__m_``), operating points (signal name → value)
+    from ``operating_point``, else the FMU's start values for the actuated inputs (as
+    :mod:`lpvflow.pipeline.verify` does) and zero for the outputs."""
+    variables = {}
+    if plant_fmu is not None:
+        variables = {v.name: v for v in fmpy.read_model_description(str(plant_fmu)).modelVariables}
+    expressions = dict(expressions or {})
+
+    def port(name: str, operating_point: float, expression: str = "") -> Port:
+        variable = variables.get(expression or name)
+        declared = getattr(variable, "declaredType", None)
+        unit = (getattr(variable, "unit", None) or getattr(declared, "unit", None) or "") if variable else ""
+        description = (variable.description or "") if variable is not None else ""
+        port_name = re.sub(r"\W", "_", name)
+        if not _NAME.match(port_name):
+            port_name = f"s_{port_name}"
+        if port_name != name:  # a data column such as "level (m)": the port keeps the column in its text
+            description = f"column {name!r}" + (f"; {description}" if description else "")
+        return Port(port_name, unit, description, float(operating_point), expression)
+
+    given = dict(operating_point or {})
+    start = {n: float(v.start) for n, v in variables.items()
+             if v.causality == "input" and v.start is not None}
+    centre = scheduling_centre(model)
+    signals = ControllerSignals(
+        tuple(port(n, given.get(n, 0.0)) for n in model.y_names),
+        tuple(port(n, c, expressions.get(n, n)) for n, c in zip(model.p_names, centre, strict=True)),
+        tuple(port(n, given.get(n, start.get(n, 0.0))) for n in model.u_names),
+    )
+    return signals.to_dict()
+
+
+def scheduling_centre(model: LPVSS) -> list[float]:
+    """Middle of the model's recorded scheduling range (zero where it records none)."""
+    basis = model.basis
+    if basis.p_min is None:
+        return [0.0] * basis.n_p
+    return [0.5 * (lo + hi) for lo, hi in zip(basis.p_min, basis.p_max, strict=True)]
+
+
+def interpolation_rule(controller: LPVController, signals: ControllerSignals) -> str:
+    """How the FMU and MAT user get the vertex weights λ(p) of this controller's polytope, in words."""
+    poly, basis = controller.polytope, controller.basis
+    p_names = [port.name for port in signals.scheduling]
+    psi = f"ψ(p) = [{', '.join(basis.term_names)}] with (p0, p1, …) = ({', '.join(p_names)})"
+    if poly.kind == "box":
+        return (f"{psi}; box polytope over {box_words(poly.box, p_names)}: "
+                "t_k = clip((p_k − lo_k)/(hi_k − lo_k), 0, 1), λ_v = Π_k (t_k at the upper, 1 − t_k at the "
+                "lower bound of corner v), corners ordered with the first signal varying slowest")
+    if poly.kind == "parabola-triangle":
+        return (f"{psi}; triangle around the parabola over {box_words(poly.box, p_names)} (vertices "
+                "ψ at a, (a+b)/2 with ab, b): λ = vertex_inverse · ψ(p) (barycentric), negative entries "
+                "set to 0 and λ divided by its sum")
+    return (f"{psi}; term box (bounds of each non-constant term of ψ over the scheduling box "
+            f"{box_words(poly.box, p_names)}): t_j = clip((ψ_j − lo_j)/(hi_j − lo_j), 0, 1), "
+            "λ multilinear in t as for a box, first term varying slowest")
+
+
+def box_words(box: np.ndarray, names: Sequence[str]) -> str:
+    """``name ∈ [lo, hi]`` per scheduling signal."""
+    return ", ".join(f"{name} ∈ [{lo:g}, {hi:g}]" for name, (lo, hi) in zip(names, box, strict=True))
 
 
 def load_lpv_controller(path: str | Path) -> LPVController:
@@ -191,10 +313,19 @@ def export_mat(
         "term_box": poly.term_box if poly.term_box is not None else np.zeros((0, 2)),
         "basis": basis_struct,
         "Ts": float(controller.Ts),
-        "input_names": _cell(signals.inputs),
-        "scheduling_names": _cell(signals.scheduling),
-        "output_names": _cell(signals.outputs),
+        "interpolation": interpolation_rule(controller, signals),
+        "vertex_inverse": _vertex_inverse(poly) if poly.kind == "parabola-triangle" else np.zeros((0, 0)),
+        "scheduling_expressions": _cell([port.expression or port.name for port in signals.scheduling]),
+        "y_operating_point": np.array([port.operating_point for port in signals.measured]),
+        "u_operating_point": np.array([port.operating_point for port in signals.actuated]),
     }
+    roles = {"measured": signals.measured, "reference": signals.measured, "scheduling": signals.scheduling,
+             "actuated": signals.actuated}
+    for role, ports in roles.items():
+        suffix = "_ref" if role == "reference" else ""
+        content[f"{role}_names"] = _cell([port.name + suffix for port in ports])
+        content[f"{role}_units"] = _cell([port.unit for port in ports])
+        content[f"{role}_descriptions"] = _cell([_port_description(role, port) for port in ports])
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as stream:
@@ -243,10 +374,15 @@ def _basis_code(controller: LPVController) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _vertex_inverse(poly: Polytope) -> np.ndarray:
+    """V⁻¹ with V the vertex basis vectors as columns: λ = V⁻¹ ψ (parabola-triangle)."""
+    return np.linalg.inv(poly.psi_vertices.T)
+
+
 def _polytope_code(controller: LPVController) -> str:
     poly = controller.polytope
     if poly.kind == "parabola-triangle":
-        inverse = np.linalg.inv(poly.psi_vertices.T)
+        inverse = _vertex_inverse(poly)
         rows = ",\n    ".join("{" + ", ".join(_c_number(v) for v in row) + "}" for row in inverse)
         return f"static const double VERTEX_INVERSE[{len(inverse)}][{len(inverse)}] = {{\n    {rows}\n}};\n"
     bounds = poly.box if poly.kind == "box" else poly.term_box
@@ -272,8 +408,8 @@ def controller_data_header(
 ) -> str:
     """The generated ``controller_data.h`` (sizes, vertex matrices, basis, polytope, names)."""
     n, n_in, n_out = controller.order, controller.n_in, controller.n_out
-    names = [*signals.inputs, *signals.scheduling, *signals.outputs]
-    p_start = controller.polytope.box.mean(axis=1)
+    names = [port.name for port, _ in _fmu_variables(controller, signals)]
+    y_op = [port.operating_point for port in signals.measured]
     text = [
         f"/* Generated by lpvflow export for {identifier}; do not edit. */",
         "#include <math.h>",
@@ -298,52 +434,73 @@ def controller_data_header(
     return (
         "\n".join(text)
         + "\n"
-        + _c_array("P_START", p_start)
+        + _c_array("P_START", [port.operating_point for port in _scheduling_ports(controller, signals)])
+        + _c_array("Y_OP", y_op)
+        + _c_array("U_OP", [port.operating_point for port in signals.actuated])
         + "".join(_c_array(name.upper(), getattr(controller, name)) for name in ("Ak", "Bk", "Ck", "Dk"))
         + _polytope_code(controller)
         + _basis_code(controller)
     )
 
 
+def _scheduling_ports(controller: LPVController, signals: ControllerSignals) -> list[Port]:
+    """The scheduling ports with the middle of the design box as start value where none is recorded."""
+    recorded = controller.info.get("signals") or {}
+    if recorded.get("scheduling"):
+        return list(signals.scheduling)
+    return [replace(port, operating_point=float(c))
+            for port, c in zip(signals.scheduling, controller.polytope.box.mean(axis=1), strict=True)]
+
+
+def _port_description(role: str, port: Port) -> str:
+    """The FMU/MAT description of a port: role, the plant's description, the scheduling expression."""
+    words = {"reference": f"reference for {port.name}", "measured": f"measured {port.name}",
+             "scheduling": f"scheduling {port.name} = {port.expression or port.name}",
+             "actuated": f"actuated {port.name} (includes the trim {port.operating_point:g})"}[role]
+    return f"{words}: {port.description}" if port.description else words
+
+
+def _fmu_variables(controller: LPVController, signals: ControllerSignals) -> list[tuple[Port, str]]:
+    """(port, role) in value-reference order: references, measured outputs, scheduling, actuated."""
+    return ([(replace(port, name=f"{port.name}_ref"), "reference") for port in signals.measured]
+            + [(port, "measured") for port in signals.measured]
+            + [(port, "scheduling") for port in _scheduling_ports(controller, signals)]
+            + [(port, "actuated") for port in signals.actuated])
+
+
 def _model_description(
     controller: LPVController, identifier: str, guid: str, signals: ControllerSignals
 ) -> str:
-    variables, outputs = [], []
-    rows = (
-        [(name, "input", f"controller input {i + 1} (r - y)", "0.0") for i, name in enumerate(signals.inputs)]
-        + [
-            (name, "input", f"scheduling signal {i + 1}", _c_number(start))
-            for i, (name, start) in enumerate(
-                zip(signals.scheduling, controller.polytope.box.mean(axis=1), strict=True)
-            )
-        ]
-        + [
-            (name, "output", f"controller output {i + 1} (plant input)", None)
-            for i, name in enumerate(signals.outputs)
-        ]
-    )
-    for vr, (name, causality, description, start) in enumerate(rows):
-        if causality == "input":
-            real = f'<Real start="{start}"/>'
-            extra = ""
-        else:
-            real, extra = "<Real/>", ' initial="calculated"'
+    variables, outputs, units = [], [], set()
+    for vr, (port, role) in enumerate(_fmu_variables(controller, signals)):
+        unit = f" unit={quoteattr(port.unit)}" if port.unit else ""
+        units.add(port.unit)
+        description = _port_description(role, replace(port, name=port.name.removesuffix("_ref"))
+                                         if role == "reference" else port)
+        if role == "actuated":
+            causality, real, extra = "output", f"<Real{unit}/>", ' initial="calculated"'
             outputs.append(f'      <Unknown index="{vr + 1}"/>')
+        else:
+            causality, real, extra = "input", f'<Real{unit} start="{_c_number(port.operating_point)}"/>', ""
         variables.append(
-            f'    <ScalarVariable name={quoteattr(name)} valueReference="{vr}" causality="{causality}" '
+            f'    <ScalarVariable name={quoteattr(port.name)} valueReference="{vr}" causality="{causality}" '
             f'variability="continuous"{extra} description={quoteattr(description)}>\n'
             f"      {real}\n    </ScalarVariable>"
         )
     template = Template((TEMPLATE_DIR / "modelDescription.xml.in").read_text())
     description = (
         f"lpvflow gain-scheduled controller: {controller.order} states, {controller.polytope.n_vertices} "
-        f"vertices ({controller.polytope.kind}), Ts = {controller.Ts:g} s"
+        f"vertices ({controller.polytope.kind}), Ts = {controller.Ts:g} s; e = y_ref − y; "
+        f"λ(p): {interpolation_rule(controller, signals)}"
     )
+    unit_definitions = "".join(f'    <Unit name={quoteattr(u)}/>\n' for u in sorted(units) if u)
     return template.substitute(
         model_identifier=identifier,
         guid=guid,
-        description=escape(description),
+        description=escape(description, {'"': "&quot;"}),
         Ts=_c_number(controller.Ts),
+        unit_definitions=f"  <UnitDefinitions>\n{unit_definitions}  </UnitDefinitions>\n" if unit_definitions
+        else "",
         variables="\n".join(variables),
         outputs="\n".join(outputs),
     )
@@ -389,7 +546,7 @@ def export_fmu(
     path = Path(path)
     signals = controller_signals(controller, names)
     identifier = _identifier(path)
-    digest = hashlib.sha256(json.dumps([controller.to_dict(), signals.__dict__], default=list).encode())
+    digest = hashlib.sha256(json.dumps([controller.to_dict(), signals.to_dict()]).encode())
     guid = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "lpvflow:" + digest.hexdigest())) + "}"
     with tempfile.TemporaryDirectory(prefix="lpvflow_fmu_") as tmp:
         stage = Path(tmp) / "fmu"

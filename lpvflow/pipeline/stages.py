@@ -136,14 +136,14 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     from lpvflow.validate.extensions import Structure
 
     cfg, ident = ctx.config["diagnose"], ctx.config["identify"]
-    data = Dataset.read(ctx.path("data.csv"), ident["u"], ident["y"], ident["p"])
+    table = read_columns(ctx.path("data.csv"))  # read once: the dataset and the candidate columns
+    data = Dataset.from_columns(table, "data.csv", ident["u"], ident["y"], ident["p"], time="auto")
     experiment = ctx.config["experiment"]
     if ident["remove_offsets"]:
         if experiment["controller"]:
             raise DataError("[diagnose] with [identify] remove_offsets needs open-loop data (the experiment "
                             "controller acts on the measured signals, not on deviations)")
         data = without_offsets(data, data.split(ident["split"])[0])  # the identify stage's operating point
-    table = read_columns(ctx.path("data.csv"))
     missing = [c for c in cfg["candidates"] if c not in table]
     if missing:
         raise DataError(f"[diagnose] candidate column(s) {missing} are not in the experiment data")
@@ -339,8 +339,7 @@ def _fmu_reference(ctx: StageContext, model: LPVSS):
 # ----------------------------------------------------------------------------------------- synth
 def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     """Polytopic H∞ controller and the LTI baseline designed at one frozen point (``baseline_at``,
-    default the centre of the scheduling box), both by :func:`lpvflow.synth.hinf.synthesize`; a design
-    whose certificate fails stops here."""
+    default the centre of the scheduling box), both by :func:`lpvflow.synth.hinf.synthesize`."""
     from lpvflow.synth.certify import certify
     from lpvflow.synth.hinf import synthesize
     from lpvflow.synth.plant import generalized_plant
@@ -354,6 +353,7 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     model = load(ctx.path("model.json"))
     result = synthesize(generalized_plant(model, cfg["weights"], box), cfg["solver"])
     certificate = certify(result, model, cfg["weights"])
+    result.controller.info["signals"] = design_signals(ctx, model)
     result.controller.save(ctx.path("controller.json"))
     centre = scheduling_box(model, box).mean(axis=1).tolist()
     at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre
@@ -365,6 +365,23 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
              "solve_seconds": result.report.seconds, "order": result.controller.order,
              "polytope": result.plant.polytope.kind},
             ["controller.json", "baseline.json"])
+
+
+def design_signals(ctx: StageContext, model: LPVSS) -> dict:
+    """The controller's port record (:func:`lpvflow.pipeline.export.describe_signals`): the model's
+    signal names, the experiment's scheduling expressions, units and descriptions from the plant FMU,
+    operating points from ``[verify.loop]`` (else the FMU's input start values, as verify uses)."""
+    from lpvflow.pipeline.export import describe_signals
+    from lpvflow.pipeline.scenarios import parse_loop
+
+    operating_point = {}
+    if ctx.config["verify"]:
+        loop = parse_loop(ctx.config["verify"]["loop"])
+        pairs = ((loop.measured, loop.y_operating_point), (loop.actuated, loop.u_operating_point))
+        for names, values in pairs:
+            operating_point |= dict(zip(names, values, strict=True)) if values is not None else {}
+    return describe_signals(model, ctx.config["experiment"]["scheduling"], ctx.config["design"]["plant"],
+                            operating_point)
 
 
 # ---------------------------------------------------------------------------------------- verify

@@ -57,12 +57,11 @@ from lpvflow.experiment.controller import FORMAT as LTI_FORMAT
 from lpvflow.experiment.controller import LtiController, load_controller
 from lpvflow.experiment.plant import Plant, open_plant
 from lpvflow.experiment.run import step_count
+from lpvflow.models import report_header
 from lpvflow.pipeline.export import load_lpv_controller
 from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal
 from lpvflow.synth.controller import LPVController
 
-FORMAT = "lpvflow/verification"
-VERSION = 1
 #: Fraction of the run forming the final window of the steady-state checks.
 FINAL_WINDOW = 0.1
 #: Default settling band, relative to the size of the last reference change.
@@ -102,8 +101,11 @@ class _FixedLaw:
 class FmuController:
     """A controller FMU written by :func:`lpvflow.pipeline.export.export_fmu`, stepped through fmpy.
 
-    Inputs whose description starts with ``scheduling`` are p, the other inputs e (in
-    modelDescription order); per sample: set e(k), p(k), read u(k), then ``fmi2DoStep(t_k, Ts)``.
+    Inputs are told apart by their description: ``scheduling …`` are p, ``measured …`` the outputs y and
+    the others (``reference …``) the references r, in modelDescription order. The loop hands over
+    e = r − y: per sample the references get e(k) and the measured inputs 0 (the FMU forms r − y), p(k)
+    is set, u(k) read, then ``fmi2DoStep(t_k, Ts)``. The FMU's outputs include its trim, so
+    ``u_offset`` is zero and the loop adds no operating point of its own.
     """
 
     def __init__(self, path: str | Path) -> None:
@@ -122,10 +124,13 @@ class FmuController:
             raise ModelError(f"{path} is not a controller FMU written by `lpvflow export --format fmu`")
         variables = description.modelVariables
         inputs = [v for v in variables if v.causality == "input"]
-        self._p_vr = [v.valueReference for v in inputs if (v.description or "").startswith("scheduling")]
-        self._e_vr = [v.valueReference for v in inputs if v.valueReference not in self._p_vr]
+        role = {v.valueReference: (v.description or "").split(" ")[0] for v in inputs}
+        self._p_vr = [vr for vr, kind in role.items() if kind == "scheduling"]
+        self._y_vr = [vr for vr, kind in role.items() if kind == "measured"]
+        self._e_vr = [vr for vr, kind in role.items() if kind not in ("scheduling", "measured")]
         self._u_vr = [v.valueReference for v in variables if v.causality == "output"]
         self.n_in, self.n_out = len(self._e_vr), len(self._u_vr)
+        self.u_offset = np.zeros(self.n_out) if self._y_vr else None  # FMUs before named ports: no trim
         self.Ts = float(description.defaultExperiment.stepSize)
         self.n_p = len(self._p_vr)
         self._unzipdir = extract(str(path))
@@ -148,7 +153,8 @@ class FmuController:
         self._time = 0.0
 
     def step(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
-        self._slave.setReal(self._e_vr + self._p_vr, [*np.asarray(e, float), *np.asarray(p, float)])
+        self._slave.setReal(self._e_vr + self._y_vr + self._p_vr,
+                            [*np.asarray(e, float), *np.zeros(len(self._y_vr)), *np.asarray(p, float)])
         u = np.array(self._slave.getReal(self._u_vr))
         self._slave.doStep(self._time, self.Ts)
         self._time += self.Ts
@@ -588,8 +594,7 @@ class Verification:
 
     def to_dict(self) -> dict:
         return {
-            "format": FORMAT,
-            "version": VERSION,
+            **report_header("verification"),
             "plant": self.plant,
             "loop": self.loop.to_dict(),
             "stable": self.stable,

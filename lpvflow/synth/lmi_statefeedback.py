@@ -10,7 +10,7 @@ K(θ) = Σ λ_i(θ) K_i (λ the convex coordinates of the design polytope) the c
 only when B2 and D12 are the same at every vertex. When either varies, one constant gain K is
 designed instead (one common W, resp. Z, below); :attr:`StateFeedbackResult.scheduled` says which.
 
-**Bounded-real lemma** (dual form, the one of :mod:`lpvflow.synth.lmi_hinf`, with γ in both identity
+**Bounded-real lemma** (dual form, de Oliveira, Geromel & Bernussou 2002, with γ in both identity
 blocks so that γ itself is the linear SDP objective): ‖T_zw‖∞ < γ if there are P ≻ 0 and G with
 
     ⎡ P     𝒜G          ℬ     0    ⎤
@@ -30,7 +30,7 @@ diag(√γ I, √γ I, I/√γ, √γ I) turns γI, γI into I, γ²I and multip
 * Method ``"dilated"`` (de Oliveira, Bernussou & Geromel 1999, Syst. Control Lett. 37, "A new
   discrete-time robust stability condition"; de Oliveira, Geromel & Bernussou 2002): vertex Lyapunov
   matrices P_i, one slack G, Z_i = K_iG, so K_i = Z_iG⁻¹. For time-varying θ(k) the (1,1) block holds
-  P at the next sample and the (2,2) block at the current one (convention of :mod:`lmi_hinf`):
+  P at the next sample and the (2,2) block at the current one:
 
       (H_ij):  P → P_j in (1,1),  P → P_i in (2,2),  (A, B1, B2, C1, D11, D12, Z) → vertex i,
 
@@ -56,7 +56,7 @@ for Â with the same G and its own vertex matrices Q_i, multiplied by r:
 
 (affine in λ for a frozen θ; G = Q_i = X recovers (D_i)). Only frozen eigenvalues are constrained.
 
-Numerics (as :mod:`lmi_hinf`, see :func:`synthesize_state_feedback`): γ is the SDP objective (step 1),
+Numerics (see :func:`synthesize_state_feedback`): γ is the SDP objective (step 1),
 then the LMIs are solved at γ = (1 + suboptimality)·γ_opt for a centred, strictly feasible point
 (step 2); every LMI ⪰ margin·I; every Lyapunov matrix and sym G ⪯ β·I (β = 1e6) in scaled
 coordinates, which are re-centred on the previous point over a few passes; bisection on step 2 when
@@ -201,7 +201,7 @@ class StateFeedbackResult:
 
 
 def _scalings(verts: list[SFVertex]) -> tuple[np.ndarray, np.ndarray]:
-    """Diagonal state and control scalings (s, d_u), as :func:`lpvflow.synth.lmi_hinf._scalings`.
+    """Diagonal state and control scalings (s, d_u), by Parlett–Reinsch balancing of the mean |A_i|.
 
     s balances the mean |A_i| (Parlett–Reinsch), clipped to [1e-6, 1e6]; d_u makes every column of
     [S⁻¹B2_i; D12_i] have unit largest entry over all vertices (B2 may vary here). w and z are not

@@ -201,7 +201,7 @@ class StateFeedbackResult:
 
 
 def _scalings(verts: list[SFVertex]) -> tuple[np.ndarray, np.ndarray]:
-    """Diagonal state and control scalings (s, d_u), by Parlett–Reinsch balancing of the mean |A_i|.
+    """Diagonal state and control scalings (s, d_u).
 
     s balances the mean |A_i| (Parlett–Reinsch), clipped to [1e-6, 1e6]; d_u makes every column of
     [S⁻¹B2_i; D12_i] have unit largest entry over all vertices (B2 may vary here). w and z are not

@@ -26,8 +26,8 @@ straight chain:
    y (unit columns of B2, rows of C2; w and z are not scaled per channel: that would change ‖T_zw‖∞),
    then the state transform x = T x̄ that balances R, S of an interior point: a first γ-minimisation
    (step 2) gives γ₀; the matrices of step 2 at 1.15γ₀ (:data:`INTERIOR_FACTOR`) with the largest
-   margin relative to their diagonals at the γ₀ minimiser (slow and fast directions get margins in proportion to their size) give a
-   strictly feasible, centred R, S (the γ-optimal pair
+   margin relative to their diagonals at the γ₀ minimiser (slow and fast directions get margins in
+   proportion to their size) give a strictly feasible, centred R, S (the γ-optimal pair
    itself is singular, RS − I loses rank, and balancing on it is unstable); R = LLᵀ, LᵀSL = VΣ²Vᵀ,
    T = LVΣ^(−1/2), so T⁻¹RT⁻ᵀ = TᵀST = Σ (Moore's balancing applied to R, S). Step 2 is then solved
    again in the balanced coordinates. Controllers map y to u, so none of this changes the closed

@@ -28,7 +28,8 @@ unless term-box), ``basis`` (struct: kind, n_p, degree, cross, exponents (n_psi,
 term_names, p_min, p_max), ``Ts``; per role (``measured``, ``reference``, ``scheduling``,
 ``actuated``) the cell arrays ``<role>_names``, ``<role>_units``, ``<role>_descriptions``, and
 ``scheduling_expressions``, ``y_operating_point``, ``u_operating_point`` (the trim added to u), and
-``format``/``version``.
+``format``/``version``; with anti-windup (:mod:`lpvflow.synth.controller`) also ``antiwindup_L``
+(n, nu, N), ``u_min``, ``u_max``. The FMU applies the same anti-windup law.
 """
 
 from __future__ import annotations
@@ -319,6 +320,9 @@ def export_mat(
         "y_operating_point": np.array([port.operating_point for port in signals.measured]),
         "u_operating_point": np.array([port.operating_point for port in signals.actuated]),
     }
+    if controller.antiwindup is not None:  # x⁺ += Σλ_i L_i (clip(u_op + u, u_min, u_max) − u_op − u)
+        aw = controller.antiwindup
+        content |= {"antiwindup_L": np.moveaxis(aw.L, 0, -1), "u_min": aw.u_min, "u_max": aw.u_max}
     roles = {"measured": signals.measured, "reference": signals.measured, "scheduling": signals.scheduling,
              "actuated": signals.actuated}
     for role, ports in roles.items():
@@ -336,7 +340,10 @@ def export_mat(
 
 # ------------------------------------------------------------------------------------------ FMU
 def _c_number(value: float) -> str:
-    return repr(float(value))
+    value = float(value)
+    if np.isinf(value):  # an actuator without a limit on one side
+        return "HUGE_VAL" if value > 0 else "-HUGE_VAL"
+    return repr(value)
 
 
 def _c_array(name: str, values: np.ndarray) -> str:
@@ -438,9 +445,24 @@ def controller_data_header(
         + _c_array("Y_OP", y_op)
         + _c_array("U_OP", [port.operating_point for port in signals.actuated])
         + "".join(_c_array(name.upper(), getattr(controller, name)) for name in ("Ak", "Bk", "Ck", "Dk"))
+        + _antiwindup_code(controller, signals)
         + _polytope_code(controller)
         + _basis_code(controller)
     )
+
+
+def _antiwindup_code(controller: LPVController, signals: ControllerSignals) -> str:
+    """HAS_ANTIWINDUP, the gains AW_L and the range U_MIN, U_MAX of the controller's anti-windup law
+    (:mod:`lpvflow.synth.controller`); its trim must be the FMU's U_OP."""
+    aw = controller.antiwindup
+    if aw is None:
+        return "#define HAS_ANTIWINDUP 0\n"
+    u_op = np.array([port.operating_point for port in signals.actuated])
+    if not np.allclose(aw.u_offset, u_op, rtol=1e-12, atol=1e-12):
+        raise ModelError(f"the anti-windup trim {aw.u_offset.tolist()} differs from the actuated operating "
+                         f"points {u_op.tolist()} of the controller's signal record")
+    return ("#define HAS_ANTIWINDUP 1\n" + _c_array("AW_L", aw.L) + _c_array("U_MIN", aw.u_min)
+            + _c_array("U_MAX", aw.u_max))
 
 
 def _scheduling_ports(controller: LPVController, signals: ControllerSignals) -> list[Port]:

@@ -353,18 +353,39 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     model = load(ctx.path("model.json"))
     result = synthesize(generalized_plant(model, cfg["weights"], box), cfg["solver"])
     certificate = certify(result, model, cfg["weights"])
-    result.controller.info["signals"] = design_signals(ctx, model)
+    signals = design_signals(ctx, model)
+    result.controller.info["signals"] = signals
+    result.controller.antiwindup = antiwindup(ctx, result.controller, signals)
     result.controller.save(ctx.path("controller.json"))
     centre = scheduling_box(model, box).mean(axis=1).tolist()
     at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre
     nominal = [[v, v] for v in at]
     baseline = synthesize(generalized_plant(model, cfg["weights"], nominal), cfg["solver"])
+    baseline.controller.antiwindup = antiwindup(ctx, baseline.controller, signals)
     baseline.controller.save(ctx.path("baseline.json"))
     return ({"gamma": result.gamma, "gamma_lower": result.gamma_lower, "baseline_gamma": baseline.gamma,
              "baseline_at": at, "certificate": certificate.lines(), "certificate_ok": bool(certificate.ok),
              "solve_seconds": result.report.seconds, "order": result.controller.order,
              "polytope": result.plant.polytope.kind},
             ["controller.json", "baseline.json"])
+
+
+def antiwindup(ctx: StageContext, controller, signals: dict):
+    """The anti-windup law of a synthesized controller (:class:`lpvflow.synth.controller.AntiWindup`) for
+    the actuator limits of ``[verify.loop]`` around the actuated inputs' operating points; None when the
+    design has no verification loop or limits none of the controller's outputs."""
+    from lpvflow.pipeline.scenarios import parse_loop
+    from lpvflow.synth.controller import AntiWindup, observer_gains
+
+    if not ctx.config["verify"]:
+        return None
+    limits = parse_loop(ctx.config["verify"]["loop"]).actuator_limits
+    names = [port["name"] for port in signals["actuated"]]
+    if not any(name in limits for name in names):
+        return None
+    lo, hi = (np.array([limits.get(name, (-np.inf, np.inf))[i] for name in names]) for i in (0, 1))
+    u_op = np.array([port["operating_point"] for port in signals["actuated"]])
+    return AntiWindup(observer_gains(controller.Ak, controller.Ck), lo, hi, u_op)
 
 
 def design_signals(ctx: StageContext, model: LPVSS) -> dict:

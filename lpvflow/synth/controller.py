@@ -5,6 +5,18 @@
 λ(p) the convex coordinates of ψ(p) in the design polytope (:mod:`lpvflow.synth.polytope`), e the
 controller input (the tracking error r − y of the 1-DOF loop), u the plant input. Saved as JSON with
 ``{"format": "lpvflow/lpv-controller", "version": 1}`` and read back by ``lpvflow.models.load``.
+
+**Anti-windup** (:class:`AntiWindup`, optional; observer form, Åström & Rundqwist 1989, "Integrator
+windup and how to avoid it", ACC; Åström & Wittenmark, *Computer-Controlled Systems*, §9.4): with
+the actuator range [u_min, u_max] around the trim u_op the plant receives
+u_a = clip(u_op + u, u_min, u_max) − u_op, and the state is updated with it,
+
+    x_k(k+1) = A(λ) x_k + B(λ) e + L(λ) (u_a − u),     L(λ) = Σ_i λ_i L_i,
+
+so nothing of u the actuator did not apply is integrated: while saturated the controller runs as
+x⁺ = (A − LC)x + (B − LD)e + L u_a, stable by the choice of L_i (:func:`observer_gains`). Unsaturated,
+u_a = u and the law is the one above. The Python controller, ``lpvflow verify`` (which runs it) and
+the exported FMU apply the same law.
 """
 
 from __future__ import annotations
@@ -22,6 +34,48 @@ from lpvflow.synth.polytope import Polytope
 
 
 @dataclass
+class AntiWindup:
+    """Actuator range and observer gains of the anti-windup law (module docstring).
+
+    Attributes:
+        L: (N, n, nu) vertex gains L_i; u_min, u_max: (nu,) actuator range in plant units; u_offset:
+            (nu,) the trim u_op the loop adds to the controller output.
+    """
+
+    L: np.ndarray
+    u_min: np.ndarray
+    u_max: np.ndarray
+    u_offset: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.L, self.u_min, self.u_max, self.u_offset = (
+            np.asarray(M, dtype=float) for M in (self.L, self.u_min, self.u_max, self.u_offset))
+        if not np.all(self.u_min < self.u_max):
+            raise ModelError(f"anti-windup range needs u_min < u_max, got {self.u_min} and {self.u_max}")
+
+    def applied(self, u: np.ndarray) -> np.ndarray:
+        """u_a = clip(u_op + u, u_min, u_max) − u_op."""
+        return np.clip(self.u_offset + u, self.u_min, self.u_max) - self.u_offset
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k).tolist() for k in ("L", "u_min", "u_max", "u_offset")}
+
+
+def observer_gains(Ak: np.ndarray, Ck: np.ndarray) -> np.ndarray:
+    """L_i with A_i − L_iC_i stable: the steady-state Kalman (predictor) gains of (A_i, C_i) with unit
+    process and measurement covariances in the controller's own state coordinates
+    (``scipy.linalg.solve_discrete_are`` on the dual system), L_i = A_iPC_iᵀ(C_iPC_iᵀ + I)⁻¹."""
+    import scipy.linalg
+
+    gains = []
+    for A, C in zip(Ak, Ck, strict=True):
+        n, nu = A.shape[0], C.shape[0]
+        P = scipy.linalg.solve_discrete_are(A.T, C.T, np.eye(n), np.eye(nu))
+        gains.append(A @ P @ C.T @ np.linalg.inv(C @ P @ C.T + np.eye(nu)))
+    return np.array(gains)
+
+
+@dataclass
 class LPVController:
     """Vertex matrices Ak (N, n, n), Bk (N, n, ny), Ck (N, nu, n), Dk (N, nu, ny) on a polytope."""
 
@@ -33,6 +87,7 @@ class LPVController:
     basis: Basis
     Ts: float
     info: dict = field(default_factory=dict)
+    antiwindup: AntiWindup | None = None
 
     def __post_init__(self) -> None:
         mats = (self.Ak, self.Bk, self.Ck, self.Dk)
@@ -46,6 +101,8 @@ class LPVController:
         if N != self.polytope.n_vertices:
             raise ModelError(f"controller has {N} vertex systems but its polytope has "
                              f"{self.polytope.n_vertices}")
+        if self.antiwindup is not None and self.antiwindup.L.shape != (N, n, nu):
+            raise ModelError(f"anti-windup gains have shape {self.antiwindup.L.shape}; expected {(N, n, nu)}")
         self.reset()
 
     @property
@@ -83,13 +140,17 @@ class LPVController:
         return C @ self.x + D @ np.asarray(e, dtype=float).reshape(self.n_in)
 
     def step(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """One sample online: returns u(k) and advances the state to k + 1."""
+        """One sample online: returns the command u(k) (before the actuator) and advances the state to
+        k + 1, with the anti-windup correction when the controller has one (module docstring)."""
         e = np.asarray(e, dtype=float).reshape(self.n_in)
         if not np.all(np.isfinite(e)) or not np.all(np.isfinite(p)):
             raise DataError("controller input or scheduling value is NaN or inf")
-        A, B, C, D = self.matrices(p)
+        lam = self.coordinates(p)
+        A, B, C, D = (np.tensordot(lam, M, axes=1) for M in (self.Ak, self.Bk, self.Ck, self.Dk))
         u = C @ self.x + D @ e
         self.x = A @ self.x + B @ e
+        if self.antiwindup is not None:
+            self.x = self.x + np.tensordot(lam, self.antiwindup.L, axes=1) @ (self.antiwindup.applied(u) - u)
         return u
 
     def simulate(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -110,6 +171,8 @@ class LPVController:
             "Ak": self.Ak.tolist(), "Bk": self.Bk.tolist(), "Ck": self.Ck.tolist(), "Dk": self.Dk.tolist(),
             "info": self.info,
         }
+        if self.antiwindup is not None:
+            d["antiwindup"] = self.antiwindup.to_dict()
         return d
 
     @classmethod
@@ -131,8 +194,11 @@ class LPVController:
                     raise ModelError(f"controller {name} has {value.size} entries; {N} vertices with "
                                      f"{n} states, {ny} inputs and {nu} outputs need shape {shape}")
                 mats[name] = value.reshape(shape)
+            aw = d.get("antiwindup")
+            antiwindup = None if aw is None else AntiWindup(
+                np.asarray(aw["L"], float).reshape(N, n, nu), aw["u_min"], aw["u_max"], aw["u_offset"])
             return cls(mats["Ak"], mats["Bk"], mats["Ck"], Dk, poly, Basis.from_dict(d["basis"]),
-                       float(d["Ts"]), info=d.get("info", {}))
+                       float(d["Ts"]), info=d.get("info", {}), antiwindup=antiwindup)
         except KeyError as exc:
             raise ModelError(f"controller file lacks the field {exc.args[0]!r}") from None
         except ModelError:

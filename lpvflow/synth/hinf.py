@@ -24,14 +24,14 @@ straight chain:
 1. **Coordinates.** Frequency normalisation s = ω₀s' (A_c/ω₀, B_c/√ω₀, C_c/√ω₀: the continuous LMIs are
    invariant under it with the same 𝒳), diagonal balancing of the mean |A_c|, diagonal scalings of u and
    y (unit columns of B2, rows of C2; w and z are not scaled per channel: that would change ‖T_zw‖∞),
-   then the state transform x = T x̄ that balances R, S of an interior point: a first γ-minimisation
-   (step 2) gives γ₀; the matrices of step 2 at 1.15γ₀ (:data:`INTERIOR_FACTOR`) with the largest
-   margin relative to their diagonals at the γ₀ minimiser (slow and fast directions get margins in
-   proportion to their size) give a strictly feasible, centred R, S (the γ-optimal pair
-   itself is singular, RS − I loses rank, and balancing on it is unstable); R = LLᵀ, LᵀSL = VΣ²Vᵀ,
-   T = LVΣ^(−1/2), so T⁻¹RT⁻ᵀ = TᵀST = Σ (Moore's balancing applied to R, S). Step 2 is then solved
-   again in the balanced coordinates. Controllers map y to u, so none of this changes the closed
-   loop's transfer function.
+   then state transforms x = T x̄ that balance R, S of interior points: a γ-minimisation (step 2) gives
+   γ₀; the matrices of step 2 at f·γ₀ with the largest margin relative to their diagonals at the γ₀
+   minimiser (slow and fast directions get margins in proportion to their size) give a strictly
+   feasible, centred R, S, for f = 2 and then, in the new coordinates, f = 1.15
+   (:data:`INTERIOR_FACTORS`; the γ-optimal pair itself is singular, RS − I loses rank, and balancing
+   on it is unstable); R = LLᵀ, LᵀSL = VΣ²Vᵀ, T = LVΣ^(−1/2), so T⁻¹RT⁻ᵀ = TᵀST = Σ (Moore's balancing
+   applied to R, S). Step 2 is solved again after each balancing. Controllers map y to u, so none of
+   this changes the closed loop's transfer function.
 2. **γ lower bound** by the eliminated continuous conditions (Gahinet & Apkarian 1994, Thm. 4.3), per
    vertex with its own null-space bases N_R,i of [B2_iᵀ D12_iᵀ] and N_S,i of [C2_i D21_i] (the Cayley
    images have vertex-dependent B2, C2; the conditions are per vertex, so that is exact):
@@ -85,12 +85,15 @@ from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 
 #: Relative γ steps of the certified-level search (step 3): γ_lower·(1 + suboptimality·2^k), k < this.
-LEVEL_STEPS = 12
-#: The level, relative to the first γ-minimisation, of the interior point whose R, S balance the
-#: coordinates (step 1): near enough to the optimum for R, S to have its spread, far enough to be strictly
-#: inside. Measured (certified γ / SB10DD optimum on a two-mass example, the airpath FMU point, ADIP 75.5°):
-#: 2.0 → 1.20, 1.004, 1.006; 1.05 → 1.031, 1.004, 1.005; 1.15 → 1.003, 1.004, 1.006.
-INTERIOR_FACTOR = 1.15
+LEVEL_STEPS = 9
+#: Levels, relative to the γ-minimisation before each, of the interior points whose R, S balance the
+#: coordinates (step 1), in turn: a central point first (the unbalanced coordinates' solves are
+#: inaccurate near the optimum), then one near the optimum, where R, S have its spread. Measured (certified
+#: γ / reference: SB10DD for a two-mass augw example and ADIP 75.5°, the discrete-form common-Lyapunov
+#: optimum for the dead-time tanks design's 2 vertices): (2.0,) → 1.20, 1.000, 1.005; (1.15,) → 1.003,
+#: none up to 6γ_lower, 1.006; (2.0, 1.15) → 1.029, 0.998, 1.003. Clarabel at 1e-10 did not help: it
+#: then fails outright on some of these SDPs.
+INTERIOR_FACTORS = (2.0, 1.15)
 #: A certificate's Jacobi-scaled margin must exceed ROUNDOFF_FACTOR·m·ε_mach·‖|M̃|‖₂ (m the size of the
 #: matrix M̃): a generous multiple of the backward error of forming M̃ and computing its eigenvalues.
 ROUNDOFF_FACTOR = 1e3
@@ -344,9 +347,9 @@ def _gamma_lower(verts: list[VertexPlant], gamma_max: float | None, solver: str
     constraints = _strict(matrices, 0.0, None)
     if gamma_max is not None:
         constraints.append(g <= gamma_max)
-    report = solve(cp.Problem(cp.Minimize(g), constraints), solver,
-                   f"the eliminated H∞ LMIs at {len(verts)} vertices" + (
-                       f" with γ ≤ {gamma_max:g}" if gamma_max is not None else ""))
+    what = f"the eliminated H∞ LMIs at {len(verts)} vertices" + (
+        f" with γ ≤ {gamma_max:g}" if gamma_max is not None else "")
+    report = solve(cp.Problem(cp.Minimize(g), constraints), solver, what)
     return float(g.value), R.value, S.value, _jacobi_scales(matrices), report
 
 
@@ -444,14 +447,15 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     attempts: list = []
     try:
         verts = [coords.apply(vc) for vc in cayleys]
-        gamma0, _, _, scales, report = _gamma_lower(verts, gamma_max, solver)
+        gamma_lower, _, _, scales, report = _gamma_lower(verts, gamma_max, solver)
         attempts += report.attempts
-        R, S, report = _interior_point(verts, scales, INTERIOR_FACTOR * gamma0, solver)
-        attempts += report.attempts
-        coords = _Coordinates(coords.T @ _lyapunov_balancing(R, S), omega, du, dy)
-        verts = [coords.apply(vc) for vc in cayleys]
-        gamma_lower, _, _, _, report = _gamma_lower(verts, gamma_max, solver)
-        attempts += report.attempts
+        for factor in INTERIOR_FACTORS:
+            R, S, report = _interior_point(verts, scales, factor * gamma_lower, solver)
+            attempts += report.attempts
+            coords = _Coordinates(coords.T @ _lyapunov_balancing(R, S), omega, du, dy)
+            verts = [coords.apply(vc) for vc in cayleys]
+            gamma_lower, _, _, scales, report = _gamma_lower(verts, gamma_max, solver)
+            attempts += report.attempts
     except SynthesisError as exc:
         raise SynthesisError(f"{exc}: {_infeasibility_hint(vertices, gamma_max)}") from None
     level = _LevelProblem(verts)
@@ -459,7 +463,7 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     def certified(gamma: float) -> HinfResult | None:
         t, level_report = level.margin(gamma, solver)
         attempts.extend(level_report.attempts if level_report else [])
-        if not t > 0:
+        if not np.isfinite(t):  # no point returned; a point with t ≤ 0 is still judged by the certificate
             return None
         try:
             result = _reconstruct(vertices, verts, level, coords, gamma, gamma_lower, Ts)

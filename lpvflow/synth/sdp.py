@@ -18,9 +18,8 @@ from lpvflow.errors import ModelError
 
 SOLVERS = ("CLARABEL", "SCS")
 ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
-# The synthesis solves well-posed problems (γ fixed slightly above the optimum, margin maximised:
-# :mod:`lpvflow.synth.hinf`), so Clarabel's default accuracy is reachable; the
-# "reduced" tolerances decide when a stalled solve is reported as optimal_inaccurate (then re-checked).
+# Clarabel's own accuracy (1e-8); the "reduced" tolerances decide when a stalled solve is reported as
+# optimal_inaccurate (then re-checked).
 # One thread: on a loaded 2-core machine Clarabel's threaded factorisation was 3-5x slower (measured).
 _CLARABEL_SETTINGS = {"tol_gap_abs": 1e-8, "tol_gap_rel": 1e-8, "tol_feas": 1e-8, "max_iter": 200,
                       "reduced_tol_gap_abs": 1e-5, "reduced_tol_gap_rel": 1e-4, "reduced_tol_feas": 1e-6,

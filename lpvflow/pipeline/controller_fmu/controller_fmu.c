@@ -8,6 +8,9 @@
  *   lambda = convex coordinates of psi(p) in the polytope (as lpvflow.synth.polytope.Polytope)
  *   u(k)     = U_OP + sum_i lambda_i (Ck_i x(k) + Dk_i e(k))   returned by fmi2GetReal at t_k
  *   x(k + 1) = sum_i lambda_i (Ak_i x(k) + Bk_i e(k))          computed by fmi2DoStep(t_k, h = Ts)
+ *            + sum_i lambda_i L_i (u_a(k) - u(k) + U_OP)      with anti-windup (HAS_ANTIWINDUP):
+ *   u_a(k)   = clip(u(k), U_MIN, U_MAX): the part of u the actuator does not apply is not integrated
+ *              (lpvflow.synth.controller, "Anti-windup"; the output u(k) itself is not clipped)
  *
  * The state starts at zero. The communication step must equal the controller's sampling time Ts.
  */
@@ -254,6 +257,22 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     frozen(in, A, B, C, D);
     error_signal(in, e);
     affine_map(A, in->x, N_X, B, e, N_IN, N_X, in->x_next);
+#if HAS_ANTIWINDUP
+    {
+        double psi[N_PSI], lambda[N_VERT], L[N_X_ALLOC * N_OUT], u[N_OUT], unapplied[N_OUT];
+        basis(in->r + VR_P, psi);
+        coordinates(psi, lambda);
+        interpolate(AW_L, N_X, N_OUT, lambda, L);
+        affine_map(C, in->x, N_X, D, e, N_IN, N_OUT, u);
+        for (int j = 0; j < N_OUT; ++j) {
+            const double commanded = U_OP[j] + u[j];
+            const double applied = commanded < U_MIN[j] ? U_MIN[j] : (commanded > U_MAX[j] ? U_MAX[j] : commanded);
+            unapplied[j] = applied - commanded;
+        }
+        for (int i = 0; i < N_X; ++i)
+            for (int j = 0; j < N_OUT; ++j) in->x_next[i] += L[i * N_OUT + j] * unapplied[j];
+    }
+#endif
     for (int i = 0; i < N_X; ++i) {
         if (!isfinite(in->x_next[i])) return fail(in, "controller state %d became non-finite", i);
         in->x[i] = in->x_next[i];

@@ -46,11 +46,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.signal
+import scipy.stats
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, LpvflowError
 from lpvflow.experiment.controller import LtiController
+from lpvflow.models import LPVIO
 from lpvflow.validate import residuals
 from lpvflow.validate.closed_loop import Loop, simulate_in_loop
 from lpvflow.validate.extensions import (
@@ -59,9 +62,10 @@ from lpvflow.validate.extensions import (
     Context,
     Fit,
     Structure,
+    bounded,
     fit,
+    joined,
     loop_simulator,
-    output_error,
     refit_in_loop,
 )
 from lpvflow.validate.metrics import bfr, vaf
@@ -70,10 +74,8 @@ from lpvflow.validate.metrics import bfr, vaf
 MIN_VALIDATION = 200
 #: Gains within this fraction of the best one count as practically equivalent.
 EQUIVALENCE = 0.05
-#: Smallest :func:`_noise_share` at which the output noise counts as material (module docstring, step 5):
-#: observed 0.001–0.04 on noise-free FMU data, 0.15–0.2 under synthetic equation noise (inside the
-#: ARX model set), 0.6–2.3 under white sensor noise.
-NOISE_SHARE = 0.25
+#: Lags 0 … FEATURE_LAGS of each input feature in the adequacy test (:func:`_input_explained`).
+FEATURE_LAGS = 20
 
 
 @dataclass
@@ -91,7 +93,8 @@ class Diagnosis:
     summary: str
     where: dict
     refit_ranking: list[dict] = field(default_factory=list)  # the noise round (_choose), else empty
-    noise_share: float | None = None  # NOISE_SHARE test; None in closed loop or without an OE refit
+    noise: dict | None = None  # _noise_analysis; None in closed loop or without an OE refit
+    adequacy: dict | None = None  # _input_explained of the final model; None in closed loop
     simulation: str = "open loop"  # or "closed loop": in the identification loop (module docstring)
     loop_scheduling: dict[str, str] = field(default_factory=dict)  # recomputed in the loop
     untested: list[str] = field(default_factory=list)
@@ -191,41 +194,134 @@ def _rank(est: Dataset, val: Dataset, nominal: Fit, candidates: dict[str, Candid
     return ranked, losses
 
 
-def _noise_share(ranked: list[dict], nominal: Fit, candidates: dict[str, Candidate],
-                 open_loop: bool = True) -> float | None:
-    """How much of the simulation error is output noise: det(one-step residual covariance of the LS
-    fit) / det(simulation-error covariance of its output-error refit), per output (geometric mean),
-    on estimation data; the largest over the nominal structure and every significant extension.
-    None without an output-error refit of the nominal structure.
+#: The extension that re-estimates the nominal structure consistently (output error / closed-loop IV).
+NOISE = "output_noise_bias"
 
-    Under white output noise of variance σ² no one-step predictor beats σ² (the noise is
-    unpredictable), while the simulation error is σ² plus the model error: a ratio near 1 means the
-    simulation error is not predictable from past data — noise, or an input effect the structure
-    lacks (a dead time); the noise round then decides between them. A small ratio means the data
-    predict one step ahead far better than any simulation of the structure: the simulation error is
-    model error, which an output-error refit only redistributes, and LS is not noise-biased
-    (noise-free tanks: 0.001–0.04; 0.5 mm of sensor noise: 0.6–1.3; synthetic equation noise at
-    20 dB: 0.15–0.2). The significant extensions count because a large model error of the nominal
-    structure (tanks given na = nb = 1: ratio 0.04 under 0.5 mm of sensor noise) hides the noise
-    that still biases the comparison of the extensions (ratio 0.75–1.1 for na = 3, nb = 3).
+
+def frozen_response(model: LPVIO, p_rows: np.ndarray, n_freq: int = 32) -> np.ndarray:
+    """G(e^{iω}, p) = A(e^{iω}, ψ(p))⁻¹ B(e^{iω}, ψ(p)) of the model frozen at each row of ``p_rows``,
+    A(z) = I + Σᵢ Aᵢ(ψ) z⁻ⁱ, B(z) = Σⱼ Bⱼ(ψ) z⁻ʲ, at ``n_freq`` frequencies in (0, π]:
+    (n_p, n_freq, ny, nu)."""
+    psi = model.basis.eval(p_rows, check_range=False)
+    z_inv = np.exp(-1j * np.linspace(np.pi / n_freq, np.pi, n_freq))
+    a_pow = z_inv[:, None] ** np.arange(1, model.A.shape[0] + 1)  # (n_freq, na)
+    b_pow = z_inv[:, None] ** np.arange(model.B.shape[0])
+    a = np.eye(model.ny) + np.einsum("fi,pl,ilrc->pfrc", a_pow, psi, model.A)
+    b = np.einsum("fj,pl,jlrc->pfrc", b_pow, psi, model.B)
+    return np.linalg.solve(a, b)
+
+
+def _bias_test(est: Dataset, ls: LPVIO, oe: LPVIO, v: np.ndarray) -> dict:
+    """Does the consistent refit remove a bias of the LS estimate? (issue 26, item 2).
+
+    Under noise inside the ARX model set both estimates are consistent and differ by sampling error;
+    under output noise the LS estimate is biased (notes_002 §1.3, (4.17)–(4.18)). Wald statistic of
+    the parameter difference d = θ_OE − θ_LS with the output-error covariance σ²_LR (JᵀJ)⁻¹, J the
+    sensitivity ∂ŷ/∂θ of the OE simulation (:func:`lpvflow.identify.oe.sensitivities`):
+
+        W = ‖J d‖² / σ²_LR  ~  χ²(dim θ)   (no bias),
+
+    i.e. the change of the simulated output the bias makes, against the noise. The true covariance of
+    d is Cov_OE − Cov_LS ≤ Cov_OE (Hausman), so the test is conservative; σ²_LR is the larger of the
+    error variance and its long-run (zero-frequency) variance σ²_e / D(1)² of the AR noise model, so
+    that coloured noise does not inflate W. The size of the bias is stated as the relative change of
+    the frozen frequency response over five scheduling quantiles (:func:`frozen_response`).
     """
-    refit = candidates.get("colored_noise")
-    if refit is None or refit.parameters.get("estimator") not in ("output-error", "closed-loop iv"):
-        return None
-    ny = nominal.model.ny
-    shares = [np.exp((nominal.loss - refit.fit.loss) / ny)]
-    for r in ranked if open_loop else []:  # closed loop: the nominal structure only (no OE refit)
-        cand = candidates[r["cause"]]
-        if not r["significant"] or r["cause"] == "colored_noise" or cand.fit.data is None:
-            continue
-        try:
-            model = output_error(cand.fit.data, cand.fit.model)
-        except (LpvflowError, np.linalg.LinAlgError):
-            continue
-        sign, logdet = np.linalg.slogdet(model.noise_cov)
-        if sign > 0 and np.isfinite(logdet):
-            shares.append(np.exp((cand.fit.loss - logdet) / ny))
-    return float(max(shares))
+    from lpvflow.identify.iv import Structure as IvStructure
+    from lpvflow.identify.iv import simulate_psi
+    from lpvflow.identify.oe import sensitivities
+
+    struct = IvStructure.from_data(est, oe.na, oe.nb, oe.nk, oe.basis, oe.form)
+    psi = struct.basis.eval(est.p, check_range=False)
+    y_sim = simulate_psi(oe, est.u, psi)
+    jac = sensitivities(struct, oe, y_sim, est.u, psi)[struct.max_lag :]
+    d = np.concatenate(struct.thetas(oe)) - np.concatenate(struct.thetas(ls))
+    change = jac @ d  # (N, ny): linearised change of the simulated outputs
+    variance = []
+    for i in range(oe.ny):
+        ar, s2 = residuals.ar_noise_model(v[:, i])
+        variance.append(max(float(np.var(v[:, i])), s2 / (1 + ar.sum()) ** 2))
+    w = float(np.sum(change**2 / np.array(variance)))
+    order = np.argsort(est.p[:, 0])
+    rows = est.p[order[np.linspace(0, est.N - 1, 5).astype(int)]]
+    g_oe, g_ls = frozen_response(oe, rows), frozen_response(ls, rows)
+    return {"wald": w, "dof": int(d.size), "p_value": float(scipy.stats.chi2.sf(w, d.size)),
+            "frozen_response_change": float(np.linalg.norm(g_oe - g_ls) / np.linalg.norm(g_oe))}
+
+
+def _noise_analysis(est: Dataset, val: Dataset, nominal: Fit, refit: Fit, alpha: float,
+                    min_gain: float) -> dict:
+    """The output noise judged on its own terms (issue 26, item 2): level, colour, prediction, bias.
+
+    * level: :func:`residuals.noise_level` of the output-error refit on estimation data;
+    * colour: AR noise model D(q)v = e of its simulation error v (:func:`residuals.ar_noise_model`,
+      order by BIC) and a Ljung–Box test of v; spectrum Φ_v = σ²_e/|D|² (:func:`residuals.ar_spectrum`);
+    * prediction: the Box–Jenkins-type predictor ŷ(k|k−1) = ŷ_OE(k) + (1 − D(q)) v(k) against the
+      white-noise (OE) predictor ŷ_OE on validation data — one-step BFR gain and block signed-rank p
+      (:func:`residuals.block_signed_rank`); ``colored`` when the AR model is not empty and this gain
+      is ≥ ``min_gain`` with p < ``alpha``;
+    * bias: :func:`_bias_test` (``biased`` when p < ``alpha``).
+    """
+    v_est = est.y - refit.model.simulate(est.u, est.p)
+    v_val = val.y - refit.y_val
+    colour, pred_gain, pred_p = [], [], []
+    for i in range(est.y.shape[1]):
+        ar, s2 = residuals.ar_noise_model(v_est[:, i])
+        eps = scipy.signal.lfilter(np.r_[1.0, ar], [1.0], v_val[:, i])
+        scale = np.linalg.norm(val.y[:, i] - val.y[:, i].mean())
+        gain = 100 * (np.linalg.norm(v_val[:, i]) - np.linalg.norm(eps)) / scale
+        _, p = residuals.block_signed_rank(v_val[:, i] ** 2, eps**2)
+        pred_gain.append(float(gain))
+        pred_p.append(p)
+        colour.append({"ar": ar.tolist(), "ar_order": int(ar.size), "innovation_variance": s2,
+                       "ljung_box_p": residuals.ljung_box(v_est[:, i])[1],
+                       "spectrum": residuals.ar_spectrum(ar, s2, est.Ts)})
+    colored = any(c["ar_order"] > 0 and g >= min_gain and p < alpha
+                  for c, g, p in zip(colour, pred_gain, pred_p, strict=True))
+    start = refit.model.max_lag
+    bias = _bias_test(est, nominal.model, refit.model, v_est[start:])
+    return {"level": residuals.noise_level(est.y[start:], (est.y - v_est)[start:]),
+            "noise_model": colour, "prediction_gain": pred_gain, "prediction_p_value": pred_p,
+            "colored": colored, "bias": bias, "biased": bias["p_value"] < alpha}
+
+
+def _features(u: np.ndarray, p: np.ndarray, lags: int = FEATURE_LAGS) -> np.ndarray:
+    """Functions of the inputs and scheduling that no output noise can correlate with: for every
+    input uⱼ, lags 0 … ``lags`` of uⱼ, uⱼ² − mean, |uⱼ| − mean, uⱼ³ and pₗuⱼ for every scheduling
+    signal; and the lags of every pₗ."""
+    base = []
+    for j in range(u.shape[1]):
+        x = u[:, j]
+        base += [x, x**2 - np.mean(x**2), np.abs(x) - np.mean(np.abs(x)), x**3]
+        base += [p[:, m] * x for m in range(p.shape[1])]
+    base += [p[:, m] - p[:, m].mean() for m in range(p.shape[1])]
+    cols = [np.concatenate([np.zeros(lag), b[: len(b) - lag]]) for b in base for lag in range(lags + 1)]
+    return np.column_stack(cols)
+
+
+def _input_explained(est: Dataset, val: Dataset, model: LPVIO, y_val: np.ndarray, min_gain: float,
+                     alpha: float) -> dict:
+    """Is the simulation error of ``model`` explained by the inputs? (issue 26, item 1).
+
+    Output noise is independent of the inputs, so the simulation error of an adequate model is
+    uncorrelated with every function of the input history. The error e = y − ŷ on estimation data is
+    regressed by least squares on :func:`_features` (lags 0 … FEATURE_LAGS of u, u², |u|, u³, p·u
+    and p), and the correction ŷ + F c is scored on validation data like an extension: BFR gain and
+    block signed-rank p against ŷ. ``significant`` (gain ≥ ``min_gain``, p < ``alpha``) means the
+    error is larger than the noise alone explains — a model error, whatever its name.
+    """
+    whole = joined(est, val)
+    feats = _features(whole.u, whole.p)
+    f_est, f_val = feats[: est.N], feats[est.N :]
+    y_est = bounded(model.simulate(est.u, est.p), est.y)[0]
+    coef = np.linalg.lstsq(f_est[FEATURE_LAGS:], (est.y - y_est)[FEATURE_LAGS:], rcond=None)[0]
+    corrected = y_val + f_val @ coef
+    gain = float(np.mean(bfr(val.y, corrected) - bfr(val.y, y_val)))
+    _, p = residuals.block_signed_rank(_normalised_sq_error(val.y, y_val),
+                                       _normalised_sq_error(val.y, corrected))
+    return {"bfr_gain": gain, "p_value": p, "features": feats.shape[1],
+            "significant": bool(gain >= min_gain and p < alpha),
+            "bfr_corrected": bfr(val.y, corrected).tolist()}
 
 
 def _refits_in_loop(candidates: dict[str, Candidate], est: Dataset, loop: Loop) -> dict[str, Candidate]:
@@ -235,9 +331,9 @@ def _refits_in_loop(candidates: dict[str, Candidate], est: Dataset, loop: Loop) 
     refits = {}
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        fallback = simulate_in_loop(candidates["colored_noise"].fit.model, est, loop)
+        fallback = simulate_in_loop(candidates[NOISE].fit.model, est, loop)
         for c, cand in candidates.items():
-            if c != "colored_noise" and (refit := refit_in_loop(cand, est, loop, fallback)) is not None:
+            if c != NOISE and (refit := refit_in_loop(cand, est, loop, fallback)) is not None:
                 refits[c] = refit
     return refits
 
@@ -248,7 +344,7 @@ def _refits_by_output_error(candidates: dict[str, Candidate], ctx_oe: Context) -
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)
         for c in candidates:
-            if c == "colored_noise":
+            if c == NOISE:
                 continue
             try:
                 cand = EXTENSIONS[c](ctx_oe)
@@ -305,6 +401,55 @@ def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[s
     return top
 
 
+def _noise_round(candidates: dict[str, Candidate], est: Dataset, val: Dataset, structure: Structure,
+                 split_channels: dict, loop: Loop | None, noisy: dict | None,
+                 noise: dict | None) -> dict[str, Candidate] | None:
+    """Every extension refitted consistently (module docstring, step 5), or None when the round does
+    not run: open loop when the bias test finds the LS estimate biased (:func:`_bias_test`), closed
+    loop when the closed-loop IV refit gains significantly."""
+    if loop is not None:
+        return _refits_in_loop(candidates, est, loop) if noisy is not None and noisy["significant"] else None
+    if noise is None or not noise["biased"]:
+        return None
+    ctx_oe = Context(est, val, structure, candidates[NOISE].fit, split_channels, None, estimator="oe")
+    return _refits_by_output_error(candidates, ctx_oe)
+
+
+def _noise_verdict(noisy: dict | None, noise: dict | None) -> str:
+    """No structural cause in the noise round: ``colored_noise`` when LS is biased and the AR noise
+    model predicts significantly better than white noise; ``output_noise_bias`` when LS is biased and
+    the output-error refit gains significantly in simulation; else ``none``."""
+    if noisy is None:
+        return "none"
+    if noise is None:  # closed loop: the refit's gain is the evidence
+        return NOISE if noisy["significant"] else "none"
+    if noise["biased"] and noise["colored"]:
+        return "colored_noise"
+    return NOISE if noisy["significant"] else "none"
+
+
+def _parameters(cause: str, winner: Candidate | None, noise: dict | None, adequacy: dict | None) -> dict:
+    """The parameters of the verdict: the extension's, the noise level and spectrum for a noise
+    verdict, the adequacy test for ``unexplained``."""
+    if cause == "unexplained":
+        return {"input_explained_bfr_gain": adequacy["bfr_gain"], "p_value": adequacy["p_value"]}
+    params = dict(winner.parameters) if winner else {}
+    if cause in (NOISE, "colored_noise") and noise is not None:
+        level = noise["level"]
+        params |= {"relative_noise": _scalar(level["relative_noise"]), "snr_db": _scalar(level["snr_db"]),
+                   "frozen_response_change": noise["bias"]["frozen_response_change"]}
+        if cause == "colored_noise":
+            models = noise["noise_model"]
+            params |= {"ar": _scalar([m["ar"] for m in models]),
+                       "spectrum": _scalar([m["spectrum"] for m in models])}
+    return params
+
+
+def _scalar(values: list):
+    """A per-output list as its only element for one output."""
+    return values[0] if len(values) == 1 else values
+
+
 def diagnose(
     data: Dataset, structure: Structure, channels: dict[str, np.ndarray] | None = None,
     split: float = 0.5, alpha: float = 1e-3, min_gain: float = 1.0, causes: list[str] | None = None,
@@ -357,43 +502,42 @@ def diagnose(
                 candidates[cause] = cand
     bfr_nom = bfr(val.y, nominal.y_val)
     ranked, losses = _rank(est, val, nominal, candidates, min_gain, alpha)
-    share = _noise_share(ranked, nominal, candidates, loop is None)
-    noisy = next((r for r in ranked if r["cause"] == "colored_noise"), None)
-    refit_ranked: list[dict] = []
-    if share is not None and noisy is not None:
-        noisy["noise_share"] = share
-        if share < NOISE_SHARE and loop is None:  # the simulation errors are model errors
+    noisy = next((r for r in ranked if r["cause"] == NOISE), None)
+    noise = None
+    if loop is None and noisy is not None:
+        noise = _noise_analysis(est, val, nominal, candidates[NOISE].fit, alpha, min_gain)
+        noisy |= {"bias_p_value": noise["bias"]["p_value"], "colored": noise["colored"]}
+        if not noise["biased"]:
             noisy["significant"] = False
-            noisy["ruled_out"] = (f"noise share {share:.2g} < {NOISE_SHARE}: the data predict one step "
-                                  "ahead far better than an output-error refit simulates")
-    if loop is not None and noisy is not None and noisy["significant"]:
-        refits = _refits_in_loop(candidates, est, loop)
-    elif share is not None and share >= NOISE_SHARE and loop is None:
-        ctx_oe = Context(est, val, structure, candidates["colored_noise"].fit, split_channels, None,
-                         estimator="oe")
-        refits = _refits_by_output_error(candidates, ctx_oe)
-    else:
-        refits = None
+            noisy["ruled_out"] = (f"the output-error refit does not differ significantly from LS (Wald "
+                                  f"p = {noise['bias']['p_value']:.2g}): no noise bias to remove")
+    refits = _noise_round(candidates, est, val, structure, split_channels, loop, noisy, noise)
+    refit_ranked: list[dict] = []
+    pool = candidates
     if refits is None:
         cause = _choose(ranked, candidates, losses)
-        winner = candidates.get(cause)
     else:
         # The noise round (module docstring, step 5; docstring of _choose): every extension refitted
         # consistently, scored against the consistent refit of the nominal structure.
-        refit_ranked, refit_losses = _rank(est, val, candidates["colored_noise"].fit, refits, min_gain, alpha)
-        structural = _choose(refit_ranked, refits, refit_losses)
-        if structural != "none":
-            cause, winner = structural, refits[structural]
+        refit_ranked, refit_losses = _rank(est, val, candidates[NOISE].fit, refits, min_gain, alpha)
+        cause = _choose(refit_ranked, refits, refit_losses)
+        if cause == "none":
+            cause = _noise_verdict(noisy, noise)
         else:
-            cause = "colored_noise" if noisy["significant"] else "none"
-            winner = candidates.get(cause)
+            pool = refits
+    final = candidates[NOISE].fit if refits is not None else nominal
+    adequacy = (None if loop is not None
+                else _input_explained(est, val, final.model, final.y_val, min_gain, alpha))
+    if cause in ("none", NOISE, "colored_noise") and adequacy is not None and adequacy["significant"]:
+        cause = "unexplained"
+    winner = pool.get(NOISE if cause == "colored_noise" else cause)
     after = winner.fit.y_val if winner else nominal.y_val
     result = Diagnosis(
         bfr_before=bfr_nom.tolist(), bfr_after=bfr(val.y, after).tolist(),
         vaf_before=vaf(val.y, nominal.y_val).tolist(), vaf_after=vaf(val.y, after).tolist(),
-        cause=cause, parameters=winner.parameters if winner else {},
+        cause=cause, parameters=_parameters(cause, winner, noise, adequacy),
         evidence=_evidence(est, prediction_residuals(nominal.model, est), split_channels),
-        ranking=ranked, refit_ranking=refit_ranked, noise_share=share, summary="",
+        ranking=ranked, refit_ranking=refit_ranked, noise=noise, adequacy=adequacy, summary="",
         where=_where(val, val.y - nominal.y_val), winner=winner,
         simulation="open loop" if loop is None else "closed loop",
         loop_scheduling=dict(loop.scheduling) if loop is not None else {},
@@ -407,15 +551,24 @@ def diagnose(
 
 def _summary(result: Diagnosis, winner: Candidate | None) -> str:
     before, after = np.mean(result.bfr_before), np.mean(result.bfr_after)
+    if result.cause == "unexplained":
+        a = result.adequacy
+        return (f"validation BFR {before:.1f} %; the simulation error is larger than the output noise "
+                f"explains — a correction from the input history alone gains {a['bfr_gain']:.1f} points "
+                f"(p = {a['p_value']:.2g}) — and no extension of the vocabulary gains significantly: "
+                "cause unexplained")
     if winner is None:
         tested = ", ".join(r["cause"] for r in result.ranking) or "nothing"
         return (f"validation BFR {before:.1f} %; no extension gives a significant, unambiguous gain "
-                f"(tested: {tested}): cause none")
+                f"(tested: {tested}) and the simulation error is not explained by the inputs: cause none")
     text = (f"{winner.description} raises validation BFR from {before:.1f} % to {after:.1f} % "
-            f"(cause: {winner.cause})")
-    if result.refit_ranking and winner.cause == "colored_noise":
-        text += ("; output noise biases the least-squares fit, and no extension refitted by output "
-                 "error gains significantly over this refit")
+            f"(cause: {result.cause})")
+    if result.cause == "colored_noise":
+        text += (f"; coloured output noise (AR order {np.ravel(result.parameters['ar']).size}, "
+                 f"SNR {np.mean(result.parameters['snr_db']):.1f} dB) biases least squares")
+    elif result.cause == NOISE and result.noise is not None:
+        text += (f"; white output noise (SNR {np.mean(result.parameters['snr_db']):.1f} dB) biases least "
+                 "squares: refit by output error or IV")
     elif result.refit_ranking:
         text += "; output noise biases least squares, so every model was refitted by output error"
     return text

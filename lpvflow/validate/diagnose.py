@@ -80,7 +80,6 @@ from lpvflow.validate.extensions import (
     fit,
     joined,
     loop_simulator,
-    output_error,
     refit_in_loop,
 )
 from lpvflow.validate.metrics import bfr, vaf
@@ -89,6 +88,11 @@ from lpvflow.validate.metrics import bfr, vaf
 MIN_VALIDATION = 200
 #: Gains within this fraction of the best one count as practically equivalent.
 EQUIVALENCE = 0.05
+#: Smallest relative change of the frozen frequency response between the LS fit and its output-error
+#: refit that counts as a material bias (:func:`_biased`). Measured on the synthetic plant (seeds
+#: 1000–1002): white sensor noise 3 % → 0.03, 10 % → 0.19, 15 % → 0.28, AR(2) noise at 3 dB → 0.19–0.21;
+#: the extension with the missing pole under 30 dB equation noise (a wrong but close structure) → 0.07.
+MATERIAL_CHANGE = 0.1
 #: Lags 0 … FEATURE_LAGS of each input feature in the adequacy test (:func:`_input_explained`).
 FEATURE_LAGS = 20
 
@@ -242,16 +246,17 @@ def _bias_test(est: Dataset, ls: LPVIO, oe: LPVIO, v: np.ndarray) -> dict:
 
     Under noise inside the ARX model set both estimates are consistent and differ by sampling error;
     under output noise the LS estimate is biased (notes_002 §1.3, (4.17)–(4.18)). Wald statistic of
-    the parameter difference d = θ_OE − θ_LS with the output-error covariance σ²_LR (JᵀJ)⁻¹, J the
-    sensitivity ∂ŷ/∂θ of the OE simulation (:func:`lpvflow.identify.oe.sensitivities`):
+    the parameter difference d = θ_OE − θ_LS with the sandwich covariance of the output-error
+    estimate, V = H⁻¹ M H⁻¹, H = Σ_r J_rᵀJ_r, M = Σ_r σ²_{e,r} J̃_rᵀJ̃_r:
 
-        W = ‖J d‖² / σ²_LR  ~  χ²(dim θ)   (no bias),
+        W = dᵀ H M⁻¹ H d  ~  χ²(dim θ)   (no bias),
 
-    i.e. the change of the simulated output the bias makes, against the noise. The true covariance of
-    d is Cov_OE − Cov_LS ≤ Cov_OE (Hausman), so the test is conservative; σ²_LR is the larger of the
-    error variance and its long-run (zero-frequency) variance σ²_e / D(1)² of the AR noise model, so
-    that coloured noise does not inflate W. The size of the bias is stated as the relative change of
-    the frozen frequency response over five scheduling quantiles (:func:`frozen_response`).
+    J_r the sensitivity ∂ŷ_r/∂θ of the OE simulation (:func:`lpvflow.identify.oe.sensitivities`),
+    J̃_r = D_r(q⁻¹)^{-T} J_r its anticausal filtering by the AR noise model D_r v_r = e_r of the
+    refit's simulation error (:func:`residuals.ar_noise_model`), so that Jᵀv has covariance
+    σ²_e J̃ᵀJ̃ for coloured as well as white v. The true covariance of d is V − Cov_LS ≤ V
+    (Hausman), so the test is conservative. The size of the bias is the relative change of the frozen
+    frequency response over five scheduling quantiles (:func:`frozen_response`).
     """
     from lpvflow.identify.iv import Structure as IvStructure
     from lpvflow.identify.iv import simulate_psi
@@ -260,14 +265,16 @@ def _bias_test(est: Dataset, ls: LPVIO, oe: LPVIO, v: np.ndarray) -> dict:
     struct = IvStructure.from_data(est, oe.na, oe.nb, oe.nk, oe.basis, oe.form)
     psi = struct.basis.eval(est.p, check_range=False)
     y_sim = simulate_psi(oe, est.u, psi)
-    jac = sensitivities(struct, oe, y_sim, est.u, psi)[struct.max_lag :]
+    jac = sensitivities(struct, oe, y_sim, est.u, psi)[struct.max_lag :]  # (N, ny, n_θ)
+    hessian, meat = 0.0, 0.0
+    for r in range(oe.ny):
+        ar, s2 = residuals.ar_noise_model(v[:, r])
+        filtered = scipy.signal.lfilter([1.0], np.r_[1.0, ar], jac[::-1, r, :], axis=0)[::-1]
+        hessian = hessian + jac[:, r, :].T @ jac[:, r, :]
+        meat = meat + s2 * filtered.T @ filtered
     d = np.concatenate(struct.thetas(oe)) - np.concatenate(struct.thetas(ls))
-    change = jac @ d  # (N, ny): linearised change of the simulated outputs
-    variance = []
-    for i in range(oe.ny):
-        ar, s2 = residuals.ar_noise_model(v[:, i])
-        variance.append(max(float(np.var(v[:, i])), s2 / (1 + ar.sum()) ** 2))
-    w = float(np.sum(change**2 / np.array(variance)))
+    hd = hessian @ d
+    w = float(hd @ np.linalg.lstsq(meat, hd, rcond=None)[0])
     order = np.argsort(est.p[:, 0])
     rows = est.p[order[np.linspace(0, est.N - 1, 5).astype(int)]]
     g_oe, g_ls = frozen_response(oe, rows), frozen_response(ls, rows)
@@ -286,7 +293,7 @@ def _noise_analysis(est: Dataset, val: Dataset, nominal: Fit, refit: Fit, alpha:
       white-noise (OE) predictor ŷ_OE on validation data — one-step BFR gain and block signed-rank p
       (:func:`residuals.block_signed_rank`); ``colored`` when the AR model is not empty and this gain
       is ≥ ``min_gain`` with p < ``alpha``;
-    * bias: :func:`_bias_test` (``biased`` when p < ``alpha``).
+    * bias: :func:`_bias_test` (``biased``: significant and material, :func:`_biased`).
     """
     v_est = est.y - refit.model.simulate(est.u, est.p)
     v_val = val.y - refit.y_val
@@ -308,7 +315,12 @@ def _noise_analysis(est: Dataset, val: Dataset, nominal: Fit, refit: Fit, alpha:
     bias = _bias_test(est, nominal.model, refit.model, v_est[start:])
     return {"level": residuals.noise_level(est.y[start:], (est.y - v_est)[start:]),
             "noise_model": colour, "prediction_gain": pred_gain, "prediction_p_value": pred_p,
-            "colored": colored, "bias": bias, "biased": bias["p_value"] < alpha}
+            "colored": colored, "bias": bias, "biased": _biased(bias, alpha)}
+
+
+def _biased(bias: dict, alpha: float) -> bool:
+    """A significant (Wald p < ``alpha``) and material (≥ MATERIAL_CHANGE) bias of the LS fit."""
+    return bias["p_value"] < alpha and bias["frozen_response_change"] >= MATERIAL_CHANGE
 
 
 def _features(u: np.ndarray, p: np.ndarray, lags: int = FEATURE_LAGS) -> np.ndarray:
@@ -429,39 +441,52 @@ def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[s
     return top
 
 
-def _noise_round(candidates: dict[str, Candidate], ranked: list[dict], est: Dataset, val: Dataset,
-                 structure: Structure, split_channels: dict, loop: Loop | None, noisy: dict | None,
-                 noise: dict | None, alpha: float) -> dict[str, Candidate] | None:
+def _noise_round(candidates: dict[str, Candidate], est: Dataset, val: Dataset, structure: Structure,
+                 split_channels: dict, loop: Loop | None, noisy: dict | None,
+                 noise: dict | None) -> dict[str, Candidate] | None:
     """Every extension refitted consistently (module docstring, step 5), or None when the round does
-    not run: open loop when the bias test finds the LS estimate of the nominal structure biased
-    (:func:`_bias_test`) and that of the best significant extension too; closed loop when the
-    closed-loop IV refit gains significantly."""
+    not run: open loop when the LS estimate of the nominal structure is materially biased
+    (:func:`_biased`), closed loop when the closed-loop IV refit gains significantly."""
     if loop is not None:
         return _refits_in_loop(candidates, est, loop) if noisy is not None and noisy["significant"] else None
-    if noise is None or not noise["biased"] or not _best_extension_biased(ranked, candidates, alpha):
+    if noise is None or not noise["biased"]:
         return None
     ctx_oe = Context(est, val, structure, candidates[NOISE].fit, split_channels, None, estimator="oe")
     return _refits_by_output_error(candidates, ctx_oe)
 
 
-def _best_extension_biased(ranked: list[dict], candidates: dict[str, Candidate], alpha: float) -> bool:
-    """Is the LS fit of the best significant extension biased too (:func:`_bias_test`)?
+def _confirmed_by_output_error(cause: str, candidates: dict[str, Candidate], est: Dataset, val: Dataset,
+                               structure: Structure, split_channels: dict, min_gain: float,
+                               alpha: float) -> str:
+    """``cause``, or ``none`` when its extension refitted by output error does not gain significantly
+    over the output-error refit of the nominal structure.
 
-    LS and output error differ on a wrong structure even without noise (they weigh the model error
-    differently), so a biased nominal fit alone does not say the noise biases LS: with an
-    unmodelled pole at 0.7 under 30 dB equation noise, the nominal Wald p is 1e-42 while the fit with
-    the missing order is unbiased. True when no extension is significant or its refit fails.
+    Used when LS is significantly but not materially biased (no noise round): a small bias is enough
+    for an extension with more lags to gain among LS fits by absorbing it — white sensor noise of 3 %
+    on the synthetic plant with the right structure: na = nb = 4 gained 1.0 point (seed 1001).
     """
-    best = next((r for r in ranked if r["significant"] and r["cause"] != NOISE), None)
-    cand = candidates[best["cause"]] if best is not None else None
-    if cand is None or cand.fit.data is None or cand.cause == "sensor_saturation":
-        return True
-    try:
-        oe = output_error(cand.fit.data, cand.fit.model)
-        v = cand.fit.data.y - oe.simulate(cand.fit.data.u, cand.fit.data.p)
-        return _bias_test(cand.fit.data, cand.fit.model, oe, v[oe.max_lag :])["p_value"] < alpha
-    except (LpvflowError, np.linalg.LinAlgError):
-        return True
+    ctx_oe = Context(est, val, structure, candidates[NOISE].fit, split_channels, None, estimator="oe")
+    refit = _refits_by_output_error({cause: candidates[cause]}, ctx_oe)
+    if cause not in refit:
+        return cause
+    row = _rank(est, val, candidates[NOISE].fit, refit, min_gain, alpha)[0][0]
+    return cause if row["significant"] else "none"
+
+
+def _only_where_ls_gained(refit_ranked: list[dict], ranked: list[dict]) -> None:
+    """Rule out, in the noise round, the causes that were not significant among the LS fits.
+
+    Output noise makes LS comparisons *favour* extensions (the extra parameters absorb part of the
+    bias), it does not hide a real effect; an extension that gains only between output-error refits
+    is the refits redistributing a model error. Synthetic plant with an unmodelled pole at 0.7 under
+    30 dB equation noise (seed 1000): the missing order gains 4.6 points among LS fits and 1.3 among
+    output-error refits, where friction — not significant among LS fits (p = 0.004) — gained 1.6.
+    """
+    gained = {r["cause"] for r in ranked if r["significant"]}
+    for r in refit_ranked:
+        if r["cause"] not in gained and r["significant"]:
+            r["significant"] = False
+            r["ruled_out"] = "not significant among the least-squares fits"
 
 
 def _noise_verdict(noisy: dict | None, noise: dict | None) -> str:
@@ -557,18 +582,24 @@ def diagnose(
         noise = _noise_analysis(est, val, nominal, candidates[NOISE].fit, alpha, min_gain)
         noisy |= {"bias_p_value": noise["bias"]["p_value"], "colored": noise["colored"]}
         if not noise["biased"]:
+            bias = noise["bias"]
             noisy["significant"] = False
-            noisy["ruled_out"] = (f"the output-error refit does not differ significantly from LS (Wald "
-                                  f"p = {noise['bias']['p_value']:.2g}): no noise bias to remove")
-    refits = _noise_round(candidates, ranked, est, val, structure, split_channels, loop, noisy, noise, alpha)
+            noisy["ruled_out"] = (f"the output-error refit does not differ materially from LS (Wald p = "
+                                  f"{bias['p_value']:.2g}, frozen response change "
+                                  f"{bias['frozen_response_change']:.3f}): no noise bias to remove")
+    refits = _noise_round(candidates, est, val, structure, split_channels, loop, noisy, noise)
     refit_ranked: list[dict] = []
     pool = candidates
     if refits is None:
         cause = _choose(ranked, candidates, losses)
+        if noise is not None and noise["bias"]["p_value"] < alpha and cause in candidates:
+            cause = _confirmed_by_output_error(cause, candidates, est, val, structure, split_channels,
+                                               min_gain, alpha)
     else:
         # The noise round (module docstring, step 5; docstring of _choose): every extension refitted
         # consistently, scored against the consistent refit of the nominal structure.
         refit_ranked, refit_losses = _rank(est, val, candidates[NOISE].fit, refits, min_gain, alpha)
+        _only_where_ls_gained(refit_ranked, ranked)
         cause = _choose(refit_ranked, refits, refit_losses)
         if cause == "none":
             cause = _noise_verdict(noisy, noise)

@@ -74,7 +74,8 @@ CASES = {
 }
 #: Parameter checked within 20 % per verdict (issue 26).
 TOLERANCE = {"input_nonlinearity": "width", "backlash": "width", "friction": "coulomb_level_input_units",
-             "offset": "output_offset", "colored_noise": "relative_noise", "output_noise_bias": "relative_noise"}
+             "offset": "output_offset", "colored_noise": "relative_noise",
+             "output_noise_bias": "relative_noise"}
 
 
 def is_hit(cause: str, result, expected) -> bool:

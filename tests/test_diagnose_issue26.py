@@ -44,10 +44,11 @@ def test_sensor_saturation_is_named_with_its_limits():
 
 
 def test_sensor_saturation_finds_no_limit_on_unclipped_data():
-    """Without clipping the limits found are None (the search ends at the data's extremes)."""
+    """Without clipping no limit pays its BIC price: both are None, and the cause is not named."""
     data, channels, _ = make_case("none", seed=34)
     result = diagnose(data, NOMINAL, channels, causes=["sensor_saturation"])
     row = next(r for r in result.ranking if r["cause"] == "sensor_saturation")
+    assert row["parameters"]["lower_limit"] is None and row["parameters"]["upper_limit"] is None
     assert not row["significant"] and result.cause == "none"
 
 
@@ -156,7 +157,7 @@ def test_ar_noise_model_recovers_an_ar2_process():
 
 def test_evidence_and_where_cover_every_input_and_scheduling_channel():
     """MIMO evidence: a second input and a second scheduling signal get their own rows."""
-    data, channels, _ = make_case("none", seed=44)
+    data, _, _ = make_case("none", seed=44)
     rng = np.random.default_rng(1)
     two = Dataset(np.column_stack([data.u, rng.uniform(-1, 1, data.N)]),
                   data.y, np.column_stack([data.p, rng.uniform(-1, 1, data.N)]), data.Ts,

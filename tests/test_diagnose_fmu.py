@@ -140,13 +140,15 @@ def test_tanks_first_order_model_is_raised_to_the_cascade_order(fmus):
     assert result.bfr_after[0] > result.bfr_before[0] + 10
 
 
-def test_tanks_sensor_noise_is_colored_noise_not_model_order(fmus):
+def test_tanks_sensor_noise_is_output_noise_bias_not_model_order(fmus):
     """0.5 mm of white noise on the level sensor, no structural effect. Least squares is biased (the
     lagged levels at Ts = 1 s are nearly collinear), and an LS fit with more lags recovers part of
     the bias on validation: model_order was named (5 seeds of 5). Refitted by output error, the
-    nominal structure recovers the noise-free accuracy and no extension adds to it: colored_noise."""
+    nominal structure recovers the noise-free accuracy and no extension adds to it; the noise model
+    is white: output_noise_bias (colored_noise before issue 26, which had no noise model)."""
     result = diagnose(tanks_data({"effect_noise_std": 5e-4, "effect_noise_seed": 1}, build=fmus), TANKS)
-    assert result.cause == "colored_noise", (result.ranking, result.refit_ranking)
+    assert result.cause == "output_noise_bias", (result.ranking, result.refit_ranking)
+    assert result.parameters["relative_noise"] < 0.05 and not result.noise["colored"]
     ls_order = next(r for r in result.ranking if r["cause"] == "model_order")
     assert ls_order["significant"]  # the trap: among LS fits, a higher order gains
     assert not any(r["significant"] for r in result.refit_ranking)
@@ -225,12 +227,13 @@ def test_airpath_affine_scheduling_is_too_poor(fmus):
     assert result.bfr_after[0] > result.bfr_before[0] + 5
 
 
-def test_airpath_pressure_sensor_noise_is_coloured_noise(fmus):
+def test_airpath_pressure_sensor_noise_is_output_noise_bias(fmus):
     """White noise of 4 kPa on the pressure sensor (exogenous scheduling, so no errors in
-    variables): least squares is biased, IV-OE with the same structure simulates better."""
+    variables): least squares is biased, the output-error refit with the same structure simulates
+    better, and its noise model is white."""
     data, channels = airpath_data({"effect_noise_std": 4.0, "effect_noise_seed": 1}, build=fmus)
     result = diagnose(data, AIRPATH, channels)
-    assert result.cause == "colored_noise", result.ranking
+    assert result.cause == "output_noise_bias", result.ranking
     assert result.bfr_after[0] > result.bfr_before[0] + 2
 
 
@@ -289,7 +292,7 @@ def test_adip_friction_under_sensor_noise_is_found_by_closed_loop_iv(fmus):
     all of them: the same verdict, benchmarks/README.md)."""
     data = adip_data({"effect_coulomb": 0.04, "effect_noise_std": 1e-4, "effect_noise_seed": 100}, seed=0,
                      build=fmus)
-    result = diagnose_adip(data, causes=["friction", "colored_noise"])
+    result = diagnose_adip(data, causes=["friction", "output_noise_bias"])
     assert result.cause == "friction", (result.ranking, result.refit_ranking)
     assert result.parameters["output"] == "arm_angle"
     level = result.parameters["coulomb_level_input_units"]

@@ -49,8 +49,9 @@ reversing) is scored as the plant ran.
    simulation error of an adequate model has no part a function of the input history explains
    (:func:`_input_explained`, on the nominal model or, after a noise round, its output-error refit).
    When that part is significant (gain ≥ ``min_gain``, p < ``alpha``) and no cause was named
-   (structural or noise: an extension that gains is an explanation), the verdict is ``unexplained``, with that test as its evidence: ``none`` means the model
-   is adequate, not only that no extension of the vocabulary helped.
+   (structural or noise: an extension that gains is an explanation), the verdict is
+   ``unexplained``, with that test as its evidence: ``none`` means the model is adequate, not only
+   that no extension of the vocabulary helped.
 """
 
 from __future__ import annotations

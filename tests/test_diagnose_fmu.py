@@ -199,10 +199,16 @@ def test_effect_free_tanks_under_the_dead_zone_design_gives_none(fmus):
     assert result.cause == "none", result.ranking
 
 
-def test_effect_free_airpath_gives_none(fmus):
+def test_effect_free_airpath_names_no_cause(fmus):
+    """No effect, no noise: no extension and no noise verdict. The poly:2 structure is not exact (the
+    orifice flow and volumetric efficiency are not polynomials): a correction from the input history
+    alone gains 2.2 points on this seed (p = 1.6·10⁻⁴), so since issue 26 the verdict is
+    unexplained here — none on experiment seeds 0 and 1 (gains 0.4 and 0.9 points)."""
     data, channels = airpath_data({}, build=fmus)
     result = diagnose(data, AIRPATH, channels)
-    assert result.cause == "none", result.ranking
+    assert result.cause == "unexplained", result.ranking
+    assert not any(r["significant"] for r in result.ranking)
+    assert 1 < result.adequacy["bfr_gain"] < 5
     assert result.bfr_before[0] > 88
 
 

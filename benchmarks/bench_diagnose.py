@@ -112,7 +112,7 @@ def hit_rates(seeds: int) -> dict:
         named, hits, seconds, levels = [], 0, [], []
         for seed in range(seeds):
             result, expected, dt = _run(effect, 1000 + seed, snr)
-            hits += is_hit(cause, result, expected)
+            hits += bool(is_hit(cause, result, expected))
             named.append(result.cause)
             seconds.append(dt)
             key = TOLERANCE.get(cause)

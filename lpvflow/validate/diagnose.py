@@ -305,7 +305,7 @@ def _bias_test(est: Dataset, ls: LPVIO, oe: LPVIO, v: np.ndarray) -> dict:
 
 
 def _noise_analysis(est: Dataset, val: Dataset, nominal: Fit, refit: Fit, alpha: float,
-                    min_gain: float) -> dict:
+                    min_gain: float, refit_gains: bool) -> dict:
     """The output noise judged on its own terms (issue 26, item 2): level, colour, prediction, bias.
 
     * level: :func:`residuals.noise_level` of the output-error refit on estimation data, from the
@@ -316,7 +316,8 @@ def _noise_analysis(est: Dataset, val: Dataset, nominal: Fit, refit: Fit, alpha:
       white-noise (OE) predictor ŷ_OE on validation data — one-step BFR gain and block signed-rank p
       (:func:`residuals.block_signed_rank`); ``colored`` when the AR model is not empty and this gain
       is ≥ ``min_gain`` with p < ``alpha``;
-    * bias: :func:`_bias_test` — significance (Wald p) of θ_OE − θ_LS, and the part of the LS
+    * bias: :func:`_bias_test` — significance (Wald p, or the refit's significant simulation gain
+      ``refit_gains``) of θ_OE − θ_LS, and the part of the LS
       estimate's frozen response that the noise explains: the relative change between the LS fit of
       the data and the LS fit of the data cleaned of the noise, y − v (``noise_bias_change``). LS
       and output error also differ on a wrong structure without any noise (they weigh a model error
@@ -348,7 +349,7 @@ def _noise_analysis(est: Dataset, val: Dataset, nominal: Fit, refit: Fit, alpha:
     return {"level": residuals.noise_level((y_sim + v_est)[start:], y_sim[start:]),
             "noise_model": colour, "prediction_gain": pred_gain, "prediction_p_value": pred_p,
             "colored": colored, "bias": bias, "prediction_ratio": rho,
-            "biased": rho >= OUTPUT_NOISE_RATIO and _biased(bias, alpha)}
+            "biased": rho >= OUTPUT_NOISE_RATIO and _biased(bias, alpha, refit_gains)}
 
 
 def _prediction_ratio(est: Dataset, ls: LPVIO, error: np.ndarray, start: int) -> float:
@@ -392,10 +393,13 @@ def _noise_part(est: Dataset, val: Dataset, v_est: np.ndarray, v_val: np.ndarray
     return v_est - feats[: est.N] @ coef, v_val - feats[est.N :] @ coef
 
 
-def _biased(bias: dict, alpha: float) -> bool:
-    """A significant (Wald p < ``alpha``) bias of the LS fit that the noise makes material
-    (``noise_bias_change`` ≥ MATERIAL_CHANGE)."""
-    return bias["p_value"] < alpha and bias["noise_bias_change"] >= MATERIAL_CHANGE
+def _biased(bias: dict, alpha: float, refit_gains: bool) -> bool:
+    """A significant bias of the LS fit — Wald p < ``alpha``, or the bias the refit removes shows on
+    validation data (``refit_gains``: its simulation gain is significant) — that the noise makes
+    material (``noise_bias_change`` ≥ MATERIAL_CHANGE). The sandwich Wald test is conservative under
+    coloured noise: AR(2) noise at 3 dB, seed 1003, p = 0.009 while the refit gained 3.0 points
+    (block p = 2·10⁻⁵) and the noise changed the LS frozen response by 17 %."""
+    return (bias["p_value"] < alpha or refit_gains) and bias["noise_bias_change"] >= MATERIAL_CHANGE
 
 
 def _features(u: np.ndarray, p: np.ndarray, lags: int = FEATURE_LAGS) -> np.ndarray:
@@ -657,7 +661,8 @@ def diagnose(
     noisy = next((r for r in ranked if r["cause"] == NOISE), None)
     noise = None
     if loop is None and noisy is not None:
-        noise = _noise_analysis(est, val, nominal, candidates[NOISE].fit, alpha, min_gain)
+        noise = _noise_analysis(est, val, nominal, candidates[NOISE].fit, alpha, min_gain,
+                                noisy["significant"])
         noisy |= {"bias_p_value": noise["bias"]["p_value"], "colored": noise["colored"]}
         if not noise["biased"]:
             bias = noise["bias"]

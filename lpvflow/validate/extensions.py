@@ -17,8 +17,8 @@ Static input maps (Hammerstein extension, applied before the LPV dynamics):
 A clipping sensor is an output map: y_meas = clip(y, lo, hi) (:func:`sensor_saturation`).
 Coulomb friction enters as an extra input sign(v(k)) with the input's lags, v(k) = y(k) − y(k−1)
 for a position output or v(k) = y(k) for a velocity output; its validation simulation takes v
-from the model's *own* simulated output (fixed-point iterations starting from the nominal
-simulation), never from the measured output.
+from the model's *own* simulated output, sample by sample (:func:`friction_simulation`), never
+from the measured output.
 Offset adds the inputs 1 and t/N with a lag-0 constant coefficient: c₀ + c₁·t/N.
 
 Closed-loop data (``Context.loop`` set, :mod:`lpvflow.validate.closed_loop`): every model is
@@ -52,7 +52,6 @@ CAUSES = (
     "input_nonlinearity", "backlash", "sensor_saturation", "friction", "output_noise_bias",
     "colored_noise", "offset", "unexplained", "none",
 )
-FRICTION_ITERATIONS = 6
 
 
 @dataclass(frozen=True)
@@ -500,6 +499,41 @@ def _friction_kinds(y: np.ndarray, i: int) -> list[str]:
     return ["position", "velocity"] if 0.1 <= share <= 0.9 else ["position"]
 
 
+def friction_simulation(model: LPVIO, u: np.ndarray, p: np.ndarray, i: int, velocity: bool) -> np.ndarray:
+    """Simulation of a friction extension (its last input the friction sign) from a zero past, the
+    sign taken sample by sample from its own output i: sign y_i(k) (velocity output) or
+    sign(y_i(k) − y_i(k−1)) (position output). Causal because the friction input enters with a
+    delay ≥ 1: y(k) = −Σᵢ Aᵢ y(k−i) + Σⱼ Bⱼ v(k−j), coefficients at ψ(p(k−i)) (shifted form) or
+    ψ(p(k)) (static form), v = [u, sign]."""
+    psi = model.basis.eval(p, check_range=False)
+    a_at = np.einsum("kl,ilrc->kirc", psi, model.A)
+    b_at = np.einsum("kl,jlrc->kjrc", psi, model.B)
+    return _friction_recursion(np.ascontiguousarray(a_at), np.ascontiguousarray(b_at),
+                               np.ascontiguousarray(u, dtype=float), i, velocity,
+                               model.form == "shifted")
+
+
+@numba.njit(cache=True)
+def _friction_recursion(a_at: np.ndarray, b_at: np.ndarray, u: np.ndarray, i: int, velocity: bool,
+                        shifted: bool) -> np.ndarray:
+    n, n_a, ny = a_at.shape[0], a_at.shape[1], a_at.shape[2]
+    n_b, nu = b_at.shape[1], u.shape[1]
+    y = np.zeros((n, ny))
+    sign = np.zeros(n)
+    for k in range(n):
+        for lag in range(1, n_a + 1):
+            if k - lag >= 0:
+                at = k - lag if shifted else k
+                y[k] -= a_at[at, lag - 1] @ y[k - lag]
+        for lag in range(n_b):
+            if k - lag >= 0:
+                at = k - lag if shifted else k
+                y[k] += b_at[at, lag, :, :nu] @ u[k - lag] + b_at[at, lag, :, nu] * sign[k - lag]
+        motion = y[k, i] if velocity else y[k, i] - (y[k - 1, i] if k > 0 else y[k, i])
+        sign[k] = np.sign(motion)
+    return y
+
+
 def friction(ctx: Context) -> Candidate | None:
     """Coulomb friction: extra input sign(v) with the first input's lags, F = −Σb_f / Σb_u
     (:func:`_coulomb_level`), v the motion of one output — its backward difference (a position
@@ -509,7 +543,7 @@ def friction(ctx: Context) -> Candidate | None:
     Closed-loop data: position outputs only, the sign of the velocity over the next sample,
     extrapolated from the last three outputs (:func:`~lpvflow.validate.closed_loop.velocity_sign`),
     fitted on the measured output and simulated in the identification loop from the simulated
-    output at each step (causal, no iterations). Open-loop data: the fixed-point simulation below.
+    output at each step (causal, no iterations). Open-loop data: :func:`friction_simulation`.
     """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
@@ -532,12 +566,10 @@ def friction(ctx: Context) -> Candidate | None:
         for kind in _friction_kinds(ctx.est.y, i):
             name = f"sign_d{ctx.est.y_names[i]}" if kind == "position" else f"sign_{ctx.est.y_names[i]}"
 
-            def simulate_own(model: LPVIO, data: Dataset, y_start: np.ndarray, i=i, kind=kind) -> np.ndarray:
-                y = y_start
-                for _ in range(FRICTION_ITERATIONS):  # friction sign from the model's own output
-                    y = bounded(model.simulate(np.hstack([data.u, sign_feature(y, i, kind)]), data.p),
-                                data.y)[0]
-                return y
+            def simulate_own(model: LPVIO, data: Dataset, i=i, kind=kind) -> np.ndarray:
+                with np.errstate(over="ignore", invalid="ignore"):
+                    return bounded(friction_simulation(model, data.u, data.p, i, kind == "velocity"),
+                                   data.y)[0]
 
             # Extension (scored and saved): the sign in the estimation data is taken from the model's
             # own simulation, refitted twice from the nominal model; it simulates best. Its level is
@@ -549,9 +581,8 @@ def friction(ctx: Context) -> Candidate | None:
                 for _ in range(2):
                     est = _with_inputs(ctx.est, sign_feature(y_est, i, kind), [name])
                     result = ctx.fit(est, ctx.val, na, nb_f, nk_f, basis,
-                                     lambda m, run=simulate_own: run(m, whole, y_whole)[ctx.est.N :])
-                    with np.errstate(over="ignore", invalid="ignore"):
-                        y_est = simulate_own(result.model, ctx.est, y_est)
+                                     lambda m, run=simulate_own: run(m, whole)[ctx.est.N :])
+                    y_est = simulate_own(result.model, ctx.est)
                 measured = identify_arx(measured_est, na, nb_f, nk_f, basis, form=ctx.structure.form)
             except LpvflowError:
                 continue

@@ -43,13 +43,12 @@ def test_sensor_saturation_is_named_with_its_limits():
     assert result.parameters["lower_limit"] == pytest.approx(-limit, rel=0.2)
 
 
-def test_sensor_saturation_finds_no_limit_on_unclipped_data():
-    """Without clipping no limit pays its BIC price: both are None, and the cause is not named."""
+def test_sensor_saturation_is_untested_on_unclipped_data():
+    """Without clipping no output piles up at an extreme: the cause is untested, with the reason."""
     data, channels, _ = make_case("none", seed=34)
     result = diagnose(data, NOMINAL, channels, causes=["sensor_saturation"])
-    row = next(r for r in result.ranking if r["cause"] == "sensor_saturation")
-    assert row["parameters"]["lower_limit"] is None and row["parameters"]["upper_limit"] is None
-    assert not row["significant"] and result.cause == "none"
+    assert result.untested == ["sensor_saturation"] and result.cause == "none"
+    assert "piles up" in result.untested_reasons["sensor_saturation"]
 
 
 def test_an_effect_outside_the_vocabulary_is_unexplained():

@@ -607,7 +607,8 @@ def sensor_saturation(ctx: Context) -> Candidate | None:
     lowers that loss (log det) by more than the BIC price of one parameter, ln N / N, and the output
     piles up at that extreme (:func:`_piled_up`) — else that side does not clip (None). Noise added
     after the clip (a sensor that is noisy at its limit) is not covered: the pile-up test needs the
-    limit value itself. One output (the best); open loop only."""
+    limit value itself. One output (the best); open loop only. No output piling up at an extreme:
+    the cause is untested (LpvflowError), and the search is not run."""
     if ctx.loop is not None:
         raise LpvflowError("sensor saturation is not simulated in the identification loop")
     results = []
@@ -618,14 +619,22 @@ def sensor_saturation(ctx: Context) -> Candidate | None:
         def loss(lo: float, hi: float, i=i) -> float:
             return _clipped_fit(ctx, i, lo, hi)[1]
 
-        hi = _search_level(lambda h: loss(-np.inf, h), np.quantile(y, np.linspace(0.7, 1.0, 16)))
-        if not _piled_up(y, y.max()) or loss(-np.inf, hi) > loss(-np.inf, np.inf) - margin:
-            hi = np.inf
-        lo = _search_level(lambda b, hi=hi: loss(b, hi), np.quantile(y, np.linspace(0.0, 0.3, 16)))
-        if not _piled_up(y, y.min()) or loss(lo, hi) > loss(-np.inf, hi) - margin:
-            lo = -np.inf
-        limits = [v if np.isfinite(v) else None for v in (lo, hi)]
-        results.append((_clipped_fit(ctx, i, lo, hi)[0], i, limits))
+        hi = lo = None
+        if _piled_up(y, y.max()):
+            hi = _search_level(lambda h: loss(-np.inf, h), np.quantile(y, np.linspace(0.7, 1.0, 16)))
+            if loss(-np.inf, hi) > loss(-np.inf, np.inf) - margin:
+                hi = None
+        hi_ = np.inf if hi is None else hi
+        if _piled_up(y, y.min()):
+            lo = _search_level(lambda b, hi=hi_: loss(b, hi), np.quantile(y, np.linspace(0.0, 0.3, 16)))
+            if loss(lo, hi_) > loss(-np.inf, hi_) - margin:
+                lo = None
+        if hi is None and lo is None:
+            continue
+        lo_ = -np.inf if lo is None else lo
+        results.append((_clipped_fit(ctx, i, lo_, hi_)[0], i, [lo, hi]))
+    if not results:
+        raise LpvflowError("no output piles up at an extreme of its range: no sensor clips")
     best, i, (lo, hi) = min(results, key=lambda r: r[0].loss)
     name = ctx.est.y_names[i]
     return Candidate("sensor_saturation", {"output": name, "lower_limit": lo, "upper_limit": hi}, best,

@@ -15,7 +15,7 @@ and valve lift, scheduling the exogenous engine speed [krpm] and the throttle [f
 the manifold depends on the speed (cylinder pumping) and on the throttle (orifice slope ∂ṁ_th/∂p_m),
 so the nominal structure is na = nb = 1, nk = 1, poly:2 in both (validation BFR ≈ 92 %). Scheduling
 in krpm, not rpm: with ψ up to (6000 rpm)² the recursive OE auxiliary model of IV-OE leaves a
-singular instrument matrix and colored_noise stays untested.
+singular instrument matrix and the output-error refit started from it is not tried.
 
 adip: closed loop under fmu_plants/adip/stabilizing_controller.json (the plant is unstable), Ts =
 5 ms, 40 s, excitation on the voltage a random-phase multisine 0.05–20 Hz, 1.5 V rms, period 20 s

@@ -521,23 +521,26 @@ def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[s
     return top
 
 
-def _noise_round(candidates: dict[str, Candidate], est: Dataset, val: Dataset, structure: Structure,
-                 split_channels: dict, loop: Loop | None, noisy: dict | None,
+def _noise_round(candidates: dict[str, Candidate], ctx: Context, noisy: dict | None,
                  noise: dict | None) -> dict[str, Candidate] | None:
     """Every extension refitted consistently (module docstring, step 5), or None when the round does
     not run: open loop when the LS estimate of the nominal structure is materially biased
     (:func:`_biased`), closed loop when the closed-loop IV refit gains significantly."""
-    if loop is not None:
-        return _refits_in_loop(candidates, est, loop) if noisy is not None and noisy["significant"] else None
+    if ctx.loop is not None:
+        significant = noisy is not None and noisy["significant"]
+        return _refits_in_loop(candidates, ctx.est, ctx.loop) if significant else None
     if noise is None or not noise["biased"]:
         return None
-    ctx_oe = Context(est, val, structure, candidates[NOISE].fit, split_channels, None, estimator="oe")
-    return _refits_by_output_error(candidates, ctx_oe)
+    return _refits_by_output_error(candidates, _oe_context(ctx, candidates))
 
 
-def _confirmed_by_output_error(cause: str, candidates: dict[str, Candidate], est: Dataset, val: Dataset,
-                               structure: Structure, split_channels: dict, min_gain: float,
-                               alpha: float) -> str:
+def _oe_context(ctx: Context, candidates: dict[str, Candidate]) -> Context:
+    """``ctx`` with every variant refined by output error, the refit of the nominal as nominal."""
+    return replace(ctx, nominal=candidates[NOISE].fit, estimator="oe")
+
+
+def _confirmed_by_output_error(cause: str, candidates: dict[str, Candidate], ctx: Context,
+                               min_gain: float, alpha: float) -> str:
     """``cause``, or ``none`` when its extension refitted by output error does not gain significantly
     over the output-error refit of the nominal structure.
 
@@ -549,11 +552,10 @@ def _confirmed_by_output_error(cause: str, candidates: dict[str, Candidate], est
     ≥ ``min_gain`` at p < CONFIRM_ALPHA (friction under 30 dB equation noise, seed 1003: +5.1 points
     refitted, p = 0.0012).
     """
-    ctx_oe = Context(est, val, structure, candidates[NOISE].fit, split_channels, None, estimator="oe")
-    refit = _refits_by_output_error({cause: candidates[cause]}, ctx_oe)
+    refit = _refits_by_output_error({cause: candidates[cause]}, _oe_context(ctx, candidates))
     if cause not in refit:
         return cause
-    row = _rank(est, val, candidates[NOISE].fit, refit, min_gain, alpha)[0][0]
+    row = _rank(ctx.est, ctx.val, candidates[NOISE].fit, refit, min_gain, alpha)[0][0]
     return cause if row["bfr_gain"] >= min_gain and row["p_value"] < CONFIRM_ALPHA else "none"
 
 
@@ -610,6 +612,48 @@ def _scalar(values: list):
     return values[0] if len(values) == 1 else values
 
 
+def _judge_noise(ctx: Context, candidates: dict[str, Candidate], noisy: dict | None, min_gain: float,
+                 alpha: float) -> dict | None:
+    """:func:`_noise_analysis` of the output-error refit (open loop), its findings written into the
+    refit's ranking row; a refit that removes no material noise bias is ruled out."""
+    if ctx.loop is not None or noisy is None:
+        return None
+    noise = _noise_analysis(ctx.est, ctx.val, ctx.nominal, candidates[NOISE].fit, alpha, min_gain,
+                            noisy["significant"])
+    noisy |= {"bias_p_value": noise["bias"]["p_value"], "colored": noise["colored"]}
+    if not noise["biased"]:
+        bias = noise["bias"]
+        noisy["significant"] = False
+        noisy["ruled_out"] = (f"no material noise bias of LS: Wald p = {bias['p_value']:.2g}, frozen "
+                              f"response change the noise explains {bias['noise_bias_change']:.3f}")
+    return noise
+
+
+def _decide(ctx: Context, candidates: dict[str, Candidate], ranked: list[dict], losses: dict,
+            noisy: dict | None, noise: dict | None, min_gain: float,
+            alpha: float) -> tuple[str, dict[str, Candidate], list[dict]]:
+    """The verdict before the adequacy test (module docstring, steps 4–5): (cause, the candidates it
+    names from, the noise round's ranking — empty when the round did not run)."""
+    refits = _noise_round(candidates, ctx, noisy, noise)
+    if refits is None:
+        cause = _choose(ranked, candidates, losses)
+        suspect = (noise is not None and noise["bias"]["p_value"] < alpha
+                   and noise["prediction_ratio"] >= OUTPUT_NOISE_RATIO
+                   and noise["bias"]["noise_bias_change"] >= NOTICEABLE_CHANGE)
+        if suspect and cause in candidates:
+            cause = _confirmed_by_output_error(cause, candidates, ctx, min_gain, alpha)
+        return cause, candidates, []
+    # The noise round (module docstring, step 5; docstring of _choose): every extension refitted
+    # consistently, scored against the consistent refit of the nominal structure.
+    refit_ranked, refit_losses = _rank(ctx.est, ctx.val, candidates[NOISE].fit, refits, min_gain, alpha)
+    if ctx.loop is None:
+        _only_where_ls_gained(refit_ranked, ranked)
+    cause = _choose(refit_ranked, refits, refit_losses)
+    if cause == "none":
+        return _noise_verdict(noisy, noise), candidates, refit_ranked
+    return cause, refits, refit_ranked
+
+
 def diagnose(
     data: Dataset, structure: Structure, channels: dict[str, np.ndarray] | None = None,
     split: float = 0.5, alpha: float = 1e-3, min_gain: float = 1.0, causes: list[str] | None = None,
@@ -661,39 +705,9 @@ def diagnose(
     bfr_nom = bfr(val.y, nominal.y_val)
     ranked, losses = _rank(est, val, nominal, candidates, min_gain, alpha)
     noisy = next((r for r in ranked if r["cause"] == NOISE), None)
-    noise = None
-    if loop is None and noisy is not None:
-        noise = _noise_analysis(est, val, nominal, candidates[NOISE].fit, alpha, min_gain,
-                                noisy["significant"])
-        noisy |= {"bias_p_value": noise["bias"]["p_value"], "colored": noise["colored"]}
-        if not noise["biased"]:
-            bias = noise["bias"]
-            noisy["significant"] = False
-            noisy["ruled_out"] = (f"no material noise bias of LS: Wald p = {bias['p_value']:.2g}, frozen "
-                                  f"response change the noise explains {bias['noise_bias_change']:.3f}")
-    refits = _noise_round(candidates, est, val, structure, split_channels, loop, noisy, noise)
-    refit_ranked: list[dict] = []
-    pool = candidates
-    if refits is None:
-        cause = _choose(ranked, candidates, losses)
-        suspect = (noise is not None and noise["bias"]["p_value"] < alpha
-                   and noise["prediction_ratio"] >= OUTPUT_NOISE_RATIO
-                   and noise["bias"]["noise_bias_change"] >= NOTICEABLE_CHANGE)
-        if suspect and cause in candidates:
-            cause = _confirmed_by_output_error(cause, candidates, est, val, structure, split_channels,
-                                               min_gain, alpha)
-    else:
-        # The noise round (module docstring, step 5; docstring of _choose): every extension refitted
-        # consistently, scored against the consistent refit of the nominal structure.
-        refit_ranked, refit_losses = _rank(est, val, candidates[NOISE].fit, refits, min_gain, alpha)
-        if loop is None:
-            _only_where_ls_gained(refit_ranked, ranked)
-        cause = _choose(refit_ranked, refits, refit_losses)
-        if cause == "none":
-            cause = _noise_verdict(noisy, noise)
-        else:
-            pool = refits
-    final = candidates[NOISE].fit if refits is not None else nominal
+    noise = _judge_noise(ctx, candidates, noisy, min_gain, alpha)
+    cause, pool, refit_ranked = _decide(ctx, candidates, ranked, losses, noisy, noise, min_gain, alpha)
+    final = candidates[NOISE].fit if refit_ranked else nominal
     adequacy = (None if loop is not None
                 else _input_explained(est, val, final.model, final.y_val, min_gain, alpha))
     if cause in ("none", NOISE, "colored_noise") and adequacy is not None and adequacy["significant"]:

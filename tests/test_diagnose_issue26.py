@@ -5,6 +5,8 @@ Synthetic cases of tests/diagnosis_cases.py (one seed each, so that the tests st
 over ten seeds and the clean controls: benchmarks/bench_diagnose.py (benchmarks/README.md).
 """
 
+import json
+
 import numpy as np
 import pytest
 
@@ -61,6 +63,7 @@ def test_an_effect_outside_the_vocabulary_is_unexplained():
     assert result.adequacy["significant"] and result.adequacy["bfr_gain"] > 10
     assert result.parameters["p_value"] < 1e-3
     assert "cause unexplained" in result.summary
+    json.dumps(result.to_dict())
 
 
 @pytest.mark.parametrize("seed", [36, 37])
@@ -83,6 +86,7 @@ def test_white_sensor_noise_is_output_noise_bias_with_its_level():
     assert result.noise["biased"] and not result.noise["colored"]
     assert result.parameters["frozen_response_change"] > MATERIAL_CHANGE
     assert "refit by output error" in result.summary
+    json.dumps(result.to_dict())
 
 
 def test_ar2_noise_is_colored_noise_with_its_spectrum():
@@ -99,6 +103,8 @@ def test_ar2_noise_is_colored_noise_with_its_spectrum():
     peak = spectrum["frequency_hz"][int(np.argmax(spectrum["psd"]))]
     assert peak == pytest.approx(np.angle(np.roots([1, -1.5, 0.7])[0]) / (2 * np.pi * data.Ts), abs=3.2)
     assert result.noise["prediction_gain"][0] > 10
+    assert "coloured output noise (AR order" in result.summary
+    json.dumps(result.to_dict())  # the CLI's report: plain JSON types only
 
 
 @pytest.mark.parametrize("snr_db", [80.0, 10.0])

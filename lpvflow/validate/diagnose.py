@@ -746,7 +746,8 @@ def _summary(result: Diagnosis, winner: Candidate | None) -> str:
     text = (f"{winner.description} raises validation BFR from {before:.1f} % to {after:.1f} % "
             f"(cause: {result.cause})")
     if result.cause == "colored_noise":
-        text += (f"; coloured output noise (AR order {np.ravel(result.parameters['ar']).size}, "
+        order = max(m["ar_order"] for m in result.noise["noise_model"])
+        text += (f"; coloured output noise (AR order {order}, "
                  f"SNR {np.mean(result.parameters['snr_db']):.1f} dB) biases least squares")
     elif result.cause == NOISE and result.noise is not None:
         text += (f"; white output noise (SNR {np.mean(result.parameters['snr_db']):.1f} dB) biases least "

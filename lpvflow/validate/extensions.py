@@ -607,7 +607,8 @@ def sensor_saturation(ctx: Context) -> Candidate | None:
     lowers that loss (log det) by more than the BIC price of one parameter, ln N / N, and the output
     piles up at that extreme (:func:`_piled_up`) — else that side does not clip (None). Noise added
     after the clip (a sensor that is noisy at its limit) is not covered: the pile-up test needs the
-    limit value itself. One output (the best); open loop only. No output piling up at an extreme:
+    limit value itself. In the noise round it stays this LS fit (no output-error refinement of the
+    masked equations). One output (the best); open loop only. No output piling up at an extreme:
     the cause is untested (LpvflowError), and the search is not run."""
     if ctx.loop is not None:
         raise LpvflowError("sensor saturation is not simulated in the identification loop")

@@ -110,12 +110,14 @@ NOTICEABLE_CHANGE = 0.02
 #: Significance level of that check (:func:`_confirmed_by_output_error`).
 CONFIRM_ALPHA = 0.05
 #: Smallest :func:`_prediction_ratio` at which the simulation error is taken for output noise. Under
-#: output noise no ARX predictor beats the Box–Jenkins-type one: ρ ≳ 1 (synthetic white 3–10 %
-#: 2.4–2.9, AR(2) at 3 dB 1.00–1.03, airpath FMU with 4 kPa 1.49; equation noise 0.92–0.99). A model
-#: error is predicted one step ahead from the measured outputs far better than simulated: the
-#: noise-free tanks FMU 0.07 (0.71 with a 3 s dead time), the synthetic unmodelled pole 0.38 — there
-#: LS and output error differ because they weigh the model error differently, not because of noise.
-OUTPUT_NOISE_RATIO = 0.8
+#: output noise no ARX predictor beats the Box–Jenkins-type one: ρ ≳ 1 (synthetic white 3–15 %
+#: 2.4–2.9, AR(2) at 3 dB 1.00–1.05 over seeds 1000–1009, airpath FMU with 4 kPa 1.49, tanks FMU with
+#: 0.5 mm 2.1; equation noise 0.92–0.99). A model error is predicted one step ahead from the measured
+#: outputs better than simulated: the noise-free tanks FMU 0.07, with a 3 s dead time 0.64–0.84
+#: (seeds 0–4; at 0.8 seed 2 went to the noise round and was named model_order), the synthetic
+#: unmodelled pole 0.38 — there LS and output error differ because they weigh the model error
+#: differently, not because of noise. The margin is thin on both sides (0.84 | 0.9 | 1.00).
+OUTPUT_NOISE_RATIO = 0.9
 #: Lags 0 … FEATURE_LAGS of each input feature in the adequacy test (:func:`_input_explained`).
 FEATURE_LAGS = 20
 

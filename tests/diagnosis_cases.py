@@ -7,8 +7,19 @@ u uniform in [−1, 1] held 1–5 samples.
 The effect is applied to that plant; the diagnosis always gets the nominal structure na=nb=2, nk=1,
 affine basis. Noise: equation (ARX) noise e(k) entering like y(k) = … + e(k), scaled so that the
 noise-free-to-noise output power ratio is ``snr_db`` — inside the model set, so that without an effect
-the nominal structure is right. ``colored_noise`` instead adds white *measurement* noise at the output
-(an output-error noise model, coloured as equation noise), which biases least squares.
+the nominal structure is right. ``sensor_noise`` instead adds white *measurement* noise at the output
+(an output-error noise model, coloured as equation noise), which biases least squares; ``ar2_noise``
+adds measurement noise coloured by 1/(1 − 1.5q⁻¹ + 0.7q⁻²) (poles 0.75 ± 0.37j), both at ``snr_db``.
+Their expected parameter is the noise's standard deviation relative to the noise-free output's.
+
+Effects of issue 26 (outside the base plant's input path or output map):
+
+* ``friction_velocity`` — a first-order plant whose *output is the velocity*:
+  v(k+1) = a(p(k)) v(k) + b(p(k)) (u(k) − F_c sign v(k)), a = 0.85 + 0.1p, b = 0.5 + 0.2p, F_c = 0.2;
+* ``backlash`` — a play operator of total width 0.3 (dead band ±0.15 with memory) on the input;
+* ``sensor_saturation`` — the measured output clipped to ±s, s = 60 % of the noise-free peak;
+* ``out_of_vocabulary`` — an even input map u + 0.8 (u² − 1/3) (zero mean for u uniform in [−1, 1]),
+  which no extension of the vocabulary describes.
 """
 
 from __future__ import annotations
@@ -57,6 +68,26 @@ def simulate_plant(u, p, *, nk=1, lag=0.0, quad=0.0, q=None, q_gain=0.0, frictio
     return y
 
 
+def play(u: np.ndarray, width: float) -> np.ndarray:
+    """Backlash (play operator): the output moves only when the input pushes it past ±width/2."""
+    out = np.empty_like(u)
+    half, state = width / 2, 0.0
+    for k, x in enumerate(u):
+        state = min(max(state, x - half), x + half)
+        out[k] = state
+    return out
+
+
+def simulate_velocity_plant(u, p, friction=0.0, e=None):
+    """The friction_velocity plant of the module docstring; e is equation noise."""
+    v = np.zeros(len(u))
+    e = np.zeros(len(u)) if e is None else e
+    for k in range(len(u) - 1):
+        v[k + 1] = ((0.85 + 0.1 * p[k]) * v[k] + (0.5 + 0.2 * p[k]) * (u[k] - friction * np.sign(v[k]))
+                    + e[k + 1])
+    return v
+
+
 def make_case(effect: str, seed: int, snr_db: float = 30.0, n: int = 4000, deadzone: float = 0.3):
     """(data, channels, expected parameter) for one hidden effect, 'none', or effects joined by '+'
     (then the expected parameter is the last one's)."""
@@ -72,6 +103,11 @@ def make_case(effect: str, seed: int, snr_db: float = 30.0, n: int = 4000, deadz
     if "input_nonlinearity" in effects:
         expected = deadzone
         u_plant = np.sign(u) * np.maximum(np.abs(u) - expected, 0)
+    if "backlash" in effects:
+        expected = 0.3
+        u_plant = play(u, expected)
+    if "out_of_vocabulary" in effects:
+        u_plant = u + 0.8 * (u**2 - 1 / 3)
     kwargs = {}
     if "input_delay" in effects:
         kwargs["nk"], expected = 3, 3
@@ -83,17 +119,26 @@ def make_case(effect: str, seed: int, snr_db: float = 30.0, n: int = 4000, deadz
         kwargs["q"], kwargs["q_gain"], expected = q, 0.6, "q"
     if "friction" in effects:
         kwargs["friction"], expected = 0.2, 0.2
-    y_clean = simulate_plant(u_plant, p, **kwargs)
+    plant = simulate_plant
+    if "friction_velocity" in effects:
+        plant, kwargs, expected = simulate_velocity_plant, {"friction": 0.2}, 0.2
+    y_clean = plant(u_plant, p, **kwargs)
     noise = rng.normal(size=n)
-    if "colored_noise" in effects:
-        y_meas = y_clean + noise * np.std(y_clean) * 10 ** (-snr_db / 20)
+    if "ar2_noise" in effects:
+        noise = scipy.signal.lfilter([1.0], [1.0, -1.5, 0.7], noise)
+    if "sensor_noise" in effects or "ar2_noise" in effects:
+        expected = 10 ** (-snr_db / 20)
+        y_meas = y_clean + noise / np.std(noise) * np.std(y_clean) * expected
     else:
         # Scale the noise by its linear-path response, then run the plant once more with it, so that
         # nonlinear plants (friction) see the noise inside a consistent trajectory.
-        response = simulate_plant(u_plant, p, e=noise, **{**kwargs, "friction": 0.0})
-        response -= simulate_plant(u_plant, p, **{**kwargs, "friction": 0.0})
+        response = plant(u_plant, p, e=noise, **{**kwargs, "friction": 0.0})
+        response -= plant(u_plant, p, **{**kwargs, "friction": 0.0})
         scale = np.std(y_clean) / np.std(response) * 10 ** (-snr_db / 20)
-        y_meas = simulate_plant(u_plant, p, e=scale * noise, **kwargs)
+        y_meas = plant(u_plant, p, e=scale * noise, **kwargs)
+    if "sensor_saturation" in effects:
+        expected = 0.6 * float(np.max(np.abs(y_clean)))
+        y_meas = np.clip(y_meas, -expected, expected)
     if "offset" in effects:
         expected = 0.5
         y_meas = y_meas + expected

@@ -142,37 +142,33 @@ def test_dead_time_under_output_noise_is_named_exactly_not_model_order():
     LS fits of a higher order gain more than the LS fit with the right delay (model_order was named,
     5 seeds of 5). With the extensions refitted by output error the dead time is named, exactly,
     with a positive significant gain over the output-error fit of the nominal structure."""
-    from lpvflow.validate.diagnose import NOISE_SHARE
-
-    data, channels, expected = make_case("input_delay+colored_noise", seed=16, snr_db=15)
+    data, channels, _ = make_case("input_delay+sensor_noise", seed=16, snr_db=15)
     result = diagnose(data, NOMINAL, channels)
-    assert result.noise_share >= NOISE_SHARE and result.refit_ranking
+    assert result.noise["biased"] and result.refit_ranking
     assert result.cause == "input_delay", result.refit_ranking
-    assert result.parameters["nk"] == expected == 3
+    assert result.parameters["nk"] == 3
     refit = next(r for r in result.refit_ranking if r["cause"] == "input_delay")
     assert refit["bfr_gain"] > 2 and refit["p_value"] < 1e-3
     assert result.bfr_after[0] > result.bfr_before[0] + 10
 
 
-def test_sensor_noise_alone_is_colored_noise():
-    """White sensor noise, no structural effect: the output-error refit gains, no extension refitted
-    by output error adds to it, so the verdict is colored_noise (never model_order)."""
-    data, channels, _ = make_case("colored_noise", seed=17, snr_db=10)
+def test_sensor_noise_alone_is_output_noise_bias():
+    """White sensor noise (10 dB), no structural effect: the output-error refit gains, no extension
+    refitted by output error adds to it, so the verdict is output_noise_bias (never model_order)."""
+    data, channels, _ = make_case("sensor_noise", seed=17, snr_db=10)
     result = diagnose(data, NOMINAL, channels)
-    assert result.cause == "colored_noise", (result.ranking, result.refit_ranking)
+    assert result.cause == "output_noise_bias", (result.ranking, result.refit_ranking)
     assert not any(r["significant"] for r in result.refit_ranking)
-    noisy = next(r for r in result.ranking if r["cause"] == "colored_noise")
+    noisy = next(r for r in result.ranking if r["cause"] == "output_noise_bias")
     assert noisy["bfr_gain"] > 1 and noisy["p_value"] < 1e-3
 
 
 def test_equation_noise_does_not_trigger_the_noise_round():
-    """Equation (ARX) noise is inside the model set: LS is consistent, the one-step residual is far
-    below the output-error simulation error (noise share < NOISE_SHARE), colored_noise is ruled out."""
-    from lpvflow.validate.diagnose import NOISE_SHARE
-
+    """Equation (ARX) noise is inside the model set: LS is consistent, the bias test finds no
+    material difference from the output-error refit, and output_noise_bias is ruled out."""
     data, channels, _ = make_case("none", seed=21, snr_db=20)
     result = diagnose(data, NOMINAL, channels)
-    assert result.noise_share < NOISE_SHARE and not result.refit_ranking
-    noisy = next(r for r in result.ranking if r["cause"] == "colored_noise")
+    assert not result.noise["biased"] and not result.refit_ranking
+    assert result.noise["bias"]["frozen_response_change"] < 0.05
+    noisy = next(r for r in result.ranking if r["cause"] == "output_noise_bias")
     assert "ruled_out" in noisy and not noisy["significant"]
-

@@ -15,7 +15,7 @@ and valve lift, scheduling the exogenous engine speed [krpm] and the throttle [f
 the manifold depends on the speed (cylinder pumping) and on the throttle (orifice slope ∂ṁ_th/∂p_m),
 so the nominal structure is na = nb = 1, nk = 1, poly:2 in both (validation BFR ≈ 92 %). Scheduling
 in krpm, not rpm: with ψ up to (6000 rpm)² the recursive OE auxiliary model of IV-OE leaves a
-singular instrument matrix and colored_noise stays untested.
+singular instrument matrix and the output-error refit started from it is not tried.
 
 adip: closed loop under fmu_plants/adip/stabilizing_controller.json (the plant is unstable), Ts =
 5 ms, 40 s, excitation on the voltage a random-phase multisine 0.05–20 Hz, 1.5 V rms, period 20 s
@@ -140,13 +140,15 @@ def test_tanks_first_order_model_is_raised_to_the_cascade_order(fmus):
     assert result.bfr_after[0] > result.bfr_before[0] + 10
 
 
-def test_tanks_sensor_noise_is_colored_noise_not_model_order(fmus):
+def test_tanks_sensor_noise_is_output_noise_bias_not_model_order(fmus):
     """0.5 mm of white noise on the level sensor, no structural effect. Least squares is biased (the
     lagged levels at Ts = 1 s are nearly collinear), and an LS fit with more lags recovers part of
     the bias on validation: model_order was named (5 seeds of 5). Refitted by output error, the
-    nominal structure recovers the noise-free accuracy and no extension adds to it: colored_noise."""
+    nominal structure recovers the noise-free accuracy and no extension adds to it; the noise model
+    is white: output_noise_bias (colored_noise before issue 26, which had no noise model)."""
     result = diagnose(tanks_data({"effect_noise_std": 5e-4, "effect_noise_seed": 1}, build=fmus), TANKS)
-    assert result.cause == "colored_noise", (result.ranking, result.refit_ranking)
+    assert result.cause == "output_noise_bias", (result.ranking, result.refit_ranking)
+    assert result.parameters["relative_noise"] < 0.05 and not result.noise["colored"]
     ls_order = next(r for r in result.ranking if r["cause"] == "model_order")
     assert ls_order["significant"]  # the trap: among LS fits, a higher order gains
     assert not any(r["significant"] for r in result.refit_ranking)
@@ -197,10 +199,16 @@ def test_effect_free_tanks_under_the_dead_zone_design_gives_none(fmus):
     assert result.cause == "none", result.ranking
 
 
-def test_effect_free_airpath_gives_none(fmus):
+def test_effect_free_airpath_names_no_cause(fmus):
+    """No effect, no noise: no extension and no noise verdict. The poly:2 structure is not exact (the
+    orifice flow and volumetric efficiency are not polynomials): a correction from the input history
+    alone gains 2.2 points on this seed (p = 1.6·10⁻⁴), so since issue 26 the verdict is
+    unexplained here — none on experiment seeds 0 and 1 (gains 0.4 and 0.9 points)."""
     data, channels = airpath_data({}, build=fmus)
     result = diagnose(data, AIRPATH, channels)
-    assert result.cause == "none", result.ranking
+    assert result.cause == "unexplained", result.ranking
+    assert not any(r["significant"] for r in result.ranking)
+    assert 1 < result.adequacy["bfr_gain"] < 5
     assert result.bfr_before[0] > 88
 
 
@@ -225,12 +233,13 @@ def test_airpath_affine_scheduling_is_too_poor(fmus):
     assert result.bfr_after[0] > result.bfr_before[0] + 5
 
 
-def test_airpath_pressure_sensor_noise_is_coloured_noise(fmus):
+def test_airpath_pressure_sensor_noise_is_output_noise_bias(fmus):
     """White noise of 4 kPa on the pressure sensor (exogenous scheduling, so no errors in
-    variables): least squares is biased, IV-OE with the same structure simulates better."""
+    variables): least squares is biased, the output-error refit with the same structure simulates
+    better, and its noise model is white."""
     data, channels = airpath_data({"effect_noise_std": 4.0, "effect_noise_seed": 1}, build=fmus)
     result = diagnose(data, AIRPATH, channels)
-    assert result.cause == "colored_noise", result.ranking
+    assert result.cause == "output_noise_bias", result.ranking
     assert result.bfr_after[0] > result.bfr_before[0] + 2
 
 
@@ -289,7 +298,7 @@ def test_adip_friction_under_sensor_noise_is_found_by_closed_loop_iv(fmus):
     all of them: the same verdict, benchmarks/README.md)."""
     data = adip_data({"effect_coulomb": 0.04, "effect_noise_std": 1e-4, "effect_noise_seed": 100}, seed=0,
                      build=fmus)
-    result = diagnose_adip(data, causes=["friction", "colored_noise"])
+    result = diagnose_adip(data, causes=["friction", "output_noise_bias"])
     assert result.cause == "friction", (result.ranking, result.refit_ranking)
     assert result.parameters["output"] == "arm_angle"
     level = result.parameters["coulomb_level_input_units"]

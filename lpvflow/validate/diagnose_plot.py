@@ -14,7 +14,8 @@ WINDOW_SAMPLES = 400
 
 def plot_diagnosis(result: Diagnosis, data: Dataset, path: str, split: float = 0.5) -> None:
     """Four panels for the first output: validation time series (measured / nominal / extended),
-    error spectrum, error RMS against scheduling and input amplitude, and the ranked BFR gains."""
+    error spectrum, error RMS against every scheduling signal and input amplitude, and the ranked BFR
+    gains."""
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -33,9 +34,10 @@ def plot_diagnosis(result: Diagnosis, data: Dataset, path: str, split: float = 0
            title=f"validation simulation (first {len(t)} samples)")
     ax.legend(fontsize=8)
     ax = axes[0, 1]
-    ax.plot(where["rms_vs_scheduling"]["p"], where["rms_vs_scheduling"]["rms"], "o-", label=val.p_names[0])
-    ax.plot(where["rms_vs_input_amplitude"]["abs_u"], where["rms_vs_input_amplitude"]["rms"], "s-",
-            label=f"|{val.u_names[0]}|")
+    for row in where["rms_vs_scheduling"]:
+        ax.plot(row["value"], row["rms"], "o-", label=row["channel"])
+    for row in where["rms_vs_input_amplitude"]:
+        ax.plot(row["value"], row["rms"], "s-", label=f"|{row['channel']}|")
     ax.set(xlabel="value", ylabel="nominal error RMS", title="where the error lives")
     ax.legend(fontsize=8)
     ax = axes[1, 0]

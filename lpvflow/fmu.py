@@ -15,6 +15,7 @@ other, measured outputs.
 from __future__ import annotations
 
 import ctypes
+import os
 import shutil
 import zipfile
 from collections.abc import Iterable, Mapping, Sequence
@@ -60,11 +61,13 @@ class FmuPlant:
         self._callbacks = fmi2CallbackFunctions()
         self._logger = fmi2CallbackLoggerTYPE(self._log)
         self._callbacks.logger = self._logger
+        work_dir = os.getcwd()
         try:
             slave = FMU2Slave(guid=description.guid, unzipDirectory=self._unzipdir,
                               modelIdentifier=self.name, instanceName=self.name)
             slave.instantiate(callbacks=self._callbacks)
         except BaseException as exc:  # the extracted files must not outlive a failed start
+            os.chdir(work_dir)  # fmpy leaves the process in the binary's folder when loading fails
             shutil.rmtree(self._unzipdir, ignore_errors=True)
             if isinstance(exc, Exception):
                 raise ModelError(f"{path}: the FMU's binary cannot be loaded ({exc}); rebuild it with "

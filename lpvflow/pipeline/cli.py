@@ -85,11 +85,19 @@ def warning_line(message: Warning | str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run ``lpvflow ARGV``; returns the exit status (usage errors exit 2 through argparse)."""
     argv = sys.argv[1:] if argv is None else argv
     command = next((arg for arg in argv if not arg.startswith("-")), None)  # lpvflow [-h] COMMAND ...
-    parser = build_parser(command)
-    args = parser.parse_args(argv)
-    prefix = f"lpvflow {args.command}"
+    prefix = "lpvflow" if command not in COMMANDS else f"lpvflow {command}"
+    try:
+        return _run(build_parser(command).parse_args(argv), prefix)
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{prefix}: interrupted by Ctrl-C\n")
+        return 130
+
+
+def _run(args: argparse.Namespace, prefix: str) -> int:
+    """The subcommand's runner with its paths checked, errors as one line and warnings as one line."""
     shown: set[str] = set()
 
     def show(message: Warning | str, *_: object, **__: object) -> None:
@@ -111,9 +119,6 @@ def main(argv: list[str] | None = None) -> int:
             sys.stderr.write(f"{prefix}: error: {exc.strerror or exc}{where}; check the path exists and "
                              "can be written\n")
             return 2
-        except KeyboardInterrupt:
-            sys.stderr.write(f"{prefix}: interrupted by Ctrl-C\n")
-            return 130
 
 
 if __name__ == "__main__":

@@ -225,6 +225,15 @@ def check_fmu(path: str | Path) -> ModelDescription:
     return description
 
 
+def declared_step(path: str | Path) -> float:
+    """The communication step the FMU declares (``DefaultExperiment stepSize``)."""
+    experiment = check_fmu(path).defaultExperiment
+    if experiment is None or not experiment.stepSize:
+        raise DataError(f"{path} declares no step size (DefaultExperiment stepSize); give Ts (--Ts) "
+                        "in seconds")
+    return float(experiment.stepSize)
+
+
 def open_fmu(path: str | Path, outputs: Sequence[str] | None = None) -> FmuPlant:
     """Open the FMU at `path`, initialised at t = 0 with its default parameters.
 

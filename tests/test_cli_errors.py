@@ -123,6 +123,22 @@ def test_a_bad_design_value_is_one_line_exit_2_and_keeps_the_previous_report(
     assert (folder / "report.html").read_text() == "previous good report"
 
 
+@pytest.mark.parametrize(("table", "fragment"), [
+    ("[synth]\nbx = [[0, 1]]\nweights.S = { bandwidth = 1.0 }\nweights.K = { num = [1], den = [1] }\n",
+     "[synth] has unknown key(s) ['bx']; known: ['baseline_at', 'box', 'method', 'solver', 'weights']"),
+    ("[synth]\nmethd = 'common'\n", "[synth] has unknown key(s) ['methd']"),
+    ("[polytope]\nbox = [[0, 1]]\n[weights]\nS = {}\n", "synth settings now live in [synth]"),
+])
+def test_synth_refuses_unknown_keys_before_solving(capsys, tmp_path, table, fragment):
+    config, model = tmp_path / "synth.toml", tmp_path / "model.json"
+    config.write_text(table)
+    model.write_text("{}")  # never read: the configuration is refused first
+    status, err = run_cli(capsys, "synth", model, "--config", config, "-o", tmp_path / "k.json")
+    assert status == 2
+    one_line(err, "lpvflow synth: error: synth.toml: ", fragment)
+    assert not (tmp_path / "k.json").exists()
+
+
 def test_a_text_file_named_fmu_is_refused_before_anything_is_written(capsys, design_file):
     fake = design_file.parent / "x.fmu"
     fake.write_text("not an FMU")

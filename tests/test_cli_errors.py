@@ -224,14 +224,14 @@ def test_no_output_may_be_an_input_or_config_of_the_same_command(capsys, tmp_pat
     model.write_text("{}")
     status, err = run_cli(capsys, "synth", model, "--config", config, "-o", config)
     assert status == 2
-    one_line(err, f"output {config} would overwrite the input {config}")
+    one_line(err, f"output {config} would overwrite the input file {config} of this command")
     assert config.read_text() == "[synth]\n"
     data, sidecar = tmp_path / "data.csv", tmp_path / "data.csv.json"
     data.write_text("t,u,y,p\n")
     sidecar.write_text("{}")
     status, err = run_cli(capsys, "identify", data, "--u", "u", "--y", "y", "--p", "p", "-o", sidecar)
     assert status == 2
-    one_line(err, f"would overwrite the input {data}'s sidecar")
+    one_line(err, f"would overwrite the sidecar of the input file {data}")
     assert sidecar.read_text() == "{}"
 
 

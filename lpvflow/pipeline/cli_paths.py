@@ -54,13 +54,13 @@ def check_paths(inputs: Iterable[str | Path], outputs: Iterable[str | Path],
     protected: dict[Path, str] = {}
     for name in inputs:
         path = Path(name).resolve()
-        protected[path] = str(name)
-        protected.setdefault(path.with_name(path.name + ".json"), f"{name}'s sidecar")
+        protected[path] = f"the input file {name}"
+        protected.setdefault(path.with_name(path.name + ".json"), f"the sidecar of the input file {name}")
     seen: set[Path] = set()
     for name in outputs:
         target = Path(name).resolve()
         if target in protected:
-            raise DataError(f"output {name} would overwrite the input {protected[target]} of this command; "
+            raise DataError(f"output {name} would overwrite {protected[target]} of this command; "
                             "choose another output path")
         if target in seen:
             raise DataError(f"output {name} is given twice; give each output its own path")

@@ -382,3 +382,14 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def test_a_design_without_ts_runs_its_experiment_at_the_fmu_step(design_file):
+    from lpvflow.pipeline.config import load_config
+    from lpvflow.pipeline.stages import StageContext, experiment
+
+    design_file.write_text(design_file.read_text().replace("Ts = 1.0\nduration = 100.0", "duration = 2.0"))
+    config = load_config(design_file)
+    assert config["experiment"]["Ts"] is None
+    outputs, _ = experiment(StageContext(design_file.parent, config))
+    assert outputs["Ts"] == 0.2 and outputs["samples"] == 10  # 2 s of 0.2 s steps

@@ -205,7 +205,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "output_dir": Key("build/design", string(), "folder of the design folders"),
     },
     "experiment": {
-        "Ts": Key(REQUIRED, number(0.0, open_low=True), "sampling time (communication step) in s, > 0"),
+        "Ts": Key(None, number(0.0, open_low=True),
+                  "sampling time (communication step) in s, > 0; default: the controller's, else the FMU's"),
         "duration": Key(REQUIRED, number(0.0, open_low=True), "experiment length in s, > 0"),
         "controller": Key(None, string(), "stabilizing LTI controller JSON: closed-loop experiment"),
         "inputs": Key({}, mapping(string(), '"SPEC"'), "signal per plant input driven directly (open loop)"),

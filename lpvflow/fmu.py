@@ -15,7 +15,9 @@ other, measured outputs.
 from __future__ import annotations
 
 import ctypes
+import os
 import shutil
+import zipfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
@@ -23,11 +25,15 @@ import numpy as np
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+from fmpy.model_description import ModelDescription
 
 from lpvflow.errors import DataError, ModelError
 
 #: Prefix of the diagnostic (not measured) outputs of the lpvflow plants.
 DIAGNOSTIC_PREFIX = "diag_"
+
+#: The only platform the bundled plants are built for (fmu_plants/build.py).
+PLATFORM = "linux64"
 
 
 class FmuPlant:
@@ -35,13 +41,8 @@ class FmuPlant:
 
     def __init__(self, path: Path, outputs: Sequence[str] | None = None) -> None:
         self.path = path
-        try:
-            description = read_model_description(str(path))
-        except Exception as exc:  # fmpy raises bare Exceptions for broken archives and XML
-            raise ModelError(f"{path} is not a readable FMU ({exc}); rebuild it with `make fmus`") from exc
-        if description.fmiVersion != "2.0" or description.coSimulation is None:
-            raise ModelError(f"{path} is not an FMI 2.0 Co-Simulation FMU; "
-                             "give one built by fmu_plants/build.py")
+        self._slave = None
+        description = check_fmu(path)
         self.name = description.coSimulation.modelIdentifier
         self._variables = {v.name: v for v in description.modelVariables}
         self.input_names = tuple(v.name for v in description.modelVariables if v.causality == "input")
@@ -57,12 +58,22 @@ class FmuPlant:
         self._parameters: dict[str, float] = {}
         self._messages: list[str] = []
         self._unzipdir = extract(str(path))
-        self._slave = FMU2Slave(guid=description.guid, unzipDirectory=self._unzipdir,
-                                modelIdentifier=self.name, instanceName=self.name)
         self._callbacks = fmi2CallbackFunctions()
         self._logger = fmi2CallbackLoggerTYPE(self._log)
         self._callbacks.logger = self._logger
-        self._slave.instantiate(callbacks=self._callbacks)
+        work_dir = os.getcwd()
+        try:
+            slave = FMU2Slave(guid=description.guid, unzipDirectory=self._unzipdir,
+                              modelIdentifier=self.name, instanceName=self.name)
+            slave.instantiate(callbacks=self._callbacks)
+        except BaseException as exc:  # the extracted files must not outlive a failed start
+            os.chdir(work_dir)  # fmpy leaves the process in the binary's folder when loading fails
+            shutil.rmtree(self._unzipdir, ignore_errors=True)
+            if isinstance(exc, Exception):
+                raise ModelError(f"{path}: the FMU's binary cannot be loaded ({exc}); rebuild it with "
+                                 "`make fmus`") from exc
+            raise
+        self._slave = slave
         self._component = self._slave.component
         self._set_real = self._slave._functions["fmi2SetReal"]
         self._do_step = self._slave._functions["fmi2DoStep"]
@@ -71,7 +82,11 @@ class FmuPlant:
         self._output_vr, self._output_values, self._outputs = self._buffers(self.output_names)
         self._n_inputs, self._n_outputs = len(self.input_names), len(self.output_names)
         self.time = 0.0
-        self.reset()
+        try:
+            self.reset()
+        except BaseException:
+            self.close()
+            raise
 
     def _buffers(self, names: Sequence[str]) -> tuple[ctypes.Array, ctypes.Array, np.ndarray]:
         refs = (ctypes.c_uint * len(names))(*(self._variables[n].valueReference for n in names))
@@ -190,12 +205,38 @@ class FmuPlant:
         self.close()
 
 
+def check_fmu(path: str | Path) -> ModelDescription:
+    """The model description of a usable FMU: FMI 2.0 Co-Simulation with a binary for this platform
+    (``binaries/linux64/<modelIdentifier>.so``); anything else raises one-line ModelError."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"FMU file not found: {path}; build the plants with `make fmus` or check the path")
+    try:
+        description = read_model_description(str(path))
+    except Exception as exc:  # fmpy raises bare Exceptions for broken archives and XML
+        raise ModelError(f"{path} is not a readable FMU ({exc}); rebuild it with `make fmus`") from None
+    if description.fmiVersion != "2.0" or description.coSimulation is None:
+        raise ModelError(f"{path} is not an FMI 2.0 Co-Simulation FMU; give one built by fmu_plants/build.py")
+    binary = f"binaries/{PLATFORM}/{description.coSimulation.modelIdentifier}.so"
+    with zipfile.ZipFile(path) as archive:
+        if binary not in archive.namelist():
+            raise ModelError(f"{path} has no {PLATFORM} binary ({binary}); build the FMU for {PLATFORM} "
+                             "(`make fmus` for the bundled plants)")
+    return description
+
+
+def declared_step(path: str | Path) -> float:
+    """The communication step the FMU declares (``DefaultExperiment stepSize``)."""
+    experiment = check_fmu(path).defaultExperiment
+    if experiment is None or not experiment.stepSize:
+        raise DataError(f"{path} declares no step size (DefaultExperiment stepSize); give Ts (--Ts) "
+                        "in seconds")
+    return float(experiment.stepSize)
+
+
 def open_fmu(path: str | Path, outputs: Sequence[str] | None = None) -> FmuPlant:
     """Open the FMU at `path`, initialised at t = 0 with its default parameters.
 
     `outputs` selects what `step` returns (default: every output not starting with ``diag_``).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"FMU file not found: {path}; build the plants with `make fmus` or check the path")
-    return FmuPlant(path, outputs)
+    return FmuPlant(Path(path), outputs)

@@ -119,11 +119,19 @@ def lagged_sum(psi: np.ndarray, coeffs: np.ndarray, signal: np.ndarray, shifted:
     return out
 
 
+def user_mode(fd: int) -> None:
+    """Give a temporary file from mkstemp (mode 0600) the mode open() would: 0666 minus the umask."""
+    mask = os.umask(0)
+    os.umask(mask)
+    os.fchmod(fd, 0o666 & ~mask)
+
+
 def atomic_write_json(path: str | os.PathLike, payload: dict) -> None:
     """Write JSON to ``path`` via a temporary file and rename: a failure never truncates ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    user_mode(fd)
     try:
         with os.fdopen(fd, "w") as fh:
             json.dump(payload, fh, indent=1)

@@ -166,7 +166,7 @@ def test_fmu_reference_gives_the_gap_to_the_linearization(tanks_model, tmp_path)
 @pytest.mark.parametrize(
     ("extra", "words"),
     [
-        (["--json", "{data}"], "also an input"),
+        (["--json", "{data}"], "would overwrite the input"),
         (["--reference", "{fmu}", "--json", "{out}"], "--fmu-scheduling"),
         (["--fmu-scheduling", "level", "--json", "{out}"], "needs --reference"),
         (["--controller", "{model}", "--json", "{out}"], "holds no controller"),

@@ -134,7 +134,7 @@ def test_cli_never_overwrites_the_data_file(tmp_path, good_rows, capsys):
     path = write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"], good_rows)
     before = path.read_bytes()
     assert main(["identify", str(path), "--u", "u", "--y", "y", "--p", "p", "-o", str(path)]) == 2
-    assert "also an input file" in capsys.readouterr().err
+    assert "would overwrite the input" in capsys.readouterr().err
     assert path.read_bytes() == before
 
 

@@ -108,7 +108,9 @@ def test_rerun_skips_unchanged_stages_and_a_change_reruns_the_affected_ones(tmp_
     (lambda t: t.replace('u = ["pump_voltage"]\n', ''), "[identify] lacks ['u']"),
     (lambda t: t.replace('tanks.fmu', 'nowhere.fmu'), "does not exist"),
     (lambda t: t.replace('[design]', '[design'), "is not valid TOML"),
-    (lambda t: t + '\n[verify]\nloop = {}\nscenario = []\n', "need a [synth] table"),
+    (lambda t: t + '\n[verify.loop]\nmeasured = ["lower_level"]\nactuated = ["pump_voltage"]\n'
+                   'scheduling = ["lower_level"]\n[[verify.scenario]]\nduration = 10.0\n',
+     "need a [synth] table"),
 ])
 def test_bad_design_input_exit_2_one_line(tmp_path, tanks_fmu, capsys, edit, message):
     path = write(tmp_path, tanks_fmu)
@@ -263,9 +265,10 @@ def test_validate_against_the_fmu_linearization_reports_nugap_and_figures(tmp_pa
 def test_unknown_validate_reference_is_one_clear_line(tmp_path, tanks_fmu, capsys):
     path = write(tmp_path, tanks_fmu)
     path.write_text(path.read_text().replace("grid = 3", 'grid = 3\nreference = "bode"'))
-    assert main(["design", str(path)]) == 1
-    err = capsys.readouterr()
-    assert "[validate] reference = 'bode'" in err.out + err.err
+    assert main(["design", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "[validate] reference = 'bode' must be one of none, linearization, local" in err
+    assert err.count("\n") == 1
 
 
 def _badly_scaled_model():

@@ -155,7 +155,7 @@ BAD_INPUT = [
     ({"inputs": {"pump_voltage": PRBS}}, ["--input", f"pump_voltage={PRBS}"], DataError, "multiple of Ts"),
     ({"scheduling_columns": {"p": "open('x')"}}, ["--scheduling", "p=open('x')"], DataError, "not allowed"),
     ({"Ts": None, "excitation": {"pump_voltage": "const:value=1"}},
-     ["--excitation", "pump_voltage=const:value=1"], DataError, "no communication step"),
+     ["--excitation", "pump_voltage=const:value=1"], DataError, "give a controller (or use --input"),
     ({"controller": "missing.json"}, ["--controller", "missing.json"], ModelError, "does not exist"),
 ]
 

@@ -273,14 +273,14 @@ def test_cli_synth_writes_controller_and_keeps_model(tmp_path):
     mpath, cpath, kpath = tmp_path / "m.json", tmp_path / "d.toml", tmp_path / "k.json"
     model.save(mpath)
     before = mpath.read_bytes()
-    cpath.write_text('[weights]\nS = {num = [0.1, 0.1], den = [1, -1]}\n'
-                     'K = {num = [0.01], den = [1]}\nB = {num = [0, 0.5], den = [1, -0.5]}\n')
+    cpath.write_text('[synth]\nweights.S = {num = [0.1, 0.1], den = [1, -1]}\n'
+                     'weights.K = {num = [0.01], den = [1]}\nweights.B = {num = [0, 0.5], den = [1, -0.5]}\n')
     run = subprocess.run([sys.executable, "-m", "lpvflow.pipeline.cli", "synth", str(mpath), "--config",
                           str(cpath), "-o", str(kpath)], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "gamma =" in run.stdout and "smallest margin" in run.stdout
     assert isinstance(load(kpath), LPVController) and mpath.read_bytes() == before
-    cpath.write_text("[weights]\nS = {num = [0.1], den = [1]}\n")
+    cpath.write_text("[synth]\nweights.S = {num = [0.1], den = [1]}\n")
     run = subprocess.run([sys.executable, "-m", "lpvflow.pipeline.cli", "synth", str(mpath), "--config",
                           str(cpath), "-o", str(kpath)], capture_output=True, text=True)
     assert run.returncode == 2 and "W_K" in run.stderr and len(run.stderr.strip().splitlines()) == 1

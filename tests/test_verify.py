@@ -275,18 +275,18 @@ def test_adip_lpv_loop_with_noise_is_stable_and_plotted(tmp_path: Path) -> None:
 
 
 SCENARIO_TOML = """
-[loop]
+[verify.loop]
 measured = ["y"]
 actuated = ["u"]
 scheduling = ["y"]
 actuator_limits = { u = [-5.0, 5.0] }
 
-[[scenario]]
+[[verify.scenario]]
 name = "step"
 duration = 1.0
 reference = { y = { steps = [[0.1, 1.0]] } }
 
-[[scenario]]
+[[verify.scenario]]
 name = "ramp"
 duration = 1.5
 reference = { y = { initial = 0.5, ramps = [[0.1, 0.3, 1.0]] } }
@@ -307,19 +307,28 @@ def test_scenario_file_round_trip(tmp_path: Path) -> None:
     assert parsed.scenarios[1].reference["y"] == Signal(0.5, (), ((0.1, 0.3, 1.0),))
 
 
+LOOP_TOML = "[verify.loop]\nmeasured = ['y']\nactuated = ['u']\nscheduling = ['y']\n"
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("[[scenario]\n", "not valid TOML"),
-        ("[[scenario]]\nname = 'a'\n", "lacks duration"),
-        ("[[scenario]]\nduration = 1.0\ncolour = 2\n", "unknown key 'colour'"),
-        ("[[scenario]]\nduration = 1.0\nreference = { y = { ramps = [[0.5, 0.2, 1.0]] } }\n", "t_stop"),
-        ("[[scenario]]\nduration = 'long'\n", "must be a finite number"),
-        ("[loop]\nmeasured = ['y']\n[[scenario]]\nduration = 1.0\n", "[loop] lacks 'actuated'"),
-        ("x = 1\n", "unknown key 'x'"),
-        ("[[scenario]]\nduration = 1.0\nrequirements = { settling_time = -1.5 }\n", "= -1.5 must be > 0"),
-        ("[[scenario]]\nduration = 1.0\nrequirements = { rise_time = 1 }\n", "unknown key 'rise_time'"),
-        ("[[scenario]]\nduration = 1.0\nrequirements = 2\n", "requirements must be a table"),
+        ("[[verify.scenario]\n", "not valid TOML"),
+        (LOOP_TOML + "[[verify.scenario]]\nname = 'a'\n", "lacks duration"),
+        (LOOP_TOML + "[[verify.scenario]]\nduration = 1.0\ncolour = 2\n", "unknown key 'colour'"),
+        (LOOP_TOML + "[[verify.scenario]]\nduration = 1.0\n"
+         "reference = { y = { ramps = [[0.5, 0.2, 1.0]] } }\n", "t_stop"),
+        (LOOP_TOML + "[[verify.scenario]]\nduration = 'long'\n", "must be a finite number"),
+        ("[verify.loop]\nmeasured = ['y']\n[[verify.scenario]]\nduration = 1.0\n", "[loop] lacks 'actuated'"),
+        ("x = 1\n", "unknown table(s) ['x']"),
+        ("[loop]\nmeasured = ['y']\n[[scenario]]\nduration = 1.0\n", "now use [verify.loop]"),
+        (LOOP_TOML, "[verify] lacks ['scenario']"),
+        (LOOP_TOML + "[[verify.scenario]]\nduration = 1.0\nrequirements = { settling_time = -1.5 }\n",
+         "= -1.5 must be > 0"),
+        (LOOP_TOML + "[[verify.scenario]]\nduration = 1.0\nrequirements = { rise_time = 1 }\n",
+         "unknown key 'rise_time'"),
+        (LOOP_TOML + "[[verify.scenario]]\nduration = 1.0\nrequirements = 2\n",
+         "requirements must be a table"),
     ],
 )
 def test_bad_scenario_files_give_one_line(tmp_path: Path, text: str, message: str) -> None:
@@ -381,7 +390,7 @@ def test_verify_cli_exit_codes_and_one_line_errors(
         ],
         "not found",
     )
-    one_line([*base[:-2], "--json", str(scenario), str(stable)], "is the input file")
+    one_line([*base[:-2], "--json", str(scenario), str(stable)], "would overwrite the input")
     renamed = tmp_path / "renamed.toml"
     renamed.write_text(SCENARIO_TOML.replace('measured = ["y"]', 'measured = ["z"]'))
     one_line(

@@ -7,12 +7,12 @@ from pathlib import Path
 
 import control
 
-from lpvflow.errors import DataError
 from lpvflow.experiment.controller import LtiController, load_controller
 from lpvflow.experiment.plant import open_plant, sha256_of
 from lpvflow.experiment.record import check_output_path, write_record
 from lpvflow.experiment.run import ExperimentRecord, run_experiment
 from lpvflow.experiment.specs import SignalSpec
+from lpvflow.fmu import declared_step
 
 
 def run_fmu_experiment(
@@ -35,7 +35,7 @@ def run_fmu_experiment(
 
     ``controller`` is a ``lpvflow/lti-controller`` JSON path, an :class:`LtiController` or a discrete
     python-control ``StateSpace`` whose input/output labels are plant output/input names (operating
-    points zero). ``Ts=None`` takes the controller's sampling time.
+    points zero). ``Ts=None`` takes the controller's sampling time, else the step the FMU declares.
     """
     fmu = Path(fmu)
     protected = [fmu]
@@ -47,9 +47,7 @@ def run_fmu_experiment(
     elif isinstance(controller, control.StateSpace):
         controller = LtiController.from_statespace(controller)
     if Ts is None:
-        if controller is None:
-            raise DataError("no communication step: give --Ts in seconds (only a controller can supply it)")
-        Ts = controller.Ts
+        Ts = controller.Ts if controller is not None else declared_step(fmu)
     if output is not None:
         check_output_path(output, protected)
     plant = open_plant(fmu, dict(parameters or {}))

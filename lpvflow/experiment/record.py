@@ -16,7 +16,7 @@ import numpy as np
 
 from lpvflow.errors import DataError
 from lpvflow.experiment.run import ExperimentRecord, sidecar_path
-from lpvflow.models import report_header
+from lpvflow.models import report_header, user_mode
 
 
 def csv_text(record: ExperimentRecord) -> str:
@@ -30,6 +30,7 @@ def csv_text(record: ExperimentRecord) -> str:
 
 def _atomic_write(path: Path, text: str) -> None:
     handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    user_mode(handle)
     try:
         with os.fdopen(handle, "w", newline="") as stream:
             stream.write(text)

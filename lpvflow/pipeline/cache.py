@@ -1,21 +1,33 @@
-"""Stage cache: a stage is skipped when its key — a hash of everything it depends on — is unchanged.
+"""Stage cache and the design-folder lock.
 
-key(stage) = sha256(JSON of its config section, a digest of lpvflow's own source code, the keys of
-the stages it reads from, the bytes of the files it reads). A stage's record
-(``<stage>.json`` in the design folder) stores the key and the stage's outputs; it is reused only
-when the key matches and every artifact it lists still exists. Because downstream keys contain
-upstream keys, a config change reruns exactly the stages it affects.
+A stage is skipped when its key — a hash of everything it depends on — is unchanged:
+key(stage) = sha256(JSON of its config tables, a digest of lpvflow's own source code, the keys of the
+stages it reads from, the bytes of the input files it reads and of the upstream artifacts it reads).
+A stage's record (``<stage>.json`` in the design folder) stores the key, the stage's outputs and the
+sha256 of every artifact it wrote; it is reused only when the key matches and every artifact is still
+there with the same bytes (so a file replaced by another run or by hand reruns the stage). Because
+downstream keys contain upstream keys, a config change reruns exactly the stages it affects.
+
+:func:`folder_lock` keeps a second run out of a design folder while one writes it.
 """
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from lpvflow.errors import DataError
 from lpvflow.experiment.plant import sha256_of
 from lpvflow.models import atomic_write_json
+
+#: The lock file inside a design folder (held with flock while a run writes the folder).
+LOCK_NAME = ".lock"
 
 
 def code_digest() -> str:
@@ -29,13 +41,14 @@ def code_digest() -> str:
 
 
 def stage_key(section: Any, upstream: list[str], files: list[str | Path]) -> str:
+    """The cache key of a stage: its config, its upstream keys and the bytes of the files it reads."""
     payload = json.dumps({"config": section, "upstream": upstream,
                           "files": [sha256_of(f) for f in files]}, sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()
 
 
 def load_record(folder: Path, stage: str, key: str) -> dict | None:
-    """The stored outputs of ``stage`` if its key matches and its artifacts exist, else None."""
+    """The stored outputs of ``stage`` if its key matches and its artifacts are unchanged, else None."""
     path = folder / f"{stage}.json"
     if not path.exists():
         return None
@@ -45,13 +58,36 @@ def load_record(folder: Path, stage: str, key: str) -> dict | None:
         return None
     if record.get("key") != key:
         return None
-    if not all((folder / a).exists() for a in record.get("artifacts", [])):
-        return None
+    digests = record.get("artifact_sha256", {})
+    for artifact in record.get("artifacts", []):
+        file = folder / artifact
+        if not file.is_file() or digests.get(artifact) != sha256_of(file):
+            return None
     return record
 
 
 def save_record(folder: Path, stage: str, key: str, outputs: dict, artifacts: list[str],
                 seconds: float) -> dict:
-    record = {"key": key, "outputs": outputs, "artifacts": artifacts, "seconds": seconds}
+    """Store a stage's key, outputs, artifacts (with their sha256) and run time as ``<stage>.json``."""
+    record = {"key": key, "outputs": outputs, "artifacts": artifacts, "seconds": seconds,
+              "artifact_sha256": {a: sha256_of(folder / a) for a in artifacts}}
     atomic_write_json(folder / f"{stage}.json", record)
     return record
+
+
+@contextmanager
+def folder_lock(folder: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``folder`` (flock on its ``.lock`` file); refuse if another run holds it."""
+    fd = os.open(folder / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "another process"
+            raise DataError(f"design folder {folder} is being written by another lpvflow run (pid {holder}); "
+                            "wait for it to finish or give this design another [design] name") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock

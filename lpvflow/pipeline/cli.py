@@ -2,7 +2,9 @@
 
 ``COMMANDS`` names each subcommand, its help line and the stage module function that adds its arguments
 and sets ``func(args) -> int`` as the parser default; only the invoked subcommand's module is imported.
-Exit status: 0 success, 1 a finding that fails its check, 2 bad input (one line on stderr, no traceback).
+Exit status: 0 success, 1 a finding that fails its check, 2 bad input (one line on stderr, no traceback),
+130 interrupted (Ctrl-C). Warnings reach the user as one line each, in lpvflow's words, without source
+paths (:func:`warning_line`).
 """
 
 from __future__ import annotations
@@ -10,27 +12,36 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
+from importlib.metadata import PackageNotFoundError, version
 
 from lpvflow.errors import LpvflowError
+from lpvflow.pipeline.cli_paths import check_declared
 
 #: Subcommand -> (module, function configuring its parser, one-line help), in ``lpvflow --help`` order.
 #: Only the invoked subcommand's module is imported (``lpvflow --help`` and usage errors stay fast).
 COMMANDS: dict[str, tuple[str, str, str]] = {
+    "experiment": ("cli_experiment", "configure",
+                   "run an open- or closed-loop identification experiment on an FMU plant"),
     "identify": ("cli_identify", "configure_identify",
                  "identify an LPV-ARX model and realize it as an LPV state space"),
     "simulate": ("cli_identify", "configure_simulate",
                  "simulate a model on data and report BFR/VAF/MSE per output"),
-    "synth": ("cli_synth", "configure", "polytopic gain-scheduled H∞ controller by LMIs"),
+    "validate": ("cli_validate", "configure",
+                 "fit, frozen nu-gap vs b(P,K), margins and stability certificate"),
     "diagnose": ("cli_diagnose", "configure", "find what a model structure's simulation gets wrong and why"),
-    "design": ("cli_design", "configure", "run experiment → identify → … → export → report on a design file"),
-    "experiment": ("cli_experiment", "configure",
-                   "run an open- or closed-loop identification experiment on an FMU plant"),
+    "synth": ("cli_synth", "configure", "polytopic gain-scheduled H∞ controller by LMIs"),
     "verify": ("cli_verify", "configure",
                "co-simulate a controller with a plant FMU on scenarios; metrics and verdicts"),
     "export": ("cli_export", "configure",
                "export a controller as an FMI 2.0 Co-Simulation FMU, MATLAB .mat or JSON"),
-    "validate": ("cli_validate", "configure",
-                 "fit, frozen nu-gap vs b(P,K), margins and stability certificate"),
+    "design": ("cli_design", "configure", "run experiment → identify → … → export → report on a design file"),
+}
+
+#: Warnings whose own text is not meant for a CLI user: substring -> what lpvflow says instead.
+WARNING_TEXTS = {
+    "Solution may be inaccurate": "the SDP solver reports an inaccurate solution; the certificate checks "
+                                  "decide whether the controller is usable",
 }
 
 
@@ -44,9 +55,18 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+def package_version() -> str:
+    """The installed distribution's version."""
+    try:
+        return version("lpvflow")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """Every subcommand with its help line; ``command``'s own arguments too (its module imported)."""
     parser = _Parser(prog="lpvflow", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"lpvflow {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     for name, (module, function, help_line) in COMMANDS.items():
         subparser = sub.add_parser(name, help=help_line)
@@ -55,19 +75,50 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def warning_line(message: Warning | str) -> str:
+    """A warning as lpvflow tells it: a known text translated, else its own first line."""
+    text = str(message).strip()
+    for needle, ours in WARNING_TEXTS.items():
+        if needle in text:
+            return ours
+    return text.splitlines()[0] if text else type(message).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run ``lpvflow ARGV``; returns the exit status (usage errors exit 2 through argparse)."""
     argv = sys.argv[1:] if argv is None else argv
     command = next((arg for arg in argv if not arg.startswith("-")), None)  # lpvflow [-h] COMMAND ...
-    parser = build_parser(command)
-    args = parser.parse_args(argv)
+    prefix = "lpvflow" if command not in COMMANDS else f"lpvflow {command}"
     try:
-        return int(args.func(args) or 0)
-    except LpvflowError as exc:
-        sys.stderr.write(f"lpvflow {args.command}: error: {exc}\n")
-        return 2
-    except FileNotFoundError as exc:
-        sys.stderr.write(f"lpvflow {args.command}: error: file not found: {exc.filename}\n")
-        return 2
+        return _run(build_parser(command).parse_args(argv), prefix)
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{prefix}: interrupted by Ctrl-C\n")
+        return 130
+
+
+def _run(args: argparse.Namespace, prefix: str) -> int:
+    """The subcommand's runner with its paths checked, errors as one line and warnings as one line."""
+    shown: set[str] = set()
+
+    def show(message: Warning | str, *_: object, **__: object) -> None:
+        line = warning_line(message)
+        if line not in shown:  # once per run, however often a loop repeats it
+            shown.add(line)
+            sys.stderr.write(f"{prefix}: warning: {line}\n")
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        try:
+            check_declared(args)
+            return int(args.func(args) or 0)
+        except LpvflowError as exc:
+            sys.stderr.write(f"{prefix}: error: {exc}\n")
+            return 2
+        except OSError as exc:
+            where = f" ({exc.filename})" if exc.filename else ""
+            sys.stderr.write(f"{prefix}: error: {exc.strerror or exc}{where}; check the path exists and "
+                             "can be written\n")
+            return 2
 
 
 if __name__ == "__main__":

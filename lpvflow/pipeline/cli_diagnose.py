@@ -12,7 +12,8 @@ from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.run import sidecar_path
 from lpvflow.experiment.scheduling import parse_assignment
 from lpvflow.models import atomic_write_json, report_header
-from lpvflow.pipeline.cli_identify import add_data_arguments, parse_order, refuse_overwrite
+from lpvflow.pipeline.cli_identify import add_data_arguments, parse_order
+from lpvflow.pipeline.cli_paths import check_paths
 from lpvflow.validate.diagnose import MIN_VALIDATION, diagnose
 from lpvflow.validate.extensions import EXTENSIONS, Structure
 
@@ -41,9 +42,8 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run_diagnose(args: argparse.Namespace) -> int:
     model_out = args.model_out or str(Path(args.json_out).with_suffix("")) + ".extended.json"
-    for out in (args.json_out, model_out, args.plot):
-        if out:
-            refuse_overwrite(out, args.data)
+    check_paths([args.data, *([args.controller] if args.controller else [])],
+                [args.json_out, model_out, *([args.plot] if args.plot else [])])
     table = read_columns(args.data)  # the file is read once: the dataset and the candidates come from it
     data = Dataset.from_columns(table, Path(args.data).name, args.u, args.y, args.p, args.time, args.Ts)
     used = {*args.u, *args.y, *args.p, args.time if args.time != "auto" else time_column(table)}

@@ -7,9 +7,10 @@ import math
 
 from lpvflow.errors import DataError
 from lpvflow.experiment import run_fmu_experiment
-from lpvflow.experiment.record import sidecar_path
+from lpvflow.experiment.record import sidecar_path, write_record
 from lpvflow.experiment.scheduling import parse_assignment
 from lpvflow.experiment.specs import __doc__ as SPEC_HELP
+from lpvflow.pipeline.cli_paths import declare
 
 
 def _assignments(items: list[str] | None, what: str, example: str) -> dict[str, str]:
@@ -49,9 +50,14 @@ def run(args: argparse.Namespace) -> int:
         scheduling = dict(parse_assignment(item) for item in args.scheduling)
     record = run_fmu_experiment(
         args.fmu, args.Ts, args.duration, inputs=inputs, controller=args.controller, excitation=excitation,
-        parameters=parameters, scheduling_columns=scheduling, seed=args.seed, output=args.output,
+        parameters=parameters, scheduling_columns=scheduling, seed=args.seed,
         record_diagnostics=args.diagnostics, setpoint=setpoint,
     )
+    if not inputs and not args.controller:  # refused after the run: every other defect is named first
+        raise DataError("no --input and no --controller: every plant input stayed at its start value "
+                        "(a constant, uninformative record, not written); add --input NAME=SPEC per plant "
+                        "input, e.g. --input pump_voltage=levels:lo=4,hi=11,min_hold=5,max_hold=40")
+    write_record(record, args.output, [args.fmu, *([args.controller] if args.controller else [])])
     columns = ", ".join(record.columns)
     print(f"wrote {args.output} ({record.metadata['n_samples']} samples; columns {columns}) "
           f"and {sidecar_path(args.output)}")
@@ -67,7 +73,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("fmu", help="FMI 2.0 Co-Simulation FMU of the plant")
     parser.add_argument("--Ts", type=float, default=None,
-                        help="communication step in seconds (default: the controller's Ts)")
+                        help="communication step in seconds (default: the controller's Ts, else the step "
+                        "the FMU declares)")
     parser.add_argument("--duration", type=float, required=True, help="experiment length in seconds")
     parser.add_argument("--input", action="append", metavar="NAME=SPEC",
                         help="signal driving a plant input directly (repeat per input)")
@@ -88,3 +95,4 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the excitation signals (default 0)")
     parser.add_argument("-o", "--output", required=True, metavar="DATA.csv", help="CSV to write")
     parser.set_defaults(func=run)
+    declare(parser, inputs=("fmu", "controller"), outputs=("output",))

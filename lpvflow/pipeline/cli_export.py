@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-from lpvflow.pipeline.export import FORMATS, check_output_path, export_controller, load_lpv_controller
+from lpvflow.pipeline.cli_paths import declare
+from lpvflow.pipeline.export import FORMATS, export_controller, load_lpv_controller
 
 
 def run(args: argparse.Namespace) -> int:
-    output = check_output_path(args.output, [args.controller])
     controller = load_lpv_controller(args.controller)
-    path = export_controller(controller, output, args.format)
+    path = export_controller(controller, Path(args.output), args.format)
     print(
         f"wrote {path} ({args.format}: {controller.order} states, {controller.n_in} inputs, "
         f"{controller.basis.n_p} scheduling, {controller.n_out} outputs, "
@@ -31,3 +32,4 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", required=True, choices=FORMATS)
     parser.add_argument("-o", "--output", required=True, metavar="PATH")
     parser.set_defaults(func=run)
+    declare(parser, inputs=("controller",), outputs=("output",))

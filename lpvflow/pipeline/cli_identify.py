@@ -16,6 +16,7 @@ from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.fit_check import UselessFitWarning, useless_fit_message
 from lpvflow.lfr import LPVLFR
 from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load, report_header
+from lpvflow.pipeline.cli_paths import declare
 from lpvflow.validate.metrics import fit_report
 
 #: IO methods: name → (estimator kind, form). The state-space and LFR methods are handled apart.
@@ -68,6 +69,7 @@ def configure_identify(p: argparse.ArgumentParser) -> None:
                         "(pbsid, cva, kcca-lfr)")
     p.add_argument("-o", "--output", required=True, help="model file to write (JSON)")
     p.set_defaults(func=run_identify)
+    declare(p, inputs=("data",), outputs=("output",))
 
 
 def configure_simulate(s: argparse.ArgumentParser) -> None:
@@ -76,13 +78,7 @@ def configure_simulate(s: argparse.ArgumentParser) -> None:
     s.add_argument("--json", dest="json_out", help="write the fit report here")
     s.add_argument("--plot", help="write a PNG of measured vs simulated outputs here")
     s.set_defaults(func=run_simulate)
-
-
-def refuse_overwrite(output: str, *inputs: str) -> None:
-    out = Path(output).resolve()
-    for path in inputs:
-        if Path(path).resolve() == out:
-            raise DataError(f"output {output!r} is also an input file; choose another output path")
+    declare(s, inputs=("model", "data"), outputs=("json_out", "plot"))
 
 
 def _identify_io(args: argparse.Namespace, data: Dataset) -> LPVIO:
@@ -139,7 +135,6 @@ def _identify_state_space(args: argparse.Namespace, data: Dataset):
 
 
 def run_identify(args: argparse.Namespace) -> int:
-    refuse_overwrite(args.output, args.data)
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
     if args.method in SS_METHODS:
         with warnings.catch_warnings():  # the fit is checked below for every method
@@ -196,9 +191,6 @@ def simulate_any(model: LPVSS | LPVIO | LPVLFR, data: Dataset) -> np.ndarray:
 
 
 def run_simulate(args: argparse.Namespace) -> int:
-    for out in (args.json_out, args.plot):
-        if out:
-            refuse_overwrite(out, args.data, args.model)
     model = load(args.model)
     if not isinstance(model, LPVSS | LPVIO | LPVLFR):
         raise ModelError(f"{args.model} holds no LPV model (it is a {type(model).__name__})")

@@ -1,17 +1,15 @@
 """`lpvflow synth MODEL.json --config DESIGN.toml -o CONTROLLER.json`: polytopic H∞ synthesis.
 
-DESIGN.toml::
+DESIGN.toml is a design file (docs/design_file.md); synth reads its ``[synth]`` table, the same one
+``lpvflow design`` uses, so a whole design file works too::
 
-    [polytope]
-    box = [[-1.0, 1.0]]          # optional; default: the scheduling range recorded in the model
     [synth]
-    solver = "clarabel"          # or "scs"
-    gamma_max = 1.0              # optional: the spec ‖·‖∞ ≤ gamma_max must be met
-    [weights]
-    integrator_shift = 1e-3
-    S = [{num = [0.02, 0.02], den = [1, -1]}]
-    K = {bandwidth = 50.0, dc_gain = 0.01, hf_gain = 1.0}
-    B = {num = [0, 0.3], den = [1, -0.7]}
+    solver = "CLARABEL"          # or "SCS"
+    box = [[-1.0, 1.0]]          # optional; default: the scheduling range recorded in the model
+    weights.S = [{ num = [0.02, 0.02], den = [1, -1] }]
+    weights.K = { bandwidth = 50.0, dc_gain = 0.01, hf_gain = 1.0 }
+    weights.B = { num = [0, 0.3], den = [1, -0.7] }
+    weights.integrator_shift = 1e-3
 
 Prints γ, the independent certificate checks and the solve time; exit 1 when a check fails.
 """
@@ -19,26 +17,19 @@ Prints γ, the independent certificate checks and the solve time; exit 1 when a 
 from __future__ import annotations
 
 import argparse
-import tomllib
-from pathlib import Path
 
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS, load
+from lpvflow.pipeline.cli_paths import declare
+from lpvflow.pipeline.config import load_tables
 
 
 def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("model", help="identified LPVSS model (JSON)")
-    p.add_argument("--config", required=True, help="design spec (TOML)")
+    p.add_argument("--config", required=True, help="design file with a [synth] table (TOML)")
     p.add_argument("-o", "--output", required=True, help="controller file to write (JSON)")
     p.set_defaults(func=run)
-
-
-def _read_config(path: str) -> dict:
-    try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise ModelError(f"{path} is not valid TOML ({exc})") from None
+    declare(p, inputs=("model", "config"), outputs=("output",))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,16 +38,13 @@ def run(args: argparse.Namespace) -> int:
     from lpvflow.synth.hinf import synthesize
     from lpvflow.synth.plant import generalized_plant
 
-    if Path(args.output).resolve() == Path(args.model).resolve():
-        raise ModelError("the output file is the model file: choose another -o path")
+    settings = load_tables(args.config, need=("synth",))["synth"]
     model = load(args.model)
     if not isinstance(model, LPVSS):
         raise ModelError(f"{args.model} holds a {type(model).__name__}; synth needs an LPVSS")
-    config = _read_config(args.config)
-    weights = config.get("weights", {})
-    settings = config.get("synth", {})
-    plant = generalized_plant(model, weights, config.get("polytope", {}).get("box"))
-    result = synthesize(plant, solver=settings.get("solver", "CLARABEL"), gamma_max=settings.get("gamma_max"))
+    weights = settings["weights"]
+    plant = generalized_plant(model, weights, settings["box"])
+    result = synthesize(plant, solver=settings["solver"])
     cert = certify(result, model, weights)
     print(f"common Lyapunov matrix, polytope {plant.polytope.kind} with {plant.polytope.n_vertices} vertices")
     print(f"gamma = {result.gamma:.6g}  ({result.report.solver}, {result.report.status}, "

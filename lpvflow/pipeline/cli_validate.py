@@ -30,7 +30,8 @@ from lpvflow.experiment.controller import FORMAT as LTI_CONTROLLER_FORMAT
 from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.scheduling import parse_assignment
 from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load, report_header
-from lpvflow.pipeline.cli_identify import add_data_arguments, refuse_overwrite, simulate_any
+from lpvflow.pipeline.cli_identify import add_data_arguments, simulate_any
+from lpvflow.pipeline.cli_paths import check_paths, declare
 from lpvflow.synth.controller import LPVController
 from lpvflow.validate.fmu_reference import FmuLinearization, FmuLocalModels
 from lpvflow.validate.frozen import compare_frozen, scheduling_grid
@@ -62,17 +63,17 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", dest="json_out", required=True, help="report file to write (JSON)")
     p.add_argument("--figures", metavar="DIR", help="write PNG figures into this folder")
     p.set_defaults(func=run_validate)
+    declare(p, inputs=("model", "data", "reference", "controller"), outputs=("json_out",),
+            folders=("figures",))
 
 
 def run_validate(args: argparse.Namespace) -> int:
     inputs = [args.model, args.data] + [f for f in (args.reference, args.controller) if f]
-    refuse_overwrite(args.json_out, *inputs)
     figure_paths = {}
     if args.figures:
         figure_paths = {"bode": Path(args.figures) / "frozen_bode.png",
                         "nugap": Path(args.figures) / "nugap_vs_b.png"}
-        for path in figure_paths.values():
-            refuse_overwrite(str(path), *inputs)
+        check_paths(inputs, list(figure_paths.values()))
     model = _load_model(args.model)
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
     fit = fit_report(data.y, simulate_any(model, data), data.y_names)

@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lpvflow.errors import DataError
 from lpvflow.models import atomic_write_json
-from lpvflow.pipeline.export import check_output_path
+from lpvflow.pipeline.cli_paths import declare
 from lpvflow.pipeline.scenarios import load_scenarios
 from lpvflow.pipeline.verify import coverage_note, load_controller_file, plot_runs, run_verification
 
@@ -29,11 +28,7 @@ def _summary(name: str, metrics: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    inputs = [args.controller, args.plant, args.scenario] + ([args.baseline] if args.baseline else [])
-    check_output_path(args.json, inputs)
     scenario_file = load_scenarios(args.scenario)
-    if scenario_file.loop is None:
-        raise DataError(f"{args.scenario} has no [loop] table saying which plant signals the controller uses")
     controller = load_controller_file(args.controller)
     baseline = load_controller_file(args.baseline) if args.baseline else None
     verification = run_verification(
@@ -53,13 +48,14 @@ def run(args: argparse.Namespace) -> int:
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "Run the controller (and an optional LTI baseline) in closed loop with the plant FMU "
-        "on every [[scenario]] of the TOML file (layout: lpvflow/pipeline/scenarios.py); exit 1 when "
+        "on every [[verify.scenario]] of a design file (docs/design_file.md); exit 1 when "
         "the controller fails a scenario's stability verdict or misses its requirements."
     )
     parser.add_argument("controller", help="lpvflow/lpv-controller JSON (or an exported controller .fmu)")
     parser.add_argument("--plant", required=True, help="FMI 2.0 Co-Simulation FMU of the plant")
     parser.add_argument(
-        "--scenario", required=True, metavar="SCEN.toml", help="[loop] and [[scenario]] tables"
+        "--scenario", required=True, metavar="DESIGN.toml",
+        help="design file with [verify.loop] and [[verify.scenario]] tables"
     )
     parser.add_argument("--json", required=True, metavar="OUT.json", help="metrics and verdicts")
     parser.add_argument(
@@ -71,3 +67,5 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--figures", metavar="DIR", help="write one PNG per scenario (controller vs baseline)"
     )
     parser.set_defaults(func=run)
+    declare(parser, inputs=("controller", "plant", "scenario", "baseline"), outputs=("json",),
+            folders=("figures",))

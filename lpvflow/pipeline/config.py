@@ -1,83 +1,367 @@
-"""Design configuration (TOML): one table per stage, checked on load.
+"""The design-file schema (TOML): one table per stage, every key typed and range-checked on load.
 
-Relative paths are taken relative to the directory `lpvflow design` runs in (the repository root for
-`make design`). Unknown tables or keys are errors, so that a typo never silently falls back to a
-default. The bundled default is ``lpvflow/pipeline/examples/adip.toml``.
+The same tables serve every command that reads TOML: ``lpvflow design`` reads the whole file,
+``lpvflow synth --config`` its ``[synth]`` table and ``lpvflow verify --scenario`` its ``[verify]``
+table (``[verify.loop]`` and ``[[verify.scenario]]``); any design file works for all three. Unknown
+tables or keys are refused with the known ones listed, so that a typo never silently falls back to a
+default. ``docs/design_file.md`` documents every key (a test keeps it complete).
+
+Relative paths (``plant``, ``controller``, ``output_dir``) are taken relative to the working directory;
+in the bundled examples (``lpvflow design --example NAME``) the input files are relative to the
+repository root, so the examples run from any working directory.
 """
 
 from __future__ import annotations
 
+import math
 import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from lpvflow.errors import DataError
+from lpvflow.errors import DataError, LpvflowError
 
-#: Allowed keys per table, with defaults (``REQUIRED`` marks keys without one).
+#: Marks a key without a default.
 REQUIRED = object()
-SCHEMA: dict[str, dict[str, Any]] = {
-    "design": {"name": REQUIRED, "plant": REQUIRED, "output_dir": "build/design"},
-    "experiment": {"Ts": REQUIRED, "duration": REQUIRED, "controller": None, "inputs": {}, "excitation": {},
-                   "setpoint": {}, "parameters": {}, "scheduling": {}, "seed": 0},
-    "identify": {"u": REQUIRED, "y": REQUIRED, "p": REQUIRED, "na": 2, "nb": 2, "nk": 1, "basis": "affine",
-                 "split": 0.7, "ridge": 0.0, "remove_offsets": False},
-    "diagnose": {"adopt": False, "candidates": [], "split": 0.5},
-    "reduce": {"order": None},
-    "validate": {"grid": 7, "reference": "none", "operating_point": {}, "scaling": "data"},
-    "synth": {"method": "common", "weights": REQUIRED, "box": None, "solver": "CLARABEL",
-              "baseline_at": None},
-    "verify": {"loop": REQUIRED, "scenario": REQUIRED},
-    "export": {"formats": ["fmu", "json", "mat"]},
+
+#: A checker takes the value and its place (``[identify] na``) and returns the value to use.
+Check = Callable[[Any, str], Any]
+
+
+@dataclass(frozen=True)
+class Key:
+    """One key of a table: its default (or :data:`REQUIRED`), its checker and a one-line description."""
+
+    default: Any
+    check: Check
+    doc: str
+
+
+# ------------------------------------------------------------------------------------------ checkers
+def _fail(where: str, value: Any, expected: str) -> DataError:
+    return DataError(f"{where} = {value!r} must be {expected}")
+
+
+def integer(low: int) -> Check:
+    """An integer ≥ ``low``."""
+    def check(value: Any, where: str) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise _fail(where, value, f"an integer ≥ {low}")
+        return value
+    return check
+
+
+def number(low: float = -math.inf, high: float = math.inf, *, open_low: bool = False,
+           open_high: bool = False) -> Check:
+    """A finite number in the interval given (closed unless ``open_low``/``open_high``)."""
+    left, right = "(" if open_low else "[", ")" if open_high else "]"
+    interval = f"in {left}{low:g}, {high:g}{right}"
+    def check(value: Any, where: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise _fail(where, value, f"a number {interval}")
+        too_low = value <= low if open_low else value < low
+        too_high = value >= high if open_high else value > high
+        if too_low or too_high:
+            raise _fail(where, value, f"a number {interval}")
+        return float(value)
+    return check
+
+
+def string(choices: tuple[str, ...] = (), upper: bool = False) -> Check:
+    """A non-empty string; with ``choices``, one of them (``upper``: compared in upper case)."""
+    def check(value: Any, where: str) -> str:
+        if not isinstance(value, str) or not value:
+            raise _fail(where, value, "a non-empty string" + (f": one of {', '.join(choices)}"
+                                                              if choices else ""))
+        value = value.upper() if upper else value
+        if choices and value not in choices:
+            raise _fail(where, value, f"one of {', '.join(choices)}")
+        return value
+    return check
+
+
+def folder_name(value: Any, where: str) -> str:
+    """A name usable as one folder (no path separators, not ``.`` or ``..``)."""
+    name = string()(value, where)
+    if "/" in name or "\\" in name or name in (".", ".."):
+        raise _fail(where, value, "a folder name without / (the design's folder inside output_dir)")
+    return name
+
+
+def boolean(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise _fail(where, value, "true or false")
+    return value
+
+
+def names(empty: bool = False) -> Check:
+    """A list of distinct non-empty strings (signal or column names)."""
+    def check(value: Any, where: str) -> list[str]:
+        if (not isinstance(value, list) or not all(isinstance(v, str) and v for v in value)
+                or len(set(value)) != len(value) or (not value and not empty)):
+            raise _fail(where, value, 'a list of distinct names, e.g. ["voltage"]')
+        return value
+    return check
+
+
+def mapping(of: Check, what: str) -> Check:
+    """A table ``{ name = value }`` whose values pass ``of``."""
+    def check(value: Any, where: str) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise _fail(where, value, f"a table {{ name = {what} }}")
+        return {k: of(v, f"{where}.{k}") for k, v in value.items()}
+    return check
+
+
+def numbers(value: Any, where: str) -> list[float]:
+    if not isinstance(value, list) or not value:
+        raise _fail(where, value, "a list of numbers, one per scheduling signal")
+    return [number()(v, where) for v in value]
+
+
+def box(value: Any, where: str) -> list[list[float]]:
+    """``[[lo, hi], ...]``, one interval with lo < hi per scheduling signal."""
+    if not (isinstance(value, list) and value and all(isinstance(r, list) and len(r) == 2 for r in value)):
+        raise _fail(where, value, "a list of [lo, hi] intervals, one per scheduling signal, e.g. [[-1, 1]]")
+    rows = [[number()(v, where) for v in row] for row in value]
+    if not all(lo < hi for lo, hi in rows):
+        raise _fail(where, value, "intervals [lo, hi] with lo < hi")
+    return rows
+
+
+def basis(value: Any, where: str) -> str:
+    """A scheduling basis spec (``affine``, ``poly:D``, ``poly:D:nocross``, ``spline:K1,K2,…``)."""
+    from lpvflow.basis import Basis
+
+    spec = string()(value, where)
+    try:
+        Basis.from_spec(spec, 1)
+    except LpvflowError as exc:
+        raise DataError(f"{where}: {exc}") from None
+    return spec
+
+
+def formats(value: Any, where: str) -> list[str]:
+    chosen = names()(value, where)
+    unknown = [f for f in chosen if f not in ("fmu", "json", "mat")]
+    if unknown:
+        raise _fail(where, value, 'a list of formats from "fmu", "json", "mat"')
+    return chosen
+
+
+#: The weights of the mixed-sensitivity design (lpvflow.synth.plant.weight_systems).
+WEIGHT_KEYS = ("S", "K", "B", "T", "R", "integrator_shift")
+
+
+def weights(value: Any, where: str) -> dict[str, Any]:
+    """``{ S = …, K = …, [B, T, R], [integrator_shift] }``; each weight a table or a list of tables."""
+    if not isinstance(value, dict):
+        raise _fail(where, value, "a table of weights (weights.S = …, weights.K = …)")
+    unknown = sorted(set(value) - set(WEIGHT_KEYS))
+    if unknown:
+        raise DataError(f"{where} has unknown key(s) {unknown}; known: {list(WEIGHT_KEYS)}")
+    missing = [k for k in ("S", "K") if k not in value]
+    if missing:
+        raise DataError(f"{where} lacks {missing} (W_S on the error and W_K on the control are required)")
+    for key in set(value) - {"integrator_shift"}:
+        weight = value[key]
+        if not (isinstance(weight, dict) or (isinstance(weight, list) and weight
+                                            and all(isinstance(w, dict) for w in weight))):
+            raise _fail(f"{where}.{key}", weight, "a table { num, den } or { bandwidth, dc_gain, hf_gain }, "
+                        "or a list of them (one per channel)")
+    if "integrator_shift" in value:
+        shift = number(0.0, 0.5, open_low=True, open_high=True)
+        shift(value["integrator_shift"], f"{where}.integrator_shift")
+    return value
+
+
+def loop(value: Any, where: str) -> dict[str, Any]:
+    from lpvflow.pipeline.scenarios import parse_loop
+
+    if not isinstance(value, dict):
+        raise _fail(where, value, "a table (write it as [verify.loop])")
+    parse_loop(value)
+    return value
+
+
+def scenarios(value: Any, where: str) -> list[dict[str, Any]]:
+    from lpvflow.pipeline.scenarios import parse_scenario
+
+    if not isinstance(value, list) or not value or not all(isinstance(s, dict) for s in value):
+        raise DataError(f"{where}: give at least one [[verify.scenario]] table")
+    names_seen = [parse_scenario(doc, i).name for i, doc in enumerate(value)]
+    if len(set(names_seen)) != len(names_seen):
+        raise DataError(f"{where}: scenario names must be distinct, got {names_seen}")
+    return value
+
+
+# -------------------------------------------------------------------------------------------- schema
+SCHEMA: dict[str, dict[str, Key]] = {
+    "design": {
+        "name": Key(REQUIRED, folder_name, "name of the design: its artifacts go to <output_dir>/<name>/"),
+        "plant": Key(REQUIRED, string(), "plant FMU (FMI 2.0 Co-Simulation with a linux64 binary)"),
+        "output_dir": Key("build/design", string(), "folder of the design folders"),
+    },
+    "experiment": {
+        "Ts": Key(None, number(0.0, open_low=True),
+                  "sampling time (communication step) in s, > 0; default: the controller's, else the FMU's"),
+        "duration": Key(REQUIRED, number(0.0, open_low=True), "experiment length in s, > 0"),
+        "controller": Key(None, string(), "stabilizing LTI controller JSON: closed-loop experiment"),
+        "inputs": Key({}, mapping(string(), '"SPEC"'), "signal per plant input driven directly (open loop)"),
+        "excitation": Key({}, mapping(string(), '"SPEC"'), "signal added to the controller output per input"),
+        "setpoint": Key({}, mapping(string(), '"SPEC"'), "set-point per plant output read by the controller"),
+        "parameters": Key({}, mapping(number(), "number"), "FMU parameters set before initialisation"),
+        "scheduling": Key({}, mapping(string(), '"EXPR"'), "extra columns computed from plant signals"),
+        "seed": Key(0, integer(0), "seed of the random excitation signals"),
+    },
+    "identify": {
+        "u": Key(REQUIRED, names(), "input columns"),
+        "y": Key(REQUIRED, names(), "output columns"),
+        "p": Key(REQUIRED, names(), "scheduling columns"),
+        "na": Key(2, integer(1), "output lags"),
+        "nb": Key(2, integer(1), "input lags"),
+        "nk": Key(1, integer(0), "input delay in samples"),
+        "basis": Key("affine", basis, "scheduling basis: affine, poly:D, poly:D:nocross, spline:K1,K2,…"),
+        "split": Key(0.7, number(0.0, 1.0, open_low=True, open_high=True),
+                     "fraction of the data used for estimation, in (0, 1); the rest validates"),
+        "ridge": Key(0.0, number(0.0), "ridge regularization, ≥ 0"),
+        "remove_offsets": Key(False, boolean, "work in deviations from the estimation data's means"),
+    },
+    "diagnose": {
+        "adopt": Key(False, boolean, "let the diagnosed extension replace the identified model"),
+        "candidates": Key([], names(empty=True), "extra data columns a cause may be explained by"),
+        "split": Key(0.5, number(0.0, 1.0, open_low=True, open_high=True), "estimation fraction, in (0, 1)"),
+    },
+    "reduce": {
+        "order": Key(None, integer(1), "model order after reduction (default: automatic)"),
+    },
+    "validate": {
+        "grid": Key(7, integer(2), "frozen scheduling points checked"),
+        "reference": Key("none", string(("none", "linearization", "local")), "frozen FMU reference"),
+        "operating_point": Key({}, mapping(number(), "number"), "FMU start values for the linearization"),
+        "scaling": Key("data", string(("data", "none")), "signal scaling of the ν-gap"),
+    },
+    "synth": {
+        "method": Key("common", string(("common",)), "polytopic H∞ LMIs with one common Lyapunov matrix"),
+        "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R], [integrator_shift]"),
+        "box": Key(None, box, "scheduling box [[lo, hi], …] (default: the model's recorded range)"),
+        "solver": Key("CLARABEL", string(("CLARABEL", "SCS"), upper=True), "SDP solver"),
+        "baseline_at": Key(None, numbers, "scheduling point of the LTI baseline (default: box centre)"),
+    },
+    "verify": {
+        "loop": Key(REQUIRED, loop, "how the controller is wired to the plant FMU ([verify.loop])"),
+        "scenario": Key(REQUIRED, scenarios, "closed-loop runs ([[verify.scenario]])"),
+    },
+    "export": {
+        "formats": Key(["fmu", "json", "mat"], formats, "controller files to write: fmu, json, mat"),
+    },
 }
 
 #: Tables a design may leave out: without [diagnose] the identified model goes straight to reduction;
 #: without [synth] the run ends after validation (identification only).
 OPTIONAL = ("diagnose", "synth", "verify", "export")
 
-BUNDLED = "adip"
+BUNDLED = ("adip", "maglev", "airpath")
+
+#: Table -> keys holding input files, resolved and checked on load.
+INPUT_FILES = (("design", "plant"), ("experiment", "controller"))
+
+Config = dict[str, dict[str, Any] | None]
 
 
-def bundled_config(name: str = BUNDLED) -> Path:
+def repository_root() -> Path:
+    """The folder holding ``lpvflow/`` and ``fmu_plants/`` (a source checkout)."""
+    return Path(__file__).resolve().parents[2]
+
+
+def bundled_config(name: str = BUNDLED[0]) -> Path:
     """Path of a bundled example configuration (``adip``, ``maglev``, ``airpath``)."""
-    path = Path(str(resources.files("lpvflow.pipeline") / "examples" / f"{name}.toml"))
-    if not path.exists():
-        raise DataError(f"no bundled design {name!r}; bundled: adip, maglev, airpath")
-    return path
+    if name not in BUNDLED:
+        raise DataError(f"no bundled design {name!r}; bundled: {', '.join(BUNDLED)}")
+    return Path(str(resources.files("lpvflow.pipeline") / "examples" / f"{name}.toml"))
 
 
-def load_config(path: str | Path) -> dict[str, dict[str, Any] | None]:
-    """Read and check a design TOML; every table with its defaults filled in (None: optional, absent)."""
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """The TOML document at ``path``; a missing or unreadable file is a one-line DataError."""
     path = Path(path)
-    if not path.exists():
-        raise DataError(f"design file {str(path)!r} does not exist")
+    if not path.is_file():
+        raise DataError(f"design file {str(path)!r} does not exist; give the path of a .toml file")
     try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
+        return tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise DataError(f"{path.name} is not valid TOML: {exc}") from None
+
+
+def check_table(table: str, given: Any, source: str) -> dict[str, Any]:
+    """One table with its defaults filled in; unknown or missing keys and bad values raise DataError."""
+    keys = SCHEMA[table]
+    if not isinstance(given, dict):
+        raise DataError(f"{source}: [{table}] must be a table")
+    extra = sorted(set(given) - set(keys))
+    if extra:
+        raise DataError(f"{source}: [{table}] has unknown key(s) {extra}; known: {sorted(keys)}")
+    missing = [k for k, key in keys.items() if key.default is REQUIRED and k not in given]
+    if missing:
+        raise DataError(f"{source}: [{table}] lacks {missing}")
+    checked = {}
+    for name, key in keys.items():
+        if name in given:
+            try:
+                checked[name] = key.check(given[name], f"[{table}] {name}")
+            except DataError as exc:
+                raise DataError(f"{source}: {exc}") from None
+        else:
+            checked[name] = key.default
+    return checked
+
+
+def load_tables(path: str | Path, need: tuple[str, ...]) -> Config:
+    """Every table of a design file, checked; ``need`` lists the tables the caller requires.
+
+    Tables absent from the file are None. Used by ``synth --config`` (need ``synth``) and
+    ``verify --scenario`` (need ``verify``); :func:`load_config` is the whole design.
+    """
+    raw = read_toml(path)
+    source = Path(path).name
     unknown = sorted(set(raw) - set(SCHEMA))
     if unknown:
-        raise DataError(f"{path.name}: unknown table(s) {unknown}; known: {sorted(SCHEMA)}")
-    config: dict[str, dict[str, Any] | None] = {}
-    for table, keys in SCHEMA.items():
-        if table in OPTIONAL and table not in raw:
-            config[table] = None
-            continue
-        given = raw.get(table, {})
-        if not isinstance(given, dict):
-            raise DataError(f"{path.name}: [{table}] must be a table")
-        extra = sorted(set(given) - set(keys))
-        if extra:
-            raise DataError(f"{path.name}: [{table}] has unknown key(s) {extra}; known: {sorted(keys)}")
-        missing = [k for k, v in keys.items() if v is REQUIRED and k not in given]
-        if missing:
-            raise DataError(f"{path.name}: [{table}] lacks {missing}")
-        config[table] = {k: given.get(k, v) for k, v in keys.items()}
+        hint = ("; scenario files now use [verify.loop] and [[verify.scenario]]"
+                if {"loop", "scenario"} & set(unknown) else "")
+        hint += ("; synth settings now live in [synth] (box, weights)"
+                 if {"polytope", "weights"} & set(unknown) else "")
+        raise DataError(f"{source}: unknown table(s) {unknown}; known: {sorted(SCHEMA)}{hint}")
+    missing = [t for t in need if t not in raw]
+    if missing:
+        raise DataError(f"{source} lacks the table(s) {['[' + t + ']' for t in missing]} "
+                        "(layout: docs/design_file.md)")
+    return {table: check_table(table, raw[table], source) if table in raw else None for table in SCHEMA}
+
+
+def load_config(path: str | Path, root: Path | None = None) -> Config:
+    """Read and check a whole design file; every table with its defaults filled in (None: optional,
+    absent). Relative input files are resolved against ``root`` (default: the working directory)
+    and must be usable: the plant a readable FMU with a linux64 binary, the controller an existing file.
+    """
+    from lpvflow.fmu import check_fmu
+
+    source = Path(path).name
+    config = load_tables(path, tuple(t for t in SCHEMA if t not in OPTIONAL))
     if config["synth"] is None and (config["verify"] or config["export"]):
-        raise DataError(f"{path.name}: [verify] and [export] need a [synth] table (a controller to use)")
-    for where, value in (("[design] plant", config["design"]["plant"]),
-                         ("[experiment] controller", config["experiment"]["controller"])):
-        if value and not Path(value).exists():
-            raise DataError(f"{path.name}: {where} {value!r} does not exist (paths are relative to "
-                            "the directory lpvflow design runs in; run `make fmus` to build the plants)")
+        raise DataError(f"{source}: [verify] and [export] need a [synth] table (a controller to use)")
+    for table, key in INPUT_FILES:
+        value = config[table][key]
+        if value is None:
+            continue
+        resolved = (root or Path.cwd()) / value
+        if not resolved.is_file():
+            where = "the repository root" if root else "the working directory"
+            raise DataError(f"{source}: [{table}] {key} {value!r} does not exist (relative paths are "
+                            f"relative to {where}; run `make fmus` to build the plants)")
+        config[table][key] = str(resolved)
+    try:
+        check_fmu(config["design"]["plant"])
+    except LpvflowError as exc:
+        raise DataError(f"{source}: [design] plant: {exc}") from None
     return config

@@ -2,9 +2,12 @@
 [adoption] → export → report.
 
 Each stage runs only when its cache key changed (:mod:`lpvflow.pipeline.cache`); artifacts live in
-``<output_dir>/<name>/``. A stage that fails with an lpvflow error ends the run there: the report is
-still written, with the error, and the run counts as a failed finding (exit status 1). Bad input
-(the design file, missing plant or controller files) is refused before any stage runs (exit 2).
+``<output_dir>/<name>/``, locked while a run writes it. A stage that fails with an lpvflow error, or a
+controller that fails its certificate, ends the run there (no verify, no export): the report is still
+written, with the error, and the run counts as a failed finding (exit status 1). Bad input (the design
+file's tables, keys, types and ranges, missing or unusable plant or controller files, an unwritable
+output folder) is refused before anything is written (exit 2). Ctrl-C removes the files the
+interrupted stage had written so far (exit 130).
 Without a [synth] table the run ends after validation. With [diagnose] adopt = true and an adopted
 extension, the adoption stage designs and verifies the identified model too and compares the two
 controllers in closed loop (:func:`lpvflow.pipeline.stages.adoption`).
@@ -14,13 +17,15 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from lpvflow.errors import LpvflowError
+from lpvflow.errors import DataError, LpvflowError
 from lpvflow.models import atomic_write_json
 from lpvflow.pipeline import cache, stages
-from lpvflow.pipeline.config import load_config
+from lpvflow.pipeline.cli_paths import writable_folder
+from lpvflow.pipeline.config import INPUT_FILES, Config, load_config
 
 
 @dataclass(frozen=True)
@@ -48,23 +53,41 @@ STAGES = (
 )
 
 
-def run_design(config_path: str | Path, log=print) -> dict:
-    """Run (or reuse) every stage, write ``summary.json`` and ``report.html``; return the summary."""
+def run_design(config_path: str | Path, log: Callable[[str], None] = print, root: Path | None = None) -> dict:
+    """Run (or reuse) every stage, write ``summary.json`` and ``report.html``; return the summary.
+
+    The design file is checked completely before anything is written; relative input paths are
+    resolved against ``root`` (default: the working directory). The design folder is locked for the
+    run (:func:`lpvflow.pipeline.cache.folder_lock`).
+    """
+    config = load_config(config_path, root)
+    folder = Path(config["design"]["output_dir"]) / config["design"]["name"]
+    inputs = [Path(config_path), *(Path(config[t][k]) for t, k in INPUT_FILES if config[t][k])]
+    inside = [str(p) for p in inputs if p.resolve().is_relative_to(folder.resolve())]
+    if inside:
+        raise DataError(f"{inside[0]} is inside the design folder {folder}, which the run rewrites; "
+                        "move it or change [design] output_dir or name")
+    writable_folder(folder, "the design folder ([design] output_dir / name)")
+    with cache.folder_lock(folder):
+        return _run_stages(config, str(config_path), folder, log)
+
+
+def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[str], None]) -> dict:
+    """The stages of :func:`run_design` in the locked ``folder``."""
     from lpvflow.pipeline.report import write_report
 
-    config = load_config(config_path)
-    folder = Path(config["design"]["output_dir"]) / config["design"]["name"]
-    folder.mkdir(parents=True, exist_ok=True)
     ctx = stages.StageContext(folder, config)
     keys: dict[str, str] = {}
+    artifacts_of: dict[str, list[str]] = {}
     code = cache.code_digest()  # any change to lpvflow's code reruns every stage
-    summary: dict = {"name": config["design"]["name"], "config": str(config_path), "stages": {}}
+    summary: dict = {"name": config["design"]["name"], "config": config_path, "stages": {}}
     failed = None
     for i, stage in enumerate(STAGES, 1):
         if any(config[t] is None for t in stage.tables):
             summary["stages"][stage.name] = {"status": "not configured"}
             continue
         files = [config[t][k] for t, k in stage.file_keys if config[t][k]]
+        files += [folder / a for u in stage.upstream for a in artifacts_of.get(u, [])]
         upstream = [keys.get(u, "not configured") for u in stage.upstream]
         key = cache.stage_key({"code": code, **{t: config[t] for t in stage.tables}}, upstream, files)
         keys[stage.name] = key
@@ -75,6 +98,7 @@ def run_design(config_path: str | Path, log=print) -> dict:
         else:
             log(f"[{i}/{len(STAGES)}] {stage.name} …")
             t0 = time.perf_counter()
+            before = _file_states(folder)
             try:
                 outputs, artifacts = stage.run(ctx)
             except LpvflowError as exc:
@@ -82,12 +106,22 @@ def run_design(config_path: str | Path, log=print) -> dict:
                 summary["stages"][stage.name] = {"status": "failed", "error": str(exc)}
                 log(f"[{i}/{len(STAGES)}] {stage.name} failed: {exc}")
                 break
+            except KeyboardInterrupt:
+                _remove_changed(folder, before)
+                log(f"[{i}/{len(STAGES)}] {stage.name} interrupted: its unfinished files were removed")
+                raise
             record = cache.save_record(folder, stage.name, key, outputs, artifacts, time.perf_counter() - t0)
             log(f"[{i}/{len(STAGES)}] {stage.name}: done in {record['seconds']:.1f} s")
             status = "ran"
         ctx.outputs[stage.name] = record["outputs"]
+        artifacts_of[stage.name] = record["artifacts"]
         summary["stages"][stage.name] = {"status": status, "seconds": record["seconds"],
                                          "outputs": record["outputs"], "artifacts": record["artifacts"]}
+        if record["outputs"].get("certificate_ok") is False:
+            failed = {"stage": stage.name, "error": "the controller failed its certificate (see the synth "
+                                                    "checks); verify and export were not run"}
+            log(f"[{i}/{len(STAGES)}] {stage.name}: {failed['error']}")
+            break
     summary["failed"] = failed
     summary["verdict"] = _verdict(summary)
     summary["stage_seconds"] = {n: s.get("seconds") for n, s in summary["stages"].items()}
@@ -95,6 +129,19 @@ def run_design(config_path: str | Path, log=print) -> dict:
     write_report(folder, summary)
     log(f"report: {folder / 'report.html'}")
     return summary
+
+
+def _file_states(folder: Path) -> dict[Path, tuple[int, int]]:
+    """(mtime, size) of every file under ``folder`` but the lock."""
+    return {p: (st.st_mtime_ns, st.st_size) for p in folder.rglob("*")
+            if p.is_file() and p.name != cache.LOCK_NAME and (st := p.stat())}
+
+
+def _remove_changed(folder: Path, before: dict[Path, tuple[int, int]]) -> None:
+    """Delete the files created or rewritten since ``before`` (an interrupted stage's partial output)."""
+    for path, state in _file_states(folder).items():
+        if before.get(path) != state:
+            path.unlink(missing_ok=True)
 
 
 def _verdict(summary: dict) -> dict:
@@ -118,8 +165,9 @@ def _verdict(summary: dict) -> dict:
     return {"pass": True, "reason": "every configured stage ran and every scenario passed"}
 
 
-def main_design(config_path: str | Path) -> int:
-    summary = run_design(config_path, log=lambda line: print(line, file=sys.stderr, flush=True))
+def main_design(config_path: str | Path, root: Path | None = None) -> int:
+    """``lpvflow design``: progress on stderr; 0 when the design passes, 1 when it does not."""
+    summary = run_design(config_path, log=lambda line: print(line, file=sys.stderr, flush=True), root=root)
     if not summary["verdict"]["pass"]:
         print(f"design did not pass: {summary['verdict']['reason']}", file=sys.stderr)
     return 0 if summary["verdict"]["pass"] else 1

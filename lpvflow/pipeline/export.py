@@ -55,7 +55,7 @@ import scipy.io
 from fmpy.validation import validate_fmu
 
 from lpvflow.errors import DataError, LpvflowError, ModelError
-from lpvflow.models import LPVSS, load
+from lpvflow.models import LPVSS, load, user_mode
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.polytope import Polytope
 
@@ -232,21 +232,11 @@ def load_lpv_controller(path: str | Path) -> LPVController:
     return controller
 
 
-def check_output_path(output: str | Path, inputs: Sequence[str | Path]) -> Path:
-    """Refuse an output path equal to an input file (it would be overwritten)."""
-    output = Path(output)
-    for path in inputs:
-        if output.resolve() == Path(path).resolve():
-            raise DataError(f"output {output} is the input file {path}; choose another output path")
-    if output.is_dir():
-        raise DataError(f"output {output} is a directory; give a file path")
-    return output
-
-
 def _atomic_replace(path: Path, write: callable, suffix: str) -> Path:
     """Call ``write(tmp)`` on a temporary file next to ``path``, then rename it onto ``path``."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    user_mode(fd)
     os.close(fd)
     try:
         write(Path(tmp))

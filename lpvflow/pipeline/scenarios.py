@@ -13,9 +13,10 @@ Loop convention (1-DOF, as :class:`lpvflow.synth.controller.LPVController`): at 
 ``y_operating_point`` (zero if not given). Plant inputs the controller does not drive are exogenous:
 they follow their ``exogenous`` signal or stay at their start value.
 
-TOML layout::
+TOML layout: the ``[verify]`` table of a design file (docs/design_file.md), read by ``lpvflow design``
+and ``lpvflow verify --scenario`` alike::
 
-    [loop]
+    [verify.loop]
     measured = ["arm_angle", "pendulum_angle"]   # controller inputs e = r − y, in this order
     actuated = ["voltage"]                        # controller outputs u, in this order
     scheduling = ["sin(arm_angle)"]               # one expression per scheduling signal p
@@ -24,7 +25,7 @@ TOML layout::
     actuator_limits = { voltage = [-10.0, 10.0] } # optional
     plant_parameters = { effect_noise_std = 1e-4 }  # optional, FMU parameters for every scenario
 
-    [[scenario]]
+    [[verify.scenario]]
     name = "arm to +75 deg"
     duration = 3.0
     reference = { arm_angle = { steps = [[0.5, 1.309]] } }
@@ -50,7 +51,6 @@ ramps = [[t_start, t_stop, size], ...] }``: s(t) = initial + Σ size·[t ≥ t_s
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -177,9 +177,9 @@ class Scenario:
 
 @dataclass(frozen=True)
 class ScenarioFile:
-    """A parsed scenario file: the loop (``None`` when the file has no [loop]) and its scenarios."""
+    """A parsed scenario file: the loop and its scenarios."""
 
-    loop: Loop | None
+    loop: Loop
     scenarios: list[Scenario]
 
 
@@ -271,7 +271,7 @@ def parse_loop(doc: dict) -> Loop:
     )
     for key in ("measured", "actuated", "scheduling"):
         if key not in doc:
-            raise DataError(f"[loop] lacks {key!r}; see lpvflow/pipeline/scenarios.py for the layout")
+            raise DataError(f"[loop] lacks {key!r}; layout: docs/design_file.md, [verify.loop]")
     ops = {}
     for key in ("u_operating_point", "y_operating_point"):
         if key in doc:
@@ -352,21 +352,9 @@ def parse_scenario(doc: dict, index: int) -> Scenario:
 
 
 def load_scenarios(path: str | Path) -> ScenarioFile:
-    """Read a scenario TOML file (module docstring); every defect raises one-line DataError."""
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"scenario file not found: {path}")
-    try:
-        doc = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise DataError(f"scenario file {path} is not valid TOML: {exc}") from None
-    _check_keys(doc, {"loop", "scenario"}, str(path))
-    items = doc.get("scenario")
-    if not isinstance(items, list) or not items or not all(isinstance(s, dict) for s in items):
-        raise DataError(f"scenario file {path} has no [[scenario]] tables; add at least one")
-    loop = parse_loop(doc["loop"]) if isinstance(doc.get("loop"), dict) else None
-    scenarios = [parse_scenario(item, i) for i, item in enumerate(items)]
-    names = [s.name for s in scenarios]
-    if len(set(names)) != len(names):
-        raise DataError(f"scenario file {path} repeats a scenario name; names must be distinct")
-    return ScenarioFile(loop, scenarios)
+    """The ``[verify]`` table of a design file (module docstring); every defect is a one-line DataError."""
+    from lpvflow.pipeline.config import load_tables
+
+    verify = load_tables(path, need=("verify",))["verify"]
+    return ScenarioFile(parse_loop(verify["loop"]),
+                        [parse_scenario(doc, i) for i, doc in enumerate(verify["scenario"])])

@@ -16,7 +16,7 @@ import numpy as np
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
-from lpvflow.errors import DataError, ModelError
+from lpvflow.errors import DataError
 from lpvflow.models import LPVSS, load
 
 
@@ -346,9 +346,6 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     from lpvflow.synth.polytope import scheduling_box
 
     cfg = ctx.config["synth"]
-    if cfg["method"] != "common":
-        raise ModelError(f"[synth] method = {cfg['method']!r}: the output-feedback synthesis is the "
-                         "common-Lyapunov polytopic one; use method = \"common\"")
     box = cfg["box"]
     model = load(ctx.path("model.json"))
     result = synthesize(generalized_plant(model, cfg["weights"], box), cfg["solver"])

@@ -57,7 +57,7 @@ from lpvflow.experiment.controller import FORMAT as LTI_FORMAT
 from lpvflow.experiment.controller import LtiController, load_controller
 from lpvflow.experiment.plant import Plant, open_plant
 from lpvflow.experiment.run import step_count
-from lpvflow.models import report_header
+from lpvflow.models import report_header, user_mode
 from lpvflow.pipeline.export import load_lpv_controller
 from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal
 from lpvflow.synth.controller import LPVController
@@ -684,6 +684,7 @@ def plot_runs(runs: Sequence[ClosedLoopRun], path: str | Path, title: str = "") 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
+    user_mode(fd)
     os.close(fd)
     try:
         fig.savefig(tmp, dpi=110)

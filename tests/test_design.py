@@ -334,3 +334,24 @@ def test_a_failed_verdict_names_where_the_scheduling_left_the_design_box():
         "far: unbounded: y left its output_bounds at t = 1.6 s; scheduling left the design box [-0.5, 0.5] "
         "at t = 0.71 s and spanned [-0.02, 0.97] (1.1 s outside) (identification data [-0.56, 0.61]); "
         "near: misses y settles in 1.8 s (limit 1.5 s)")}
+
+
+@pytest.mark.parametrize(("cause", "parameters", "inputs_added", "refused"), [
+    ("dead_time", {"delay": 2}, False, False),
+    ("backlash", {"width": 0.3}, False, True),
+    ("sensor_saturation", {"upper": 1.0}, False, True),
+    ("offset", {"kind": "sensor", "output_offset": 0.5}, False, True),
+    ("offset", {"kind": "equation"}, True, True),
+    ("input_nonlinearity", {"kind": "dead_zone"}, False, True),
+])
+def test_only_extensions_on_the_unmapped_signals_are_adopted(cause, parameters, inputs_added, refused):
+    """Issue 26's new causes are fitted on mapped signals (play-mapped input, clipped or offset output):
+    adopting their model as the design model would be wrong, so the design reports them only."""
+    from types import SimpleNamespace
+
+    from lpvflow.pipeline.stages import adoption_refusal
+
+    model = SimpleNamespace(form="shifted")
+    winner = SimpleNamespace(inputs_added=inputs_added, fit=SimpleNamespace(model=model))
+    result = SimpleNamespace(cause=cause, parameters=parameters, winner=winner)
+    assert (adoption_refusal(result) is not None) == refused

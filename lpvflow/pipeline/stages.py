@@ -115,13 +115,26 @@ def plot_residuals(
 
 
 # -------------------------------------------------------------------------------------- diagnose
+def adoption_refusal(result) -> str | None:
+    """Why a diagnosis' extended model cannot replace the design model (None: it can): it adds inputs,
+    or it is fitted on a mapped input or output (an input map, a play operator, a clipped output,
+    y − sensor offset) that a controller design model does not carry, or it is not in shifted form."""
+    mapped = result.cause in ("input_nonlinearity", "backlash", "sensor_saturation") or (
+        result.cause == "offset" and result.parameters.get("kind") == "sensor")
+    if result.winner.inputs_added or mapped or result.winner.fit.model.form != "shifted":
+        return (f"the {result.cause} extension changes the model's inputs or is fitted on a mapped input "
+                "or output; the design model stays as identified")
+    return None
+
+
 def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     """Diagnosis of the identify structure on the experiment data (issue 8); with ``adopt`` the
     extended model replaces the identified one for the rest of the design.
 
-    Only extensions that keep the model's inputs can be adopted (a dead time, orders, a richer
-    basis, another estimator): offset, friction and actuator-map extensions add inputs or a static
-    map a controller design model cannot carry, so they are reported but not adopted.
+    Only extensions that keep the model's inputs and outputs can be adopted (a dead time, orders, a
+    richer basis, another estimator): offset, friction, actuator-map, backlash and sensor-saturation
+    extensions add inputs or are fitted on mapped signals (an input map, a play operator, a clipped
+    output, y − offset) a controller design model cannot carry, so they are reported but not adopted.
 
     With an experiment controller (closed-loop data) every model is simulated in the identification
     loop with the experiment's scheduling expressions (as :func:`closed_loop_simulation` does).
@@ -157,12 +170,11 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
                "ranking": [{k: r[k] for k in ("cause", "bfr_gain", "p_value")} for r in result.ranking],
                "adopted": False, "model": "model_full.json"}
     if cfg["adopt"] and result.winner is not None:
-        model = result.winner.fit.model
-        if result.winner.inputs_added or result.cause == "input_nonlinearity" or model.form != "shifted":
-            outputs["adoption_refused"] = (f"the {result.cause} extension changes the model's inputs or "
-                                           "adds a static input map; the design model stays as identified")
+        refusal = adoption_refusal(result)
+        if refusal:
+            outputs["adoption_refused"] = refusal
         else:
-            model.to_ss().save(ctx.path("model_extended.json"))
+            result.winner.fit.model.to_ss().save(ctx.path("model_extended.json"))
             outputs.update(adopted=True, model="model_extended.json")
     artifacts = ["diagnosis.png"] + (["model_extended.json"] if outputs["adopted"] else [])
     return outputs, artifacts

@@ -5,8 +5,8 @@
     def test_pendulum_recovers_from_a_nudge():
         assert_closed_loop("controller.json", "plant.fmu", "scenarios.toml")
 
-The scenario file is the one ``lpvflow verify --scenario`` reads (``[loop]`` and ``[[scenario]]`` with
-``requirements``; layout in :mod:`lpvflow.pipeline.scenarios`). A scenario fails when the controller
+The scenario file is the one ``lpvflow verify --scenario`` reads (``[verify.loop]`` and
+``[[verify.scenario]]`` with ``requirements``; layout in docs/design_file.md). A scenario fails when the controller
 misses one of its requirements or fails its stability verdict; the AssertionError then lists, per
 failing scenario, the requirement messages of ``lpvflow verify`` (e.g. ``arm_angle settles in 2.1 s
 (limit 1.5 s)``), so the test report says what regressed.
@@ -42,7 +42,7 @@ def assert_closed_loop(
             controller FMU written by ``lpvflow export``) or a controller object (e.g. ``lpvflow.load``'s).
         plant_fmu: the plant FMU (FMI 2.0 Co-Simulation).
         scenarios: a scenario TOML file, or :class:`~lpvflow.pipeline.scenarios.Scenario` objects.
-        loop: the loop wiring; default the file's ``[loop]`` (required with Scenario objects).
+        loop: the loop wiring; default the file's ``[verify.loop]`` (required with Scenario objects).
 
     Returns:
         The :class:`~lpvflow.pipeline.verify.Verification` (metrics per scenario) for further checks.
@@ -51,7 +51,7 @@ def assert_closed_loop(
         parsed = load_scenarios(scenarios)
         loop, scenarios = loop or parsed.loop, parsed.scenarios
     if loop is None:
-        raise DataError("no loop wiring: give a scenario file with a [loop] table or pass loop=")
+        raise DataError("no loop wiring: give a scenario file with a [verify.loop] table or pass loop=")
     law = load_controller_file(controller) if isinstance(controller, str | Path) else controller
     try:
         verification = run_verification(law, plant_fmu, scenarios, loop)

@@ -18,12 +18,12 @@ from tests.test_export import _adip_lpv_controller
 ROOT = Path(__file__).resolve().parents[1]
 COLUMNS = ["--u", "volt", "--y", "level", "--p", "theta"]
 SCENARIO = """
-[loop]
+[verify.loop]
 measured = ["arm_angle", "pendulum_angle"]
 actuated = ["voltage"]
 scheduling = ["sin(arm_angle)"]
 
-[[scenario]]
+[[verify.scenario]]
 name = "hold"
 duration = 0.5
 settling_band = { pendulum_angle = 0.01 }

@@ -20,7 +20,7 @@ RECIPE = ROOT / "docs" / "regression_tests.md"
 ADIP = ROOT / "fmu_plants" / "build" / "adip.fmu"
 CONTROLLER = ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json"
 ARM_STEP = """
-[[scenario]]
+[[verify.scenario]]
 name = "arm step 0.2 rad"
 duration = 4.0
 reference = { arm_angle = { steps = [[0.5, 0.2]] } }
@@ -71,5 +71,5 @@ def test_an_exported_controller_fmu_and_scenario_objects(scenario_file: Path, tm
 
 
 def test_the_documented_requirements_parse() -> None:
-    scenario = tomllib.loads(_block("toml", "# tests/adip_scenarios.toml"))["scenario"][0]
+    scenario = tomllib.loads(_block("toml", "# tests/adip_scenarios.toml"))["verify"]["scenario"][0]
     assert scenario["requirements"] == {"settling_time": 1.0, "after_settling": {"arm_angle": 0.2}}

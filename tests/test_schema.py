@@ -61,7 +61,7 @@ def test_a_partial_file_is_enough_for_the_table_a_command_needs(tmp_path: Path) 
     path.write_text('[synth]\nsolver = "scs"\nweights.S = { bandwidth = 1.0 }\n'
                     'weights.K = { num = [1], den = [1] }\n')
     synth = load_tables(path, need=("synth",))["synth"]
-    assert synth["solver"] == "SCS" and synth["method"] == "dilated" and synth["box"] is None
+    assert synth["solver"] == "SCS" and synth["method"] == "common" and synth["box"] is None
     with pytest.raises(DataError, match=r"synth.toml lacks the table\(s\) \['\[verify\]'\]"):
         load_scenarios(path)
 

@@ -34,8 +34,8 @@ def design(parameters: dict | None = None, design_angle: float = 0.0) -> dict:
     """The controller dictionary in the lpvflow/lti-controller format (version 1).
 
     ``design_angle`` (rad): take the gains from the linearization at the upright equilibrium with that
-    arm angle instead of 0 (the operating point stays φ1 = φ2 = 0, V = 0); benchmarks/bench_adip_scheduling.py
-    uses it for identification controllers that hold a wider arm range.
+    arm angle instead of 0 (the operating point stays φ1 = φ2 = 0, V = 0), e.g. for identification
+    controllers that hold a wider arm range.
     """
     p = parameters or rm.default_parameters("adip")
     x_op, u_op = rm.adip_equilibrium(0.0, p)

@@ -49,7 +49,8 @@ LOADER_PATHS = {
 #: JSON reports the commands write (kind → current version); :func:`load` returns them as dictionaries.
 #: validation: ``validate --json``; simulation: ``simulate --json``; diagnosis: ``diagnose --json``;
 #: verification: ``verify --json``; experiment: the sidecar ``<data>.csv.json`` of ``experiment``.
-REPORT_VERSIONS = {"validation": 1, "simulation": 1, "diagnosis": 1, "verification": 1, "experiment": 1}
+REPORT_VERSIONS = {"validation": 1, "simulation": 1, "diagnosis": 1, "verification": 1, "experiment": 1,
+                   "design": 1}
 
 
 def register_format(kind: str, loader: Callable[[dict], Any]) -> None:

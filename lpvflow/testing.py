@@ -6,9 +6,9 @@
         assert_closed_loop("controller.json", "plant.fmu", "scenarios.toml")
 
 The scenario file is the one ``lpvflow verify --scenario`` reads (``[verify.loop]`` and
-``[[verify.scenario]]`` with ``requirements``; layout in docs/design_file.md). A scenario fails when the controller
-misses one of its requirements or fails its stability verdict; the AssertionError then lists, per
-failing scenario, the requirement messages of ``lpvflow verify`` (e.g. ``arm_angle settles in 2.1 s
+``[[verify.scenario]]`` with ``requirements``; layout in docs/design_file.md). A scenario fails when
+the controller misses one of its requirements or fails its stability verdict; the AssertionError then
+lists, per failing scenario, the requirement messages of ``lpvflow verify`` (e.g. ``arm_angle settles in 2.1 s
 (limit 1.5 s)``), so the test report says what regressed.
 """
 

@@ -97,6 +97,8 @@ def test_rerun_skips_unchanged_stages_and_a_change_reruns_the_affected_ones(tmp_
 
     summary = json.loads((folder / "summary.json").read_text())
     assert set(summary["stage_seconds"]) >= {"experiment", "identify", "reduce", "validate"}
+    assert summary["format"] == "lpvflow/design" and summary["version"] == 1
+    assert lpvflow.load(folder / "summary.json")["name"] == summary["name"]  # read back like every file
     report = (folder / "report.html").read_text()
     assert report.count("data:image/png;base64,") >= 3  # data, singular values, fit: embedded
     assert any("unchanged, reused" in line for line in lines)
@@ -355,3 +357,11 @@ def test_only_extensions_on_the_unmapped_signals_are_adopted(cause, parameters, 
     winner = SimpleNamespace(inputs_added=inputs_added, fit=SimpleNamespace(model=model))
     result = SimpleNamespace(cause=cause, parameters=parameters, winner=winner)
     assert (adoption_refusal(result) is not None) == refused
+
+
+def test_report_cells_show_text_not_escapes():
+    """The report showed the certificate as a JSON list with \\u221e escapes."""
+    from lpvflow.pipeline.report import _fmt
+
+    assert _fmt(["frozen H∞ max 1.46", "γ = 1.47"]) == "frozen H∞ max 1.46; γ = 1.47"
+    assert "γ" in _fmt({"γ": [1, "‖ξ‖"]}) and "\\u" not in _fmt({"γ": [1, "‖ξ‖"]})

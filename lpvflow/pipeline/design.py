@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lpvflow.errors import DataError, LpvflowError
-from lpvflow.models import atomic_write_json
+from lpvflow.models import atomic_write_json, report_header
 from lpvflow.pipeline import cache, stages
 from lpvflow.pipeline.cli_paths import writable_folder
 from lpvflow.pipeline.config import INPUT_FILES, Config, load_config
@@ -80,7 +80,8 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
     keys: dict[str, str] = {}
     artifacts_of: dict[str, list[str]] = {}
     code = cache.code_digest()  # any change to lpvflow's code reruns every stage
-    summary: dict = {"name": config["design"]["name"], "config": config_path, "stages": {}}
+    summary: dict = report_header("design") | {"name": config["design"]["name"], "config": config_path,
+                                               "stages": {}}
     failed = None
     for i, stage in enumerate(STAGES, 1):
         if any(config[t] is None for t in stage.tables):

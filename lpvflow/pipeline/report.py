@@ -47,7 +47,9 @@ def _fmt(value) -> str:
         return f"{value:.4g}"
     if isinstance(value, list) and value and all(isinstance(v, float) for v in value):
         return ", ".join(f"{v:.4g}" for v in value)
-    return json.dumps(value) if isinstance(value, dict | list) else str(value)
+    if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
+        return "; ".join(value)  # e.g. the certificate's lines
+    return json.dumps(value, ensure_ascii=False) if isinstance(value, dict | list) else str(value)
 
 
 def _figures(folder: Path) -> list[str]:

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import control
 import numpy as np
-from fmpy import extract, read_model_description
+from fmpy import extract
 from fmpy.fmi2 import FMU2Slave
 
 from lpvflow.errors import DataError, LpvflowError, ModelError
@@ -57,6 +57,7 @@ from lpvflow.experiment.controller import FORMAT as LTI_FORMAT
 from lpvflow.experiment.controller import LtiController, load_controller
 from lpvflow.experiment.plant import Plant, open_plant
 from lpvflow.experiment.run import step_count
+from lpvflow.fmu import check_fmu
 from lpvflow.models import report_header, user_mode
 from lpvflow.pipeline.export import load_lpv_controller
 from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal
@@ -110,17 +111,8 @@ class FmuController:
 
     def __init__(self, path: str | Path) -> None:
         path = Path(path)
-        if not path.is_file():
-            raise DataError(f"controller FMU not found: {path}")
-        try:
-            description = read_model_description(str(path))
-        except Exception as exc:  # fmpy raises bare Exceptions for broken archives and XML
-            raise ModelError(f"{path} is not a readable FMU ({exc})") from exc
-        if (
-            description.coSimulation is None
-            or description.defaultExperiment is None
-            or description.defaultExperiment.stepSize is None
-        ):
+        description = check_fmu(path)  # a readable FMI 2.0 Co-Simulation FMU with a binary here
+        if description.defaultExperiment is None or description.defaultExperiment.stepSize is None:
             raise ModelError(f"{path} is not a controller FMU written by `lpvflow export --format fmu`")
         variables = description.modelVariables
         inputs = [v for v in variables if v.causality == "input"]

@@ -194,7 +194,6 @@ class HinfResult:
     Ts: float
     report: SolveReport
     plant: GeneralizedPlant | None = None
-    method: str = "common"
 
 
 def _partition(P: control.StateSpace, nmeas: int, ncon: int) -> VertexPlant:
@@ -338,8 +337,8 @@ def _sym(M: cp.Expression) -> cp.Expression:
 
 
 def _gamma_lower(verts: list[VertexPlant], gamma_max: float | None, solver: str
-                 ) -> tuple[float, np.ndarray, np.ndarray, list[np.ndarray], SolveReport]:
-    """γ_lower of step 2, the minimising R, S and the Jacobi scales of every matrix there."""
+                 ) -> tuple[float, list[np.ndarray], SolveReport]:
+    """γ_lower of step 2 and the Jacobi scales of every matrix at its minimiser."""
     n = verts[0].dims[0]
     g = cp.Variable()
     R, S = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True)
@@ -350,7 +349,7 @@ def _gamma_lower(verts: list[VertexPlant], gamma_max: float | None, solver: str
     what = f"the eliminated H∞ LMIs at {len(verts)} vertices" + (
         f" with γ ≤ {gamma_max:g}" if gamma_max is not None else "")
     report = solve(cp.Problem(cp.Minimize(g), constraints), solver, what)
-    return float(g.value), R.value, S.value, _jacobi_scales(matrices), report
+    return float(g.value), _jacobi_scales(matrices), report
 
 
 def _interior_point(verts: list[VertexPlant], scales: list[np.ndarray], gamma: float, solver: str
@@ -447,14 +446,14 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     attempts: list = []
     try:
         verts = [coords.apply(vc) for vc in cayleys]
-        gamma_lower, _, _, scales, report = _gamma_lower(verts, gamma_max, solver)
+        gamma_lower, scales, report = _gamma_lower(verts, gamma_max, solver)
         attempts += report.attempts
         for factor in INTERIOR_FACTORS:
             R, S, report = _interior_point(verts, scales, factor * gamma_lower, solver)
             attempts += report.attempts
             coords = _Coordinates(coords.T @ _lyapunov_balancing(R, S), omega, du, dy)
             verts = [coords.apply(vc) for vc in cayleys]
-            gamma_lower, _, _, scales, report = _gamma_lower(verts, gamma_max, solver)
+            gamma_lower, scales, report = _gamma_lower(verts, gamma_max, solver)
             attempts += report.attempts
     except SynthesisError as exc:
         raise SynthesisError(f"{exc}: {_infeasibility_hint(vertices, gamma_max)}") from None

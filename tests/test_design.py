@@ -365,3 +365,13 @@ def test_report_cells_show_text_not_escapes():
 
     assert _fmt(["frozen H∞ max 1.46", "γ = 1.47"]) == "frozen H∞ max 1.46; γ = 1.47"
     assert "γ" in _fmt({"γ": [1, "‖ξ‖"]}) and "\\u" not in _fmt({"γ": [1, "‖ξ‖"]})
+
+
+def test_verification_figures_have_a_caption_not_a_file_name(tmp_path):
+    """The report captioned the closed-loop figures 'verify 0', 'verify 1', … (issue 25)."""
+    from lpvflow.pipeline.report import _embed
+
+    png = tmp_path / "verify_0.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n")
+    caption = _embed(png).split("<figcaption>")[1]
+    assert "verify 0" not in caption and "LTI baseline" in caption

@@ -30,6 +30,9 @@ def _embed(path: Path) -> str:
     if path.name.startswith("adoption_"):
         caption = ("Closed loop on the plant FMU: the LPV controller designed on the identified model "
                    "(before adoption) and on the adopted extension (after).")
+    elif path.name.startswith("verify_"):
+        caption = ("Closed loop on the plant FMU: the LPV controller and the LTI baseline on this scenario "
+                   "(reference dashed; the scenario's name above the plot).")
     return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(path.name)}">'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 

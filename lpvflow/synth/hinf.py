@@ -171,7 +171,8 @@ class HinfResult:
     """γ-optimal (to ``suboptimality``) controller, its certified γ and the certificate.
 
     Attributes:
-        gamma: level certified by the closed-loop Lyapunov matrix ``X_cl`` at every vertex.
+        gamma: level certified at every vertex by the closed-loop Lyapunov matrix 𝒳 = FᵀF
+            (``lyapunov_factor``).
         gamma_lower: minimum of the eliminated LMIs (step 2): no controller of this class does better.
         K_vertices: discrete (Ak_i, Bk_i, Ck_i, Dk_i) from y to u.
         vertex_controllers: the same as ``control.StateSpace`` objects (dt = Ts).
@@ -257,7 +258,7 @@ def synthesize(plant: GeneralizedPlant, solver: str = "CLARABEL", gamma_max: flo
 @dataclass
 class _Coordinates:
     """x = T x̄, s = ω₀s', u = D_u ū, y = D_y ȳ of step 1, applied to the Cayley image of every vertex
-    (D_u, D_y diagonal: every column of [B2; D12] and row of [C2 D21] of unit norm at the first vertex)."""
+    (D_u, D_y diagonal: every column of B2 and row of C2 of unit norm at the first vertex)."""
 
     T: np.ndarray
     omega: float

@@ -35,7 +35,6 @@ from lpvflow.models import (
     atomic_write_json,
     check_format,
     default_names,
-    register_format,
     simulation_inputs,
 )
 
@@ -259,8 +258,6 @@ class LPVLFR:
     def save(self, path: str | os.PathLike) -> None:
         atomic_write_json(path, self.to_dict())
 
-
-register_format("lpvlfr", LPVLFR.from_dict)
 
 
 def require_affine(model: LPVSS | LPVLFR) -> LPVSS:

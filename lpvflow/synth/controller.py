@@ -29,7 +29,7 @@ import numpy as np
 
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, ModelError
-from lpvflow.models import FORMAT_VERSION, atomic_write_json, check_format, register_format
+from lpvflow.models import FORMAT_VERSION, atomic_write_json, check_format
 from lpvflow.synth.polytope import Polytope
 
 
@@ -221,5 +221,3 @@ def series_input_filter(K: tuple[np.ndarray, ...], WB: control.StateSpace) -> tu
     A = np.block([[Ak, np.zeros((Ak.shape[0], Ab.shape[0]))], [Bb @ Ck, Ab]])
     return A, np.vstack([Bk, Bb @ Dk]), np.hstack([Db @ Ck, Cb]), Db @ Dk
 
-
-register_format("lpv-controller", LPVController.from_dict)

@@ -365,6 +365,7 @@ def test_report_cells_show_text_not_escapes():
 
     assert _fmt(["frozen H∞ max 1.46", "γ = 1.47"]) == "frozen H∞ max 1.46; γ = 1.47"
     assert "γ" in _fmt({"γ": [1, "‖ξ‖"]}) and "\\u" not in _fmt({"γ": [1, "‖ξ‖"]})
+    assert _fmt({"voltage": [-4.855337518599313, 4.4072050203053585]}) == "voltage: [-4.855, 4.407]"
 
 
 def test_verification_figures_have_a_caption_not_a_file_name(tmp_path):

@@ -52,6 +52,9 @@ def _fmt(value) -> str:
         return ", ".join(f"{v:.4g}" for v in value)
     if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
         return "; ".join(value)  # e.g. the certificate's lines
+    if isinstance(value, dict) and value and all(isinstance(v, list) and v and all(
+            isinstance(x, float) for x in v) for v in value.values()):
+        return "; ".join(f"{k}: [{_fmt(v)}]" for k, v in value.items())  # e.g. signal ranges
     return json.dumps(value, ensure_ascii=False) if isinstance(value, dict | list) else str(value)
 
 

@@ -71,7 +71,7 @@ straight chain:
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import control
@@ -429,6 +429,31 @@ def _lyapunov(R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray) -> np.
     return 0.5 * (X + X.T)
 
 
+def balanced_coordinates(cayleys: list[VertexPlant], gamma_max: float | None, solver: str
+                         ) -> tuple[_Coordinates, list[VertexPlant], float, list]:
+    """Step 1 on the Cayley images of the vertices: the coordinates, the vertices in them, the γ lower
+    bound of step 2 there, and the solver attempts made."""
+    omega = max(float(np.linalg.norm(vc.A, 2)) for vc in cayleys)
+    _, (s, _) = scipy.linalg.matrix_balance(np.mean([np.abs(vc.A) for vc in cayleys], axis=0) + 1e-300,
+                                            permute=False, separate=True)
+    first = _Coordinates(np.diag(s), omega, np.ones(cayleys[0].dims[2]), np.ones(cayleys[0].dims[4]))
+    v0 = first.apply(cayleys[0])
+    du = 1.0 / np.maximum(np.linalg.norm(v0.B2, axis=0), 1e-300)
+    dy = np.maximum(np.linalg.norm(v0.C2, axis=1), 1e-300)
+    coords = _Coordinates(np.diag(s), omega, du, dy)
+    verts = [coords.apply(vc) for vc in cayleys]
+    gamma_lower, scales, report = _gamma_lower(verts, gamma_max, solver)
+    attempts = list(report.attempts)
+    for factor in INTERIOR_FACTORS:
+        R, S, report = _interior_point(verts, scales, factor * gamma_lower, solver)
+        attempts += report.attempts
+        coords = _Coordinates(coords.T @ _lyapunov_balancing(R, S), omega, du, dy)
+        verts = [coords.apply(vc) for vc in cayleys]
+        gamma_lower, scales, report = _gamma_lower(verts, gamma_max, solver)
+        attempts += report.attempts
+    return coords, verts, gamma_lower, attempts
+
+
 def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: float = 2.5e-3,
                         gamma_max: float | None = None, solver: str = "CLARABEL") -> HinfResult:
     """Steps 1–5 of the module docstring on partitioned discrete vertex plants (checked by the caller)."""
@@ -436,26 +461,8 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
         raise ModelError(f"suboptimality must be positive, got {suboptimality!r}")
     start = time.perf_counter()
     cayleys = [_cayley_vertex(v) for v in vertices]
-    omega = max(float(np.linalg.norm(vc.A, 2)) for vc in cayleys)
-    _, (s, _) = scipy.linalg.matrix_balance(np.mean([np.abs(vc.A) for vc in cayleys], axis=0) + 1e-300,
-                                            permute=False, separate=True)
-    first = _Coordinates(np.diag(s), omega, np.ones(vertices[0].dims[2]), np.ones(vertices[0].dims[4]))
-    v0 = first.apply(cayleys[0])
-    du = 1.0 / np.maximum(np.linalg.norm(v0.B2, axis=0), 1e-300)
-    dy = np.maximum(np.linalg.norm(v0.C2, axis=1), 1e-300)
-    coords = _Coordinates(np.diag(s), omega, du, dy)
-    attempts: list = []
     try:
-        verts = [coords.apply(vc) for vc in cayleys]
-        gamma_lower, scales, report = _gamma_lower(verts, gamma_max, solver)
-        attempts += report.attempts
-        for factor in INTERIOR_FACTORS:
-            R, S, report = _interior_point(verts, scales, factor * gamma_lower, solver)
-            attempts += report.attempts
-            coords = _Coordinates(coords.T @ _lyapunov_balancing(R, S), omega, du, dy)
-            verts = [coords.apply(vc) for vc in cayleys]
-            gamma_lower, scales, report = _gamma_lower(verts, gamma_max, solver)
-            attempts += report.attempts
+        coords, verts, gamma_lower, attempts = balanced_coordinates(cayleys, gamma_max, solver)
     except SynthesisError as exc:
         raise SynthesisError(f"{exc}: {_infeasibility_hint(vertices, gamma_max)}") from None
     level = _LevelProblem(verts)
@@ -474,6 +481,21 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
         result.report = level_report
         return result
 
+    best = lowest_certified_level(certified, gamma_lower, suboptimality, gamma_max)
+    if best is None:
+        top = gamma_lower * (1 + suboptimality * 2 ** (LEVEL_STEPS - 1))
+        top = top if gamma_max is None else min(top, gamma_max * (1 + suboptimality))
+        raise SynthesisError(f"no certified H∞ controller up to γ = {top:.4g} (γ lower bound "
+                             f"{gamma_lower:.4g}): {_infeasibility_hint(vertices, gamma_max)}")
+    best.report = SolveReport(solver, best.report.status, time.perf_counter() - start, attempts)
+    return best
+
+
+def lowest_certified_level(certified: Callable[[float], HinfResult | None], gamma_lower: float,
+                           suboptimality: float, gamma_max: float | None):
+    """Step 3's search: levels γ_lower·(1 + δ·2^k), k < LEVEL_STEPS (not above gamma_max), until
+    ``certified`` returns a result, then geometric bisection between that level and the one below it to a
+    relative width δ; the result at the lowest passing level, or None when no level passed."""
     lo, best = gamma_lower, None
     for k in range(LEVEL_STEPS):
         gamma = gamma_lower * (1.0 + suboptimality * 2**k)
@@ -484,13 +506,11 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
             break
         lo = gamma
     if best is None:
-        raise SynthesisError(f"no certified H∞ controller up to γ = {gamma:.4g} (γ lower bound "
-                             f"{gamma_lower:.4g}): {_infeasibility_hint(vertices, gamma_max)}")
+        return None
     while best.gamma / lo > 1 + suboptimality:
         mid = float(np.sqrt(lo * best.gamma))
         better = certified(mid)
         lo, best = (lo, better) if better is not None else (mid, best)
-    best.report = SolveReport(solver, best.report.status, time.perf_counter() - start, attempts)
     return best
 
 

@@ -344,7 +344,10 @@ def _gamma_line(synth: dict) -> str:
 
 
 def _held_step_line(verify: dict, units: dict[str, _Unit]) -> str:
-    """The largest step the LTI baseline (and the LPV controller) holds, from ``largest_held_step``."""
+    """The largest step the LTI baseline (and the LPV controller) holds: the verify stage's output
+    ``largest_held_step`` = {"output": name, "criterion": "passes" | "bounded", "baseline": amplitude,
+    "lpv": amplitude (optional), "resolution": of the bisection (optional)}, amplitudes in the output's
+    units, as :func:`lpvflow.pipeline.step_sweep.largest_held_step` returns them."""
     record = verify.get("largest_held_step")
     if not record:
         return "<p>Largest step the LTI baseline holds: not measured in this run.</p>"

@@ -166,9 +166,21 @@ def _verdict(summary: dict) -> dict:
     return {"pass": True, "reason": "every configured stage ran and every scenario passed"}
 
 
+def verdict_line(summary: dict) -> str:
+    """The one line ``lpvflow design`` ends with: passed or not, the scenarios each controller passes and
+    the verdict's reason, e.g. "design did not pass: LPV controller passes 2 of 4 scenarios, LTI
+    baseline 4 of 4; arm to +75 deg: …"."""
+    from lpvflow.pipeline.report import scenario_tally
+
+    verdict = summary["verdict"]
+    head = "design passed" if verdict["pass"] else "design did not pass"
+    return f"{head}: " + "; ".join(part for part in (scenario_tally(summary), verdict["reason"]) if part)
+
+
 def main_design(config_path: str | Path, root: Path | None = None) -> int:
-    """``lpvflow design``: progress on stderr; 0 when the design passes, 1 when it does not."""
+    """``lpvflow design``: progress and, last, the verdict line (:func:`verdict_line`) on stderr; 0 when
+    the design passes, 1 when it does not (bad input raises: exit 2, and Ctrl-C exits 130, in
+    :mod:`lpvflow.pipeline.cli`)."""
     summary = run_design(config_path, log=lambda line: print(line, file=sys.stderr, flush=True), root=root)
-    if not summary["verdict"]["pass"]:
-        print(f"design did not pass: {summary['verdict']['reason']}", file=sys.stderr)
+    print(verdict_line(summary), file=sys.stderr, flush=True)
     return 0 if summary["verdict"]["pass"] else 1

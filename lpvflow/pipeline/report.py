@@ -5,6 +5,9 @@ from __future__ import annotations
 import base64
 import html
 import json
+import math
+import re
+from dataclasses import dataclass
 from pathlib import Path
 
 FIGURE_CAPTIONS = {
@@ -42,20 +45,36 @@ def _table(rows: list[tuple[str, str]]) -> str:
     return f"<table>{body}</table>"
 
 
-def _fmt(value) -> str:
+def _fmt(value: object) -> str:
+    """A stage output as text for one table cell: numbers with 4 significant digits, lists joined, tables
+    as ``key: value`` phrases (never JSON); nothing (None, an empty list or table) is "–"."""
+    if value is None or (isinstance(value, dict | list) and not value):
+        return "–"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.4g}"
     if isinstance(value, dict) and {"outputs", "bfr", "vaf"} <= set(value):  # a fit report
         return "; ".join(f"{n}: BFR {b:.1f} %, VAF {v:.1f} %"
                          for n, b, v in zip(value["outputs"], value["bfr"], value["vaf"], strict=True))
-    if isinstance(value, float):
-        return f"{value:.4g}"
-    if isinstance(value, list) and value and all(isinstance(v, float) for v in value):
-        return ", ".join(f"{v:.4g}" for v in value)
-    if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
-        return "; ".join(value)  # e.g. the certificate's lines
-    if isinstance(value, dict) and value and all(isinstance(v, list) and v and all(
-            isinstance(x, float) for x in v) for v in value.values()):
-        return "; ".join(f"{k}: [{_fmt(v)}]" for k, v in value.items())  # e.g. signal ranges
-    return json.dumps(value, ensure_ascii=False) if isinstance(value, dict | list) else str(value)
+    if isinstance(value, dict):
+        if all(_is_numbers(v) for v in value.values()):  # e.g. signal ranges: "voltage: [-4.86, 4.41]"
+            return "; ".join(f"{k}: [{_fmt(v)}]" for k, v in value.items())
+        return "; ".join(f"{k}: {_fmt(v)}" for k, v in value.items())
+    if isinstance(value, list):
+        if all(isinstance(v, str) for v in value):
+            return "; ".join(value)  # e.g. the certificate's lines
+        if all(_is_numbers(v) for v in value):  # rows of numbers, e.g. a grid of scheduling points
+            return "; ".join(_fmt(v) for v in value)
+        separator = " | " if any(isinstance(v, dict) for v in value) else ", "
+        return separator.join(_fmt(v) for v in value)
+    return str(value)
+
+
+def _is_numbers(value: object) -> bool:
+    """A non-empty list of numbers (not booleans)."""
+    return (isinstance(value, list) and bool(value)
+            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value))
 
 
 def _figures(folder: Path) -> list[str]:
@@ -145,6 +164,251 @@ def _scenario_table(scenarios: list[dict]) -> str:
     return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(body) + "</table>")
 
 
+# ------------------------------------------------------------------------------------- summary card
+@dataclass(frozen=True)
+class _Unit:
+    """How a signal's values are shown: ``label`` in the column head, values multiplied by ``factor``."""
+
+    label: str
+    factor: float = 1.0
+
+    @classmethod
+    def of(cls, unit: str) -> _Unit:
+        """Angles in rad are shown in degrees; other units as they are ("" when the FMU gives none)."""
+        return cls("°", 180.0 / math.pi) if unit == "rad" else cls(unit)
+
+    def head(self, text: str) -> str:
+        return f"{text} [{self.label}]" if self.label else f"{text} (output units)"
+
+    def value(self, value: float | None) -> str:
+        return _number(None if value is None else value * self.factor)
+
+
+def signal_units(folder: Path) -> dict[str, str]:
+    """Unit of every measured and actuated signal, from the synthesized controller's port record
+    (``controller.json``, :func:`lpvflow.pipeline.export.describe_signals`); empty without one."""
+    path = folder / "controller.json"
+    if not path.exists():
+        return {}
+    try:
+        signals = json.loads(path.read_text()).get("info", {}).get("signals", {})
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+        return {}
+    return {port["name"]: port.get("unit", "") for kind in ("measured", "actuated")
+            for port in signals.get(kind, [])}
+
+
+def _ordered(names: list[str]) -> list[str]:
+    return list(dict.fromkeys(names))
+
+
+def _run_passed(run: dict) -> bool:
+    return bool(run["stable"]) and not run.get("requirements_failed")
+
+
+def _requirement_text(requirements: dict | None, bands: dict[str, float], units: dict[str, _Unit]) -> str:
+    """One scenario's specification as a phrase, e.g. "arm_angle into ±1° within 1.5 s, overshoot ≤ 2°;
+    pendulum_angle within ±1° after settling"."""
+    if not requirements:
+        return "stable (settles, stays within its output bounds); no requirements"
+    parts = []
+    for name, band in bands.items():
+        unit = units.get(name, _Unit(""))
+        phrase = f"{name} into ±{unit.value(band)}{unit.label}"
+        if requirements.get("settling_time") is not None:
+            phrase += f" within {requirements['settling_time']:g} s"
+        if requirements.get("overshoot") is not None:
+            phrase += f", overshoot ≤ {unit.value(requirements['overshoot'])}{unit.label}"
+        parts.append(phrase)
+    if not bands:  # no run got far enough to name its tracked outputs and their bands
+        limits = [f"within {requirements['settling_time']:g} s" if requirements.get("settling_time") else "",
+                  f"overshoot ≤ {requirements['overshoot']:g} (output units)" if requirements.get("overshoot")
+                  else ""]
+        parts.append("tracked outputs settle " + ", ".join(p for p in limits if p))
+    for name, bound in requirements.get("after_settling", {}).items():
+        unit = units.get(name, _Unit(""))
+        parts.append(f"{name} within ±{unit.value(bound)}{unit.label} after settling")
+    return "; ".join(p for p in parts if p)
+
+
+def _specification(scenarios: list[dict], units: dict[str, _Unit]) -> str:
+    """The specification, one line per distinct requirement text with the scenarios it applies to."""
+    def bands_of(scenario: dict) -> dict[str, float]:
+        runs = [r for r in (scenario["controller"], scenario.get("baseline")) if r]
+        return {name: m["band"] for r in runs for name, m in r.get("outputs", {}).items()}
+
+    known: dict[str, set[float]] = {}
+    for scenario in scenarios:
+        for name, band in bands_of(scenario).items():
+            known.setdefault(name, set()).add(band)
+    # a scenario whose runs failed before settling has no metrics: it shares the one band every
+    # other scenario uses for an output, if they agree
+    shared = {name: next(iter(bands)) for name, bands in known.items() if len(bands) == 1}
+    texts: dict[str, list[str]] = {}
+    for scenario in scenarios:
+        bands = bands_of(scenario) or shared
+        texts.setdefault(_requirement_text(scenario.get("requirements"), bands, units), []).append(
+            scenario["name"])
+    items = "".join(f"<li><b>{html.escape(', '.join(names))}</b>: {html.escape(text)}</li>"
+                    for text, names in texts.items())
+    return f"<h3>Specification</h3><ul>{items}</ul>"
+
+
+def _comparison_table(scenarios: list[dict], units: dict[str, _Unit], perturbed: bool) -> str:
+    """LPV controller against the LTI baseline, one row per scenario: per tracked output the settling
+    time and overshoot, per untracked output its peak |y − r| after settling, and pass/fail; cells that
+    miss a requirement are marked. ``perturbed`` adds the plant parameters the scenario changes."""
+    tracked = _ordered([n for s in scenarios for r in (s["controller"], s.get("baseline")) if r
+                        for n in r.get("outputs", {})])
+    after = _ordered([n for s in scenarios for n in (s.get("requirements") or {}).get("after_settling", {})]
+                     + [n for s in scenarios for r in (s["controller"], s.get("baseline")) if r
+                        for n in r.get("after_settling", {})])
+    heads = []
+    for name in tracked:
+        unit = units.get(name, _Unit(""))
+        heads += [f"{name} settling [s]", unit.head(f"{name} overshoot")]
+    heads += [units.get(name, _Unit("")).head(f"{name} after settling") for name in after]
+    heads.append("result")
+    controllers = [("controller", "LPV controller")]
+    if any(s.get("baseline") for s in scenarios):
+        controllers.append(("baseline", "LTI baseline"))
+    first = ["scenario"] + (["plant parameters"] if perturbed else [])
+    head = ("<tr>" + "".join(f'<th rowspan="2">{h}</th>' for h in first)
+            + "".join(f'<th colspan="{len(heads)}">{label}</th>' for _, label in controllers) + "</tr><tr>"
+            + "".join(f"<th>{html.escape(h)}</th>" for _ in controllers for h in heads) + "</tr>")
+    body = []
+    for scenario in scenarios:
+        requirements = scenario.get("requirements") or {}
+        cells = [html.escape(scenario["name"])]
+        if perturbed:
+            changed = scenario["plant_parameters"].items()
+            cells.append(html.escape(", ".join(f"{k} = {v:g}" for k, v in changed)))
+        for key, _ in controllers:
+            run = scenario.get(key)
+            if not run:
+                cells += ["–"] * len(heads)
+                continue
+            cells += _run_cells(run, tracked, after, requirements, units)
+        body.append("<tr>" + "".join(c if c.startswith("<td") else f"<td>{c}</td>" for c in cells) + "</tr>")
+    return f'<table class="card">{head}{"".join(body)}</table>'
+
+
+def _run_cells(run: dict, tracked: list[str], after: list[str], requirements: dict,
+               units: dict[str, _Unit]) -> list[str]:
+    """The comparison cells of one run (:func:`_comparison_table`), escaped; a missed bound is red."""
+    def cell(text: str, missed: bool) -> str:
+        return f'<td class="fail">{html.escape(text)}</td>' if missed else html.escape(text)
+
+    cells = []
+    for name in tracked:
+        m = run.get("outputs", {}).get(name, {})
+        unit = units.get(name, _Unit(""))
+        settling, limit = m.get("settling_time"), requirements.get("settling_time")
+        late = bool(m) and limit is not None and (settling is None or settling > limit)
+        cells.append(cell("not settled" if m and settling is None else _number(settling), late))
+        overshoot, limit = m.get("overshoot"), requirements.get("overshoot")
+        cells.append(cell(unit.value(overshoot), overshoot is not None and limit is not None
+                          and overshoot > limit))
+    bounds = requirements.get("after_settling", {})
+    for name in after:
+        peak = run.get("after_settling", {}).get(name)
+        cells.append(cell(units.get(name, _Unit("")).value(peak),
+                          peak is not None and name in bounds and peak > bounds[name]))
+    if _run_passed(run):
+        cells.append('<td class="pass">pass</td>' if "requirements_failed" in run else
+                     '<td class="pass">stable</td>')
+    else:
+        why = "" if run["stable"] else f": {_short_reason(run['reason'])}"
+        cells.append(f'<td class="fail">fail{html.escape(why)}</td>')
+    return cells
+
+
+def _short_reason(reason: str) -> str:
+    """A failed run's reason for a table cell: "unbounded: y left its output_bounds at t = 1.585 s" reads
+    "y out of bounds at 1.59 s"; other reasons as they are."""
+    lost = re.fullmatch(r"unbounded: (.+) left its output_bounds at t = (\S+) s", reason)
+    return f"{lost[1]} out of bounds at {float(lost[2]):.3g} s" if lost else reason
+
+
+def _gamma_line(synth: dict) -> str:
+    """γ of the LPV controller and of the LTI baseline (and where the baseline was designed)."""
+    if "gamma" not in synth:
+        return ""
+    text = f"H∞ γ: LPV controller {synth['gamma']:.4g}"
+    if synth.get("gamma_lower") is not None:
+        text += f" (LMI lower bound {synth['gamma_lower']:.4g})"
+    if synth.get("baseline_gamma") is not None:
+        at = ", ".join(f"{v:.3g}" for v in synth.get("baseline_at") or [])
+        text += f"; LTI baseline {synth['baseline_gamma']:.4g}" + (f" (designed at θ = {at})" if at else "")
+    return f"<p>{html.escape(text)}</p>"
+
+
+def _held_step_line(verify: dict, units: dict[str, _Unit]) -> str:
+    """The largest step the LTI baseline (and the LPV controller) holds: the verify stage's output
+    ``largest_held_step`` = {"output": name, "criterion": "passes" | "bounded", "baseline": amplitude,
+    "lpv": amplitude (optional), "resolution": of the bisection (optional)}, amplitudes in the output's
+    units, as :func:`lpvflow.pipeline.step_sweep.largest_held_step` returns them."""
+    record = verify.get("largest_held_step")
+    if not record:
+        return "<p>Largest step the LTI baseline holds: not measured in this run.</p>"
+    unit = units.get(record["output"], _Unit(""))
+    criterion = {"passes": "meets its scenario's specification",
+                 "bounded": "keeps the constrained outputs within their bounds"}[record["criterion"]]
+    text = (f"Largest {record['output']} step the LTI baseline holds: {unit.value(record['baseline'])}"
+            f"{unit.label}")
+    if record.get("lpv") is not None:
+        text += f" (LPV controller: {unit.value(record['lpv'])}{unit.label})"
+    text += f"; held means the run {criterion}; found by bisection"
+    if record.get("resolution"):
+        text += f" to within {unit.value(record['resolution'])}{unit.label}"
+    return f"<p>{html.escape(text)}.</p>"
+
+
+def scenario_tally(summary: dict) -> str:
+    """How many verification scenarios each controller passes, e.g. "LPV controller passes 2 of 4
+    scenarios, LTI baseline 4 of 4"; "" when nothing was verified."""
+    scenarios = summary["stages"].get("verify", {}).get("outputs", {}).get("scenarios", [])
+    if not scenarios:
+        return ""
+    text = (f"LPV controller passes {sum(_run_passed(s['controller']) for s in scenarios)} of "
+            f"{len(scenarios)} scenarios")
+    baselines = [s["baseline"] for s in scenarios if s.get("baseline")]
+    if baselines:
+        text += f", LTI baseline {sum(_run_passed(b) for b in baselines)} of {len(baselines)}"
+    return text
+
+
+def summary_card(summary: dict, units: dict[str, str]) -> str:
+    """The report's first screen: the verdict, the specification, the LPV controller against the LTI
+    baseline per scenario (nominal, then on perturbed plants: scenarios with ``plant_parameters``), γ of
+    both and the largest step the baseline holds. ``units``: signal name → unit (angles in rad are shown
+    in degrees)."""
+    shown = {name: _Unit.of(unit) for name, unit in units.items()}
+    verdict = summary.get("verdict") or {"pass": False, "reason": "no verdict recorded"}
+    stages = summary["stages"]
+    verify = stages.get("verify", {}).get("outputs", {})
+    scenarios = verify.get("scenarios", [])
+    css = "pass" if verdict["pass"] else "fail"
+    tally = scenario_tally(summary)
+    line = f"Verdict: {'pass' if verdict['pass'] else 'did not pass'}" + (f" — {tally}" if tally else "")
+    parts = [f'<p class="verdict {css}"><b>{html.escape(line)}</b></p>',
+             f'<p class="why">{html.escape(verdict["reason"])}</p>']
+    if scenarios:
+        nominal = [s for s in scenarios if not s.get("plant_parameters")]
+        perturbed = [s for s in scenarios if s.get("plant_parameters")]
+        parts.append(_specification(scenarios, shown))
+        if nominal:
+            parts.append("<h3>LPV controller and LTI baseline, nominal plant</h3>"
+                         + _comparison_table(nominal, shown, perturbed=False))
+        if perturbed:
+            parts.append("<h3>Robustness: perturbed plants</h3>"
+                         + _comparison_table(perturbed, shown, perturbed=True))
+    parts.append(_gamma_line(stages.get("synth", {}).get("outputs", {})))
+    if scenarios:
+        parts.append(_held_step_line(verify, shown))
+    return f'<section class="summary"><h2>Results at a glance</h2>{"".join(parts)}</section>'
+
+
 def _adoption_table(rows: list[dict]) -> str:
     """Before/after adoption of the diagnosed extension: one row per scenario and tracked output, the
     LPV controller designed on the identified model (before) and on the extended one (after)."""
@@ -163,15 +427,12 @@ def _adoption_table(rows: list[dict]) -> str:
             + "".join(body) + "</table>")
 
 
-def write_report(folder: Path, summary: dict) -> Path:
-    """``report.html`` in ``folder``: summary tables per stage and every figure, embedded."""
+def write_report(folder: Path, summary: dict, units: dict[str, str] | None = None) -> Path:
+    """``report.html`` in ``folder``: the summary card (:func:`summary_card`), then a table per stage and
+    every figure, embedded. ``units`` (signal name → unit) default to :func:`signal_units` of ``folder``."""
     drawn = _figures(folder)
-    sections = [f"<h1>lpvflow design: {html.escape(summary['name'])}</h1>"]
-    verdict = summary.get("verdict")
-    if verdict:
-        css = "pass" if verdict["pass"] else "fail"
-        sections.append(f'<p class="{css}"><b>Verdict: {"pass" if verdict["pass"] else "did not pass"}</b> — '
-                        f"{html.escape(verdict['reason'])}</p>")
+    sections = [f"<h1>lpvflow design: {html.escape(summary['name'])}</h1>",
+                summary_card(summary, signal_units(folder) if units is None else units)]
     if summary.get("failed"):
         f = summary["failed"]
         sections.append(f'<p class="fail">Stopped at stage <b>{html.escape(f["stage"])}</b>: '
@@ -198,7 +459,10 @@ def write_report(folder: Path, summary: dict) -> Path:
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
              "table{border-collapse:collapse;margin:0.5em 0}th,td{border:1px solid #ccc;padding:3px 8px;"
              "text-align:left;font-size:13px;vertical-align:top}th{background:#f4f4f4}"
-             "img{max-width:100%}figcaption{font-size:12px;color:#555}.fail{color:#b00}.pass{color:#070}")
+             "img{max-width:100%}figcaption{font-size:12px;color:#555}.fail{color:#b00}.pass{color:#070}"
+             ".summary{border:1px solid #bbb;border-radius:6px;padding:0.5em 1.2em;background:#fcfcfc}"
+             ".summary h2{margin-top:0.4em}.verdict{font-size:17px}.why{font-size:12px;color:#555}"
+             "table.card td{text-align:right}table.card td:first-child{text-align:left}")
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>lpvflow design {summary['name']}"
             f"</title><style>{style}</style></head><body>{''.join(sections)}</body></html>")
     path = folder / "report.html"

@@ -6,7 +6,7 @@ eigenvalues with the returned numbers (`check_common_lyapunov`, `check_rate_boun
 1. Quadratic stability, arbitrarily fast scheduling (θ anywhere in the box at every step). With
    A(θ) affine in θ, the frozen A's lie in the polytope co{A_i} of the box corners, and a common
    P with
-       P ⪰ I,   A_iᵀ P A_i − P ⪯ −δ I   for every vertex i
+       P ≻ 0,   A_iᵀ P A_i − P ≺ 0   for every vertex i
    proves V(x) = xᵀPx decreases for every A in the polytope (the condition is convex in A by a
    Schur complement; Boyd, El Ghaoui, Feron, Balakrishnan, "LMIs in System and Control Theory",
    SIAM 1994, §5.1).
@@ -21,9 +21,11 @@ eigenvalues with the returned numbers (`check_common_lyapunov`, `check_rate_boun
    suffices; S is the product over j of polygons {(a, b) ∈ [lo, hi]²: |b − a| ≤ r_j} (a hexagon
    when r_j < hi − lo), so its vertices are the products of the polygon corners.
 
-The problem is solved in balanced coordinates Ã = T⁻¹AT (scipy's matrix_balance of Σ|A_i|) and the
-certificate is returned in the original ones: P = T⁻ᵀ P̃ T⁻¹, G = T⁻ᵀ G̃ T⁻¹. The re-check demands
-every block eigenvalue ≤ −ε, with ε = ½ δ σ_min(T⁻¹)², the margin the imposed LMI guarantees.
+Both are solved in balanced coordinates Ã = T⁻¹AT (scipy's matrix_balance of Σ|A_i|) and the
+certificate is returned in the original ones: P = T⁻ᵀ P̃ T⁻¹, G = T⁻ᵀ G̃ T⁻¹. The quadratic certificate
+is accepted by a rule relative to the scale of each block (Jacobi-scaled margin above a round-off
+bound, :func:`quadratic_stability`); the rate-bounded re-check demands every block eigenvalue ≤ −ε, with
+ε = ½ δ σ_min(T⁻¹)², the margin its LMI imposes.
 """
 
 from __future__ import annotations
@@ -38,8 +40,11 @@ from scipy.linalg import matrix_balance
 
 from lpvflow.errors import ModelError
 
-#: Margin δ imposed in the balanced coordinates (relative to the normalisation P̃ ⪰ I).
+#: Margin δ of the rate-bounded LMI in the balanced coordinates (relative to the normalisation P̃ ⪰ I).
 LMI_MARGIN = 1e-4
+#: A quadratic certificate's Jacobi-scaled margin must exceed ROUNDOFF_FACTOR·m·ε·‖D⁻¹|N|D⁻¹‖₂
+#: (:func:`scaled_margin`), as :data:`lpvflow.synth.hinf.ROUNDOFF_FACTOR` for the H∞ certificates.
+ROUNDOFF_FACTOR = 1e3
 
 
 @dataclass(frozen=True)
@@ -54,11 +59,23 @@ class LyapunovCheck:
 
 
 @dataclass(frozen=True)
+class MarginCheck:
+    """Re-check of a common Lyapunov matrix by :func:`check_quadratic_certificate`: ``margins`` of the
+    blocks [P, P − A_0ᵀPA_0, …] (:func:`scaled_margin`), ``passed`` iff every one is > 0."""
+
+    passed: bool
+    margins: np.ndarray
+    worst_margin: float
+    reason: str
+
+
+@dataclass(frozen=True)
 class StabilityCertificate:
     """Outcome of a stability LMI: certified or not, why, and the numbers that prove it.
 
     `P` is the common Lyapunov matrix (quadratic) or the list [P_0, P_1, …] of P(θ) (rate-bounded);
-    `G` the slack matrix of the rate-bounded LMI; `check` the independent eigenvalue re-check.
+    `G` the slack matrix of the rate-bounded LMI; `check` the independent re-check (Jacobi-scaled
+    margins for the quadratic certificate, eigenvalues for the rate-bounded one).
     """
 
     certified: bool
@@ -66,7 +83,7 @@ class StabilityCertificate:
     reason: str
     P: np.ndarray | list[np.ndarray] | None = None
     G: np.ndarray | None = None
-    check: LyapunovCheck | None = None
+    check: LyapunovCheck | MarginCheck | None = None
     solver: str = ""
 
 
@@ -105,7 +122,21 @@ def quadratic_stability(system: object, box: object = None) -> StabilityCertific
 
     `system`: a list of vertex A matrices, a list of discrete StateSpace vertices, or an LPVSS (its
     `vertices(box)` are used; the basis must be affine in p). Refuses with the reason when a vertex
-    is unstable or the LMI is infeasible; never passes without the eigenvalue re-check.
+    is unstable or the LMI is infeasible; never passes without the re-check.
+
+    Solved in balanced coordinates Ã_i = T⁻¹A_iT (module docstring) and in difference form: with
+    E_i = Ã_i − I and s = max_i ‖E_i‖₂, the decrease condition Ã_iᵀPÃ_i − P ≺ 0 is
+    L_i(P) = s·ÊᵢᵀPÊᵢ + ÊᵢᵀP + PÊᵢ ≺ 0 (Ê_i = E_i/s), whose terms are of the size of P even when every
+    pole is within Ts·ω of z = 1. Two solves: (1) P ⪰ I, L_i(P) ⪯ 0, P ⪯ τI, minimal τ; (2) from the
+    scales D_0 = |diag P|, D_i = |diag L_i(P)| of that solution, the P with the largest relative
+    margin t ≤ 1: D_0^-½ P D_0^-½ ⪰ tI and D_i^-½ L_i(P) D_i^-½ ⪯ −tI.
+
+    **Acceptance rule** (:func:`check_quadratic_certificate`, on the returned P in the original
+    coordinates): every block N of [P, P − A_0ᵀPA_0, …] must be positive definite in Jacobi-scaled
+    coordinates by more than a round-off bound, λ_min(D⁻¹ND⁻¹) > ROUNDOFF_FACTOR·m·ε·‖D⁻¹|N|D⁻¹‖₂
+    (D² = |diag N|, m the size of N, ε the machine epsilon, |N| the sum of the absolute values of the
+    terms N is formed from). A margin that only holds in absolute terms, e.g. −1e-12 on blocks of size
+    1e4, is refused.
     """
     A_vertices = _vertex_matrices(system, box)
     unstable = _first_unstable(A_vertices)
@@ -113,20 +144,75 @@ def quadratic_stability(system: object, box: object = None) -> StabilityCertific
         return StabilityCertificate(False, "quadratic", unstable)
     T = _balancing(A_vertices)
     Ti = np.linalg.inv(T)
-    scaled = [Ti @ A @ T for A in A_vertices]
-    n = scaled[0].shape[0]
-    P = cp.Variable((n, n), symmetric=True)
-    t = cp.Variable()
-    constraints = [P >> np.eye(n), P << t * np.eye(n)]
-    constraints += [_sym(A.T @ P @ A - P) << -LMI_MARGIN * np.eye(n) for A in scaled]
-    solver, status = _solve(cp.Problem(cp.Minimize(t), constraints))
+    n = T.shape[0]
+    E = [Ti @ A @ T - np.eye(n) for A in A_vertices]
+    s = max(np.linalg.norm(Ei, 2) for Ei in E)  # > 0: a vertex equal to I is not stable
+    E = [Ei / s for Ei in E]
+    P, tau = cp.Variable((n, n), symmetric=True), cp.Variable()
+    decrease = [_sym(s * Ei.T @ P @ Ei + Ei.T @ P + P @ Ei) for Ei in E]
+    constraints = [P >> np.eye(n), P << tau * np.eye(n)] + [L << 0 for L in decrease]
+    solver, status = _solve(cp.Problem(cp.Minimize(tau), constraints))
     if P.value is None:
         return StabilityCertificate(
             False, "quadratic", f"no common Lyapunov matrix over the {len(A_vertices)} vertices "
             f"(solver {solver}: {status}); the system may still be stable for slow scheduling", solver=solver)
+    roots = [1.0 / np.sqrt(_jacobi_scale(M.value)) for M in [P, *decrease]]
+    t = cp.Variable()
+    constraints = [_sym(cp.multiply(np.outer(roots[0], roots[0]), P)) >> t * np.eye(n), t <= 1]
+    constraints += [_sym(cp.multiply(np.outer(r, r), L)) << -t * np.eye(n)
+                    for r, L in zip(roots[1:], decrease, strict=True)]
+    solver, status = _solve(cp.Problem(cp.Maximize(t), constraints))
+    if P.value is None or t.value is None or t.value <= 0:
+        return StabilityCertificate(
+            False, "quadratic", f"no common Lyapunov matrix with a margin over the {len(A_vertices)} "
+            f"vertices (solver {solver}: {status}); at best on the boundary of quadratic stability",
+            solver=solver)
     P_original = Ti.T @ P.value @ Ti
-    check = check_common_lyapunov(A_vertices, P_original, _guaranteed_margin(Ti))
+    check = check_quadratic_certificate(A_vertices, P_original)
     return StabilityCertificate(check.passed, "quadratic", check.reason, P_original, None, check, solver)
+
+
+def check_quadratic_certificate(A_vertices: Sequence[np.ndarray], P: np.ndarray) -> MarginCheck:
+    """The acceptance rule of :func:`quadratic_stability` for a common Lyapunov matrix P of the vertices
+    A_i: the blocks N_0 = P and N_i = P − A_iᵀPA_i, the latter formed as −(E_iᵀPE_i + E_iᵀP + PE_i)
+    with E_i = A_i − I (no cancellation of O(1) terms when A_i is close to I), each judged by
+    :func:`scaled_margin`; accepted iff every margin is > 0."""
+    P = 0.5 * (P + P.T)
+    n = P.shape[0]
+    blocks = [(P, np.abs(P))]
+    for A in A_vertices:
+        Ei = np.asarray(A, dtype=float) - np.eye(n)
+        N = -(Ei.T @ P @ Ei + Ei.T @ P + P @ Ei)
+        magnitude = np.abs(Ei).T @ np.abs(P) @ np.abs(Ei) + np.abs(Ei).T @ np.abs(P) + np.abs(P) @ np.abs(Ei)
+        blocks.append((N, magnitude))
+    margins = np.array([scaled_margin(N, magnitude) for N, magnitude in blocks])
+    names = ["P"] + [f"vertex {i}" for i in range(len(A_vertices))]
+    worst = int(np.argmin(margins))
+    if margins[worst] > 0:
+        return MarginCheck(True, margins, float(margins[worst]), "")
+    return MarginCheck(False, margins, float(margins[worst]),
+                       f"re-check failed: {names[worst]} has Jacobi-scaled margin {margins[worst]:.3g} "
+                       "(the smallest eigenvalue less the round-off bound must be > 0)")
+
+
+def scaled_margin(N: np.ndarray, magnitude: np.ndarray) -> float:
+    """λ_min(D⁻¹ N D⁻¹) − ROUNDOFF_FACTOR·m·ε·‖D⁻¹ magnitude D⁻¹‖₂ with D² = |diag N| (> 0: N is positive
+    definite by more than round-off in forming it, ``magnitude`` being the sum of the absolute values of
+    its terms); −inf for a block with non-finite entries."""
+    N = 0.5 * (N + N.T)
+    if not np.all(np.isfinite(N)):
+        return -np.inf
+    d = np.sqrt(np.maximum(np.abs(np.diag(N)), np.finfo(float).tiny))
+    scaled = N / d[:, None] / d[None, :]
+    size = np.linalg.norm(magnitude / d[:, None] / d[None, :], 2)
+    bound = ROUNDOFF_FACTOR * len(N) * np.finfo(float).eps * size
+    return float(np.linalg.eigvalsh(scaled)[0] - bound)
+
+
+def _jacobi_scale(M: np.ndarray) -> np.ndarray:
+    """|diag M| floored at 1e-9 of its largest entry (and above zero): the scale of a block's margin."""
+    d = np.abs(np.diag(0.5 * (M + M.T)))
+    return np.maximum(d, max(1e-9 * d.max(), np.finfo(float).tiny))
 
 
 def rate_bounded_stability(

@@ -1,0 +1,162 @@
+"""The design report's first screen (issue 24, item 5): the summary card over a given summary dict."""
+
+from __future__ import annotations
+
+import copy
+import html
+import json
+import math
+import re
+from pathlib import Path
+
+import pytest
+
+from lpvflow.pipeline.design import verdict_line
+from lpvflow.pipeline.report import _fmt, signal_units, summary_card, write_report
+
+UNITS = {"arm_angle": "rad", "pendulum_angle": "rad", "voltage": "V"}
+SPEC = {"settling_time": 1.5, "overshoot": 0.0349, "after_settling": {"pendulum_angle": 0.0175}}
+
+
+def run(label: str, settling: float | None, overshoot: float, pendulum: float, failed: list[str]) -> dict:
+    """One run's metrics as lpvflow.pipeline.verify writes them (the fields the card reads)."""
+    return {"controller": label, "stable": True, "reason": "bounded and settled",
+            "outputs": {"arm_angle": {"settling_time": settling, "settled": True, "band": 0.0175,
+                                      "overshoot": overshoot, "overshoot_percent": 1.0}},
+            "controls": {"voltage": {"peak_control": 4.0, "saturation_time": 0.0}}, "scheduling": None,
+            "after_settling": {"pendulum_angle": pendulum}, "requirements_failed": failed}
+
+
+def lost(label: str) -> dict:
+    return {"controller": label, "stable": False, "outputs": {}, "controls": {}, "scheduling": None,
+            "reason": "unbounded: pendulum_angle left its output_bounds at t = 1.585 s",
+            "requirements_failed": ["the run failed (see reason)"]}
+
+
+def scenario(name: str, lpv: dict, lti: dict, **extra: object) -> dict:
+    return {"name": name, "duration": 4.0, "requirements": SPEC, "controller": lpv, "baseline": lti, **extra}
+
+
+@pytest.fixture
+def summary() -> dict:
+    scenarios = [
+        scenario("arm to +30 deg", run("lpv", 1.21, 0.0226, 0.0008, []),
+                 run("baseline", 2.09, 0.0, 0.011, ["arm_angle settles in 2.09 s (limit 1.5 s)"])),
+        scenario("arm to -30 deg", run("lpv", 1.33, 0.0, 0.0025, []), run("baseline", 1.35, 0.0, 0.0110, [])),
+        scenario("arm to +75 deg", run("lpv", 1.48, 0.0300, 0.0150, []), lost("baseline")),
+        scenario("+70 deg, heavier pendulum",
+                 run("lpv", 2.31, 0.0100, 0.0300, ["arm_angle settles in 2.31 s (limit 1.5 s)",
+                                                   "pendulum_angle after settling 0.03 (limit 0.0175)"]),
+                 lost("baseline"), plant_parameters={"pendulum_mass": 1.1}),
+    ]
+    verify = {"scenarios": scenarios, "loop": {"measured": ["arm_angle", "pendulum_angle"],
+                                               "actuator_limits": {"voltage": [-10.0, 10.0]}},
+              "largest_held_step": {"output": "arm_angle", "criterion": "passes", "baseline": 0.6545,
+                                    "resolution": math.radians(2.5)}}
+    stages = {"synth": {"status": "ran", "seconds": 1.0, "artifacts": [],
+                        "outputs": {"gamma": 1.4758, "gamma_lower": 1.4721, "baseline_gamma": 1.4336,
+                                    "baseline_at": [0.0]}},
+              "verify": {"status": "ran", "seconds": 1.0, "artifacts": [], "outputs": verify}}
+    reason = "+70 deg, heavier pendulum: misses arm_angle settles in 2.31 s"
+    return {"name": "adip", "stages": stages, "failed": None, "verdict": {"pass": False, "reason": reason}}
+
+
+def rows(table: str) -> list[list[str]]:
+    """Cell texts of every row with data cells."""
+    found = []
+    for row in re.findall(r"<tr>(.*?)</tr>", table):
+        cells = [html.unescape(c) for c in re.findall(r"<td[^>]*>(.*?)</td>", row)]
+        if cells:
+            found.append(cells)
+    return found
+
+
+def test_the_card_compares_both_controllers_per_scenario_in_order_with_units(summary):
+    card = summary_card(summary, UNITS)
+    nominal, perturbed = card.split("Robustness: perturbed plants")
+    heads = re.findall(r"<th[^>]*>(.*?)</th>", nominal)
+    assert heads[:3] == ["scenario", "LPV controller", "LTI baseline"]
+    assert heads[3:7] == ["arm_angle settling [s]", "arm_angle overshoot [°]",
+                          "pendulum_angle after settling [°]", "result"]
+    # settling in s, overshoot and pendulum in degrees (rad × 180/π), LPV then LTI, scenarios in order
+    assert rows(nominal) == [
+        ["arm to +30 deg", "1.21", "1.29", "0.0458", "pass", "2.09", "0", "0.63", "fail"],
+        ["arm to -30 deg", "1.33", "0", "0.143", "pass", "1.35", "0", "0.63", "pass"],
+        ["arm to +75 deg", "1.48", "1.72", "0.859", "pass", "–", "–", "–",
+         "fail: pendulum_angle out of bounds at 1.58 s"],
+    ]
+    assert rows(perturbed) == [["+70 deg, heavier pendulum", "pendulum_mass = 1.1", "2.31", "0.573", "1.72",
+                                "fail", "–", "–", "–", "fail: pendulum_angle out of bounds at 1.58 s"]]
+    # the cells that miss the specification are the marked ones: the baseline's 2.09 s, the perturbed
+    # run's 2.31 s and its pendulum 1.72° > 1°
+    marked = re.findall(r'<td class="fail">([\d.]+)</td>', card)
+    assert marked == ["2.09", "2.31", "1.72"]
+
+
+def test_the_card_states_spec_gammas_verdict_and_the_largest_held_step(summary):
+    text = html.unescape(re.sub(r"<[^>]+>", " ", summary_card(summary, UNITS)))
+    assert ("arm to +30 deg, arm to -30 deg, arm to +75 deg, +70 deg, heavier pendulum : arm_angle into ±1° "
+            "within 1.5 s, overshoot ≤ 2°; pendulum_angle within ±1° after settling") in text
+    assert "Verdict: did not pass — LPV controller passes 3 of 4 scenarios, LTI baseline 1 of 4" in text
+    assert "LPV controller 1.476 (LMI lower bound 1.472); LTI baseline 1.434 (designed at θ = 0)" in text
+    assert ("Largest arm_angle step the LTI baseline holds: 37.5°; held means the run meets its scenario's "
+            "specification; found by bisection to within 2.5°.") in text
+
+
+def test_without_units_the_card_says_output_units_and_shows_the_numbers_as_they_are(summary):
+    card = summary_card(summary, {})
+    assert "arm_angle overshoot (output units)" in card
+    assert rows(card.split("Robustness")[0])[0][:3] == ["arm to +30 deg", "1.21", "0.0226"]
+
+
+def test_a_card_without_a_step_sweep_or_scenarios_says_so(summary):
+    del summary["stages"]["verify"]["outputs"]["largest_held_step"]
+    assert "Largest step the LTI baseline holds: not measured in this run." in summary_card(summary, UNITS)
+    del summary["stages"]["verify"]
+    card = summary_card(summary, UNITS)
+    assert "<table" not in card and "LPV controller 1.476" in card
+
+
+def test_the_report_opens_with_the_card_and_has_no_json_cells(tmp_path, summary):
+    summary["stages"]["experiment"] = {"status": "ran", "seconds": 0.1, "artifacts": [], "outputs": {
+        "ranges": {"voltage": [-4.855, 4.407]}, "offsets": {}, "nested": {"a": {"b": [1.0, 2.0]}}}}
+    page = write_report(tmp_path, summary, UNITS).read_text()
+    body = page.split("</style>", 1)[1]
+    assert body.index("Results at a glance") < body.index("<h2>Stages</h2>") < body.index("<h2>verify</h2>")
+    assert "{" not in body and "}" not in body and '"' not in re.sub(r"<[^>]+>", "", body)
+    assert "voltage: [-4.855, 4.407]" in body and "a: b: [1, 2]" in body
+
+
+@pytest.mark.parametrize(("value", "text"), [
+    ({"measured": ["arm_angle", "pendulum_angle"], "u_operating_point": None,
+      "actuator_limits": {"voltage": [-10.0, 10.0]}},
+     "measured: arm_angle; pendulum_angle; u_operating_point: –; actuator_limits: voltage: [-10, 10]"),
+    ([{"name": "a", "ok": True}, {"name": "b", "ok": False}], "name: a; ok: yes | name: b; ok: no"),
+    ([[-0.556], [0.606]], "-0.556; 0.606"),
+    ({}, "–"),
+])
+def test_stage_outputs_read_as_text_not_json(value, text):
+    assert _fmt(value) == text
+
+
+def test_units_come_from_the_controllers_port_record(tmp_path):
+    ports = {"measured": [{"name": "arm_angle", "unit": "rad"}],
+             "actuated": [{"name": "voltage", "unit": "V"}], "scheduling": [{"name": "sin_arm", "unit": ""}]}
+    (tmp_path / "controller.json").write_text(json.dumps({"info": {"signals": ports}}))
+    assert signal_units(tmp_path) == {"arm_angle": "rad", "voltage": "V"}
+    assert signal_units(tmp_path / "missing") == {}
+
+
+def test_the_verdict_line_counts_scenarios_and_gives_the_reason(summary):
+    assert verdict_line(summary) == ("design did not pass: LPV controller passes 3 of 4 scenarios, LTI "
+                                     "baseline 1 of 4; +70 deg, heavier pendulum: misses arm_angle settles "
+                                     "in 2.31 s")
+    passed = copy.deepcopy(summary)
+    passed["verdict"] = {"pass": True, "reason": "every configured stage ran and every scenario passed"}
+    assert verdict_line(passed).startswith("design passed: LPV controller passes 3 of 4")
+    stopped = {"stages": {}, "verdict": {"pass": False, "reason": "stage synth failed"}}
+    assert verdict_line(stopped) == "design did not pass: stage synth failed"
+
+
+def test_report_figures_are_optional(tmp_path: Path, summary):
+    assert write_report(tmp_path, summary).name == "report.html"  # no controller.json: no units, no figures

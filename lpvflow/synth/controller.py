@@ -219,7 +219,7 @@ class LPVController:
         """u(k) = u_eq(p) + C(λ) x + D(λ) w for input w(k) (:meth:`input_of`) at p(k), without advancing
         the state."""
         _, _, C, D = self.matrices(p)
-        return self.feedforward(p) + C @ self.x + D @ np.asarray(w, dtype=float).reshape(self.n_in)
+        return (C @ self.x + D @ np.asarray(w, dtype=float).reshape(self.n_in)) + self.feedforward(p)
 
     def step(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
         """One sample online: returns the command u(k) = u_eq(p) + C(λ) x + D(λ) w (before the actuator)
@@ -230,7 +230,7 @@ class LPVController:
             raise DataError("controller input or scheduling value is NaN or inf")
         lam = self.coordinates(p)
         A, B, C, D = (np.tensordot(lam, M, axes=1) for M in (self.Ak, self.Bk, self.Ck, self.Dk))
-        u = self.feedforward(p) + C @ self.x + D @ w
+        u = (C @ self.x + D @ w) + self.feedforward(p)  # the FMU's order of the sums
         self.x = A @ self.x + B @ w
         if self.antiwindup is not None:
             self.x = self.x + np.tensordot(lam, self.antiwindup.L, axes=1) @ (self.antiwindup.applied(u) - u)

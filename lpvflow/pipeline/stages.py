@@ -405,7 +405,7 @@ def trim(ctx: StageContext, controller):
     output is one DataError line."""
     from lpvflow.synth.controller import Trim
 
-    table = ctx.config["synth"]["trim"]
+    table = ctx.config["synth"].get("trim")  # configs built in code may leave the key out
     if table is None:
         return None
     width = len(table["u"][0])

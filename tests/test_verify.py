@@ -419,9 +419,9 @@ def test_verify_cli_exit_codes_and_one_line_errors(
 
 
 # ------------------------------------------------------------------------- perturbed plants (robustness)
-ADIP_LOOP = Loop(  # arm_damping other than the FMU start value 0.015
-    ("arm_angle", "pendulum_angle"), ("voltage",), ("sin(arm_angle)",),
-                 actuator_limits={"voltage": (-10.0, 10.0)}, plant_parameters={"arm_damping": 0.02})
+ADIP_LOOP = Loop(("arm_angle", "pendulum_angle"), ("voltage",), ("sin(arm_angle)",),
+                 actuator_limits={"voltage": (-10.0, 10.0)},
+                 plant_parameters={"arm_damping": 0.02})  # other than the FMU's start value 0.015
 
 
 def _hold(**kwargs: object) -> Scenario:

@@ -19,7 +19,7 @@ from lpvflow.models import load
 from lpvflow.pipeline.export import describe_signals, export_fmu, export_json, export_mat
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
 from lpvflow.pipeline.verify import FmuController, simulate_loop
-from lpvflow.synth.controller import LPVController, Trim
+from lpvflow.synth.controller import AntiWindup, LPVController, Trim, observer_gains
 from lpvflow.synth.polytope import Polytope
 from tests.adip_cases import TS
 from tests.test_antiwindup import upright_controller
@@ -210,3 +210,28 @@ def test_mat_and_json_carry_structure_trim_and_breakpoints(tmp_path: Path) -> No
     np.testing.assert_array_equal(loaded.polytope.breakpoints, BREAKPOINTS)
     p = np.array([0.37])
     np.testing.assert_array_equal(loaded.coordinates(p), controller.coordinates(p))
+
+
+def test_fmu_antiwindup_sees_the_command_with_the_trim(tmp_path: Path) -> None:
+    """2-DOF, piecewise, trim and anti-windup together, open loop: the state correction L(u_a − u) uses
+    u = u_eq(p) + C x + D w in the FMU as in Python (the trim alone saturates the actuator at the ends)."""
+    rng = np.random.default_rng(3)
+    n, N = 3, 3
+    trim = Trim([-0.6, 0.6], [[1.5, -0.4], [-1.5, 0.4]])
+    A = 0.5 * rng.standard_normal((N, n, n)) / np.sqrt(n)
+    controller = LPVController(A, rng.standard_normal((N, n, 4)), rng.standard_normal((N, 2, n)),
+                               rng.standard_normal((N, 2, 4)), _piecewise(), Basis("affine", 1), 0.01,
+                               structure="2dof", trim=trim)
+    controller.antiwindup = AntiWindup(observer_gains(controller.Ak, controller.Ck), [-1.0, -1.0], [1.0, 1.0],
+                                       [0.0, 0.0])
+    path = export_fmu(controller, tmp_path / "aw.fmu")
+    w, p = 0.3 * rng.standard_normal((300, 4)), rng.uniform(-0.9, 0.9, (300, 1))
+    u_python = controller.simulate(w, p)
+    fmu = FmuController(path)
+    try:
+        fmu.reset()
+        u_fmu = np.array([fmu.step(wk, pk) for wk, pk in zip(w, p, strict=True)])
+    finally:
+        fmu.close()
+    assert np.mean(np.abs(u_python) > 1.0) > 0.2  # the actuator saturates often
+    np.testing.assert_allclose(u_fmu, u_python, rtol=0, atol=1e-9 * np.max(np.abs(u_python)))

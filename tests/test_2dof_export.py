@@ -235,3 +235,24 @@ def test_fmu_antiwindup_sees_the_command_with_the_trim(tmp_path: Path) -> None:
         fmu.close()
     assert np.mean(np.abs(u_python) > 1.0) > 0.2  # the actuator saturates often
     np.testing.assert_allclose(u_fmu, u_python, rtol=0, atol=1e-9 * np.max(np.abs(u_python)))
+
+
+def test_an_lti_baseline_on_a_point_polytope_exports_and_steps_like_python(tmp_path: Path) -> None:
+    """The pipeline's LTI baseline (a "point" polytope), 2-DOF with a trim: the FMU is the Python law."""
+    rng = np.random.default_rng(5)
+    point = Polytope("point", np.array([[0.1, 0.1]]), np.array([[1.0, 0.1]]))
+    controller = LPVController(0.3 * rng.standard_normal((1, 2, 2)), rng.standard_normal((1, 2, 2)),
+                               rng.standard_normal((1, 1, 2)), rng.standard_normal((1, 1, 2)), point,
+                               Basis("affine", 1), 0.01, structure="2dof",
+                               trim=Trim([0.0, 1.0], [[0.0], [2.0]]))
+    path = export_fmu(controller, tmp_path / "baseline.fmu")
+    assert "LTI controller designed at p1 = 0.1" in read_model_description(str(path)).description
+    w, p = rng.standard_normal((100, 2)), rng.uniform(-0.5, 1.5, (100, 1))
+    u_python = controller.simulate(w, p)
+    fmu = FmuController(path)
+    try:
+        fmu.reset()
+        u_fmu = np.array([fmu.step(wk, pk) for wk, pk in zip(w, p, strict=True)])
+    finally:
+        fmu.close()
+    np.testing.assert_allclose(u_fmu, u_python, rtol=0, atol=1e-12 * np.max(np.abs(u_python)))

@@ -79,6 +79,7 @@ _POLYTOPE_CODES = {
     "parabola-triangle": "POLYTOPE_PARABOLA_TRIANGLE",
     "term-box": "POLYTOPE_TERM_BOX",
     "piecewise": "POLYTOPE_PIECEWISE",
+    "point": "POLYTOPE_POINT",
 }
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
@@ -220,6 +221,9 @@ def interpolation_rule(controller: LPVController, signals: ControllerSignals) ->
         return (f"{psi}; triangle around the parabola over {box_words(poly.box, p_names)} (vertices "
                 "ψ at a, (a+b)/2 with ab, b): λ = vertex_inverse · ψ(p) (barycentric), negative entries "
                 "set to 0 and λ divided by its sum")
+    if poly.kind == "point":
+        at = ", ".join(f"{name} = {lo:g}" for name, (lo, _) in zip(p_names, poly.box, strict=True))
+        return f"one vertex: an LTI controller designed at {at}; λ = [1] (only the trim reads the scheduling)"
     if poly.kind == "piecewise":
         b = ", ".join(f"{v:g}" for v in poly.breakpoints)
         return (f"piecewise over {p_names[0]} with breakpoints b = [{b}] (vertex i at b_i): "
@@ -414,6 +418,8 @@ def _polytope_code(controller: LPVController) -> str:
         return f"static const double VERTEX_INVERSE[{len(inverse)}][{len(inverse)}] = {{\n    {rows}\n}};\n"
     if poly.kind == "piecewise":
         return _c_array("BREAKPOINTS", poly.breakpoints)
+    if poly.kind == "point":
+        return ""
     bounds = poly.box if poly.kind == "box" else poly.term_box
     rows = ",\n    ".join("{" + ", ".join(_c_number(v) for v in row) + "}" for row in bounds)
     return f"static const double TERM_BOUNDS[{len(bounds)}][2] = {{\n    {rows}\n}};\n"
@@ -426,6 +432,8 @@ def _check_exportable(controller: LPVController) -> None:
         raise ModelError(f"unknown polytope kind {poly.kind!r}; export knows {', '.join(_POLYTOPE_CODES)}")
     if poly.kind == "piecewise":  # LPVController checked one breakpoint per vertex
         expected = len(poly.breakpoints)
+    elif poly.kind == "point":
+        expected = 1
     else:
         expected = 3 if poly.kind == "parabola-triangle" else 2 ** (basis.n_psi - 1)
     if poly.n_vertices != expected or poly.psi_vertices.shape[1] != basis.n_psi:
@@ -461,6 +469,7 @@ def controller_data_header(
         "#define POLYTOPE_PARABOLA_TRIANGLE 1",
         "#define POLYTOPE_TERM_BOX 2",
         "#define POLYTOPE_PIECEWISE 3",
+        "#define POLYTOPE_POINT 4",
         f"#define POLYTOPE_KIND {_POLYTOPE_CODES[controller.polytope.kind]}",
         f"static const char *const REAL_NAME[{len(names)}] = {{"
         + ", ".join(f'"{name}"' for name in names)

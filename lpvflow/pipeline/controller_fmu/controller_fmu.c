@@ -64,9 +64,13 @@ static double clip01(double v) { return v < 0.0 ? 0.0 : (v > 1.0 ? 1.0 : v); }
  * multilinear in the clipped term values, first term varying slowest; parabola-triangle: barycentric,
  * clipped at zero and renormalised; piecewise: hat functions of t = clip(p_1, b_0, b_last) on the
  * breakpoints, j the last index <= N_VERT - 2 with b_j <= t, lambda_(j+1) = (t - b_j)/(b_(j+1) - b_j),
- * lambda_j = 1 - lambda_(j+1). */
+ * lambda_j = 1 - lambda_(j+1); point (an LTI controller): lambda = [1]. */
 static void coordinates(const double *p, const double *psi, double *lambda) {
-#if POLYTOPE_KIND == POLYTOPE_PIECEWISE
+#if POLYTOPE_KIND == POLYTOPE_POINT
+    (void)p;
+    (void)psi;
+    lambda[0] = 1.0;
+#elif POLYTOPE_KIND == POLYTOPE_PIECEWISE
     (void)psi;
     double t = p[0];
     if (t < BREAKPOINTS[0]) t = BREAKPOINTS[0];

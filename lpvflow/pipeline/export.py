@@ -164,13 +164,13 @@ def describe_signals(
     plant_fmu: str | Path | None = None,
     operating_point: Mapping[str, float] | None = None,
 ) -> dict:
-    """``info["signals"]`` of a controller synthesized for ``model`` (inputs e = r − y over the model's
-    outputs, outputs the model's inputs, scheduling its p): names from the model, scheduling
-    expressions from ``expressions`` (name → expression; the name itself otherwise), units and
-    descriptions from the plant FMU's variables of the same name (a name that is not an identifier,
-    e.g. a data column ``level (m)``, becomes ``level__m_``), operating points (signal name → value)
-    from ``operating_point``, else the FMU's start values for the actuated inputs (as
-    :mod:`lpvflow.pipeline.verify` does) and zero for the outputs."""
+    """``info["signals"]`` of a controller synthesized for ``model`` (measured outputs and their references
+    the model's outputs, whatever the controller's structure; outputs the model's inputs, scheduling its
+    p): names from the model, scheduling expressions from ``expressions`` (name → expression; the name
+    itself otherwise), units and descriptions from the plant FMU's variables of the same name (a name that
+    is not an identifier, e.g. a data column ``level (m)``, becomes ``level__m_``), operating points
+    (signal name → value) from ``operating_point``, else the FMU's start values for the actuated inputs
+    (as :mod:`lpvflow.pipeline.verify` does) and zero for the outputs."""
     variables = {}
     if plant_fmu is not None:
         variables = {v.name: v for v in fmpy.read_model_description(str(plant_fmu)).modelVariables}

@@ -411,6 +411,13 @@ def test_verify_cli_exit_codes_and_one_line_errors(
         np.zeros((2, 1, 1)), np.zeros((2, 1, 2)), np.zeros((2, 1, 1)), np.ones((2, 1, 2)), POLY, BASIS, TS
     ).save(two_inputs)
     one_line([*base, str(two_inputs)], "2 input(s)")
+    perturbed = 'name = "step"\nparameter_factors = { mass = 1.1 }'
+    renamed.write_text(SCENARIO_TOML.replace('name = "step"', perturbed))
+    one_line(
+        ["verify", str(stable), "--plant", plant, "--scenario", str(renamed), "--json", str(out)],
+        "scenario 'step': parameter_factors names 'mass', not a Real parameter of plant_10.fmu; its "
+        "parameters: none",
+    )
     renamed.write_text("[[scenario]\n")
     one_line(
         ["verify", str(stable), "--plant", plant, "--scenario", str(renamed), "--json", str(out)],

@@ -331,7 +331,7 @@ def plant_parameters(plant_fmu: str | Path, loop: Loop, scenario: Scenario) -> d
     for name, factor in scenario.parameter_factors.items():
         if name not in real:
             raise DataError(f"{where} names {name!r}, not a Real parameter of {Path(plant_fmu).name}; "
-                            f"its parameters: {', '.join(real)}")
+                            f"its parameters: {', '.join(real) or 'none'}")
         base = values.get(name, float(real[name].start or 0.0))
         if base == 0.0:
             raise DataError(f"{where}: {name} is 0, a factor cannot change it; give its value in "

@@ -77,7 +77,8 @@ class Trim:
     """Trim feed-forward u_eq(p): the steady input that holds the plant at the scheduled operating point.
 
     u_eq,j(p) = np.interp(p₁, p_table, u_table[:, j]) for every plant input j: linear between the
-    breakpoints, constant (the end row) outside them; p₁ is the first scheduling signal.
+    breakpoints, constant (the end row) outside them; p₁ is the first scheduling signal. p is measured,
+    so the slope of u_eq acts as feedback (docs/design_file.md, ``[synth] trim``).
 
     Attributes:
         p: (M,) strictly ascending breakpoints of the first scheduling signal (M ≥ 1).

@@ -185,3 +185,15 @@ def test_input_of_orders_references_before_measurements() -> None:
     one = LPVController(np.zeros((2, 1, 1)), np.zeros((2, 1, 2)), np.zeros((2, 1, 1)), np.zeros((2, 1, 2)),
                         POLY, basis, TS)
     np.testing.assert_array_equal(one.input_of([1.0, 2.0], [3.0, 5.0]), [-2.0, -3.0])
+
+
+def test_a_2dof_controller_and_a_1dof_lti_baseline_run_side_by_side(plants: dict) -> None:
+    """A 1-DOF StateSpace baseline (u = k e) next to a 2-DOF LPV controller: each gets its own input."""
+    import control
+
+    k = 0.3
+    verification = run_verification(_static([0.2, -0.4], "2dof"), plants[1.0], [STEP], LOOP,
+                                     baseline=control.ss([], [], [], [[k]], TS))
+    lpv, baseline = verification.results[0].runs
+    np.testing.assert_allclose(lpv.outputs[:, 0], _step_response(0.5, 1 - GAIN * 0.4), atol=1e-12)
+    np.testing.assert_allclose(baseline.outputs[:, 0], _step_response(1.0, 1 - GAIN * k), atol=1e-12)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import control
 import numpy as np
 import pytest
 
@@ -189,8 +190,6 @@ def test_input_of_orders_references_before_measurements() -> None:
 
 def test_a_2dof_controller_and_a_1dof_lti_baseline_run_side_by_side(plants: dict) -> None:
     """A 1-DOF StateSpace baseline (u = k e) next to a 2-DOF LPV controller: each gets its own input."""
-    import control
-
     k = 0.3
     verification = run_verification(_static([0.2, -0.4], "2dof"), plants[1.0], [STEP], LOOP,
                                      baseline=control.ss([], [], [], [[k]], TS))

@@ -96,7 +96,9 @@ def test_exported_fmu_steps_like_the_python_controller(exported: dict, kind: str
     try:
         for _ in range(2):  # a reset restarts from x = 0
             fmu.reset()
-            u_fmu = np.array([fmu.step(ek, pk) for ek, pk in zip(e, p, strict=True)])
+            # the FMU reads r and y on separate ports and forms e = r − y: r = e, y = 0
+            w = np.hstack([e, np.zeros_like(e)])
+            u_fmu = np.array([fmu.step(wk, pk) for wk, pk in zip(w, p, strict=True)])
             assert np.max(np.abs(u_fmu - u_python)) <= 1e-9 * max(1.0, np.max(np.abs(u_python)))
     finally:
         fmu.close()
@@ -264,10 +266,13 @@ def test_fmu_ports_carry_names_units_expressions_trim_and_the_interpolation_rule
     fmu = FmuController(path)
     try:
         fmu.reset()
-        np.testing.assert_allclose(fmu.step(np.zeros(2), np.zeros(1)), [0.7], atol=1e-12)
+        assert fmu.structure == "2dof" and fmu.n_in == 4  # [r; y] on the named ports
+        np.testing.assert_allclose(fmu.step(np.full(4, 0.2), np.zeros(1)), [0.7], atol=1e-12)
         e = np.array([0.1, -0.02])
         controller.reset()
-        np.testing.assert_allclose(fmu.step(e, np.array([0.3])), 0.7 + controller.step(e, np.array([0.3])),
+        r, y = np.array([0.3, 0.0]), np.array([0.2, 0.02])  # e = r − y
+        np.testing.assert_allclose(fmu.step(np.concatenate([r, y]), np.array([0.3])),
+                                   0.7 + controller.step(e, np.array([0.3])),
                                    atol=1e-12)
     finally:
         fmu.close()

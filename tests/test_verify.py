@@ -329,6 +329,10 @@ LOOP_TOML = "[verify.loop]\nmeasured = ['y']\nactuated = ['u']\nscheduling = ['y
          "unknown key 'rise_time'"),
         (LOOP_TOML + "[[verify.scenario]]\nduration = 1.0\nrequirements = 2\n",
          "requirements must be a table"),
+        (LOOP_TOML + "[[verify.scenario]]\nduration = 1.0\nparameter_factors = { pendulum_mass = -1.1 }\n",
+         "parameter_factors.pendulum_mass = -1.1 must be a factor > 0"),
+        (LOOP_TOML + "[[verify.scenario]]\nduration = 1.0\nparameter_factors = { pendulum_mass = 'x' }\n",
+         "parameter_factors.pendulum_mass must be a finite number"),
     ],
 )
 def test_bad_scenario_files_give_one_line(tmp_path: Path, text: str, message: str) -> None:
@@ -407,8 +411,66 @@ def test_verify_cli_exit_codes_and_one_line_errors(
         np.zeros((2, 1, 1)), np.zeros((2, 1, 2)), np.zeros((2, 1, 1)), np.ones((2, 1, 2)), POLY, BASIS, TS
     ).save(two_inputs)
     one_line([*base, str(two_inputs)], "2 input(s)")
+    perturbed = 'name = "step"\nparameter_factors = { mass = 1.1 }'
+    renamed.write_text(SCENARIO_TOML.replace('name = "step"', perturbed))
+    one_line(
+        ["verify", str(stable), "--plant", plant, "--scenario", str(renamed), "--json", str(out)],
+        "scenario 'step': parameter_factors names 'mass', not a Real parameter of plant_10.fmu; its "
+        "parameters: none",
+    )
     renamed.write_text("[[scenario]\n")
     one_line(
         ["verify", str(stable), "--plant", plant, "--scenario", str(renamed), "--json", str(out)],
         "not valid TOML",
     )
+
+
+# ------------------------------------------------------------------------- perturbed plants (robustness)
+ADIP_LOOP = Loop(("arm_angle", "pendulum_angle"), ("voltage",), ("sin(arm_angle)",),
+                 actuator_limits={"voltage": (-10.0, 10.0)},
+                 plant_parameters={"arm_damping": 0.02})  # other than the FMU's start value 0.015
+
+
+def _hold(**kwargs: object) -> Scenario:
+    """Hold the arm at 0 and take a 0.5 V step load disturbance on the voltage at 0.5 s."""
+    return Scenario("hold", 2.0, input_disturbance={"voltage": Signal(steps=((0.5, 0.5),))},
+                    settling_band={"arm_angle": 0.05}, **kwargs)
+
+
+def test_parameter_factors_perturb_the_plant_and_leave_the_nominal_run_alone() -> None:
+    from fmpy import read_model_description
+
+    from lpvflow.experiment.plant import open_plant
+    from lpvflow.pipeline.verify import plant_parameters, simulate_loop
+
+    start = {v.name: float(v.start) for v in read_model_description(str(ADIP)).modelVariables
+             if v.causality == "parameter" and v.type == "Real"}
+    heavy = _hold(parameter_factors={"pendulum_mass": 1.1, "arm_damping": 2.0})
+    values = plant_parameters(ADIP, ADIP_LOOP, heavy)
+    # a factor multiplies the FMU's start value, or the value plant_parameters gives
+    assert values == {"pendulum_mass": pytest.approx(1.1 * start["pendulum_mass"]), "arm_damping": 0.04}
+    plant = open_plant(ADIP, values)
+    try:
+        assert plant.parameter_values()["pendulum_mass"] == pytest.approx(1.1 * start["pendulum_mass"])
+    finally:
+        plant.close()
+    K = _adip_lpv_controller()
+    nominal, unit, perturbed = (simulate_loop(K, ADIP, scenario, ADIP_LOOP).outputs for scenario in (
+        _hold(), _hold(parameter_factors={"pendulum_mass": 1.0}), heavy))
+    np.testing.assert_array_equal(unit, nominal)  # a factor of 1 is the nominal plant
+    assert np.max(np.abs(nominal[:, 0])) > 1e-3  # the load disturbance moves the held arm
+    assert np.max(np.abs(perturbed - nominal)) > 1e-3  # and the perturbed plant answers differently
+    record = run_verification(K, ADIP, [heavy], ADIP_LOOP).to_dict()["scenarios"][0]
+    assert record["parameter_factors"] == {"pendulum_mass": 1.1, "arm_damping": 2.0}
+
+
+@pytest.mark.parametrize(("factors", "message"), [
+    ({"pendulum_weight": 1.1}, "scenario 'hold': parameter_factors names 'pendulum_weight', not a Real "
+                               "parameter of adip.fmu; its parameters: x0_arm_angle, "),
+    ({"x0_arm_angle": 2.0}, "parameter_factors: x0_arm_angle is 0, a factor cannot change it"),
+])
+def test_a_bad_parameter_factor_is_one_line(factors: dict, message: str) -> None:
+    with pytest.raises(DataError) as info:
+        run_verification(_adip_lpv_controller(), ADIP, [_hold(parameter_factors=factors)], ADIP_LOOP)
+    assert message in str(info.value) and "\n" not in str(info.value)
+    assert "pendulum_mass" in str(info.value) or "x0_arm_angle is 0" in str(info.value)

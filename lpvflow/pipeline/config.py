@@ -177,6 +177,26 @@ def weights(value: Any, where: str) -> dict[str, Any]:
     return value
 
 
+def trim(value: Any, where: str) -> dict[str, list]:
+    """``{ p = [p_1, …, p_M], u = [[u_11, …, u_1nu], …] }``: breakpoints of the first scheduling signal,
+    strictly ascending, and one row of plant inputs per breakpoint (the trim feed-forward u_eq(p))."""
+    if not isinstance(value, dict) or set(value) != {"p", "u"}:
+        raise _fail(where, value, "a table { p = [p_1, …], u = [[u_1 …], …] } with exactly the keys p and u")
+    p = value["p"]
+    if not isinstance(p, list) or not p:
+        raise _fail(f"{where}.p", p, "a list of breakpoints of the first scheduling signal")
+    p = [number()(v, f"{where}.p") for v in p]
+    if any(p[i + 1] <= p[i] for i in range(len(p) - 1)):
+        raise _fail(f"{where}.p", value["p"], "strictly ascending breakpoints of the first scheduling signal")
+    u = value["u"]
+    width = len(u[0]) if isinstance(u, list) and u and isinstance(u[0], list) else 0
+    if (not isinstance(u, list) or len(u) != len(p) or width == 0
+            or not all(isinstance(row, list) and len(row) == width for row in u)):
+        raise _fail(f"{where}.u", u, f"{len(p)} rows (one per breakpoint of {where}.p) of the same number "
+                    "of plant inputs, e.g. [[4.21], [0.0], [-4.21]]")
+    return {"p": p, "u": [[number()(v, f"{where}.u") for v in row] for row in u]}
+
+
 def loop(value: Any, where: str) -> dict[str, Any]:
     from lpvflow.pipeline.scenarios import parse_loop
 
@@ -249,6 +269,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "box": Key(None, box, "scheduling box [[lo, hi], …] (default: the model's recorded range)"),
         "solver": Key("CLARABEL", string(("CLARABEL", "SCS"), upper=True), "SDP solver"),
         "baseline_at": Key(None, numbers, "scheduling point of the LTI baseline (default: box centre)"),
+        "trim": Key(None, trim, "trim feed-forward u_eq(p): { p = [...], u = [[...], ...] }, interpolated"),
     },
     "verify": {
         "loop": Key(REQUIRED, loop, "how the controller is wired to the plant FMU ([verify.loop])"),

@@ -7,14 +7,19 @@ with the expression that computes it from plant signals, e.g. ``sin_arm = sin(ar
 actuated plant inputs by name as outputs; each with its unit, description and operating point.
 Controllers without that record get ``y1``, ``p1``, ``u1``….
 
-FMU (:func:`export_fmu`): fixed communication step = the controller's Ts. The C engine
-(``controller_fmu/controller_fmu.c``) forms e = y_ref − y, evaluates ψ(p), the convex coordinates
-λ(ψ) of the design polytope exactly as :meth:`lpvflow.synth.polytope.Polytope.coordinates` (the
-rule is spelled out in the FMU's description, :func:`interpolation_rule`), and
+FMU (:func:`export_fmu`): fixed communication step = the controller's Ts. The ports are the same for
+both controller structures (:mod:`lpvflow.synth.controller`); the C engine
+(``controller_fmu/controller_fmu.c``) forms the controller input w = y_ref − y (``"1dof"``) or
+w = [y_ref; y] (``"2dof"``), evaluates the convex coordinates λ(p) of the design polytope exactly as
+:meth:`lpvflow.synth.polytope.Polytope.coordinates_at` (of ψ(p), or the hat functions of the first
+scheduling signal for a ``"piecewise"`` polytope; the rule is spelled out in the FMU's description,
+:func:`interpolation_rule`), and
 
-    u(k) = u_op + Σ_i λ_i (Ck_i x(k) + Dk_i e(k)),    x(k+1) = Σ_i λ_i (Ak_i x(k) + Bk_i e(k)),  x(0) = 0,
+    u(k) = u_op + u_eq(p(k)) + Σ_i λ_i (Ck_i x(k) + Dk_i w(k)),    x(k+1) = Σ_i λ_i (Ak_i x(k) + Bk_i w(k)),
 
-u_op the actuated inputs' operating point (trim). The vertex data go into a generated
+x(0) = 0, u_op the actuated inputs' operating point, u_eq the controller's trim feed-forward
+(:class:`lpvflow.synth.controller.Trim`: per input ``np.interp`` of the first scheduling signal in its
+table, zero without one). The vertex data go into a generated
 ``controller_data.h``; the archive holds the platform binary and every source (engine, generated
 header, FMI 2.0 headers shipped with fmpy) and is checked with ``fmpy.validation.validate_fmu``
 before it replaces the target.
@@ -27,8 +32,12 @@ clipping, parabola-triangle only, else empty), ``scheduling_box`` (n_p, 2), ``te
 unless term-box), ``basis`` (struct: kind, n_p, degree, cross, exponents (n_psi, n_p), knots,
 term_names, p_min, p_max), ``Ts``; per role (``measured``, ``reference``, ``scheduling``,
 ``actuated``) the cell arrays ``<role>_names``, ``<role>_units``, ``<role>_descriptions``, and
-``scheduling_expressions``, ``y_operating_point``, ``u_operating_point`` (the trim added to u), and
-``format``/``version``; with anti-windup (:mod:`lpvflow.synth.controller`) also ``antiwindup_L``
+``scheduling_expressions``, ``y_operating_point``, ``u_operating_point`` (the operating point added to
+u), ``structure`` (``"1dof"``: the controller input is reference − measured; ``"2dof"``: [reference;
+measured], in the order of ``reference_names`` then ``measured_names``), ``trim_p`` (M,) and ``trim_u``
+(M, nu) (the trim table, u_eq(p) = interp1(trim_p, trim_u, clamp(p_1)); empty without one),
+``breakpoints`` (N, piecewise only, else empty), and ``format``/``version``; with anti-windup
+(:mod:`lpvflow.synth.controller`) also ``antiwindup_L``
 (n, nu, N), ``u_min``, ``u_max``. The FMU applies the same anti-windup law.
 """
 
@@ -69,6 +78,8 @@ _POLYTOPE_CODES = {
     "box": "POLYTOPE_BOX",
     "parabola-triangle": "POLYTOPE_PARABOLA_TRIANGLE",
     "term-box": "POLYTOPE_TERM_BOX",
+    "piecewise": "POLYTOPE_PIECEWISE",
+    "point": "POLYTOPE_POINT",
 }
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
@@ -117,7 +128,8 @@ def controller_signals(
     the names of ``names`` (role → names) replacing the recorded ones; one DataError line for a wrong
     count, a name that is not an identifier or a name used twice."""
     recorded = controller.info.get("signals") or {}
-    sizes = {"measured": controller.n_in, "scheduling": controller.basis.n_p, "actuated": controller.n_out}
+    sizes = {"measured": controller.n_measured, "scheduling": controller.basis.n_p,
+             "actuated": controller.n_out}
     unknown = sorted(set(names or {}) - set(ROLES))
     if unknown:
         raise DataError(f"unknown signal role(s) {unknown}; use {', '.join(ROLES)}")
@@ -152,13 +164,13 @@ def describe_signals(
     plant_fmu: str | Path | None = None,
     operating_point: Mapping[str, float] | None = None,
 ) -> dict:
-    """``info["signals"]`` of a controller synthesized for ``model`` (inputs e = r − y over the model's
-    outputs, outputs the model's inputs, scheduling its p): names from the model, scheduling
-    expressions from ``expressions`` (name → expression; the name itself otherwise), units and
-    descriptions from the plant FMU's variables of the same name (a name that is not an identifier,
-    e.g. a data column ``level (m)``, becomes ``level__m_``), operating points (signal name → value)
-    from ``operating_point``, else the FMU's start values for the actuated inputs (as
-    :mod:`lpvflow.pipeline.verify` does) and zero for the outputs."""
+    """``info["signals"]`` of a controller synthesized for ``model`` (measured outputs and their references
+    the model's outputs, whatever the controller's structure; outputs the model's inputs, scheduling its
+    p): names from the model, scheduling expressions from ``expressions`` (name → expression; the name
+    itself otherwise), units and descriptions from the plant FMU's variables of the same name (a name that
+    is not an identifier, e.g. a data column ``level (m)``, becomes ``level__m_``), operating points
+    (signal name → value) from ``operating_point``, else the FMU's start values for the actuated inputs
+    (as :mod:`lpvflow.pipeline.verify` does) and zero for the outputs."""
     variables = {}
     if plant_fmu is not None:
         variables = {v.name: v for v in fmpy.read_model_description(str(plant_fmu)).modelVariables}
@@ -209,9 +221,27 @@ def interpolation_rule(controller: LPVController, signals: ControllerSignals) ->
         return (f"{psi}; triangle around the parabola over {box_words(poly.box, p_names)} (vertices "
                 "ψ at a, (a+b)/2 with ab, b): λ = vertex_inverse · ψ(p) (barycentric), negative entries "
                 "set to 0 and λ divided by its sum")
+    if poly.kind == "point":
+        at = ", ".join(f"{name} = {lo:g}" for name, (lo, _) in zip(p_names, poly.box, strict=True))
+        return f"one vertex: an LTI controller designed at {at}; λ = [1] (only the trim reads the scheduling)"
+    if poly.kind == "piecewise":
+        b = ", ".join(f"{v:g}" for v in poly.breakpoints)
+        return (f"piecewise over {p_names[0]} with breakpoints b = [{b}] (vertex i at b_i): "
+                f"t = clip({p_names[0]}, b_0, b_last), j the last segment start with b_j ≤ t, "
+                "λ_(j+1) = (t − b_j)/(b_(j+1) − b_j), λ_j = 1 − λ_(j+1), every other λ zero")
     return (f"{psi}; term box (bounds of each non-constant term of ψ over the scheduling box "
             f"{box_words(poly.box, p_names)}): t_j = clip((ψ_j − lo_j)/(hi_j − lo_j), 0, 1), "
             "λ multilinear in t as for a box, first term varying slowest")
+
+
+def trim_rule(controller: LPVController, signals: ControllerSignals) -> str:
+    """How the trim feed-forward u_eq(p) is computed, in words ("" without a trim table)."""
+    trim = controller.trim
+    if trim is None:
+        return ""
+    name = signals.scheduling[0].name
+    return (f"u_eq({name}) per actuated input: linear interpolation of the trim table over {name} = "
+            f"[{', '.join(f'{v:g}' for v in trim.p)}], clamped at its ends")
 
 
 def box_words(box: np.ndarray, names: Sequence[str]) -> str:
@@ -309,6 +339,10 @@ def export_mat(
         "scheduling_expressions": _cell([port.expression or port.name for port in signals.scheduling]),
         "y_operating_point": np.array([port.operating_point for port in signals.measured]),
         "u_operating_point": np.array([port.operating_point for port in signals.actuated]),
+        "structure": controller.structure,
+        "trim_p": controller.trim.p if controller.trim is not None else np.zeros(0),
+        "trim_u": controller.trim.u if controller.trim is not None else np.zeros((0, controller.n_out)),
+        "breakpoints": np.asarray(poly.breakpoints if poly.kind == "piecewise" else [], dtype=float),
     }
     if controller.antiwindup is not None:  # x⁺ += Σλ_i L_i (clip(u_op + u, u_min, u_max) − u_op − u)
         aw = controller.antiwindup
@@ -382,6 +416,10 @@ def _polytope_code(controller: LPVController) -> str:
         inverse = _vertex_inverse(poly)
         rows = ",\n    ".join("{" + ", ".join(_c_number(v) for v in row) + "}" for row in inverse)
         return f"static const double VERTEX_INVERSE[{len(inverse)}][{len(inverse)}] = {{\n    {rows}\n}};\n"
+    if poly.kind == "piecewise":
+        return _c_array("BREAKPOINTS", poly.breakpoints)
+    if poly.kind == "point":
+        return ""
     bounds = poly.box if poly.kind == "box" else poly.term_box
     rows = ",\n    ".join("{" + ", ".join(_c_number(v) for v in row) + "}" for row in bounds)
     return f"static const double TERM_BOUNDS[{len(bounds)}][2] = {{\n    {rows}\n}};\n"
@@ -392,7 +430,12 @@ def _check_exportable(controller: LPVController) -> None:
     poly, basis = controller.polytope, controller.basis
     if poly.kind not in _POLYTOPE_CODES:
         raise ModelError(f"unknown polytope kind {poly.kind!r}; export knows {', '.join(_POLYTOPE_CODES)}")
-    expected = 3 if poly.kind == "parabola-triangle" else 2 ** (basis.n_psi - 1)
+    if poly.kind == "piecewise":  # LPVController checked one breakpoint per vertex
+        expected = len(poly.breakpoints)
+    elif poly.kind == "point":
+        expected = 1
+    else:
+        expected = 3 if poly.kind == "parabola-triangle" else 2 ** (basis.n_psi - 1)
     if poly.n_vertices != expected or poly.psi_vertices.shape[1] != basis.n_psi:
         raise ModelError(
             f"the {poly.kind} polytope has {poly.n_vertices} vertices of size "
@@ -404,7 +447,7 @@ def controller_data_header(
     controller: LPVController, identifier: str, guid: str, signals: ControllerSignals
 ) -> str:
     """The generated ``controller_data.h`` (sizes, vertex matrices, basis, polytope, names)."""
-    n, n_in, n_out = controller.order, controller.n_in, controller.n_out
+    n, n_in, n_out = controller.order, controller.n_in, controller.n_out  # n_in: width of w
     names = [port.name for port, _ in _fmu_variables(controller, signals)]
     y_op = [port.operating_point for port in signals.measured]
     text = [
@@ -416,6 +459,8 @@ def controller_data_header(
         f"#define N_X {n}",
         f"#define N_X_ALLOC {max(n, 1)}",
         f"#define N_IN {n_in}",
+        f"#define N_MEAS {controller.n_measured}",
+        f"#define STRUCTURE_2DOF {int(controller.structure == '2dof')}",
         f"#define N_OUT {n_out}",
         f"#define N_P {controller.basis.n_p}",
         f"#define N_PSI {controller.basis.n_psi}",
@@ -423,6 +468,8 @@ def controller_data_header(
         "#define POLYTOPE_BOX 0",
         "#define POLYTOPE_PARABOLA_TRIANGLE 1",
         "#define POLYTOPE_TERM_BOX 2",
+        "#define POLYTOPE_PIECEWISE 3",
+        "#define POLYTOPE_POINT 4",
         f"#define POLYTOPE_KIND {_POLYTOPE_CODES[controller.polytope.kind]}",
         f"static const char *const REAL_NAME[{len(names)}] = {{"
         + ", ".join(f'"{name}"' for name in names)
@@ -436,6 +483,7 @@ def controller_data_header(
         + _c_array("U_OP", [port.operating_point for port in signals.actuated])
         + "".join(_c_array(name.upper(), getattr(controller, name)) for name in ("Ak", "Bk", "Ck", "Dk"))
         + _antiwindup_code(controller, signals)
+        + _trim_code(controller)
         + _polytope_code(controller)
         + _basis_code(controller)
     )
@@ -453,6 +501,15 @@ def _antiwindup_code(controller: LPVController, signals: ControllerSignals) -> s
                          f"points {u_op.tolist()} of the controller's signal record")
     return ("#define HAS_ANTIWINDUP 1\n" + _c_array("AW_L", aw.L) + _c_array("U_MIN", aw.u_min)
             + _c_array("U_MAX", aw.u_max))
+
+
+def _trim_code(controller: LPVController) -> str:
+    """HAS_TRIM and the trim table TRIM_P (M), TRIM_U (M × N_OUT, row-major) of u_eq(p)."""
+    trim = controller.trim
+    if trim is None:
+        return "#define HAS_TRIM 0\n"
+    return (f"#define HAS_TRIM 1\n#define TRIM_M {len(trim.p)}\n" + _c_array("TRIM_P", trim.p)
+            + _c_array("TRIM_U", trim.u))
 
 
 def _scheduling_ports(controller: LPVController, signals: ControllerSignals) -> list[Port]:
@@ -500,10 +557,13 @@ def _model_description(
             f"      {real}\n    </ScalarVariable>"
         )
     template = Template((TEMPLATE_DIR / "modelDescription.xml.in").read_text())
+    law = ("2-DOF, controller input w = [y_ref; y]" if controller.structure == "2dof"
+           else "1-DOF, controller input w = y_ref − y")
+    trim = trim_rule(controller, signals)
     description = (
         f"lpvflow gain-scheduled controller: {controller.order} states, {controller.polytope.n_vertices} "
-        f"vertices ({controller.polytope.kind}), Ts = {controller.Ts:g} s; e = y_ref − y; "
-        f"λ(p): {interpolation_rule(controller, signals)}"
+        f"vertices ({controller.polytope.kind}), Ts = {controller.Ts:g} s; {law}; "
+        f"λ(p): {interpolation_rule(controller, signals)}" + (f"; trim {trim}" if trim else "")
     )
     unit_definitions = "".join(f'    <Unit name={quoteattr(u)}/>\n' for u in sorted(units) if u)
     return template.substitute(

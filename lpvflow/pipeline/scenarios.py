@@ -1,12 +1,13 @@
 """Closed-loop verification scenarios and the loop wiring, read from TOML.
 
-Loop convention (1-DOF, as :class:`lpvflow.synth.controller.LPVController`): at every sample k
+Loop convention (as :class:`lpvflow.synth.controller.LPVController`): at every sample k
 
     y(k)  = plant outputs ``measured`` at t_k (+ output disturbance d_o(k))
     p(k)  = scheduling expressions of the plant outputs (all of them, ``diag_*`` included) and of the
             exogenous plant inputs at t_k, e.g. ``sin(arm_angle)``; or exogenous ones (``engine_speed``)
-    e(k)  = r(k) − y(k)                                  controller input, in ``measured`` order
-    u_c(k) = u_op + K(e, p)(k)                            commanded, in ``actuated`` order
+    w(k)  = r(k) − y(k) (1-DOF) or [r(k); y(k)] (2-DOF)   controller input, in ``measured`` order
+    u_c(k) = u_op + K(w, p)(k)                            commanded, in ``actuated`` order (K includes
+                                                          the controller's trim feed-forward u_eq(p))
     u(k)  = clip(u_c(k), actuator limits) + d_i(k)        held on the plant inputs from t_k to t_k + Ts
 
 ``u_op`` defaults to the FMU's start values of the actuated inputs, the references r default to
@@ -33,6 +34,9 @@ and ``lpvflow verify --scenario`` alike::
     output_disturbance = { arm_angle = 0.0 }                       # optional
     exogenous = { engine_speed = { initial = 2000.0, ramps = [[1.0, 3.0, 1000.0]] } }  # optional
     plant_parameters = { x0_pendulum_angle = 0.02 }                # optional, on top of [loop]'s
+    parameter_factors = { pendulum_mass = 1.1, arm_damping = 2.0 } # optional perturbed plant: each
+                                               # Real FMU parameter = factor × its value (plant_parameters,
+                                               # else the FMU's start value)
     settling_band = { arm_angle = 0.0175 }     # optional absolute band; default 2 % of the last step
     output_bounds = { pendulum_angle = [-0.5, 0.5] }   # optional; leaving them is "unbounded"
     tracked = ["arm_angle"]                    # optional; default: outputs whose reference changes
@@ -160,6 +164,7 @@ class Scenario:
     output_disturbance: dict[str, Signal] = field(default_factory=dict)
     exogenous: dict[str, Signal] = field(default_factory=dict)
     plant_parameters: dict[str, float] = field(default_factory=dict)
+    parameter_factors: dict[str, float] = field(default_factory=dict)
     settling_band: dict[str, float] = field(default_factory=dict)
     output_bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     tracked: tuple[str, ...] | None = None
@@ -173,6 +178,10 @@ class Scenario:
         for name, band in self.settling_band.items():
             if not band > 0:
                 raise DataError(f"scenario {self.name!r}: settling_band of {name} = {band} must be > 0")
+        for name, factor in self.parameter_factors.items():
+            if not (math.isfinite(factor) and factor > 0):
+                raise DataError(f"scenario {self.name!r}: parameter_factors.{name} = {factor} must be a "
+                                "factor > 0 on the parameter's value (1.1 = +10 %)")
 
 
 @dataclass(frozen=True)
@@ -321,6 +330,7 @@ def parse_scenario(doc: dict, index: int) -> Scenario:
             "output_disturbance",
             "exogenous",
             "plant_parameters",
+            "parameter_factors",
             "settling_band",
             "output_bounds",
             "tracked",
@@ -343,6 +353,8 @@ def parse_scenario(doc: dict, index: int) -> Scenario:
         _number(doc["duration"], f"{where}.duration"),
         **signals,
         plant_parameters=_parameters(doc, where),
+        parameter_factors={k: _number(v, f"{where}.parameter_factors.{k}")
+                           for k, v in _table(doc, "parameter_factors", where).items()},
         settling_band=bands,
         output_bounds=_limits(doc, "output_bounds", where),
         tracked=tracked,

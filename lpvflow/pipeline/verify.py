@@ -5,10 +5,16 @@ The plant is an FMI 2.0 Co-Simulation FMU stepped through fmpy's instance API
 and the scenario file are described in :mod:`lpvflow.pipeline.scenarios`. Sampling convention (as the
 experiment runner): read y(k) at t_k, form u(k), hold it from t_k to t_k + Ts.
 
-Controllers: an :class:`~lpvflow.synth.controller.LPVController` (u = K(p) e, e = r − y); a discrete
-``control.StateSpace`` (same convention, no scheduling); or an ``lpvflow/lti-controller`` file
-(:class:`~lpvflow.experiment.controller.LtiController`), run with its own operating input u_op and
-its y_op replaced by the reference: u = u_op + C xc + D (y − r), xc⁺ = A xc + B (y − r).
+Controllers: an :class:`~lpvflow.synth.controller.LPVController` (u = u_eq(p) + K(p) w with w = r − y
+for ``structure = "1dof"``, w = [r; y] for ``"2dof"``, u_eq the controller's trim feed-forward); a discrete
+``control.StateSpace`` (1-DOF, no scheduling); an ``lpvflow/lti-controller`` file
+(:class:`~lpvflow.experiment.controller.LtiController`, 1-DOF), run with its own operating input u_op and
+its y_op replaced by the reference: u = u_op + C xc + D (y − r), xc⁺ = A xc + B (y − r); or an exported
+controller FMU (:class:`FmuController`), handed r and y on its separate ports.
+
+Plant parameters of a run (:func:`plant_parameters`): ``[verify.loop] plant_parameters``, overridden by
+the scenario's, then every scenario ``parameter_factors`` entry f multiplies its parameter's value
+(the FMU's start value when neither table sets it): a perturbed plant, e.g. ``pendulum_mass = 1.1``.
 
 Metrics per tracked output (after t_c, the start of the last reference change; Δ its size, r_f the
 final reference; the final window is the last 10 % of the run, at least one sample):
@@ -72,7 +78,9 @@ _TS_TOLERANCE = 1e-9
 
 # ------------------------------------------------------------------------------------------ laws
 class _FixedLaw:
-    """LTI law u = C x + D (s·e), x⁺ = A x + B (s·e), with s = +1 (e = r − y) or −1 (y − r)."""
+    """LTI law u = C x + D (s·e), x⁺ = A x + B (s·e), with s = +1 (e = r − y) or −1 (y − r); 1-DOF."""
+
+    structure = "1dof"
 
     def __init__(
         self,
@@ -103,10 +111,12 @@ class FmuController:
     """A controller FMU written by :func:`lpvflow.pipeline.export.export_fmu`, stepped through fmpy.
 
     Inputs are told apart by their description: ``scheduling …`` are p, ``measured …`` the outputs y and
-    the others (``reference …``) the references r, in modelDescription order. The loop hands over
-    e = r − y: per sample the references get e(k) and the measured inputs 0 (the FMU forms r − y), p(k)
-    is set, u(k) read, then ``fmi2DoStep(t_k, Ts)``. The FMU's outputs include its trim, so
-    ``u_offset`` is zero and the loop adds no operating point of its own.
+    the others (``reference …``) the references r, in modelDescription order. The FMU reads r and y on
+    separate ports whatever the structure of the controller inside (a 1-DOF one forms r − y itself), so
+    the loop hands it w = [r; y] (``structure = "2dof"``): per sample r(k), y(k) and p(k) are set, u(k)
+    read, then ``fmi2DoStep(t_k, Ts)``. An FMU without measured ports (written before they existed) reads
+    e = r − y on its reference ports (``structure = "1dof"``). The FMU's outputs include its operating
+    point and trim feed-forward, so ``u_offset`` is zero and the loop adds no operating point of its own.
     """
 
     def __init__(self, path: str | Path) -> None:
@@ -121,7 +131,8 @@ class FmuController:
         self._y_vr = [vr for vr, kind in role.items() if kind == "measured"]
         self._e_vr = [vr for vr, kind in role.items() if kind not in ("scheduling", "measured")]
         self._u_vr = [v.valueReference for v in variables if v.causality == "output"]
-        self.n_in, self.n_out = len(self._e_vr), len(self._u_vr)
+        self.structure = "2dof" if self._y_vr else "1dof"
+        self.n_in, self.n_out = len(self._e_vr) + len(self._y_vr), len(self._u_vr)
         self.u_offset = np.zeros(self.n_out) if self._y_vr else None  # FMUs before named ports: no trim
         self.Ts = float(description.defaultExperiment.stepSize)
         self.n_p = len(self._p_vr)
@@ -144,9 +155,10 @@ class FmuController:
         self._slave.exitInitializationMode()
         self._time = 0.0
 
-    def step(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
+    def step(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """u(k) for the input w(k) ([r; y], or e for an FMU without measured ports) at p(k); then one step."""
         self._slave.setReal(self._e_vr + self._y_vr + self._p_vr,
-                            [*np.asarray(e, float), *np.zeros(len(self._y_vr)), *np.asarray(p, float)])
+                            [*np.asarray(w, float), *np.asarray(p, float)])
         u = np.array(self._slave.getReal(self._u_vr))
         self._slave.doStep(self._time, self.Ts)
         self._time += self.Ts
@@ -165,7 +177,7 @@ Baseline = LPVController | control.StateSpace | LtiController | FmuController
 
 
 def _law(controller: Baseline, loop: Loop) -> LPVController | _FixedLaw | FmuController:
-    """The controller as an object with Ts, n_in, n_out, reset() and step(e, p) -> u − u_op."""
+    """The controller as an object with Ts, n_in, n_out, structure, reset() and step(w, p) -> u − u_op."""
     if isinstance(controller, LPVController | FmuController):
         return controller
     if isinstance(controller, control.StateSpace):
@@ -283,11 +295,12 @@ def simulate_loop(
 ) -> ClosedLoopRun:
     """Co-simulate ``controller`` and the plant FMU over ``scenario`` (module docstring of scenarios)."""
     law = _law(controller, loop)
-    if law.n_in != len(loop.measured) or law.n_out != len(loop.actuated):
+    inputs = len(loop.measured) * (2 if law.structure == "2dof" else 1)
+    if law.n_in != inputs or law.n_out != len(loop.actuated):
         raise ModelError(
-            f"{label} has {law.n_in} input(s) and {law.n_out} output(s); the loop measures "
-            f"{len(loop.measured)} plant output(s) {list(loop.measured)} and drives "
-            f"{len(loop.actuated)} input(s) {list(loop.actuated)}"
+            f"{label} ({law.structure}) has {law.n_in} input(s) and {law.n_out} output(s); the loop measures "
+            f"{len(loop.measured)} plant output(s) {list(loop.measured)} ({inputs} {law.structure} "
+            f"controller inputs) and drives {len(loop.actuated)} input(s) {list(loop.actuated)}"
         )
     n_p = law.basis.n_p if isinstance(law, LPVController) else getattr(law, "n_p", None)
     if n_p is not None and not callable(loop.scheduling) and n_p != len(loop.scheduling):
@@ -297,11 +310,39 @@ def simulate_loop(
         )
     Ts = law.Ts
     n = step_count(Ts, scenario.duration)
-    plant = open_plant(plant_fmu, {**loop.plant_parameters, **scenario.plant_parameters})
+    plant = open_plant(plant_fmu, plant_parameters(plant_fmu, loop, scenario))
     try:
         return _run(law, plant, scenario, loop, n, label)
     finally:
         plant.close()
+
+
+def plant_parameters(plant_fmu: str | Path, loop: Loop, scenario: Scenario) -> dict[str, float]:
+    """FMU parameter values of one run: value = f · v for every ``parameter_factors`` entry f, v the value
+    from ``[verify.loop]``/scenario ``plant_parameters`` (the scenario's win) or else the FMU's start value;
+    the other given values unchanged. An unknown or non-Real parameter, or a factor on a zero value, is one
+    DataError line."""
+    values = {**loop.plant_parameters, **scenario.plant_parameters}
+    if not scenario.parameter_factors:
+        return values
+    where = f"scenario {scenario.name!r}: parameter_factors"
+    real = {v.name: v for v in check_fmu(plant_fmu).modelVariables
+            if v.causality == "parameter" and v.type == "Real"}
+    for name, factor in scenario.parameter_factors.items():
+        if name not in real:
+            raise DataError(f"{where} names {name!r}, not a Real parameter of {Path(plant_fmu).name}; "
+                            f"its parameters: {', '.join(real) or 'none'}")
+        base = values.get(name, float(real[name].start or 0.0))
+        if base == 0.0:
+            raise DataError(f"{where}: {name} is 0, a factor cannot change it; give its value in "
+                            "plant_parameters instead")
+        values[name] = factor * base
+    return values
+
+
+def _input(law: LPVController | _FixedLaw | FmuController, r: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The controller input w(k): [r; y] for a 2-DOF input, the tracking error r − y otherwise."""
+    return np.concatenate([r, y]) if law.structure == "2dof" else r - y
 
 
 def _run(
@@ -355,7 +396,7 @@ def _run(
         signals |= {plant.input_names[j]: inputs[k, j] for j in exogenous}
         p = schedule(signals)
         p_log.append(p)
-        u_c[k] = u_op + law.step(r[k] - y[k], p)
+        u_c[k] = u_op + law.step(_input(law, r[k], y[k]), p)
         if not np.all(np.isfinite(u_c[k])):
             failure = f"diverged: controller output non-finite at t = {t[k]:g} s"
             break
@@ -595,6 +636,7 @@ class Verification:
                 {
                     "name": r.scenario.name,
                     "duration": r.scenario.duration,
+                    "parameter_factors": dict(r.scenario.parameter_factors),
                     "requirements": r.scenario.requirements and r.scenario.requirements.to_dict(),
                     "controller": r.metrics[0],
                     "baseline": r.metrics[1] if len(r.metrics) > 1 else None,

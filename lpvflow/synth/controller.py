@@ -1,22 +1,33 @@
 """Gain-scheduled controller in vertex form, run online with convex-coordinate scheduling.
 
-    x_k(k+1) = Σ_i λ_i(p(k)) (Ak_i x_k(k) + Bk_i e(k)),    u(k) = Σ_i λ_i(p(k)) (Ck_i x_k(k) + Dk_i e(k)),
+    x_k(k+1) = Σ_i λ_i(p(k)) (Ak_i x_k(k) + Bk_i w(k)),
+    u(k)     = u_eq(p(k)) + Σ_i λ_i(p(k)) (Ck_i x_k(k) + Dk_i w(k)),
 
-λ(p) the convex coordinates of ψ(p) in the design polytope (:mod:`lpvflow.synth.polytope`), e the
-controller input (the tracking error r − y of the 1-DOF loop), u the plant input. Saved as JSON with
-``{"format": "lpvflow/lpv-controller", "version": 1}`` and read back by ``lpvflow.models.load``.
+λ(p) the convex coordinates of p in the design polytope
+(:meth:`lpvflow.synth.polytope.Polytope.coordinates_at`: of ψ(p), or the hat functions of p₁ for a
+``"piecewise"`` polytope), u the plant input (relative to the loop's operating point u_op) and w the
+controller input, by :attr:`LPVController.structure`:
+
+* ``"1dof"``: w = e = r − y (ny inputs), the tracking error of the measured outputs;
+* ``"2dof"``: w = [r; y] (2·ny inputs), the references (one per measured output, in the measured
+  outputs' order), then the measurements.
+
+u_eq(p) is the optional trim feed-forward (:class:`Trim`; zero without one): per input the linear
+interpolation of a table over the first scheduling signal, clamped at its ends. Saved as JSON with
+``{"format": "lpvflow/lpv-controller", "version": 1}`` (``structure`` absent means ``"1dof"``, ``trim``
+absent means none) and read back by ``lpvflow.models.load``.
 
 **Anti-windup** (:class:`AntiWindup`, optional; observer form, Åström & Rundqwist 1989, "Integrator
 windup and how to avoid it", ACC; Åström & Wittenmark, *Computer-Controlled Systems*, §9.4): with
-the actuator range [u_min, u_max] around the trim u_op the plant receives
-u_a = clip(u_op + u, u_min, u_max) − u_op, and the state is updated with it,
+the actuator range [u_min, u_max] around the operating point u_op the plant receives
+u_a = clip(u_op + u, u_min, u_max) − u_op (u including the trim u_eq(p)), and the state is updated with it,
 
-    x_k(k+1) = A(λ) x_k + B(λ) e + L(λ) (u_a − u),     L(λ) = Σ_i λ_i L_i,
+    x_k(k+1) = A(λ) x_k + B(λ) w + L(λ) (u_a − u),     L(λ) = Σ_i λ_i L_i,
 
 so nothing of u the actuator did not apply is integrated: while saturated the controller runs as
-x⁺ = (A − LC)x + (B − LD)e + L u_a, stable by the choice of L_i (:func:`observer_gains`). Unsaturated,
-u_a = u and the law is the one above. The Python controller, ``lpvflow verify`` (which runs it) and
-the exported FMU apply the same law.
+x⁺ = (A − LC)x + (B − LD)w + L (u_a − u_eq), stable by the choice of L_i (:func:`observer_gains`).
+Unsaturated, u_a = u and the law is the one above. The Python controller, ``lpvflow verify`` (which
+runs it) and the exported FMU apply the same law.
 """
 
 from __future__ import annotations
@@ -61,6 +72,44 @@ class AntiWindup:
         return {k: getattr(self, k).tolist() for k in ("L", "u_min", "u_max", "u_offset")}
 
 
+@dataclass
+class Trim:
+    """Trim feed-forward u_eq(p): the steady input that holds the plant at the scheduled operating point.
+
+    u_eq,j(p) = np.interp(p₁, p_table, u_table[:, j]) for every plant input j: linear between the
+    breakpoints, constant (the end row) outside them; p₁ is the first scheduling signal. p is measured,
+    so the slope of u_eq acts as feedback (docs/design_file.md, ``[synth] trim``).
+
+    Attributes:
+        p: (M,) strictly ascending breakpoints of the first scheduling signal (M ≥ 1).
+        u: (M, nu) the input at each breakpoint, in the units of the controller's output.
+    """
+
+    p: np.ndarray
+    u: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.p = np.asarray(self.p, dtype=float).reshape(-1)
+        self.u = np.asarray(self.u, dtype=float)
+        if self.p.size == 0 or not np.all(np.isfinite(self.p)) or np.any(np.diff(self.p) <= 0):
+            raise ModelError(f"trim breakpoints p = {self.p.tolist()} must be finite and strictly ascending")
+        if self.u.ndim != 2 or self.u.shape[0] != self.p.size or not np.all(np.isfinite(self.u)):
+            raise ModelError(f"trim u has shape {self.u.shape}; it needs one finite row per breakpoint: "
+                             f"({self.p.size}, number of plant inputs)")
+
+    def value(self, p: np.ndarray) -> np.ndarray:
+        """u_eq(p) (nu,) at the scheduling point p (n_p,): interpolation in p[0], clamped at the ends."""
+        p1 = float(np.asarray(p, dtype=float).reshape(-1)[0])
+        return np.array([np.interp(p1, self.p, column) for column in self.u.T])
+
+    def to_dict(self) -> dict:
+        return {"p": self.p.tolist(), "u": self.u.tolist()}
+
+
+#: Controller input structures (module docstring): w = r − y, or w = [r; y].
+STRUCTURES = ("1dof", "2dof")
+
+
 def observer_gains(Ak: np.ndarray, Ck: np.ndarray) -> np.ndarray:
     """L_i with A_i − L_iC_i stable: the steady-state Kalman (predictor) gains of (A_i, C_i) with unit
     process and measurement covariances in the controller's own state coordinates
@@ -77,7 +126,11 @@ def observer_gains(Ak: np.ndarray, Ck: np.ndarray) -> np.ndarray:
 
 @dataclass
 class LPVController:
-    """Vertex matrices Ak (N, n, n), Bk (N, n, ny), Ck (N, nu, n), Dk (N, nu, ny) on a polytope."""
+    """Vertex matrices Ak (N, n, n), Bk (N, n, nw), Ck (N, nu, n), Dk (N, nu, nw) on a polytope.
+
+    ``structure`` is ``"1dof"`` (w = r − y, nw = ny) or ``"2dof"`` (w = [r; y], nw = 2·ny); ``trim`` the
+    optional feed-forward u_eq(p) added to the output (module docstring).
+    """
 
     Ak: np.ndarray
     Bk: np.ndarray
@@ -88,6 +141,8 @@ class LPVController:
     Ts: float
     info: dict = field(default_factory=dict)
     antiwindup: AntiWindup | None = None
+    structure: str = "1dof"
+    trim: Trim | None = None
 
     def __post_init__(self) -> None:
         mats = (self.Ak, self.Bk, self.Ck, self.Dk)
@@ -103,6 +158,19 @@ class LPVController:
                              f"{self.polytope.n_vertices}")
         if self.antiwindup is not None and self.antiwindup.L.shape != (N, n, nu):
             raise ModelError(f"anti-windup gains have shape {self.antiwindup.L.shape}; expected {(N, n, nu)}")
+        if self.structure not in STRUCTURES:
+            raise ModelError(f"controller structure {self.structure!r} is unknown; use one of {STRUCTURES}")
+        if self.structure == "2dof" and ny % 2:
+            raise ModelError(f"a 2dof controller reads [r; y], an even number of inputs; Bk has {ny} columns")
+        if self.trim is not None and self.trim.u.shape[1] != nu:
+            raise ModelError(f"the trim table has {self.trim.u.shape[1]} column(s) for the controller's "
+                             f"{nu} output(s)")
+        poly = self.polytope
+        if poly.kind == "piecewise":
+            b = poly.breakpoints
+            if b is None or len(b) != N or N < 2 or np.any(np.diff(b) <= 0):
+                raise ModelError(f"a piecewise polytope needs one strictly ascending breakpoint per vertex "
+                                 f"({N}), at least 2; got {None if b is None else np.asarray(b).tolist()}")
         self.reset()
 
     @property
@@ -117,47 +185,63 @@ class LPVController:
     def n_out(self) -> int:
         return self.Ck.shape[1]
 
+    @property
+    def n_measured(self) -> int:
+        """ny, the number of measured outputs (and of references) the controller reads."""
+        return self.n_in // 2 if self.structure == "2dof" else self.n_in
+
+    def input_of(self, r: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The controller input w from references r (ny,) and measurements y (ny,): r − y (1dof) or
+        [r; y] (2dof)."""
+        r, y = (np.asarray(v, dtype=float).reshape(self.n_measured) for v in (r, y))
+        return np.concatenate([r, y]) if self.structure == "2dof" else r - y
+
+    def feedforward(self, p: np.ndarray) -> np.ndarray:
+        """u_eq(p) (:class:`Trim`), zero without a trim table."""
+        return np.zeros(self.n_out) if self.trim is None else self.trim.value(p)
+
     def reset(self, x0: np.ndarray | None = None) -> None:
         """Set the controller state (zero by default)."""
         self.x = np.zeros(self.order) if x0 is None else np.asarray(x0, dtype=float).reshape(self.order)
 
     def coordinates(self, p: np.ndarray) -> np.ndarray:
-        """λ(p) for one scheduling point p (n_p,)."""
-        psi = self.basis.eval(np.atleast_1d(np.asarray(p, dtype=float)).reshape(1, -1), check_range=False)
-        return self.polytope.coordinates(psi[0])
+        """λ(p) for one scheduling point p (n_p,) (:meth:`Polytope.coordinates_at`)."""
+        return self.polytope.coordinates_at(self.basis, p)
 
     def matrices(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(A, B, C, D) of the controller frozen at p: Σ λ_i(p) M_i."""
+        """(A, B, C, D) of the controller frozen at p: Σ λ_i(p) M_i (the trim u_eq(p) is not part of them)."""
         lam = self.coordinates(p)
         return tuple(np.tensordot(lam, M, axes=1) for M in (self.Ak, self.Bk, self.Ck, self.Dk))
 
     def frozen(self, p: np.ndarray) -> control.StateSpace:
         return control.ss(*self.matrices(p), self.Ts)
 
-    def output(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """u(k) for input e(k) at p(k), without advancing the state."""
+    def output(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """u(k) = u_eq(p) + C(λ) x + D(λ) w for input w(k) (:meth:`input_of`) at p(k), without advancing
+        the state."""
         _, _, C, D = self.matrices(p)
-        return C @ self.x + D @ np.asarray(e, dtype=float).reshape(self.n_in)
+        return (C @ self.x + D @ np.asarray(w, dtype=float).reshape(self.n_in)) + self.feedforward(p)
 
-    def step(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """One sample online: returns the command u(k) (before the actuator) and advances the state to
-        k + 1, with the anti-windup correction when the controller has one (module docstring)."""
-        e = np.asarray(e, dtype=float).reshape(self.n_in)
-        if not np.all(np.isfinite(e)) or not np.all(np.isfinite(p)):
+    def step(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """One sample online: returns the command u(k) = u_eq(p) + C(λ) x + D(λ) w (before the actuator)
+        for the input w(k) (:meth:`input_of`) and advances the state to k + 1,
+        x⁺ = A(λ) x + B(λ) w [+ L(λ)(u_a − u) with anti-windup] (module docstring)."""
+        w = np.asarray(w, dtype=float).reshape(self.n_in)
+        if not np.all(np.isfinite(w)) or not np.all(np.isfinite(p)):
             raise DataError("controller input or scheduling value is NaN or inf")
         lam = self.coordinates(p)
         A, B, C, D = (np.tensordot(lam, M, axes=1) for M in (self.Ak, self.Bk, self.Ck, self.Dk))
-        u = C @ self.x + D @ e
-        self.x = A @ self.x + B @ e
+        u = (C @ self.x + D @ w) + self.feedforward(p)  # the FMU's order of the sums
+        self.x = A @ self.x + B @ w
         if self.antiwindup is not None:
             self.x = self.x + np.tensordot(lam, self.antiwindup.L, axes=1) @ (self.antiwindup.applied(u) - u)
         return u
 
-    def simulate(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """Open-loop response u (N, nu) to e (N, ny) along p (N, n_p), from the current state."""
-        e = np.asarray(e, dtype=float).reshape(len(e), self.n_in)
-        p = np.asarray(p, dtype=float).reshape(len(e), -1)
-        return np.array([self.step(ek, pk) for ek, pk in zip(e, p, strict=True)])
+    def simulate(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Open-loop response u (N, nu) to the inputs w (N, nw) along p (N, n_p), from the current state."""
+        w = np.asarray(w, dtype=float).reshape(len(w), self.n_in)
+        p = np.asarray(p, dtype=float).reshape(len(w), -1)
+        return np.array([self.step(wk, pk) for wk, pk in zip(w, p, strict=True)])
 
     # ------------------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict:
@@ -167,12 +251,17 @@ class LPVController:
             "basis": self.basis.to_dict(),
             "polytope": {"kind": poly.kind, "box": poly.box.tolist(),
                          "psi_vertices": poly.psi_vertices.tolist(),
-                         "term_box": None if poly.term_box is None else poly.term_box.tolist()},
+                         "term_box": None if poly.term_box is None else poly.term_box.tolist(),
+                         "breakpoints": (None if poly.breakpoints is None
+                                         else np.asarray(poly.breakpoints, dtype=float).tolist())},
+            "structure": self.structure,
             "Ak": self.Ak.tolist(), "Bk": self.Bk.tolist(), "Ck": self.Ck.tolist(), "Dk": self.Dk.tolist(),
             "info": self.info,
         }
         if self.antiwindup is not None:
             d["antiwindup"] = self.antiwindup.to_dict()
+        if self.trim is not None:
+            d["trim"] = self.trim.to_dict()
         return d
 
     @classmethod
@@ -181,7 +270,9 @@ class LPVController:
         try:
             pd = d["polytope"]
             poly = Polytope(pd["kind"], np.asarray(pd["box"], float), np.asarray(pd["psi_vertices"], float),
-                            None if pd.get("term_box") is None else np.asarray(pd["term_box"], float))
+                            None if pd.get("term_box") is None else np.asarray(pd["term_box"], float),
+                            breakpoints=None if pd.get("breakpoints") is None
+                            else np.asarray(pd["breakpoints"], float))
             Dk = np.asarray(d["Dk"], float)
             N, nu, ny = Dk.shape
             # JSON drops the empty dimensions of a controller without states: n from the size of Ak
@@ -197,8 +288,10 @@ class LPVController:
             aw = d.get("antiwindup")
             antiwindup = None if aw is None else AntiWindup(
                 np.asarray(aw["L"], float).reshape(N, n, nu), aw["u_min"], aw["u_max"], aw["u_offset"])
+            trim = None if d.get("trim") is None else Trim(d["trim"]["p"], d["trim"]["u"])
             return cls(mats["Ak"], mats["Bk"], mats["Ck"], Dk, poly, Basis.from_dict(d["basis"]),
-                       float(d["Ts"]), info=d.get("info", {}), antiwindup=antiwindup)
+                       float(d["Ts"]), info=d.get("info", {}), antiwindup=antiwindup,
+                       structure=d.get("structure", "1dof"), trim=trim)
         except KeyError as exc:
             raise ModelError(f"controller file lacks the field {exc.args[0]!r}") from None
         except ModelError:

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lpvflow.basis import Basis
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
 
@@ -44,12 +45,15 @@ class Polytope:
         box: (n_p, 2) scheduling box [lo, hi] per signal.
         psi_vertices: (N, n_psi) basis vectors ψ^v = [1, θ^v] at the vertices.
         term_box: (m, 2) bounds of each non-constant term, ``"term-box"`` only.
+        breakpoints: (N,) ascending values b_0 < … < b_{N−1} of the first scheduling signal at the
+            vertices, ``"piecewise"`` only (:meth:`coordinates_at`).
     """
 
     kind: str
     box: np.ndarray
     psi_vertices: np.ndarray
     term_box: np.ndarray | None = None
+    breakpoints: np.ndarray | None = None
 
     @property
     def n_vertices(self) -> int:
@@ -74,6 +78,24 @@ class Polytope:
         lam = np.ones(1)
         for tk in t:  # corner order of _corners: first coordinate varies slowest
             lam = np.concatenate([lam * (1.0 - tk), lam * tk]).reshape(2, -1).T.reshape(-1)
+        return lam
+
+    def coordinates_at(self, basis: Basis, p: np.ndarray) -> np.ndarray:
+        """λ (N,) at the scheduling point p (n_p,).
+
+        ``"piecewise"``: the hat functions of t = clip(p_1, b_0, b_{N−1}) on the breakpoints: with j the
+        largest index ≤ N − 2 such that b_j ≤ t, λ_{j+1} = (t − b_j)/(b_{j+1} − b_j), λ_j = 1 − λ_{j+1},
+        every other λ zero. Any other kind: :meth:`coordinates` of ψ(p) in ``basis``.
+        """
+        p = np.atleast_1d(np.asarray(p, dtype=float)).reshape(-1)
+        if self.kind != "piecewise":
+            return self.coordinates(basis.eval(p.reshape(1, -1), check_range=False)[0])
+        b = np.asarray(self.breakpoints, dtype=float)
+        t = min(max(p[0], b[0]), b[-1])
+        j = min(int(np.searchsorted(b, t, side="right")) - 1, len(b) - 2)
+        lam = np.zeros(len(b))
+        lam[j + 1] = (t - b[j]) / (b[j + 1] - b[j])
+        lam[j] = 1.0 - lam[j + 1]
         return lam
 
     def coordinates_of_p(self, model: LPVSS, p: np.ndarray) -> np.ndarray:

@@ -47,7 +47,7 @@ def summary() -> dict:
         scenario("+70 deg, heavier pendulum",
                  run("lpv", 2.31, 0.0100, 0.0300, ["arm_angle settles in 2.31 s (limit 1.5 s)",
                                                    "pendulum_angle after settling 0.03 (limit 0.0175)"]),
-                 lost("baseline"), plant_parameters={"pendulum_mass": 1.1}),
+                 lost("baseline"), parameter_factors={"pendulum_mass": 1.1}),
     ]
     verify = {"scenarios": scenarios, "loop": {"measured": ["arm_angle", "pendulum_angle"],
                                                "actuator_limits": {"voltage": [-10.0, 10.0]}},
@@ -85,7 +85,7 @@ def test_the_card_compares_both_controllers_per_scenario_in_order_with_units(sum
         ["arm to +75 deg", "1.48", "1.72", "0.859", "pass", "–", "–", "–",
          "fail: pendulum_angle out of bounds at 1.58 s"],
     ]
-    assert rows(perturbed) == [["+70 deg, heavier pendulum", "pendulum_mass = 1.1", "2.31", "0.573", "1.72",
+    assert rows(perturbed) == [["+70 deg, heavier pendulum", "pendulum_mass × 1.1", "2.31", "0.573", "1.72",
                                 "fail", "–", "–", "–", "fail: pendulum_angle out of bounds at 1.58 s"]]
     # the cells that miss the specification are the marked ones: the baseline's 2.09 s, the perturbed
     # run's 2.31 s and its pendulum 1.72° > 1°

@@ -272,7 +272,7 @@ def _comparison_table(scenarios: list[dict], units: dict[str, _Unit], perturbed:
     controllers = [("controller", "LPV controller")]
     if any(s.get("baseline") for s in scenarios):
         controllers.append(("baseline", "LTI baseline"))
-    first = ["scenario"] + (["plant parameters"] if perturbed else [])
+    first = ["scenario"] + (["parameter factors"] if perturbed else [])
     head = ("<tr>" + "".join(f'<th rowspan="2">{h}</th>' for h in first)
             + "".join(f'<th colspan="{len(heads)}">{label}</th>' for _, label in controllers) + "</tr><tr>"
             + "".join(f"<th>{html.escape(h)}</th>" for _ in controllers for h in heads) + "</tr>")
@@ -281,8 +281,8 @@ def _comparison_table(scenarios: list[dict], units: dict[str, _Unit], perturbed:
         requirements = scenario.get("requirements") or {}
         cells = [html.escape(scenario["name"])]
         if perturbed:
-            changed = scenario["plant_parameters"].items()
-            cells.append(html.escape(", ".join(f"{k} = {v:g}" for k, v in changed)))
+            changed = scenario["parameter_factors"].items()
+            cells.append(html.escape(", ".join(f"{k} × {v:g}" for k, v in changed)))
         for key, _ in controllers:
             run = scenario.get(key)
             if not run:
@@ -380,7 +380,7 @@ def scenario_tally(summary: dict) -> str:
 
 def summary_card(summary: dict, units: dict[str, str]) -> str:
     """The report's first screen: the verdict, the specification, the LPV controller against the LTI
-    baseline per scenario (nominal, then on perturbed plants: scenarios with ``plant_parameters``), γ of
+    baseline per scenario (nominal, then on perturbed plants: scenarios with ``parameter_factors``), γ of
     both and the largest step the baseline holds. ``units``: signal name → unit (angles in rad are shown
     in degrees)."""
     shown = {name: _Unit.of(unit) for name, unit in units.items()}
@@ -394,8 +394,8 @@ def summary_card(summary: dict, units: dict[str, str]) -> str:
     parts = [f'<p class="verdict {css}"><b>{html.escape(line)}</b></p>',
              f'<p class="why">{html.escape(verdict["reason"])}</p>']
     if scenarios:
-        nominal = [s for s in scenarios if not s.get("plant_parameters")]
-        perturbed = [s for s in scenarios if s.get("plant_parameters")]
+        nominal = [s for s in scenarios if not s.get("parameter_factors")]
+        perturbed = [s for s in scenarios if s.get("parameter_factors")]
         parts.append(_specification(scenarios, shown))
         if nominal:
             parts.append("<h3>LPV controller and LTI baseline, nominal plant</h3>"

@@ -264,7 +264,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "scaling": Key("data", string(("data", "none")), "signal scaling of the ν-gap"),
     },
     "synth": {
-        "method": Key("common", string(("common",)), "polytopic H∞ LMIs with one common Lyapunov matrix"),
+        "method": Key("common", string(("common", "rate-bounded")),
+                      "common: one Lyapunov matrix; rate-bounded: parameter-dependent, |Δp| ≤ rate_bound"),
+        "rate_bound": Key(None, number(0.0, open_low=True),
+                          "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
+        "breakpoints": Key(None, numbers, "piecewise polytope: ascending values from box end to box end"),
+        "structure": Key("1dof", string(("1dof", "2dof")), "1dof: controller reads r − y; 2dof: [r; y]"),
         "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R], [integrator_shift]"),
         "box": Key(None, box, "scheduling box [[lo, hi], …] (default: the model's recorded range)"),
         "solver": Key("CLARABEL", string(("CLARABEL", "SCS"), upper=True), "SDP solver"),

@@ -350,34 +350,45 @@ def _fmu_reference(ctx: StageContext, model: LPVSS):
 
 # ----------------------------------------------------------------------------------------- synth
 def synth(ctx: StageContext) -> tuple[dict, list[str]]:
-    """Polytopic H∞ controller and the LTI baseline designed at one frozen point (``baseline_at``,
-    default the centre of the scheduling box), both by :func:`lpvflow.synth.hinf.synthesize`."""
-    from lpvflow.synth.certify import certify
+    """Gain-scheduled H∞ controller (``method = "common"``: :func:`lpvflow.synth.hinf.synthesize`, one
+    Lyapunov matrix; ``"rate-bounded"``: :func:`lpvflow.synth.rate_bounded.synthesize_rate_bounded`) and the
+    LTI baseline designed at one frozen point (``baseline_at``, default the centre of the scheduling box)
+    by :func:`lpvflow.synth.hinf.synthesize`, both with the design's ``structure`` (1-DOF or 2-DOF)."""
+    from lpvflow.synth.certify import certify, certify_rate_bounded
     from lpvflow.synth.hinf import synthesize
     from lpvflow.synth.plant import generalized_plant
     from lpvflow.synth.polytope import scheduling_box
+    from lpvflow.synth.rate_bounded import synthesize_rate_bounded
 
     cfg = ctx.config["synth"]
-    box = cfg["box"]
+    box, weights, structure = cfg["box"], cfg["weights"], cfg["structure"]
     model = load(ctx.path("model.json"))
-    result = synthesize(generalized_plant(model, cfg["weights"], box), cfg["solver"])
-    certificate = certify(result, model, cfg["weights"])
+    plant = generalized_plant(model, weights, box, structure, cfg["breakpoints"])
+    if cfg["method"] == "rate-bounded":
+        result, controller = synthesize_rate_bounded(plant, cfg["rate_bound"], cfg["solver"])
+        certificate = certify_rate_bounded(result, model, weights, structure)
+        gamma_lower = result.gamma_min
+    else:
+        result = synthesize(plant, cfg["solver"])
+        controller, gamma_lower = result.controller, result.gamma_lower
+        certificate = certify(result, model, weights)
     signals = design_signals(ctx, model)
-    result.controller.info["signals"] = signals
-    result.controller.antiwindup = antiwindup(ctx, result.controller, signals)
-    result.controller.trim = trim(ctx, result.controller)
-    result.controller.save(ctx.path("controller.json"))
+    controller.info["signals"] = signals
+    controller.antiwindup = antiwindup(ctx, controller, signals)
+    controller.trim = trim(ctx, controller)
+    controller.save(ctx.path("controller.json"))
     centre = scheduling_box(model, box).mean(axis=1).tolist()
     at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre
     nominal = [[v, v] for v in at]
-    baseline = synthesize(generalized_plant(model, cfg["weights"], nominal), cfg["solver"])
+    baseline = synthesize(generalized_plant(model, weights, nominal, structure), cfg["solver"])
     baseline.controller.antiwindup = antiwindup(ctx, baseline.controller, signals)
     baseline.controller.trim = trim(ctx, baseline.controller)
     baseline.controller.save(ctx.path("baseline.json"))
-    return ({"gamma": result.gamma, "gamma_lower": result.gamma_lower, "baseline_gamma": baseline.gamma,
-             "baseline_at": at, "certificate": certificate.lines(), "certificate_ok": bool(certificate.ok),
-             "solve_seconds": result.report.seconds, "order": result.controller.order,
-             "polytope": result.plant.polytope.kind},
+    return ({"method": cfg["method"], "structure": structure, "gamma": result.gamma,
+             "gamma_lower": gamma_lower, "baseline_gamma": baseline.gamma, "baseline_at": at,
+             "certificate": certificate.lines(),
+             "certificate_ok": bool(certificate.ok), "solve_seconds": result.report.seconds,
+             "order": controller.order, "polytope": plant.polytope.kind},
             ["controller.json", "baseline.json"])
 
 

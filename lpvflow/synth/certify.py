@@ -19,6 +19,7 @@ polytope containing that plant.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import control
@@ -28,6 +29,7 @@ from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
 from lpvflow.synth.hinf import HinfResult, certificate_margin, closed_loop
 from lpvflow.synth.plant import VertexPlant, augment
+from lpvflow.synth.rate_bounded import ScheduledResult, fine_check
 from lpvflow.validate.stability import quadratic_stability
 
 
@@ -43,20 +45,30 @@ def scheduling_grid(box: np.ndarray, per_axis: int) -> np.ndarray:
     return np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(box), -1).T
 
 
-def frozen_hinf_norms(result: HinfResult, model: LPVSS, weights: dict, grid: np.ndarray) -> np.ndarray:
-    """‖T_zw‖_∞ of the frozen closed loop at every grid point (python-control lft and norm)."""
+def frozen_hinf_norms(controller_at: Callable[[np.ndarray], tuple[np.ndarray, ...]], model: LPVSS,
+                      weights: dict, grid: np.ndarray, structure: str = "1dof") -> np.ndarray:
+    """‖T_zw‖_∞ of the frozen closed loop at every grid point (python-control lft and norm):
+    ``controller_at(p)`` gives (Ak, Bk, Ck, Dk) from the measured signals to u before W_B (augment puts
+    W_B in the plant)."""
     from lpvflow.synth.plant import weight_systems
 
     W = weight_systems(weights, model.ny, model.nu, model.Ts)
-    nu, ny = model.nu, model.ny
+    nu = model.nu
+    ny = 2 * model.ny if structure == "2dof" else model.ny
     norms = []
     for p in grid:
-        P = augment(model.frozen(p), W, model.Ts)
-        lam = result.controller.coordinates(p)
-        mats = (sum(li * k[m] for li, k in zip(lam, result.K_vertices, strict=True)) for m in range(4))
-        K = control.ss(*mats, model.Ts)  # from e to u, before W_B (augment puts W_B in the plant)
+        P = augment(model.frozen(p), W, model.Ts, structure)
+        K = control.ss(*controller_at(p), model.Ts)
         norms.append(float(control.norm(P.lft(K, nu, ny), "inf")))
     return np.array(norms)
+
+
+def vertex_interpolation(result: HinfResult) -> Callable[[np.ndarray], tuple[np.ndarray, ...]]:
+    """p ↦ Σ λ_i(p) K_i of a polytopic result (λ of its controller's polytope)."""
+    def at(p: np.ndarray) -> tuple[np.ndarray, ...]:
+        lam = result.controller.coordinates(p)
+        return tuple(sum(li * k[m] for li, k in zip(lam, result.K_vertices, strict=True)) for m in range(4))
+    return at
 
 
 def riccati_controller(vertex: VertexPlant, Ts: float, gamma: float) -> tuple[np.ndarray, ...] | None:
@@ -163,9 +175,50 @@ class Certificate:
 
 def certify(result: HinfResult, model: LPVSS, weights: dict, per_axis: int = 21) -> Certificate:
     """Run checks 1–4 of the module docstring."""
-    norms = frozen_hinf_norms(result, model, weights, scheduling_grid(result.plant.polytope.box, per_axis))
+    grid = scheduling_grid(result.plant.polytope.box, per_axis)
+    norms = frozen_hinf_norms(vertex_interpolation(result), model, weights, grid, result.plant.structure)
     peak, final, growth = switching_simulation(result)
     A_cl = [closed_loop(v, K)[0] for v, K in zip(result.vertices, result.K_vertices, strict=True)]
     quadratic = quadratic_stability(A_cl).certified
     return Certificate(min(vertex_margins(result)), float(norms.max()), result.gamma, peak, final, growth,
                        quadratic)
+
+
+def rate_bounded_walk(result: ScheduledResult, n_steps: int = 4000, seed: int = 0
+                      ) -> tuple[float, float, float]:
+    """The closed loop along a random scheduling walk p(k+1) = clip(p(k) + ν·u(k)), u uniform in [−1, 1]
+    (ν the rate bound; any jump inside the range for ν = None), from a random state, w = 0, judged by the
+    certificate's decay: V(k) = ξᵀ𝒫(p(k))⁻¹ξ must not grow.
+
+    Returns (peak ‖ξ‖/‖ξ(0)‖, final ‖ξ‖/‖ξ(0)‖, max V(k+1)/V(k))."""
+    rng = np.random.default_rng(seed)
+    b, nu = result.schedule.breakpoints, result.schedule.rate_bound
+    p = float(rng.uniform(b[0], b[-1]))
+    xi = rng.standard_normal(len(result.lyapunov[0]))
+    norm0, peak, growth = np.linalg.norm(xi), 1.0, 0.0
+    value = result.slack.lyapunov_value(xi, result.lyapunov_at(p))
+    for _ in range(n_steps):
+        xi = closed_loop(result.plant_at(p), result.controller_at(p))[0] @ xi
+        step = rng.uniform(b[0], b[-1]) - p if nu is None else nu * rng.uniform(-1, 1)
+        p = float(np.clip(p + step, b[0], b[-1]))
+        value_next = result.slack.lyapunov_value(xi, result.lyapunov_at(p))
+        growth, value = max(growth, value_next / value), value_next
+        peak = max(peak, np.linalg.norm(xi) / norm0)
+        if value == 0.0:
+            break
+    return float(peak), float(np.linalg.norm(xi) / norm0), float(growth)
+
+
+def certify_rate_bounded(result: ScheduledResult, model: LPVSS, weights: dict, structure: str = "1dof",
+                         per_axis: int = 21) -> Certificate:
+    """Checks 1–4 for a rate-bounded design: 1. Φ(p, p⁺) rebuilt from the returned numbers on a grid ten
+    times finer than the breakpoints (:func:`lpvflow.synth.rate_bounded.fine_check`); 2. frozen H∞ norms;
+    3. quadratic stability of the breakpoint loops (informative); 4. :func:`rate_bounded_walk`."""
+    margin, _ = fine_check(result)
+    box = np.array([[result.schedule.breakpoints[0], result.schedule.breakpoints[-1]]])
+    norms = frozen_hinf_norms(lambda p: result.controller_at(float(np.asarray(p).reshape(-1)[0])), model,
+                              weights, scheduling_grid(box, per_axis), structure)
+    peak, final, growth = rate_bounded_walk(result)
+    A_cl = [closed_loop(v, K)[0] for v, K in zip(result.vertices, result.K_vertices, strict=True)]
+    quadratic = quadratic_stability(A_cl).certified
+    return Certificate(margin, float(norms.max()), result.gamma, peak, final, growth, quadratic)

@@ -23,7 +23,8 @@ straight chain:
 
 1. **Coordinates.** Frequency normalisation s = ω₀s' (A_c/ω₀, B_c/√ω₀, C_c/√ω₀: the continuous LMIs are
    invariant under it with the same 𝒳), diagonal balancing of the mean |A_c|, diagonal scalings of u and
-   y (unit columns of B2, rows of C2; w and z are not scaled per channel: that would change ‖T_zw‖∞),
+   y (unit columns of B2, rows of C2 — of D21 for a zero row of C2, a 2-DOF reference; w and z are not
+   scaled per channel: that would change ‖T_zw‖∞),
    then state transforms x = T x̄ that balance R, S of interior points: a γ-minimisation (step 2) gives
    γ₀; the matrices of step 2 at f·γ₀ with the largest margin relative to their diagonals at the γ₀
    minimiser (slow and fast directions get margins in proportion to their size) give a strictly
@@ -250,7 +251,8 @@ def synthesize(plant: GeneralizedPlant, solver: str = "CLARABEL", gamma_max: flo
             "solve_seconds": result.report.seconds, "polytope": plant.polytope.kind}
     stacks = [np.array([k[m] for k in K]) for m in range(4)]
     result.plant = plant
-    result.controller = LPVController(*stacks, plant.polytope, plant.basis, plant.Ts, info=info)
+    result.controller = LPVController(*stacks, plant.polytope, plant.basis, plant.Ts, info=info,
+                                      structure=plant.structure)
     return result
 
 
@@ -439,7 +441,9 @@ def balanced_coordinates(cayleys: list[VertexPlant], gamma_max: float | None, so
     first = _Coordinates(np.diag(s), omega, np.ones(cayleys[0].dims[2]), np.ones(cayleys[0].dims[4]))
     v0 = first.apply(cayleys[0])
     du = 1.0 / np.maximum(np.linalg.norm(v0.B2, axis=0), 1e-300)
-    dy = np.maximum(np.linalg.norm(v0.C2, axis=1), 1e-300)
+    # a measured channel with no state in it (the reference of a 2-DOF loop) is scaled by its D21 row
+    dy = np.linalg.norm(v0.C2, axis=1)
+    dy = np.maximum(np.where(dy > 0, dy, np.linalg.norm(v0.D21, axis=1)), 1e-300)
     coords = _Coordinates(np.diag(s), omega, du, dy)
     verts = [coords.apply(vc) for vc in cayleys]
     gamma_lower, scales, report = _gamma_lower(verts, gamma_max, solver)

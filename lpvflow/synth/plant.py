@@ -6,6 +6,13 @@ Signals (1-DOF loop, reference r, control u from the controller, plant input u_p
     reference weight: W_R = diag(1, 0.01) says the second output's "reference" is only small noise),
     z = [W_S e ; W_K u ; W_T y (optional)],          measured output of the generalized plant: e.
 
+2-DOF loop (``structure = "2dof"``; Apkarian et al. 1995 and the thesis §6.3 use this structure): the
+controller reads the reference and the measurement separately, u = K [r; y_m], with y_m = y + W_N n
+(measurement noise n, W_N default 0.01·I: without it D21 has no full row rank and the H∞ problem is
+singular), exogenous inputs [w; n], and the tracking error is taken against an optional reference
+model M: e = M r − y (M = I without ``weights.M``): z = [W_S e ; W_K u ; W_T y]. The controller may
+then shape the reference path (feed-forward) apart from the feedback.
+
 With state x = [x_G; x_weights] this is the discrete-time LFT plant of Apkarian, Gahinet & Becker
 (1995, eq. (2))
 
@@ -29,7 +36,7 @@ import numpy as np
 from lpvflow.basis import Basis
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
-from lpvflow.synth.polytope import Polytope, polytope_of, vertex_matrices
+from lpvflow.synth.polytope import Polytope, piecewise_polytope, polytope_of, vertex_matrices
 from lpvflow.synth.weights import DEFAULT_INTEGRATOR_SHIFT, diagonal_weight
 
 _CONST_TOL = 1e-10
@@ -79,6 +86,7 @@ class GeneralizedPlant:
     z_names: list[str]
     input_filter: control.StateSpace | None = None
     basis: Basis | None = None
+    structure: str = "1dof"
 
     @property
     def dims(self) -> tuple[int, int, int, int, int]:
@@ -115,7 +123,8 @@ def _named_ss(M: control.StateSpace, inp: str, out: str, name: str) -> control.S
 
 
 def weight_systems(weights: dict, ny: int, nu: int, Ts: float) -> dict[str, control.StateSpace]:
-    """The diagonal weights W_S, W_K and the optional W_B, W_T, W_R of a ``[weights]`` table."""
+    """The diagonal weights W_S, W_K and the optional W_B, W_T, W_R, W_M (2-DOF reference model), W_N (2-DOF
+    measurement noise) of a ``[weights]`` table."""
     for key in ("S", "K"):
         if key not in weights:
             raise ModelError(f"design spec lacks the weight [weights.{key}] "
@@ -123,19 +132,37 @@ def weight_systems(weights: dict, ny: int, nu: int, Ts: float) -> dict[str, cont
     eps = float(weights.get("integrator_shift", DEFAULT_INTEGRATOR_SHIFT))
     if not 0.0 < eps < 0.5:
         raise ModelError(f"integrator_shift must be in (0, 0.5), got {eps}")
-    sizes = {"S": ny, "K": nu, "B": nu, "T": ny, "R": ny}
+    sizes = {"S": ny, "K": nu, "B": nu, "T": ny, "R": ny, "M": ny, "N": ny}
     return {k: diagonal_weight(weights[k], sizes[k], Ts, f"W_{k}", eps) for k in sizes if k in weights}
 
 
-def augment(G: control.StateSpace, W: dict[str, control.StateSpace], Ts: float) -> control.StateSpace:
-    """Interconnect one frozen plant with the weights: inputs [r, u], outputs [z_S, z_K, (z_T), e]."""
+#: Measurement-noise weight of the 2-DOF loop when the design gives no ``weights.N``.
+DEFAULT_NOISE_WEIGHT = 0.01
+#: Controller structures: "1dof" (the controller reads e = r − y) or "2dof" (it reads [r; y]).
+STRUCTURES = ("1dof", "2dof")
+
+
+def augment(G: control.StateSpace, W: dict[str, control.StateSpace], Ts: float, structure: str = "1dof"
+            ) -> control.StateSpace:
+    """Interconnect one frozen plant with the weights (module docstring). 1-DOF: inputs [r (or w), u],
+    outputs [z_S, z_K, (z_T), e]; 2-DOF: inputs [r (or w), n, u], outputs [z_S, z_K, (z_T), r, y_m]."""
+    if structure not in STRUCTURES:
+        raise ModelError(f"unknown controller structure {structure!r}; use one of {STRUCTURES}")
     ny = G.noutputs
+    two = structure == "2dof"
     blocks = [
         _named_ss(G, "up" if "B" in W else "u", "y", "G"),
         _named_ss(W["S"], "e", "zS", "WS"),
         _named_ss(W["K"], "u", "zK", "WK"),
-        control.summing_junction(inputs=["r", "-y"], output="e", dimension=ny, name="sum"),
+        control.summing_junction(inputs=["rm" if "M" in W else "r", "-y"], output="e", dimension=ny,
+                                 name="sum"),
     ]
+    if "M" in W:
+        blocks.append(_named_ss(W["M"], "r", "rm", "M"))
+    if two:
+        WN = W.get("N", control.ss([], [], [], DEFAULT_NOISE_WEIGHT * np.eye(ny), Ts))
+        blocks += [_named_ss(WN, "n", "nw", "WN"),
+                   control.summing_junction(inputs=["y", "nw"], output="ym", dimension=ny, name="noise")]
     outputs = ["zS", "zK"]
     if "R" in W:
         blocks.append(_named_ss(W["R"], "w", "r", "WR"))
@@ -144,21 +171,28 @@ def augment(G: control.StateSpace, W: dict[str, control.StateSpace], Ts: float) 
     if "T" in W:
         blocks.append(_named_ss(W["T"], "y", "zT", "WT"))
         outputs.append("zT")
-    exogenous = "w" if "R" in W else "r"
-    return control.interconnect(blocks, inplist=[exogenous, "u"], outlist=[*outputs, "e"], dt=Ts)
+    exogenous = ["w" if "R" in W else "r"] + (["n"] if two else [])
+    measured = ["r", "ym"] if two else ["e"]
+    return control.interconnect(blocks, inplist=[*exogenous, "u"], outlist=[*outputs, *measured], dt=Ts)
 
 
-def generalized_plant(model: LPVSS, weights: dict, box: np.ndarray | list | None = None) -> GeneralizedPlant:
-    """The augmented plant at each vertex of the tightest polytope of ``model`` over ``box``."""
-    polytope = polytope_of(model, box)
+def generalized_plant(model: LPVSS, weights: dict, box: np.ndarray | list | None = None,
+                      structure: str = "1dof", breakpoints: np.ndarray | list | None = None
+                      ) -> GeneralizedPlant:
+    """The augmented plant (1-DOF or 2-DOF, :func:`augment`) at each vertex of the tightest polytope of
+    ``model`` over ``box``, or at ``breakpoints`` of its one scheduling signal (a piecewise polytope,
+    :func:`lpvflow.synth.polytope.piecewise_polytope`)."""
+    polytope = polytope_of(model, box) if breakpoints is None else piecewise_polytope(model, box, breakpoints)
     ny, nu = model.ny, model.nu
     W = weight_systems(weights, ny, nu, model.Ts)
     nz = ny + nu + (ny if "T" in W else 0)
+    nw = 2 * ny if structure == "2dof" else ny
     vertices = []
     for A, B, C, D in vertex_matrices(model, polytope):
-        P = augment(control.ss(A, B, C, D, model.Ts), W, model.Ts)
-        vertices.append(VertexPlant.from_ss(P, nw=ny, nz=nz))
+        P = augment(control.ss(A, B, C, D, model.Ts), W, model.Ts, structure)
+        vertices.append(VertexPlant.from_ss(P, nw=nw, nz=nz))
     check_a3(vertices)
     z_names = [f"W_S e[{i}]" for i in range(ny)] + [f"W_K u[{i}]" for i in range(nu)]
     z_names += [f"W_T y[{i}]" for i in range(ny)] if "T" in weights else []
-    return GeneralizedPlant(vertices, polytope, model.Ts, model.nx, z_names, W.get("B"), model.basis)
+    return GeneralizedPlant(vertices, polytope, model.Ts, model.nx, z_names, W.get("B"), model.basis,
+                            structure)

@@ -90,18 +90,39 @@ class Polytope:
         p = np.atleast_1d(np.asarray(p, dtype=float)).reshape(-1)
         if self.kind != "piecewise":
             return self.coordinates(basis.eval(p.reshape(1, -1), check_range=False)[0])
-        b = np.asarray(self.breakpoints, dtype=float)
-        t = min(max(p[0], b[0]), b[-1])
-        j = min(int(np.searchsorted(b, t, side="right")) - 1, len(b) - 2)
-        lam = np.zeros(len(b))
-        lam[j + 1] = (t - b[j]) / (b[j + 1] - b[j])
-        lam[j] = 1.0 - lam[j + 1]
-        return lam
+        return hat_coordinates(self.breakpoints, p[0])
 
     def coordinates_of_p(self, model: LPVSS, p: np.ndarray) -> np.ndarray:
         """Convex coordinates of the scheduling point p (n_p,) for ``model``'s basis."""
-        psi = model.basis.eval(np.atleast_1d(np.asarray(p, dtype=float)).reshape(1, -1), check_range=False)
-        return self.coordinates(psi[0])
+        return self.coordinates_at(model.basis, p)
+
+
+def hat_coordinates(breakpoints: np.ndarray, p1: float) -> np.ndarray:
+    """Hat functions of t = clip(p1, b_0, b_{N−1}) on the breakpoints: with j the largest index ≤ N − 2 such
+    that b_j ≤ t, λ_{j+1} = (t − b_j)/(b_{j+1} − b_j), λ_j = 1 − λ_{j+1}, every other λ zero."""
+    b = np.asarray(breakpoints, dtype=float)
+    t = min(max(float(p1), b[0]), b[-1])
+    j = min(int(np.searchsorted(b, t, side="right")) - 1, len(b) - 2)
+    lam = np.zeros(len(b))
+    lam[j + 1] = (t - b[j]) / (b[j + 1] - b[j])
+    lam[j] = 1.0 - lam[j + 1]
+    return lam
+
+
+def piecewise_polytope(model: LPVSS, box: np.ndarray | list | None, breakpoints: np.ndarray | list
+                       ) -> Polytope:
+    """The ``"piecewise"`` polytope (multi-simplex) of one scheduling signal: vertices ψ(b_i) at ascending
+    breakpoints that start and end at the box; the model frozen at the breakpoints, interpolated with
+    the hat functions, is exact between them when ψ is affine in p (else a piecewise-linear model)."""
+    box = scheduling_box(model, box)
+    b = np.asarray(breakpoints, dtype=float).reshape(-1)
+    if model.basis.n_p != 1:
+        raise ModelError(f"breakpoints need one scheduling signal; the model has {model.basis.n_p}")
+    if len(b) < 2 or not np.all(np.diff(b) > 0) or not np.allclose([b[0], b[-1]], box[0]):
+        raise ModelError(f"breakpoints must ascend from the box's lower to its upper end {box[0].tolist()}, "
+                         f"got {b.tolist()}")
+    psi = model.basis.eval(b.reshape(-1, 1), check_range=False)
+    return Polytope("piecewise", box, psi, breakpoints=b)
 
 
 def _corners(bounds: np.ndarray) -> np.ndarray:

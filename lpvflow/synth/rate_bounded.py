@@ -58,11 +58,13 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import cvxpy as cp
 import numpy as np
 
 from lpvflow.errors import ModelError
+from lpvflow.synth.controller import LPVController, series_input_filter
 from lpvflow.synth.hinf import (
     ROUNDOFF_FACTOR,
     _cayley_vertex,
@@ -71,7 +73,8 @@ from lpvflow.synth.hinf import (
     closed_loop,
     lowest_certified_level,
 )
-from lpvflow.synth.plant import VertexPlant, check_a3
+from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
+from lpvflow.synth.polytope import hat_coordinates
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 
 #: Points per breakpoint interval of :func:`fine_check` (the issue's "10× finer" than the breakpoints).
@@ -95,13 +98,7 @@ class Schedule:
 
     def weights(self, p: float) -> np.ndarray:
         """λ(p): hat functions of the breakpoints (p clamped to the range); Σλ = 1, at most two nonzero."""
-        b = self.breakpoints
-        p = float(np.clip(p, b[0], b[-1]))
-        i = min(int(np.searchsorted(b, p, side="right")) - 1, len(b) - 2)
-        t = (p - b[i]) / (b[i + 1] - b[i])
-        lam = np.zeros(len(b))
-        lam[i], lam[i + 1] = 1.0 - t, t
-        return lam
+        return hat_coordinates(self.breakpoints, p)
 
     def pairs(self, points: Sequence[float] = ()) -> list[tuple[float, list[float]]]:
         """(p, [p⁺, …]) at which Φ is imposed (module docstring), plus ``points`` as extra p."""
@@ -119,6 +116,64 @@ class Schedule:
 
 
 @dataclass
+class Slack:
+    """The constant slack of the module docstring in the scaled plant state x̄ (x = T x̄): X, Y, U, V with
+    𝒢𝒯 = [X I; U 0] and 𝒯 = [I Yᵀ; 0 Vᵀ]; state transform T."""
+
+    X: np.ndarray
+    Y: np.ndarray
+    U: np.ndarray
+    V: np.ndarray
+    T: np.ndarray
+
+    def certificate(self, plant: VertexPlant, K: tuple[np.ndarray, ...], P_hat: np.ndarray,
+                    P_hat_next: np.ndarray, gamma: float) -> float:
+        """Margin of Φ(p, p⁺) for the closed loop of ``plant`` (original coordinates) and ``K`` (numbers as
+        returned), evaluated after the congruence diag(𝒯, 𝒯, I, I) in which 𝒫 = 𝒯⁻ᵀP̂𝒯⁻¹ becomes P̂:
+
+            Φ̃ = [P̂(p⁺)   Π_Vᵀ𝒜Π_G   Π_Vᵀℬ   0;  ⋆   He(Π_Vᵀ Π_G) − P̂(p)   0   Π_Gᵀ𝒞ᵀ;  ⋆ ⋆ γI 𝒟ᵀ;  ⋆ ⋆ ⋆ γI],
+
+        Π_G = 𝒢𝒯 = [X I; U 0], Π_V = 𝒯 = [I Yᵀ; 0 Vᵀ] (so Π_VᵀΠ_G = 𝒯ᵀ𝒢𝒯), and (𝒜, ℬ, 𝒞, 𝒟) the loop of
+        the plant with its state scaled by T⁻¹. Positive definiteness of Φ̃ and of Φ are the same (a
+        congruence); Φ̃ is where the blocks are O(1). Margin: λ_min of the Jacobi-scaled Φ̃ minus
+        ROUNDOFF_FACTOR·m·ε·‖D⁻¹ E D⁻¹‖₂, E the same products formed with absolute values (the size of
+        the terms that cancel in forming Φ̃)."""
+        Ti = np.linalg.inv(self.T)
+        v = VertexPlant(Ti @ plant.A @ self.T, Ti @ plant.B1, Ti @ plant.B2, plant.C1 @ self.T,
+                        plant.C2 @ self.T, plant.D11, plant.D12, plant.D21, plant.D22)
+        A, B, C, D = closed_loop(v, K)
+        n = self.X.shape[0]
+        I, Z = np.eye(n), np.zeros((n, n))
+        PiG = np.block([[self.X, I], [self.U, Z]])
+        PiV = np.block([[I, self.Y.T], [Z, self.V.T]])
+        nw, nz, m = B.shape[1], C.shape[0], 2 * n
+
+        def assemble(A, B, C, D, PiG, PiV, Pn, P, g):
+            He = PiV.T @ PiG
+            return np.block([[Pn, PiV.T @ A @ PiG, PiV.T @ B, np.zeros((m, nz))],
+                             [(PiV.T @ A @ PiG).T, He + He.T - P, np.zeros((m, nw)), (C @ PiG).T],
+                             [(PiV.T @ B).T, np.zeros((nw, m)), g * np.eye(nw), D.T],
+                             [np.zeros((nz, m)), C @ PiG, D, g * np.eye(nz)]])
+
+        Phi = assemble(A, B, C, D, PiG, PiV, P_hat_next, P_hat, gamma)
+        E = assemble(*(np.abs(M) for M in (A, B, C, D, PiG, PiV, P_hat_next)), -np.abs(P_hat), gamma)
+        Phi = 0.5 * (Phi + Phi.T)
+        d = np.sqrt(np.clip(np.abs(np.diag(Phi)), 1e-300, None))
+        scaled = Phi / d[:, None] / d[None, :]
+        bound = ROUNDOFF_FACTOR * len(Phi) * np.finfo(float).eps * np.linalg.norm(
+            np.abs(E) / d[:, None] / d[None, :], 2)
+        return float(np.linalg.eigvalsh(scaled)[0] - bound)
+
+    def lyapunov_value(self, xi: np.ndarray, P_hat: np.ndarray) -> float:
+        """V = ξᵀ𝒫⁻¹ξ = (𝒯ᵀξ̄)ᵀP̂⁻¹(𝒯ᵀξ̄), ξ̄ = [T⁻¹x; x_K] (ξ = [x; x_K] in original coordinates)."""
+        n = self.X.shape[0]
+        xbar = np.concatenate([np.linalg.solve(self.T, xi[:n]), xi[n:]])
+        PiV = np.block([[np.eye(n), self.Y.T], [np.zeros((n, n)), self.V.T]])
+        w = PiV.T @ xbar
+        return float(w @ np.linalg.solve(P_hat, w))
+
+
+@dataclass
 class ScheduledResult:
     """Certified rate-bounded design.
 
@@ -127,9 +182,8 @@ class ScheduledResult:
             with these breakpoints and rate bound, does better).
         K_vertices: discrete vertex controllers (A_K, B_K, C_K, D_K) from y to u at the breakpoints.
         schedule: breakpoints and rate bound; vertices: the generalized plant at the breakpoints.
-        lyapunov: 𝒫 at the breakpoints (inverse Lyapunov matrices, state [x̄; x_K] in ``coordinates``);
-            slack: 𝒢; coordinates: the state transform 𝒯_c = blkdiag(T, I) with ξ = 𝒯_c ξ̄.
-        margins: certificate margin at every (p, p⁺) of the design (all > 0).
+        lyapunov: P̂ = 𝒯ᵀ𝒫𝒯 at the breakpoints (:class:`Slack`); slack: the slack and coordinates.
+        margins: :meth:`Slack.certificate` at every (p, p⁺) of the design (all > 0).
     """
 
     gamma: float
@@ -139,24 +193,32 @@ class ScheduledResult:
     vertices: list[VertexPlant]
     Ts: float
     lyapunov: list[np.ndarray]
-    slack: np.ndarray
-    coordinates: np.ndarray
-    margins: list[float]
+    slack: Slack
+    margins: list[float] = field(default_factory=list)
     report: SolveReport = field(default_factory=lambda: SolveReport("", "", 0.0))
 
     def controller_at(self, p: float) -> tuple[np.ndarray, ...]:
         """(A_K, B_K, C_K, D_K) at p: Σ λ_i(p) K_i."""
-        lam = self.schedule.weights(p)
-        return tuple(sum(li * K[m] for li, K in zip(lam, self.K_vertices, strict=True)) for m in range(4))
+        return _mix(self.K_vertices, self.schedule.weights(p))
 
     def lyapunov_at(self, p: float) -> np.ndarray:
-        lam = self.schedule.weights(p)
-        return sum(li * P for li, P in zip(lam, self.lyapunov, strict=True))
+        """P̂(p) = Σ λ_i(p) P̂_i."""
+        return sum(li * P for li, P in zip(self.schedule.weights(p), self.lyapunov, strict=True))
 
     def plant_at(self, p: float) -> VertexPlant:
+        """The generalized plant at p: Σ λ_i(p) (vertex plant i)."""
         lam = self.schedule.weights(p)
         return VertexPlant(**{k: sum(li * getattr(v, k) for li, v in zip(lam, self.vertices, strict=True))
                               for k in VertexPlant.__dataclass_fields__})
+
+    def margin(self, plant: VertexPlant, p: float, q: float) -> float:
+        """:meth:`Slack.certificate` of ``plant`` with the controller at p, from p to p⁺ = q."""
+        return self.slack.certificate(plant, self.controller_at(p), self.lyapunov_at(p), self.lyapunov_at(q),
+                                      self.gamma)
+
+
+def _mix(K_vertices: list[tuple[np.ndarray, ...]], lam: np.ndarray) -> tuple[np.ndarray, ...]:
+    return tuple(sum(li * K[m] for li, K in zip(lam, K_vertices, strict=True)) for m in range(4))
 
 
 # ---------------------------------------------------------------------------------- coordinates
@@ -181,7 +243,7 @@ class _Levels:
     Variable (γ minimum)."""
 
     def __init__(self, verts: list[VertexPlant], schedule: Schedule, pairs: list) -> None:
-        n, nw, nu, nz, ny = verts[0].dims
+        n, _nw, nu, _nz, ny = verts[0].dims
         M = len(verts)
         self.gamma, self.t = cp.Parameter(pos=True), cp.Variable()
         self.g_min = cp.Variable()
@@ -226,40 +288,11 @@ class _Levels:
         return 0.5 * (Phi + Phi.T)
 
 
-def phi_matrix(plant: VertexPlant, K: tuple[np.ndarray, ...], P: np.ndarray, P_next: np.ndarray,
-               G: np.ndarray, gamma: float) -> np.ndarray:
-    """Φ(p, p⁺) of the module docstring from a closed loop's numbers (state [x; x_K])."""
-    A, B, C, D = closed_loop(plant, K)
-    nw, nz, m = B.shape[1], C.shape[0], A.shape[0]
-    return np.block([[P_next, A @ G, B, np.zeros((m, nz))],
-                     [G.T @ A.T, G + G.T - P, np.zeros((m, nw)), G.T @ C.T],
-                     [B.T, np.zeros((nw, m)), gamma * np.eye(nw), D.T],
-                     [np.zeros((nz, m)), C @ G, D, gamma * np.eye(nz)]])
-
-
-def phi_margin(Phi: np.ndarray) -> float:
-    """λ_min of the Jacobi-scaled Φ minus the round-off bound ROUNDOFF_FACTOR·m·ε·‖|Φ̃|‖₂ (> 0: holds)."""
-    Phi = 0.5 * (Phi + Phi.T)
-    d = np.sqrt(np.clip(np.abs(np.diag(Phi)), 1e-300, None))
-    Pt = Phi / d[:, None] / d[None, :]
-    roundoff = ROUNDOFF_FACTOR * len(Pt) * np.finfo(float).eps * np.linalg.norm(np.abs(Pt), 2)
-    return float(np.linalg.eigvalsh(Pt)[0] - roundoff)
-
-
-def _scaled_loop_plant(coords: _Coordinates, v: VertexPlant) -> VertexPlant:
-    """The original discrete vertex with only its state transformed (x = T x̄): u, y unscaled, so the
-    returned (unscaled) controller closes the loop on it."""
-    Ti = np.linalg.inv(coords.T)
-    return VertexPlant(Ti @ v.A @ coords.T, Ti @ v.B1, Ti @ v.B2, v.C1 @ coords.T, v.C2 @ coords.T, v.D11,
-                       v.D12, v.D21, v.D22)
-
-
 def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: _Coordinates, schedule: Schedule,
                  gamma: float, gamma_min: float, Ts: float) -> ScheduledResult:
     """Controller of the module docstring at every breakpoint, 𝒫 and 𝒢 in the scaled state, and the
     certificate margins rebuilt from the returned discrete numbers."""
     X, Y, S = (np.asarray(V.value, dtype=float) for V in (levels.X, levels.Y, levels.S))
-    n = X.shape[0]
     W, sig, Zt = np.linalg.svd(S - Y @ X)
     V, U = W * np.sqrt(sig), np.sqrt(sig)[:, None] * Zt
     K_vertices = []
@@ -271,17 +304,10 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: _Coordina
         core = Q - Y @ v.A @ X - Y @ v.B2 @ L - V @ Bk @ v.C2 @ X
         Ak = np.linalg.solve(V, np.linalg.solve(U.T, core.T).T)
         K_vertices.append(_unscaled(coords, (Ak, Bk, Ck, Dk)))
-    Tcal = np.block([[np.eye(n), Y.T], [np.zeros((n, n)), V.T]])
-    Tinv = np.linalg.inv(Tcal)
-    G = np.block([[X, np.eye(n)], [U, np.zeros((n, n))]]) @ Tinv
-    lyapunov = [Tinv.T @ (0.5 * (P.value + P.value.T)) @ Tinv for P in levels.P]
-    result = ScheduledResult(gamma, gamma_min, K_vertices, schedule, vertices, Ts, lyapunov, G,
-                             np.asarray(coords.T), [])
-    scaled = [_scaled_loop_plant(coords, v) for v in vertices]
-    plant = ScheduledResult(gamma, gamma_min, K_vertices, schedule, scaled, Ts, lyapunov, G, coords.T, [])
-    result.margins = [phi_margin(phi_matrix(plant.plant_at(p), result.controller_at(p), result.lyapunov_at(p),
-                                            result.lyapunov_at(q), G, gamma))
-                      for p, nexts in levels.pairs for q in nexts]
+    lyapunov = [0.5 * (P.value + P.value.T) for P in levels.P]
+    result = ScheduledResult(gamma, gamma_min, K_vertices, schedule, vertices, Ts, lyapunov,
+                             Slack(X, Y, U, V, np.asarray(coords.T)))
+    result.margins = [result.margin(result.plant_at(p), p, q) for p, nexts in levels.pairs for q in nexts]
     return result
 
 
@@ -326,8 +352,8 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
     best = lowest_certified_level(certified, gamma_min, suboptimality, None)
     if best is None:
         raise SynthesisError(f"{what}: γ minimum {gamma_min:.4g}, but no level up to "
-                             f"{gamma_min * (1 + suboptimality * 2 ** 8):.4g} gave a controller that passes the "
-                             "certificate; loosen the weights or the rate bound")
+                             f"{gamma_min * (1 + suboptimality * 2 ** 8):.4g} gave a controller that passes "
+                             "the certificate; loosen the weights or the rate bound")
     best.report = SolveReport(solver, "optimal", time.perf_counter() - start, attempts)
     return best
 
@@ -338,16 +364,34 @@ def fine_check(result: ScheduledResult, plant_at: Callable[[float], VertexPlant]
     p⁺ = p ± ν (clipped) and the breakpoints between: the design's own piecewise-linear plant, or
     ``plant_at(p)`` (the true plant, e.g. exact linearizations) with the interpolated controller."""
     b = result.schedule.breakpoints
-    fine = np.unique(np.concatenate([np.linspace(b[i], b[i + 1], per_segment + 1) for i in range(len(b) - 1)]))
-    Tc = np.linalg.inv(result.coordinates)
+    fine = np.unique(np.concatenate([np.linspace(lo, hi, per_segment + 1) for lo, hi in pairwise(b)]))
     worst = (np.inf, float(fine[0]))
     for p, nexts in result.schedule.pairs(fine):
         v = result.plant_at(p) if plant_at is None else plant_at(p)
-        v = VertexPlant(Tc @ v.A @ result.coordinates, Tc @ v.B1, Tc @ v.B2, v.C1 @ result.coordinates,
-                        v.C2 @ result.coordinates, v.D11, v.D12, v.D21, v.D22)
-        K = result.controller_at(p)
-        for q in nexts:
-            m = phi_margin(phi_matrix(v, K, result.lyapunov_at(p), result.lyapunov_at(q), result.slack,
-                                      result.gamma))
-            worst = min(worst, (m, p))
+        worst = min(worst, *((result.margin(v, p, q), p) for q in nexts))
     return worst
+
+
+def synthesize_rate_bounded(plant: GeneralizedPlant, rate_bound: float | None, solver: str = "CLARABEL",
+                            suboptimality: float = 1e-2) -> tuple[ScheduledResult, LPVController]:
+    """:func:`synthesize_scheduled` on a mixed-sensitivity design of one scheduling signal whose polytope
+    is a segment (``"box"``) or piecewise (``"piecewise"``), and the implementable :class:`LPVController`
+    (vertex controllers at the breakpoints, W_B in series, the plant's λ(p) and structure)."""
+    poly = plant.polytope
+    if poly.kind == "piecewise":
+        breakpoints = poly.breakpoints
+    elif poly.kind == "box" and len(poly.box) == 1:
+        breakpoints = poly.box[0]
+    else:
+        raise ModelError(f"the rate-bounded design needs one scheduling signal and an affine basis or "
+                         f"breakpoints; this design's polytope is {poly.kind!r} over {len(poly.box)} signals")
+    result = synthesize_scheduled(plant.vertices, breakpoints, plant.Ts, rate_bound=rate_bound,
+                                  suboptimality=suboptimality, solver=solver)
+    K = result.K_vertices
+    if plant.input_filter is not None:
+        K = [series_input_filter(k, plant.input_filter) for k in K]
+    info = {"method": "rate-bounded", "rate_bound": rate_bound, "gamma": result.gamma,
+            "gamma_lower": result.gamma_min, "solver": solver, "solve_seconds": result.report.seconds,
+            "polytope": poly.kind, "breakpoints": [float(b) for b in breakpoints]}
+    stacks = [np.array([k[m] for k in K]) for m in range(4)]
+    return result, LPVController(*stacks, poly, plant.basis, plant.Ts, info=info, structure=plant.structure)

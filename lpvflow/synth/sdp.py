@@ -65,7 +65,7 @@ def solve(problem: cp.Problem, solver: str = "CLARABEL", what: str = "the LMIs")
             kwargs = _SCS_SETTINGS if name == "SCS" else _CLARABEL_SETTINGS
             problem.solve(solver=name, **kwargs)
             status = str(problem.status)
-        except cp.error.SolverError as exc:
+        except (cp.error.SolverError, ValueError) as exc:  # SCS raises ValueError when its KKT setup fails
             status = f"solver error ({str(exc).splitlines()[0][:80]})"
         elapsed = time.perf_counter() - start
         total += elapsed

@@ -152,7 +152,7 @@ def formats(value: Any, where: str) -> list[str]:
 
 
 #: The weights of the mixed-sensitivity design (lpvflow.synth.plant.weight_systems).
-WEIGHT_KEYS = ("S", "K", "B", "T", "R", "integrator_shift")
+WEIGHT_KEYS = ("S", "K", "B", "T", "R", "M", "N", "integrator_shift")
 
 
 def weights(value: Any, where: str) -> dict[str, Any]:
@@ -174,6 +174,18 @@ def weights(value: Any, where: str) -> dict[str, Any]:
     if "integrator_shift" in value:
         shift = number(0.0, 0.5, open_low=True, open_high=True)
         shift(value["integrator_shift"], f"{where}.integrator_shift")
+    return value
+
+
+def vertex_weights(value: Any, where: str) -> list[dict[str, Any]]:
+    """A list of partial weight tables, one per vertex (breakpoint) of the design polytope: each replaces
+    entries of ``[synth] weights`` at its vertex (scheduled weights)."""
+    if not isinstance(value, list) or not value or not all(isinstance(v, dict) for v in value):
+        raise _fail(where, value, "a list of weight tables, one per vertex: [{ S = … }, { }, { S = … }]")
+    for i, table in enumerate(value):
+        unknown = sorted(set(table) - set(WEIGHT_KEYS) - {"integrator_shift"})
+        if unknown:
+            raise DataError(f"{where}[{i}] has unknown key(s) {unknown}; known: {list(WEIGHT_KEYS)}")
     return value
 
 
@@ -270,7 +282,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
         "breakpoints": Key(None, numbers, "piecewise polytope: ascending values from box end to box end"),
         "structure": Key("1dof", string(("1dof", "2dof")), "1dof: controller reads r − y; 2dof: [r; y]"),
-        "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R], [integrator_shift]"),
+        "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R, M, N], [shift]"),
+        "vertex_weights": Key(None, vertex_weights, "scheduled weights: per vertex, replacing entries"),
         "box": Key(None, box, "scheduling box [[lo, hi], …] (default: the model's recorded range)"),
         "solver": Key("CLARABEL", string(("CLARABEL", "SCS"), upper=True), "SDP solver"),
         "baseline_at": Key(None, numbers, "scheduling point of the LTI baseline (default: box centre)"),

@@ -363,10 +363,10 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     cfg = ctx.config["synth"]
     box, weights, structure = cfg["box"], cfg["weights"], cfg["structure"]
     model = load(ctx.path("model.json"))
-    plant = generalized_plant(model, weights, box, structure, cfg["breakpoints"])
+    plant = generalized_plant(model, weights, box, structure, cfg["breakpoints"], cfg["vertex_weights"])
     if cfg["method"] == "rate-bounded":
         result, controller = synthesize_rate_bounded(plant, cfg["rate_bound"], cfg["solver"])
-        certificate = certify_rate_bounded(result, model, weights, structure)
+        certificate = certify_rate_bounded(result, None if cfg["vertex_weights"] else model, weights, structure)
         gamma_lower = result.gamma_min
     else:
         result = synthesize(plant, cfg["solver"])

@@ -209,15 +209,27 @@ def rate_bounded_walk(result: ScheduledResult, n_steps: int = 4000, seed: int = 
     return float(peak), float(np.linalg.norm(xi) / norm0), float(growth)
 
 
-def certify_rate_bounded(result: ScheduledResult, model: LPVSS, weights: dict, structure: str = "1dof",
+def certify_rate_bounded(result: ScheduledResult, model: LPVSS | None, weights: dict, structure: str = "1dof",
                          per_axis: int = 21) -> Certificate:
     """Checks 1–4 for a rate-bounded design: 1. Φ(p, p⁺) rebuilt from the returned numbers on a grid ten
-    times finer than the breakpoints (:func:`lpvflow.synth.rate_bounded.fine_check`); 2. frozen H∞ norms;
-    3. quadratic stability of the breakpoint loops (informative); 4. :func:`rate_bounded_walk`."""
+    times finer than the breakpoints (:func:`lpvflow.synth.rate_bounded.fine_check`); 2. frozen H∞ norms
+    of ``model`` with ``weights`` (python-control; with scheduled weights, ``model`` None: of the design's
+    generalized plant interpolated at p); 3. quadratic stability of the breakpoint loops (informative);
+    4. :func:`rate_bounded_walk`."""
     margin, _ = fine_check(result)
-    box = np.array([[result.schedule.breakpoints[0], result.schedule.breakpoints[-1]]])
-    norms = frozen_hinf_norms(lambda p: result.controller_at(float(np.asarray(p).reshape(-1)[0])), model,
-                              weights, scheduling_grid(box, per_axis), structure)
+    b = result.schedule.breakpoints
+    grid = scheduling_grid(np.array([[b[0], b[-1]]]), per_axis)
+
+    def controller_at(p: np.ndarray) -> tuple[np.ndarray, ...]:
+        return result.controller_at(float(np.asarray(p).reshape(-1)[0]))
+
+    if model is not None:
+        norms = frozen_hinf_norms(controller_at, model, weights, grid, structure)
+    else:
+        nu = result.vertices[0].dims[2]
+        ny = result.vertices[0].dims[4]
+        norms = np.array([float(control.norm(result.plant_at(float(p[0])).ss(result.Ts).lft(
+            control.ss(*controller_at(p), result.Ts), nu, ny), "inf")) for p in grid])
     peak, final, growth = rate_bounded_walk(result)
     A_cl = [closed_loop(v, K)[0] for v, K in zip(result.vertices, result.K_vertices, strict=True)]
     quadratic = quadratic_stability(A_cl).certified

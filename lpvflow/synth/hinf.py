@@ -210,18 +210,25 @@ def _partition(P: control.StateSpace, nmeas: int, ncon: int) -> VertexPlant:
 
 
 def hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, ncon: int, *,
-            suboptimality: float = 2.5e-3, gamma_max: float | None = None,
-            solver: str = "CLARABEL") -> HinfResult:
+            suboptimality: float | None = None, gamma_max: float | None = None, solver: str = "CLARABEL",
+            breakpoints: Sequence[float] | None = None, rate_bound: float | None = None):
     """H∞ controller for the discrete generalized plant ``P`` (one StateSpace: LTI; a sequence: vertices).
 
     As ``control.hinfsyn(P, nmeas, ncon)``: the last ``nmeas`` outputs are measured, the last ``ncon``
-    inputs are controlled. The steps are those of the module docstring.
+    inputs are controlled. The steps are those of the module docstring. With ``breakpoints`` (the values
+    of one scheduling signal at which the plants of ``P`` are given, ascending), the design is the
+    rate-bounded one of :mod:`lpvflow.synth.rate_bounded` instead — a parameter-dependent Lyapunov
+    function, |p(k+1) − p(k)| ≤ ``rate_bound`` (None: any rate), the plant and the controller linear in p
+    between breakpoints — and the result a :class:`lpvflow.synth.rate_bounded.ScheduledResult`
+    (``.controller(p)`` the controller frozen at p).
 
     Args:
         suboptimality: δ of step 3: the certified γ is within a factor 1 + δ of the lowest level found
-            to fail, which is ≥ γ_lower.
-        gamma_max: demand γ ≤ gamma_max (infeasible otherwise, with the reason).
+            to fail, which is ≥ γ_lower (default 2.5e-3; 1e-2 for the rate-bounded design, whose SDPs are
+            larger).
+        gamma_max: demand γ ≤ gamma_max (infeasible otherwise, with the reason; common-Lyapunov design).
         solver: the SDP solver, ``"CLARABEL"`` (default) or ``"SCS"``.
+        breakpoints, rate_bound: the rate-bounded design (above).
 
     Raises:
         ModelError: a plant that is not discrete, partitions that differ, or B2, C2, D12, D21 not constant.
@@ -234,7 +241,14 @@ def hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, nc
     if len({v.dims for v in vertices}) > 1 or len({float(G.dt) for G in plants}) > 1:
         raise ModelError("the vertex plants differ in size, partition or sampling time")
     check_a3(vertices)
-    return synthesize_vertices(vertices, float(plants[0].dt), suboptimality, gamma_max, solver)
+    if breakpoints is not None:
+        from lpvflow.synth.rate_bounded import synthesize_scheduled
+
+        return synthesize_scheduled(vertices, breakpoints, float(plants[0].dt), rate_bound=rate_bound,
+                                    suboptimality=suboptimality or 1e-2, solver=solver)
+    if rate_bound is not None:
+        raise ModelError("rate_bound needs breakpoints: the scheduling value of each plant in P")
+    return synthesize_vertices(vertices, float(plants[0].dt), suboptimality or 2.5e-3, gamma_max, solver)
 
 
 def synthesize(plant: GeneralizedPlant, solver: str = "CLARABEL", gamma_max: float | None = None,

@@ -107,7 +107,8 @@ def check_a3(vertices: list[VertexPlant]) -> None:
                          "proper input filter W_B, or identify with an input delay nk >= 1")
     hints = {"B2": "use a strictly proper input filter W_B (e.g. num = [0, b], den = [1, -a])",
              "C2": "the plant's C(θ) varies: realize it in observable form (constant C)",
-             "D12": "the plant feed-through D(θ) varies: use a strictly proper W_B",
+             "D12": "W_K's feed-through is scheduled, or the plant's D(θ) varies: keep W_K's gain the same "
+                    "at every vertex (schedule W_S or W_T instead) and use a strictly proper W_B",
              "D21": "the plant feed-through D(θ) varies: use a strictly proper W_B"}
     for name, hint in hints.items():
         spread = max(np.max(np.abs(getattr(v, name) - getattr(ref, name)), initial=0.0) for v in vertices)
@@ -177,21 +178,36 @@ def augment(G: control.StateSpace, W: dict[str, control.StateSpace], Ts: float, 
 
 
 def generalized_plant(model: LPVSS, weights: dict, box: np.ndarray | list | None = None,
-                      structure: str = "1dof", breakpoints: np.ndarray | list | None = None
-                      ) -> GeneralizedPlant:
+                      structure: str = "1dof", breakpoints: np.ndarray | list | None = None,
+                      vertex_weights: list[dict] | None = None) -> GeneralizedPlant:
     """The augmented plant (1-DOF or 2-DOF, :func:`augment`) at each vertex of the tightest polytope of
     ``model`` over ``box``, or at ``breakpoints`` of its one scheduling signal (a piecewise polytope,
-    :func:`lpvflow.synth.polytope.piecewise_polytope`)."""
+    :func:`lpvflow.synth.polytope.piecewise_polytope`).
+
+    Scheduled weights (thesis §6.3: W_S1, W_S2, W_S3 at the vertices 0, ±φ_t): ``vertex_weights[i]``
+    replaces entries of ``weights`` at vertex i; the weights are then interpolated with the plant's own
+    λ(p) (their state-space matrices must have the same orders). A scheduled weight that makes B2, C2,
+    D12 or D21 vertex-dependent is refused by :func:`check_a3`, which names the matrix."""
     polytope = polytope_of(model, box) if breakpoints is None else piecewise_polytope(model, box, breakpoints)
     ny, nu = model.ny, model.nu
-    W = weight_systems(weights, ny, nu, model.Ts)
-    nz = ny + nu + (ny if "T" in W else 0)
+    if vertex_weights is not None and len(vertex_weights) != polytope.n_vertices:
+        raise ModelError(f"vertex_weights gives {len(vertex_weights)} weight tables for a polytope with "
+                         f"{polytope.n_vertices} vertices ({polytope.kind}): give one per vertex")
+    overrides = vertex_weights or [{}] * polytope.n_vertices
+    tables = [{**weights, **override} for override in overrides]
+    nz = ny + nu + (ny if "T" in weights else 0)
     nw = 2 * ny if structure == "2dof" else ny
-    vertices = []
-    for A, B, C, D in vertex_matrices(model, polytope):
+    vertices, orders = [], set()
+    for table, (A, B, C, D) in zip(tables, vertex_matrices(model, polytope), strict=True):
+        W = weight_systems(table, ny, nu, model.Ts)
+        orders.add(tuple((k, w.nstates) for k, w in sorted(W.items())))
         P = augment(control.ss(A, B, C, D, model.Ts), W, model.Ts, structure)
         vertices.append(VertexPlant.from_ss(P, nw=nw, nz=nz))
+    if len(orders) > 1:
+        raise ModelError("vertex_weights change the order of a weight between vertices: a scheduled weight "
+                         "must keep its numerator and denominator degrees (change gains and poles only)")
     check_a3(vertices)
+    W = weight_systems(weights, ny, nu, model.Ts)
     z_names = [f"W_S e[{i}]" for i in range(ny)] + [f"W_K u[{i}]" for i in range(nu)]
     z_names += [f"W_T y[{i}]" for i in range(ny)] if "T" in weights else []
     return GeneralizedPlant(vertices, polytope, model.Ts, model.nx, z_names, W.get("B"), model.basis,

@@ -60,6 +60,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from itertools import pairwise
 
+import control
 import cvxpy as cp
 import numpy as np
 
@@ -200,6 +201,19 @@ class ScheduledResult:
     def controller_at(self, p: float) -> tuple[np.ndarray, ...]:
         """(A_K, B_K, C_K, D_K) at p: Σ λ_i(p) K_i."""
         return _mix(self.K_vertices, self.schedule.weights(p))
+
+    def controller(self, p: float) -> control.StateSpace:
+        """The controller frozen at p (from y to u, dt = Ts)."""
+        return control.ss(*self.controller_at(p), self.Ts)
+
+    @property
+    def vertex_controllers(self) -> list[control.StateSpace]:
+        return [control.ss(*K, self.Ts) for K in self.K_vertices]
+
+    @property
+    def certificate(self) -> list[float]:
+        """Margins of Φ at the design's (p, p⁺) (all > 0)."""
+        return self.margins
 
     def lyapunov_at(self, p: float) -> np.ndarray:
         """P̂(p) = Σ λ_i(p) P̂_i."""
@@ -370,6 +384,30 @@ def fine_check(result: ScheduledResult, plant_at: Callable[[float], VertexPlant]
         v = result.plant_at(p) if plant_at is None else plant_at(p)
         worst = min(worst, *((result.margin(v, p, q), p) for q in nexts))
     return worst
+
+
+def synthesize_gridded(plant_at: Callable[[float], VertexPlant], breakpoints: Sequence[float], Ts: float, *,
+                       rate_bound: float | None, refinements: int = 3, suboptimality: float = 1e-2,
+                       solver: str = "CLARABEL") -> ScheduledResult:
+    """:func:`synthesize_scheduled` on the plants ``plant_at(b)`` at the breakpoints, re-checked by
+    :func:`fine_check` against ``plant_at`` itself (the true plant between breakpoints, not their
+    interpolation); where the check fails, that point becomes a breakpoint and the design is repeated, at
+    most ``refinements`` times.
+
+    Raises:
+        SynthesisError: the certificate still fails after the refinements (naming the point).
+    """
+    points = sorted(float(b) for b in breakpoints)
+    for _ in range(refinements + 1):
+        result = synthesize_scheduled([plant_at(b) for b in points], points, Ts, rate_bound=rate_bound,
+                                      suboptimality=suboptimality, solver=solver)
+        margin, where = fine_check(result, plant_at)
+        if margin > 0:
+            return result
+        points = sorted({*points, where})
+    raise SynthesisError(f"after {refinements} refinements (breakpoints {np.round(points, 4).tolist()}) the "
+                         f"certificate still fails against the true plant at p = {where:.4g} (margin "
+                         f"{margin:.3g}): add breakpoints near it or lower the rate bound")
 
 
 def synthesize_rate_bounded(plant: GeneralizedPlant, rate_bound: float | None, solver: str = "CLARABEL",

@@ -366,7 +366,8 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     plant = generalized_plant(model, weights, box, structure, cfg["breakpoints"], cfg["vertex_weights"])
     if cfg["method"] == "rate-bounded":
         result, controller = synthesize_rate_bounded(plant, cfg["rate_bound"], cfg["solver"])
-        certificate = certify_rate_bounded(result, None if cfg["vertex_weights"] else model, weights, structure)
+        frozen_model = None if cfg["vertex_weights"] else model  # scheduled weights: the design's own plant
+        certificate = certify_rate_bounded(result, frozen_model, weights, structure)
         gamma_lower = result.gamma_min
     else:
         result = synthesize(plant, cfg["solver"])

@@ -208,13 +208,18 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "Ts": Key(None, number(0.0, open_low=True),
                   "sampling time (communication step) in s, > 0; default: the controller's, else the FMU's"),
         "duration": Key(REQUIRED, number(0.0, open_low=True), "experiment length in s, > 0"),
-        "controller": Key(None, string(), "stabilizing LTI controller JSON: closed-loop experiment"),
+        "controller": Key(None, string(), "stabilizing controller JSON (lpvflow/lti-controller or "
+                          "lpvflow/gridded-controller): closed-loop experiment"),
         "inputs": Key({}, mapping(string(), '"SPEC"'), "signal per plant input driven directly (open loop)"),
         "excitation": Key({}, mapping(string(), '"SPEC"'), "signal added to the controller output per input"),
         "setpoint": Key({}, mapping(string(), '"SPEC"'), "set-point per plant output read by the controller"),
         "parameters": Key({}, mapping(number(), "number"), "FMU parameters set before initialisation"),
         "scheduling": Key({}, mapping(string(), '"EXPR"'), "extra columns computed from plant signals"),
         "seed": Key(0, integer(0), "seed of the random excitation signals"),
+        "quantization": Key({}, mapping(number(0.0, open_low=True), "step"),
+                            "sensor quantization step per plant output, > 0 (e.g. 2π/4096 rad)"),
+        "noise": Key({}, mapping(number(0.0), "std"),
+                     "sensor white-noise standard deviation per plant output, ≥ 0"),
     },
     "identify": {
         "u": Key(REQUIRED, names(), "input columns"),
@@ -242,6 +247,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "reference": Key("none", string(("none", "linearization", "local")), "frozen FMU reference"),
         "operating_point": Key({}, mapping(number(), "number"), "FMU start values for the linearization"),
         "scaling": Key("data", string(("data", "none")), "signal scaling of the ν-gap"),
+        "gate": Key(True, boolean, "stop the design after validate when the model fails the ν-gap test"),
     },
     "synth": {
         "method": Key("common", string(("common",)), "polytopic H∞ LMIs with one common Lyapunov matrix"),

@@ -43,6 +43,7 @@ def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
         controller=cfg["controller"], excitation=cfg["excitation"] or None,
         parameters=cfg["parameters"] or None, scheduling_columns=cfg["scheduling"] or None,
         seed=cfg["seed"], output=ctx.path("data.csv"), progress=None, setpoint=cfg["setpoint"] or None,
+        quantization=cfg["quantization"] or None, noise=cfg["noise"] or None,
     )
     ranges = {name: [float(np.min(v)), float(np.max(v))]
               for name, v in record.columns.items() if name != "time"}
@@ -226,10 +227,12 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     An unstable plant's model cannot be simulated open loop; the thesis validates the ADIP model by
     the closed loop T(Ĝ, K_id) (notes_002 §6.4). The scheduling p(k) is recomputed from the simulated
     outputs with the experiment's scheduling expressions (quasi-LPV, as on the plant); y(k) uses C at
-    p(k−1), which is exact for the observable-form realizations (C independent of p).
+    p(k−1), which is exact for the observable-form realizations (C independent of p). A gridded
+    (gain-scheduled) controller runs its own law on the simulated outputs and the recorded set-points
+    (``<output>_setpoint``) and excitation (``<input>_excitation``).
     """
     from lpvflow.data import read_columns
-    from lpvflow.experiment.controller import load_controller
+    from lpvflow.experiment.controller import GriddedController, load_experiment_controller
     from lpvflow.experiment.scheduling import compile_expression
 
     cfg = ctx.config["experiment"]
@@ -237,7 +240,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SchedulingRangeWarning)
             return model.simulate(data.u, data.p)
-    K = load_controller(cfg["controller"])
+    K = load_experiment_controller(cfg["controller"])
     table = read_columns(ctx.path("data.csv"))
     start = len(table["time"]) - data.N
     zero = np.zeros(len(table["time"]))
@@ -245,7 +248,14 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     u_index = [data.u_names.index(n) for n in K.outputs]
     y_index = [data.y_names.index(n) for n in K.inputs]
     expressions = [compile_expression(cfg["scheduling"][name], data.y_names) for name in data.p_names]
-    x, xc = np.zeros(model.nx), np.zeros(K.A.shape[0])
+    gridded = isinstance(K, GriddedController)
+    if gridded:
+        given = [j for j, n in enumerate(K.inputs) if f"{n}_setpoint" in table]
+        setpoints = np.zeros((data.N, len(K.inputs)))
+        for j in given:
+            setpoints[:, j] = table[f"{K.inputs[j]}_setpoint"][start:]
+        theta_of = K.scheduling_function()
+    x, xc = np.zeros(model.nx), np.zeros(K.A.shape[-2])
     y_sim = np.zeros_like(data.y)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)
@@ -255,10 +265,17 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
             y_sim[k] = y
             p = np.array([scheduling_of(y) for scheduling_of in expressions])
             A, B, C, _ = model.matrices(p)
-            dy = y[y_index] - K.y_op
             u = np.zeros(model.nu)
-            u[u_index] = K.u_op + K.C @ xc + K.D @ dy + excitation[k]
-            xc = K.A @ xc + K.B @ dy
+            if gridded:
+                Ak, Bk, Ck, Dk, y_bar, u_op = K.at(theta_of(np.concatenate([y[y_index], setpoints[k]])))
+                y_bar[given] = setpoints[k, given]
+                dy = y[y_index] - y_bar
+                u[u_index] = u_op + Ck @ xc + Dk @ dy + excitation[k]
+                xc = Ak @ xc + Bk @ dy
+            else:
+                dy = y[y_index] - K.y_op
+                u[u_index] = K.u_op + K.C @ xc + K.D @ dy + excitation[k]
+                xc = K.A @ xc + K.B @ dy
             x = A @ x + B @ u
             if not np.all(np.abs(x) < 1e12):
                 raise DataError(f"the identified model's closed loop diverges at sample {k}: it does not "
@@ -272,7 +289,6 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     ``reference = "linearization"`` or ``"local"`` — the ν-gap δν(G_FMU(θ), Ĝ(θ)) to the plant FMU at
     its equilibrium with that scheduling value (thesis Fig. 6.11, notes_002 §6.4: δν < b over the range
     means K_id stabilizes every frozen plant the model is that close to)."""
-    from lpvflow.experiment.controller import load_controller
     from lpvflow.pipeline.cli_identify import plot_fit
     from lpvflow.validate.frozen import compare_frozen
     from lpvflow.validate.metrics import fit_report
@@ -284,13 +300,18 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
         raise DataError(f"[validate] scaling = {cfg['scaling']!r}; use \"data\" or \"none\"")
     model = load(ctx.path("model.json"))
     est, val = read_data(ctx)
-    y_sim = closed_loop_simulation(model, val, ctx)
-    fit = fit_report(val.y, y_sim, val.y_names)
-    plot_fit(ctx.path("fit.png"), val, y_sim)
-    artifacts = ["fit.png"]
-    controller = ctx.config["experiment"]["controller"]
-    K = load_controller(controller).negative_feedback(model.y_names, model.u_names) if controller else None
+    artifacts = []
+    fit_failure = None
+    try:
+        y_sim = closed_loop_simulation(model, val, ctx)
+    except DataError as exc:  # a finding about the model, reported; the frozen checks still run
+        fit, fit_failure = None, str(exc)
+    else:
+        fit = fit_report(val.y, y_sim, val.y_names)
+        plot_fit(ctx.path("fit.png"), val, y_sim)
+        artifacts.append("fit.png")
     reference = _fmu_reference(ctx, model)
+    K, K_note = _frozen_experiment_controller(ctx, model, reference)
     scale = SignalScaling(est.u.std(axis=0), est.y.std(axis=0), enabled=cfg["scaling"] == "data")
     box = np.column_stack([model.basis.p_min, model.basis.p_max])
     try:
@@ -298,8 +319,10 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
             warnings.simplefilter("ignore", SchedulingRangeWarning)
             rows = []
             if K is not None or reference is not None:
+                frozen_K = K is not None and not hasattr(K, "A")  # a gridded K_id: p ↦ K_id(θ(p))
+                scaled_K = (lambda p: scale.controller(K(p))) if frozen_K else scale.controller(K)
                 rows = compare_frozen(scale.model(model), scale.plant_at(reference), cfg["grid"],
-                                      scale.controller(K), box=box)
+                                      scaled_K, box=box)
             if reference is not None:
                 points = [np.asarray(row["p"]) for row in rows]
                 shown = [points[i] for i in sorted({0, len(points) // 2, len(points) - 1})]
@@ -312,12 +335,73 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     outputs: dict[str, Any] = {"fit": fit, "scaling": cfg["scaling"], "theta": [row["p"] for row in rows],
                                "b_P_Kid": [row["stability_margin_b"] for row in rows
                                            if "stability_margin_b" in row]}
+    if fit_failure:
+        outputs["fit_failure"] = fit_failure
+    if K_note:
+        outputs["b_P_Kid_note"] = K_note
     if reference is not None:
         outputs["reference"] = cfg["reference"]
         outputs["nugap"] = [row["nugap"] for row in rows]
         if K is not None:
             outputs["nugap_below_b_everywhere"] = all(row["passes"] for row in rows)
+    outputs["gate"] = gate_verdict(outputs, cfg["gate"])
     return outputs, artifacts
+
+
+def gate_verdict(outputs: dict, enabled: bool) -> dict:
+    """The ν-gap/b(P, K) gate of the validate stage: ``{"passed": bool | None, "reason": str}``.
+
+    The model passes when δν(G_FMU(θ), Ĝ(θ)) < b(Ĝ(θ), K_id) at every frozen grid point, i.e. the
+    identification controller provably stabilizes every frozen plant as close to the model as the FMU
+    is (Vinnicombe's robust-stability test; thesis Fig. 6.11). ``passed`` is False when it fails, with the
+    worst point in the reason (the design then stops after validate when the gate is on), and None when
+    it was not evaluated (gate off, or no FMU reference or no experiment controller to compute it)."""
+    if not enabled:
+        return {"passed": None, "reason": "gate off ([validate] gate = false)"}
+    if "nugap_below_b_everywhere" not in outputs:
+        return {"passed": None, "reason": "not evaluated: the ν-gap test needs [validate] reference = "
+                                          "\"linearization\" or \"local\" and an [experiment] controller"}
+    gaps, margins, theta = outputs["nugap"], outputs["b_P_Kid"], outputs["theta"]
+    worst = int(np.argmax(np.asarray(gaps) - np.asarray(margins)))
+    where = ", ".join(f"{v:.3g}" for v in theta[worst])
+    if outputs["nugap_below_b_everywhere"]:
+        return {"passed": True, "reason": f"ν-gap < b(P, K_id) at all {len(gaps)} frozen points (closest at "
+                                          f"θ = {where}: ν-gap {gaps[worst]:.3g} < b {margins[worst]:.3g})"}
+    failing = sum(g >= b for g, b in zip(gaps, margins, strict=True))
+    reason = (f"the identified model fails the ν-gap test at {failing} of {len(gaps)} frozen points "
+              f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g}); "
+              "it is not used for synthesis")
+    return {"passed": False, "reason": reason}
+
+
+def _frozen_experiment_controller(ctx: StageContext, model: LPVSS, reference) -> tuple[object, str | None]:
+    """K_id for b(Ĝ(θ), K_id), in negative feedback over the model's signals, and a note (or None).
+
+    An LTI experiment controller is the same at every θ. A gridded one is linearized
+    (:meth:`~lpvflow.experiment.controller.GriddedController.linearized`: frozen at its own scheduling
+    value, with the trim's feedback) at the FMU equilibrium with that θ (the reference's operating point,
+    set-points equal to the outputs there); without an FMU reference that point is unknown and b is not
+    computed (the note says so)."""
+    from lpvflow.experiment.controller import GriddedController, load_experiment_controller
+
+    path = ctx.config["experiment"]["controller"]
+    if not path:
+        return None, None
+    K = load_experiment_controller(path)
+    if not isinstance(K, GriddedController):
+        return K.negative_feedback(model.y_names, model.u_names), None
+    if reference is None:
+        return None, ("b(Ĝ(θ), K_id) needs the operating point of the gridded controller at each θ; "
+                      "set [validate] reference = \"linearization\" to compute it")
+    operating = reference.reference
+
+    def frozen(p: np.ndarray):
+        point = operating.equilibrium(p)
+        outputs = dict(zip(operating.plant.output_names, point.y, strict=True))
+        read = np.array([outputs[name] for name in K.inputs])
+        return K.linearized(read).negative_feedback(model.y_names, model.u_names)
+
+    return frozen, None
 
 
 def _fmu_reference(ctx: StageContext, model: LPVSS):

@@ -143,6 +143,14 @@ def basis(value: Any, where: str) -> str:
     return spec
 
 
+def method(value: Any, where: str) -> str:
+    """An estimator of ``lpvflow identify`` with a state-space result (static-arx has none)."""
+    from lpvflow.pipeline.cli_identify import METHODS
+
+    usable = tuple(m for m in METHODS if m != "static-arx")
+    return string(usable)(value, where)
+
+
 def formats(value: Any, where: str) -> list[str]:
     chosen = names()(value, where)
     unknown = [f for f in chosen if f not in ("fmu", "json", "mat")]
@@ -233,6 +241,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
                      "fraction of the data used for estimation, in (0, 1); the rest validates"),
         "ridge": Key(0.0, number(0.0), "ridge regularization, ≥ 0"),
         "remove_offsets": Key(False, boolean, "work in deviations from the estimation data's means"),
+        "method": Key("lpr-arx", method, "estimator: any method of `lpvflow identify` but static-arx"),
+        "order": Key(None, integer(1), "state order of pbsid, cva, kcca-lfr (default: their own choice)"),
+        "nc": Key(None, integer(1), "armax noise-polynomial order (default na)"),
+        "past": Key(None, integer(1), "pbsid past window (default chosen from the order)"),
+        "excitation": Key(None, string(), "external excitation column of two-step "
+                          "(default <first input>_excitation)"),
     },
     "diagnose": {
         "adopt": Key(False, boolean, "let the diagnosed extension replace the identified model"),

@@ -16,7 +16,7 @@ import numpy as np
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
-from lpvflow.errors import DataError
+from lpvflow.errors import DataError, LpvflowError
 from lpvflow.models import LPVSS, load
 
 
@@ -69,21 +69,58 @@ def without_offsets(data: Dataset, est: Dataset) -> Dataset:
 
 # -------------------------------------------------------------------------------------- identify
 def identify(ctx: StageContext) -> tuple[dict, list[str]]:
-    """LPR-ARX on the estimation part, realized exactly; fit on the validation part."""
-    from lpvflow.identify.arx import identify_arx, prediction_residuals
+    """The ``[identify] method`` estimator (:func:`lpvflow.pipeline.cli_identify.estimate`, any method of
+    ``lpvflow identify``) on the estimation part, as a state-space model: IO models realized exactly
+    (``LPVIO.to_ss``), pbsid and cva as estimated, an LFR converted when its dependence is affine
+    (kcca-lfr-affine). IO models get the one-step-ahead equation-error residuals on the validation part
+    (BFR, Ljung–Box p-value, residuals.png); state-space models do not (their fit is the validate stage's).
+    Two-step takes the external excitation from the column ``[identify] excitation`` (default: the
+    experiment's ``<input>_excitation`` column of the first input)."""
+    from lpvflow.identify.arx import prediction_residuals
+    from lpvflow.lfr import LPVLFR, require_affine
+    from lpvflow.pipeline.cli_identify import IO_METHODS, estimate
 
     cfg = ctx.config["identify"]
+    method = cfg["method"]
+    if method == "static-arx":
+        raise DataError("[identify] method = \"static-arx\" has no state-space realization (static "
+                        "dependence); use \"lpr-arx\" or another shifted-form method")
     est, val = read_data(ctx)
-    io = identify_arx(est, cfg["na"], cfg["nb"], cfg["nk"], cfg["basis"], ridge=cfg["ridge"])
-    ss = io.to_ss()
+    excitation = None
+    if method == "two-step":
+        from lpvflow.data import read_columns
+
+        column = cfg["excitation"] or f"{cfg['u'][0]}_excitation"
+        table = read_columns(ctx.path("data.csv"))
+        if column not in table:
+            raise DataError(f"[identify] method = \"two-step\" needs the excitation column {column!r}, which "
+                            "the data lack; set [identify] excitation to a column of data.csv")
+        excitation = table[column][: est.N]
+    try:
+        model = estimate(est, method, cfg["na"], cfg["nb"], cfg["nk"], cfg["basis"], ridge=cfg["ridge"],
+                         nc=cfg["nc"], excitation=excitation, past=cfg["past"], order=cfg["order"])
+    except LpvflowError as exc:
+        raise DataError(f"[identify] method = {method!r}: {exc}") from None
+    outputs: dict[str, Any] = {"method": method}
+    artifacts = ["model_full.json"]
+    if method in IO_METHODS:
+        io, ss = model, model.to_ss()
+        residuals = prediction_residuals(io, val)
+        one_step = 100 * (1 - np.linalg.norm(residuals, axis=0)
+                          / np.linalg.norm(val.y[io.max_lag:] - val.y[io.max_lag:].mean(axis=0), axis=0))
+        outputs |= {"one_step_bfr_validation": one_step.tolist(),
+                    "ljung_box_p_value": plot_residuals(ctx.path("residuals.png"), residuals, val.Ts,
+                                                        val.y_names)}
+        artifacts.append("residuals.png")
+    else:
+        try:
+            ss = require_affine(model) if isinstance(model, LPVLFR) else model
+        except LpvflowError as exc:
+            raise DataError(f"[identify] method = {method!r}: {exc}; use \"kcca-lfr-affine\"") from None
     ss.save(ctx.path("model_full.json"))
-    residuals = prediction_residuals(io, val)
-    one_step = 100 * (1 - np.linalg.norm(residuals, axis=0)
-                      / np.linalg.norm(val.y[io.max_lag:] - val.y[io.max_lag:].mean(axis=0), axis=0))
-    whiteness = plot_residuals(ctx.path("residuals.png"), residuals, val.Ts, val.y_names)
-    return {"nx": ss.nx, "one_step_bfr_validation": one_step.tolist(), "offsets": est.offsets,
-            "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)],
-            "ljung_box_p_value": whiteness}, ["model_full.json", "residuals.png"]
+    outputs |= {"nx": ss.nx, "offsets": est.offsets,
+                "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)]}
+    return outputs, artifacts
 
 
 def plot_residuals(

@@ -151,6 +151,34 @@ def method(value: Any, where: str) -> str:
     return string(usable)(value, where)
 
 
+def prefilter(value: Any, where: str) -> str:
+    """``none``, ``lowpass:F`` or ``bandpass:F1,F2`` (Hz)."""
+    from lpvflow.pipeline.stages import parse_prefilter
+
+    spec = string()(value, where)
+    if spec != "none":
+        try:
+            parse_prefilter(spec)
+        except DataError:
+            expected = '"none", "lowpass:F" or "bandpass:F1,F2" with 0 < F1 < F2 in Hz'
+            raise _fail(where, value, expected) from None
+    return spec
+
+
+def scaling(value: Any, where: str) -> str | dict[str, float]:
+    """``"data"``, ``"none"`` or a table of positive scales per signal."""
+    if isinstance(value, dict):
+        return mapping(number(0.0, open_low=True), "scale > 0")(value, where)
+    return string(("data", "none"))(value, where)
+
+
+def points(value: Any, where: str) -> list[list[float]]:
+    """A list of scheduling points, each a list of numbers."""
+    if not (isinstance(value, list) and all(isinstance(v, list) and v for v in value)):
+        raise _fail(where, value, "a list of scheduling points, e.g. [[-0.966, 0.259], [0.0, 1.0]]")
+    return [[number()(v, where) for v in point] for point in value]
+
+
 def formats(value: Any, where: str) -> list[str]:
     chosen = names()(value, where)
     unknown = [f for f in chosen if f not in ("fmu", "json", "mat")]
@@ -247,6 +275,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "past": Key(None, integer(1), "pbsid past window (default chosen from the order)"),
         "excitation": Key(None, string(), "external excitation column of two-step "
                           "(default <first input>_excitation)"),
+        "prefilter": Key("none", prefilter, "filter on u and y before estimation: none, lowpass:F, "
+                         "bandpass:F1,F2 (Hz)"),
     },
     "diagnose": {
         "adopt": Key(False, boolean, "let the diagnosed extension replace the identified model"),
@@ -260,7 +290,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "grid": Key(7, integer(2), "frozen scheduling points checked"),
         "reference": Key("none", string(("none", "linearization", "local")), "frozen FMU reference"),
         "operating_point": Key({}, mapping(number(), "number"), "FMU start values for the linearization"),
-        "scaling": Key("data", string(("data", "none")), "signal scaling of the ν-gap"),
+        "scaling": Key("data", scaling, "signal scaling of the ν-gap: data, none or { signal = scale }"),
+        "points": Key([], points, "frozen scheduling points checked instead of the grid"),
         "gate": Key(True, boolean, "stop the design after validate when the model fails the ν-gap test"),
     },
     "synth": {

@@ -97,8 +97,9 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
                             "the data lack; set [identify] excitation to a column of data.csv")
         excitation = table[column][: est.N]
     try:
-        model = estimate(est, method, cfg["na"], cfg["nb"], cfg["nk"], cfg["basis"], ridge=cfg["ridge"],
-                         nc=cfg["nc"], excitation=excitation, past=cfg["past"], order=cfg["order"])
+        model = estimate(prefiltered(est, cfg["prefilter"]), method, cfg["na"], cfg["nb"], cfg["nk"],
+                         cfg["basis"], ridge=cfg["ridge"], nc=cfg["nc"], excitation=excitation,
+                         past=cfg["past"], order=cfg["order"])
     except LpvflowError as exc:
         raise DataError(f"[identify] method = {method!r}: {exc}") from None
     outputs: dict[str, Any] = {"method": method}
@@ -121,6 +122,43 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     outputs |= {"nx": ss.nx, "offsets": est.offsets,
                 "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)]}
     return outputs, artifacts
+
+
+def prefiltered(data: Dataset, spec: str) -> Dataset:
+    """``data`` with its inputs and outputs filtered by the ``[identify] prefilter``: ``"none"``,
+    ``"lowpass:F"`` or ``"bandpass:F1,F2"`` (Hz), a 2nd-order Butterworth filter run forwards and backwards
+    (zero phase, ``scipy.signal.sosfiltfilt``); the scheduling signals stay as measured. Filtering u and y
+    by the same L(q) leaves an LTI relation between them unchanged and weights the equation error of
+    ARX by L, which keeps the quantization and sensor noise above F out of the fit (Ljung, *System
+    Identification*, 2nd ed., §14.4); for LPV data it is exact only while the scheduling varies slowly
+    compared with the filter."""
+    if spec == "none":
+        return data
+    import scipy.signal
+
+    kind, band = parse_prefilter(spec)
+    if band[-1] >= 0.5 / data.Ts:
+        raise DataError(f"[identify] prefilter = {spec!r}: the frequencies must lie below the Nyquist "
+                        f"frequency {0.5 / data.Ts:g} Hz of the data")
+    cutoff = band if kind == "bandpass" else band[0]
+    sos = scipy.signal.butter(2, cutoff, kind, fs=1.0 / data.Ts, output="sos")
+    return replace(data, u=scipy.signal.sosfiltfilt(sos, data.u, axis=0),
+                   y=scipy.signal.sosfiltfilt(sos, data.y, axis=0))
+
+
+def parse_prefilter(spec: str) -> tuple[str, list[float]]:
+    """``"lowpass:F"`` → ("lowpass", [F]); ``"bandpass:F1,F2"`` → ("bandpass", [F1, F2])."""
+    kind, _, body = spec.partition(":")
+    try:
+        band = [float(v) for v in body.split(",")]
+    except ValueError:
+        band = []
+    count = {"lowpass": 1, "bandpass": 2}.get(kind)
+    if count is None or len(band) != count or not all(np.isfinite(band)) or min(band) <= 0 or (
+            count == 2 and band[0] >= band[1]):
+        raise DataError(f"[identify] prefilter = {spec!r} must be \"none\", \"lowpass:F\" or "
+                        "\"bandpass:F1,F2\" with 0 < F1 < F2 in Hz")
+    return kind, band
 
 
 def plot_residuals(
@@ -330,11 +368,8 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     from lpvflow.validate.frozen import compare_frozen
     from lpvflow.validate.metrics import fit_report
     from lpvflow.validate.plots import bode_overlay, gap_margin_plot
-    from lpvflow.validate.scaling import SignalScaling
 
     cfg = ctx.config["validate"]
-    if cfg["scaling"] not in ("data", "none"):
-        raise DataError(f"[validate] scaling = {cfg['scaling']!r}; use \"data\" or \"none\"")
     model = load(ctx.path("model.json"))
     est, val = read_data(ctx)
     artifacts = []
@@ -349,8 +384,12 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
         artifacts.append("fit.png")
     reference = _fmu_reference(ctx, model)
     K, K_note = _frozen_experiment_controller(ctx, model, reference)
-    scale = SignalScaling(est.u.std(axis=0), est.y.std(axis=0), enabled=cfg["scaling"] == "data")
+    scale = _scaling(cfg["scaling"], est, model)
     box = np.column_stack([model.basis.p_min, model.basis.p_max])
+    points = cfg["points"]
+    if points and any(len(point) != model.basis.n_p for point in points):
+        raise DataError(f"[validate] points: each point needs {model.basis.n_p} value(s), one per scheduling "
+                        f"signal {model.p_names}")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SchedulingRangeWarning)
@@ -358,8 +397,12 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
             if K is not None or reference is not None:
                 frozen_K = K is not None and not hasattr(K, "A")  # a gridded K_id: p ↦ K_id(θ(p))
                 scaled_K = (lambda p: scale.controller(K(p))) if frozen_K else scale.controller(K)
-                rows = compare_frozen(scale.model(model), scale.plant_at(reference), cfg["grid"],
-                                      scaled_K, box=box)
+                if points:
+                    rows = [compare_frozen(scale.model(model), scale.plant_at(reference), 2, scaled_K,
+                                           box=[[v, v + _POINT_WIDTH] for v in point])[0] for point in points]
+                else:
+                    rows = compare_frozen(scale.model(model), scale.plant_at(reference), cfg["grid"],
+                                          scaled_K, box=box)
             if reference is not None:
                 points = [np.asarray(row["p"]) for row in rows]
                 shown = [points[i] for i in sorted({0, len(points) // 2, len(points) - 1})]
@@ -409,6 +452,27 @@ def gate_verdict(outputs: dict, enabled: bool) -> dict:
               f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g}); "
               "it is not used for synthesis")
     return {"passed": False, "reason": reason}
+
+
+#: compare_frozen takes a box; an explicit point p is the first corner of the box [p, p + width].
+_POINT_WIDTH = 1e-9
+
+
+def _scaling(setting: str | dict, est: Dataset, model: LPVSS):
+    """The ν-gap's signal scaling: the estimation data's standard deviations (``"data"``), none, or the
+    scales of a table ``{ signal = scale }`` naming every model input and output."""
+    from lpvflow.validate.scaling import SignalScaling
+
+    if isinstance(setting, dict):
+        missing = [n for n in [*model.u_names, *model.y_names] if n not in setting]
+        extra = sorted(set(setting) - set(model.u_names) - set(model.y_names))
+        if missing or extra:
+            what = (f"; missing {missing}" if missing else "") + (f"; unknown {extra}" if extra else "")
+            raise DataError(f"[validate] scaling needs one scale per model input and output "
+                            f"{[*model.u_names, *model.y_names]}{what}")
+        return SignalScaling(np.array([setting[n] for n in model.u_names]),
+                             np.array([setting[n] for n in model.y_names]))
+    return SignalScaling(est.u.std(axis=0), est.y.std(axis=0), enabled=setting == "data")
 
 
 def _frozen_experiment_controller(ctx: StageContext, model: LPVSS, reference) -> tuple[object, str | None]:

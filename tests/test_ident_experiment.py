@@ -207,3 +207,19 @@ def test_gate_refuses_the_model_identified_near_zero(tmp_path, adip, gate):
     else:
         assert validate["gate"]["passed"] is None
         assert summary["stages"]["synth"]["status"] in ("ran", "failed")
+
+
+def test_cli_runs_the_scheduled_controller_with_sensors(adip, tmp_path, capsys):
+    from lpvflow.pipeline.cli import main
+
+    out = tmp_path / "sweep.csv"
+    status = main(["experiment", str(adip), "--duration", "4", "--controller", str(SCHEDULED),
+                   "--setpoint", "arm_angle=triangle:amp=0.5,period=4",
+                   "--quantization", f"arm_angle={COUNT!r}", "--noise", "pendulum_angle=1e-4",
+                   "-o", str(out)])
+    assert status == 0 and "arm_angle_setpoint" in capsys.readouterr().out
+    meta = json.loads((tmp_path / "sweep.csv.json").read_text())
+    assert meta["sensors"] == {"quantization": {"arm_angle": COUNT}, "noise": {"pendulum_angle": 1e-4}}
+    assert main(["experiment", str(adip), "--duration", "1", "--controller", str(SCHEDULED),
+                 "--noise", "pendulum_angle=lots", "-o", str(out)]) == 2
+    assert "--noise pendulum_angle='lots': the value is not a number" in capsys.readouterr().err

@@ -87,7 +87,8 @@ def test_bundled_adip_identification_covers_75_degrees_and_is_gated(tmp_path, mo
     (fails at 4 of 9 points: ±75°, 0°, 56°)."""
     monkeypatch.chdir(repository_root())
     text = bundled_config("adip").read_text()
-    text = text[: text.index("[synth]")].replace('name = "adip"', f'name = "adip"\noutput_dir = "{tmp_path}"')
+    text = text[: text.index("\n[synth]\n")]  # up to the [synth] table header
+    text = text.replace('name = "adip"', f'name = "adip"\noutput_dir = "{tmp_path}"')
     (tmp_path / "adip.toml").write_text(text)
     summary = run_design(tmp_path / "adip.toml", log=lambda _: None)
     ranges = summary["stages"]["experiment"]["outputs"]["ranges"]

@@ -253,9 +253,9 @@ def test_design_experiment_stage_takes_a_setpoint_table(adip, tmp_path):
     from lpvflow.pipeline.config import bundled_config, load_config
     from lpvflow.pipeline.stages import StageContext, experiment
 
-    text = bundled_config("adip").read_text().replace("duration = 120.0", "duration = 4.0")
-    text = text.replace("seed = 1\n", 'seed = 1\nsetpoint = { arm_angle = "levels:lo=-0.2,hi=0.2,min_hold=1,'
-                        'max_hold=2,ramp=0.5" }\n')
+    text = bundled_config("adip").read_text().replace("duration = 240.0", "duration = 4.0")
+    text = re.sub(r"^setpoint = .*$", 'setpoint = { arm_angle = "levels:lo=-0.2,hi=0.2,min_hold=1,'
+                  'max_hold=2,ramp=0.5" }', text, flags=re.M)
     (tmp_path / "design.toml").write_text(text)
     config = load_config(tmp_path / "design.toml")
     outputs, artifacts = experiment(StageContext(tmp_path, config))

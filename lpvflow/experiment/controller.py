@@ -10,13 +10,13 @@ File format ``lpvflow/lti-controller`` version 1 (JSON): ``Ts``, matrices ``A``,
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lpvflow.errors import ModelError
+from lpvflow.errors import DataError, ModelError
 
 if TYPE_CHECKING:  # python-control takes ~1 s to import; the controller law needs only numpy
     import control
@@ -159,4 +159,195 @@ def load_controller(path: str | Path) -> LtiController:
         doc = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError):
         raise ModelError(f"controller file {path} is not valid JSON") from None
+    return LtiController.from_dict(doc, f"controller file {path}")
+
+
+# ------------------------------------------------------------------------------ gridded (scheduled)
+GRIDDED_FORMAT = "lpvflow/gridded-controller"
+GRIDDED_VERSION = 1
+
+
+@dataclass(frozen=True)
+class GriddedController:
+    """A gain-scheduled controller given on a grid of one scheduling value θ (format
+    ``lpvflow/gridded-controller`` version 1): per grid point θ_i the matrices A_i, B_i, C_i, D_i and the
+    operating points y_op,i (of the plant outputs read) and u_op,i (the trim of the plant inputs driven).
+
+    θ(k) is ``scheduling``, an expression (:mod:`lpvflow.experiment.scheduling`) of the plant outputs
+    the controller reads (their measurements) and of ``<output>_setpoint`` for each of them (the set-point
+    of that output in the experiment, 0 where none is given), clipped to the grid; every matrix and
+    operating point is interpolated linearly in θ between neighbouring grid points. Scheduling on a
+    set-point (the reference of a slow sweep) keeps the trim and the gains independent of the
+    measurement noise and of the loop's own motion. With ȳ(k) = y_op(θ(k)), where a set-point s replaces
+    the entries of the outputs it is given for,
+
+        xc(k+1) = A(θ) xc(k) + B(θ) (y(k) − ȳ(k)),    u(k) = u_op(θ) + C(θ) xc(k) + D(θ) (y(k) − ȳ(k)).
+    """
+
+    grid: np.ndarray  # (G,) increasing
+    A: np.ndarray  # (G, n, n)
+    B: np.ndarray  # (G, n, ny)
+    C: np.ndarray  # (G, nu, n)
+    D: np.ndarray  # (G, nu, ny)
+    y_op: np.ndarray  # (G, ny)
+    u_op: np.ndarray  # (G, nu)
+    Ts: float
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    scheduling: str
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        G = len(self.grid)
+        if G < 1 or self.grid.ndim != 1 or not np.all(np.diff(self.grid) > 0):
+            raise ModelError("gridded controller grid must be a non-empty list of increasing numbers")
+        n, ny, nu = self.A.shape[1], len(self.inputs), len(self.outputs)
+        expected = {"A": (G, n, n), "B": (G, n, ny), "C": (G, nu, n), "D": (G, nu, ny),
+                    "y_operating_point": (G, ny), "u_operating_point": (G, nu)}
+        actual = {"A": self.A.shape, "B": self.B.shape, "C": self.C.shape, "D": self.D.shape,
+                  "y_operating_point": self.y_op.shape, "u_operating_point": self.u_op.shape}
+        for key, shape in expected.items():
+            if actual[key] != shape:
+                raise ModelError(f"gridded controller {key} has shape {actual[key]}, expected {shape} for "
+                                 f"{G} grid points, {n} states, {ny} inputs, {nu} outputs")
+        if not (np.isfinite(self.Ts) and self.Ts > 0):
+            raise ModelError(f"controller Ts={self.Ts} must be a positive sampling time (discrete)")
+        for key, value in (("grid", self.grid), ("A", self.A), ("B", self.B), ("C", self.C), ("D", self.D),
+                           ("y_operating_point", self.y_op), ("u_operating_point", self.u_op)):
+            if not np.all(np.isfinite(value)):
+                raise ModelError(f"gridded controller {key} has non-finite entries")
+        from lpvflow.experiment.scheduling import evaluate
+
+        try:
+            evaluate(self.scheduling, {name: np.zeros(1) for name in self.scheduling_names})
+        except DataError as exc:
+            raise ModelError(f"gridded controller scheduling: {exc} (it may use the signals it reads and "
+                             "their <name>_setpoint)") from None
+
+    @property
+    def order(self) -> int:
+        return self.A.shape[1]
+
+    @property
+    def scheduling_names(self) -> list[str]:
+        """The names the scheduling expression may use: the outputs read, then their set-points."""
+        return [*self.inputs, *(f"{name}_setpoint" for name in self.inputs)]
+
+    def weights(self, theta: float) -> tuple[int, float]:
+        """(i, t): θ clipped to the grid lies between grid[i] and grid[i + 1] at fraction t."""
+        grid = self.grid
+        if len(grid) == 1 or theta <= grid[0]:
+            return 0, 0.0
+        if theta >= grid[-1]:
+            return len(grid) - 2, 1.0
+        i = int(np.searchsorted(grid, theta, side="right")) - 1
+        return i, float((theta - grid[i]) / (grid[i + 1] - grid[i]))
+
+    def at(self, theta: float) -> tuple[np.ndarray, ...]:
+        """(A, B, C, D, y_op, u_op) interpolated at θ (clipped to the grid)."""
+        i, t = self.weights(float(theta))
+        j = min(i + 1, len(self.grid) - 1)
+        mats = (self.A, self.B, self.C, self.D, self.y_op, self.u_op)
+        return tuple((1 - t) * M[i] + t * M[j] for M in mats)
+
+    def scheduling_function(self):
+        """θ as a function of one sample of [outputs read, their set-points] (:attr:`scheduling_names`)."""
+        from lpvflow.experiment.scheduling import compile_expression
+
+        return compile_expression(self.scheduling, self.scheduling_names)
+
+    def frozen_at(self, theta: float) -> LtiController:
+        """The LTI controller frozen at θ, with that point's operating points."""
+        A, B, C, D, y_op, u_op = self.at(theta)
+        return LtiController(A=A, B=B, C=C, D=D, Ts=self.Ts, inputs=self.inputs, outputs=self.outputs,
+                             y_op=y_op, u_op=u_op)
+
+    def linearized(self, y: np.ndarray, setpoints: np.ndarray | None = None) -> LtiController:
+        """The law linearized at the outputs ``y`` (``inputs`` order) and set-points (default: y):
+        frozen at θ(y, setpoints), plus the trim's feedback (∂u_op/∂θ)(∂θ/∂y) in D when θ depends on
+        the measurements (a trim scheduled on a measured angle acts as a static feedback of it). The
+        matrices' own dependence on θ acts on the controller state and is left out (frozen analysis)."""
+        y = np.asarray(y, dtype=float).reshape(-1)
+        setpoints = y if setpoints is None else np.asarray(setpoints, dtype=float).reshape(-1)
+        theta_of = self.scheduling_function()
+        theta = theta_of(np.concatenate([y, setpoints]))
+        frozen = self.frozen_at(theta)
+        step = 1e-6
+        du_dtheta = (self.at(theta + step)[5] - self.at(theta - step)[5]) / (2 * step)
+        dtheta_dy = np.array([(theta_of(np.concatenate([y + step * e, setpoints]))
+                               - theta_of(np.concatenate([y - step * e, setpoints]))) / (2 * step)
+                              for e in np.eye(len(y))])
+        return replace(frozen, D=frozen.D + np.outer(du_dtheta, dtheta_dy))
+
+    def negative_feedback(
+        self, y_names: list[str] | None = None, u_names: list[str] | None = None, theta: float = 0.0,
+    ) -> control.StateSpace:
+        """The law frozen at θ as K in u = −K y (:meth:`LtiController.negative_feedback`)."""
+        return self.frozen_at(theta).negative_feedback(y_names, u_names)
+
+    @classmethod
+    def from_dict(cls, doc: dict, source: str = "controller") -> GriddedController:
+        """The controller of a ``lpvflow/gridded-controller`` document (``source`` names it in errors)."""
+        if not isinstance(doc, dict) or doc.get("format") != GRIDDED_FORMAT:
+            raise ModelError(f"{source} is not of format {GRIDDED_FORMAT!r}")
+        if doc.get("version") != GRIDDED_VERSION:
+            raise ModelError(f"{source} has version {doc.get('version')!r}; expected {GRIDDED_VERSION}")
+        missing = [k for k in ("Ts", "inputs", "outputs", "scheduling", "grid", "points") if k not in doc]
+        if missing:
+            raise ModelError(f"{source} lacks {', '.join(missing)}")
+        points = doc["points"]
+        if not isinstance(points, list) or len(points) != len(doc["grid"]) or not points:
+            raise ModelError(f"{source}: 'points' must hold one entry per grid value")
+        inputs, outputs = tuple(doc["inputs"]), tuple(doc["outputs"])
+        mats: dict[str, list[np.ndarray]] = {k: [] for k in ("A", "B", "C", "D", "y", "u")}
+        for i, point in enumerate(points):
+            lacking = [k for k in ("A", "B", "C", "D") if k not in point]
+            if lacking:
+                raise ModelError(f"{source}: grid point {i} lacks {', '.join(lacking)}")
+            A = _matrix(point, "A", 0, 0)
+            n = A.shape[0]
+            mats["A"].append(A)
+            mats["B"].append(_matrix(point, "B", n, len(inputs)))
+            mats["C"].append(_matrix(point, "C", len(outputs), n))
+            mats["D"].append(_matrix(point, "D", len(outputs), len(inputs)))
+            y_op = point.get("y_operating_point", [0.0] * len(inputs))
+            u_op = point.get("u_operating_point", [0.0] * len(outputs))
+            mats["y"].append(np.asarray(y_op, float).reshape(-1))
+            mats["u"].append(np.asarray(u_op, float).reshape(-1))
+        try:
+            stacked = {k: np.stack(v) for k, v in mats.items()}
+        except ValueError:
+            raise ModelError(f"{source}: the grid points' matrices differ in size") from None
+        return cls(grid=np.asarray(doc["grid"], float).reshape(-1), A=stacked["A"], B=stacked["B"],
+                   C=stacked["C"], D=stacked["D"], y_op=stacked["y"], u_op=stacked["u"], Ts=float(doc["Ts"]),
+                   inputs=inputs, outputs=outputs, scheduling=str(doc["scheduling"]),
+                   description=str(doc.get("description", "")))
+
+    def to_dict(self) -> dict[str, object]:
+        points = [{"A": self.A[i].tolist(), "B": self.B[i].tolist(), "C": self.C[i].tolist(),
+                   "D": self.D[i].tolist(), "y_operating_point": self.y_op[i].tolist(),
+                   "u_operating_point": self.u_op[i].tolist()} for i in range(len(self.grid))]
+        return {"format": GRIDDED_FORMAT, "version": GRIDDED_VERSION, "Ts": self.Ts,
+                "inputs": list(self.inputs), "outputs": list(self.outputs), "scheduling": self.scheduling,
+                "grid": self.grid.tolist(), "points": points, "description": self.description}
+
+
+#: Controllers an experiment can run.
+ExperimentController = LtiController | GriddedController
+
+
+def load_experiment_controller(path: str | Path) -> ExperimentController:
+    """Read an ``lpvflow/lti-controller`` or ``lpvflow/gridded-controller`` JSON file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"controller file {path} does not exist")
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise ModelError(f"controller file {path} is not valid JSON") from None
+    if isinstance(doc, dict) and doc.get("format") == GRIDDED_FORMAT:
+        return GriddedController.from_dict(doc, f"controller file {path}")
+    if isinstance(doc, dict) and doc.get("format") not in (FORMAT, None):
+        raise ModelError(f"controller file {path} has format {doc.get('format')!r}; an experiment runs "
+                         f"{FORMAT!r} or {GRIDDED_FORMAT!r} controllers")
     return LtiController.from_dict(doc, f"controller file {path}")

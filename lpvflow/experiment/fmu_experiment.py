@@ -7,7 +7,7 @@ from pathlib import Path
 
 import control
 
-from lpvflow.experiment.controller import LtiController, load_controller
+from lpvflow.experiment.controller import GriddedController, LtiController, load_experiment_controller
 from lpvflow.experiment.plant import open_plant, sha256_of
 from lpvflow.experiment.record import check_output_path, write_record
 from lpvflow.experiment.run import ExperimentRecord, run_experiment
@@ -20,7 +20,7 @@ def run_fmu_experiment(
     Ts: float | None,
     duration: float,
     inputs: Mapping[str, str | SignalSpec] | None = None,
-    controller: str | Path | LtiController | control.StateSpace | None = None,
+    controller: str | Path | LtiController | GriddedController | control.StateSpace | None = None,
     excitation: Mapping[str, str | SignalSpec] | None = None,
     parameters: Mapping[str, float] | None = None,
     scheduling_columns: Mapping[str, str] | None = None,
@@ -29,11 +29,14 @@ def run_fmu_experiment(
     progress: bool | None = None,
     record_diagnostics: bool = False,
     setpoint: Mapping[str, str | SignalSpec] | None = None,
+    quantization: Mapping[str, float] | None = None,
+    noise: Mapping[str, float] | None = None,
 ) -> ExperimentRecord:
     """Run :func:`~lpvflow.experiment.run.run_experiment` on the FMU at ``fmu`` with ``parameters``
     set before initialisation, and write ``output`` (+ ``<output>.json``) when given.
 
-    ``controller`` is a ``lpvflow/lti-controller`` JSON path, an :class:`LtiController` or a discrete
+    ``controller`` is a ``lpvflow/lti-controller`` or ``lpvflow/gridded-controller`` JSON path, an
+    :class:`LtiController`, a :class:`GriddedController` or a discrete
     python-control ``StateSpace`` whose input/output labels are plant output/input names (operating
     points zero). ``Ts=None`` takes the controller's sampling time, else the step the FMU declares.
     """
@@ -42,7 +45,7 @@ def run_fmu_experiment(
     source: dict[str, object] | None = None
     if isinstance(controller, str | Path):
         protected.append(Path(controller))
-        controller_path, controller = controller, load_controller(controller)
+        controller_path, controller = controller, load_experiment_controller(controller)
         source = {"path": str(controller_path), "sha256": sha256_of(controller_path)}
     elif isinstance(controller, control.StateSpace):
         controller = LtiController.from_statespace(controller)
@@ -53,7 +56,7 @@ def run_fmu_experiment(
     plant = open_plant(fmu, dict(parameters or {}))
     try:
         record = run_experiment(plant, Ts, duration, inputs, controller, excitation, scheduling_columns, seed,
-                                progress, record_diagnostics, setpoint)
+                                progress, record_diagnostics, setpoint, quantization, noise)
     finally:
         plant.close()
     effects = {k: v for k, v in record.metadata["parameters"].items() if k.startswith("effect_")}

@@ -20,6 +20,18 @@ y_op,i (multisine and prbs are centred on y_op,i, the other kinds are absolute; 
 r_s = K(y_op − s) — K's response, from rest, to y_op − s alone — added to its output; r + r_s is what
 ``<input>_excitation`` records, so every consumer of the record (the closed-loop validation, the
 diagnosis loops) sees the set-point as part of the one external signal at the controller output.
+
+A :class:`~lpvflow.experiment.controller.GriddedController` (gain-scheduled on θ, an expression of the
+outputs it reads and their set-points) runs its own law at every step (its docstring):
+ȳ(k) = y_op(θ(k)) with the set-points in place of their outputs' entries,
+u_K(k) = u_op(θ) + C(θ) xc + D(θ) (y_K − ȳ) + r(k). Its set-points are absolute for every kind
+(multisine, prbs and triangle centred on 0 unless they give ``offset``); only the excitation r is
+recorded as ``<input>_excitation``, the set-points as ``<output>_setpoint``.
+
+Sensors (``quantization``, ``noise``, per plant output): what the controller reads and the record holds
+is y_m(k) = q·round((y(k) + v(k))/q) with v white Gaussian of the given standard deviation (seeded per
+output) and q the quantization step (an encoder of 4096 counts per revolution: q = 2π/4096 rad); either
+may be left out. Scheduling columns are computed from the measured values, as on a real rig.
 """
 
 from __future__ import annotations
@@ -34,7 +46,7 @@ from tqdm.auto import tqdm
 
 from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment import scheduling
-from lpvflow.experiment.controller import LtiController
+from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.experiment.plant import Plant
 from lpvflow.experiment.specs import SignalSpec, generate, parse_spec
 
@@ -107,21 +119,25 @@ def run_experiment(
     Ts: float,
     duration: float,
     inputs: Mapping[str, str | SignalSpec] | None = None,
-    controller: LtiController | None = None,
+    controller: LtiController | GriddedController | None = None,
     excitation: Mapping[str, str | SignalSpec] | None = None,
     scheduling_columns: Mapping[str, str] | None = None,
     seed: int = 0,
     progress: bool | None = None,
     record_diagnostics: bool = False,
     setpoint: Mapping[str, str | SignalSpec] | None = None,
+    quantization: Mapping[str, float] | None = None,
+    noise: Mapping[str, float] | None = None,
 ) -> ExperimentRecord:
     """Drive ``plant`` for ``duration`` seconds at step Ts; see the module docstring for the law.
 
     ``inputs``/``excitation`` map plant input names to signal specs (text or :class:`SignalSpec`),
     ``setpoint`` maps plant outputs the controller reads to theirs;
     ``scheduling_columns`` maps new column names to expressions of input/output names (default:
-    :func:`default_scheduling`). Outputs named ``diag_*`` are recorded only with
-    ``record_diagnostics``. ``progress=None`` shows a tqdm bar only on a terminal.
+    :func:`default_scheduling`); ``quantization`` and ``noise`` map plant outputs to the quantization
+    step and the white-noise standard deviation of their sensor (module docstring). Outputs named
+    ``diag_*`` are recorded only with ``record_diagnostics``. ``progress=None`` shows a tqdm bar only on a
+    terminal.
     """
     n = step_count(Ts, duration)
     if int(seed) != seed or seed < 0:
@@ -132,6 +148,7 @@ def run_experiment(
     _check_names("input", list(input_specs), plant.input_names, model)
     _check_names("excitation input", list(excitation_specs), plant.input_names, model)
     _check_names("set-point output", list(setpoint_specs), plant.output_names, model)
+    sensors = _sensor_model(quantization, noise, plant.output_names, model)
     if controller is None and (excitation_specs or setpoint_specs):
         what = "an excitation is added to a controller output" if excitation_specs else \
             "a set-point is what a controller tracks"
@@ -160,7 +177,10 @@ def run_experiment(
     r = {name: generate(spec, n, Ts, signal_rng(seed, "excitation:" + name), 0.0)
          for name, spec in excitation_specs.items()}
     s: dict[str, np.ndarray] = {}
-    if controller is not None and setpoint_specs:
+    if isinstance(controller, GriddedController):
+        s = {name: generate(spec, n, Ts, signal_rng(seed, "setpoint:" + name), 0.0)
+             for name, spec in setpoint_specs.items()}
+    elif controller is not None and setpoint_specs:
         y_op = dict(zip(controller.inputs, controller.y_op, strict=True))
         s = {name: generate(spec, n, Ts, signal_rng(seed, "setpoint:" + name), y_op[name])
              for name, spec in setpoint_specs.items()}
@@ -171,7 +191,18 @@ def run_experiment(
 
     y = np.empty((n, len(plant.output_names)))
     u = u_open.copy()
-    if controller is not None:
+    measure = sensors(n, seed)
+    gridded = isinstance(controller, GriddedController)
+    if gridded:
+        y_index = [plant.output_names.index(name) for name in controller.inputs]
+        u_index = [plant.input_names.index(name) for name in controller.outputs]
+        r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in controller.outputs])
+        s_index = [controller.inputs.index(name) for name in s]
+        s_matrix = np.column_stack([s[name] for name in s]) if s else np.zeros((n, 0))
+        theta_of = controller.scheduling_function()
+        setpoints = np.zeros(len(controller.inputs))
+        xc = np.zeros(controller.order)
+    elif controller is not None:
         y_index = [plant.output_names.index(name) for name in controller.inputs]
         u_index = [plant.input_names.index(name) for name in controller.outputs]
         nx = controller.A.shape[0]
@@ -184,8 +215,16 @@ def run_experiment(
     bar = tqdm(total=n, unit="step", desc=f"experiment {model}", disable=show)
     try:
         for k in range(n):
-            y[k] = plant.outputs()
-            if controller is not None:
+            y[k] = measure(k, plant.outputs())
+            if gridded:
+                y_k = y[k, y_index]
+                setpoints[s_index] = s_matrix[k]
+                A, B, C, D, y_bar, u_op = controller.at(theta_of(np.concatenate([y_k, setpoints])))
+                y_bar[s_index] = s_matrix[k]
+                dy = y_k - y_bar
+                u[k, u_index] = u_op + C @ xc + D @ dy + r_matrix[k]
+                xc = A @ xc + B @ dy
+            elif controller is not None:
                 np.subtract(y[k, y_index], controller.y_op, out=w[nx:])
                 z = law @ w
                 u[k, u_index] = z[nx:] + u_offset[k]
@@ -222,6 +261,7 @@ def run_experiment(
         "excitation": {name: spec.to_dict() for name, spec in excitation_specs.items()},
         "setpoint": {name: spec.to_dict() for name, spec in setpoint_specs.items()},
         "controller": None if controller is None else controller.to_dict(),
+        "sensors": {"quantization": dict(quantization or {}), "noise": dict(noise or {})},
         "scheduling": chosen,
         "parameters": plant.parameter_values(),
         "columns": {"time": ["time"], "inputs": list(plant.input_names), "outputs": outputs,
@@ -229,6 +269,43 @@ def run_experiment(
                     "setpoint": [f"{name}_setpoint" for name in s], "scheduling": list(chosen)},
     }
     return ExperimentRecord(columns=columns, Ts=Ts, metadata=metadata)
+
+
+def _sensor_model(
+    quantization: Mapping[str, float] | None,
+    noise: Mapping[str, float] | None,
+    outputs: list[str],
+    model: str,
+):
+    """``make(n, seed)`` returning ``measure(k, y)``: y with each sensor's noise and quantization applied."""
+    quantization, noise = dict(quantization or {}), dict(noise or {})
+    _check_names("quantized output", list(quantization), outputs, model)
+    _check_names("noisy output", list(noise), outputs, model)
+    for kind, table, strict in (("quantization step", quantization, True), ("noise standard deviation",
+                                                                            noise, False)):
+        for name, value in table.items():
+            if not (np.isfinite(value) and (value > 0 if strict else value >= 0)):
+                sign = "positive" if strict else "non-negative"
+                raise DataError(f"{kind} of {name} = {value} must be a {sign} finite number")
+    q = np.array([quantization.get(name, 0.0) for name in outputs])
+    quantized = q > 0
+    q_safe = np.where(quantized, q, 1.0)
+
+    def make(n: int, seed: int):
+        v = np.zeros((n, len(outputs)))
+        for j, name in enumerate(outputs):
+            if noise.get(name, 0.0) > 0:
+                v[:, j] = noise[name] * signal_rng(seed, "noise:" + name).standard_normal(n)
+        if not quantized.any() and not noise:
+            return lambda k, y: y
+
+        def measure(k: int, y: np.ndarray) -> np.ndarray:
+            y = np.asarray(y, dtype=float) + v[k]
+            return np.where(quantized, np.round(y / q_safe) * q_safe, y)
+
+        return measure
+
+    return make
 
 
 def default_scheduling(plant: Plant) -> dict[str, str]:

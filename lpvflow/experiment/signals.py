@@ -8,6 +8,7 @@ passed in, so the same seed gives the same signal bit for bit.
   Schroeder phases (low crest factor) or random phases.
 - :func:`prbs` — maximum-length pseudo-random binary sequence from a Fibonacci LFSR.
 - :func:`aprbs` — amplitude-modulated PRBS: random levels held for random durations.
+- :func:`triangle` — slow triangle wave 0 → A → −A → 0 per period (a set-point sweep).
 - :func:`random_levels` — piecewise-constant scheduling/exogenous trajectory with optional
   linear ramps between the levels (bounded rate, e.g. engine speed).
 
@@ -223,3 +224,15 @@ def random_levels(
         frac = np.arange(1, stop - s + 1) / ramp
         out[s:stop] = before + frac * (after - before)
     return out
+
+
+def triangle(n: int, period: int, amp: float) -> np.ndarray:
+    """Triangle wave of ``period`` samples and amplitude ``amp``: from 0 up to amp at period/4, down to
+    −amp at 3·period/4 and back to 0 at period (slope 4·amp/period per sample), repeated over n samples.
+    """
+    n = _check_count("n (samples)", n)
+    period = _check_count("triangle period (samples)", period, 4)
+    if not np.isfinite(amp):
+        raise DataError(f"triangle amp={amp} must be finite")
+    phase = (np.arange(n) / period + 0.25) % 1.0  # 0.25 ↦ 0 rising
+    return amp * (1.0 - 4.0 * np.abs(phase - 0.5))

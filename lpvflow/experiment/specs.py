@@ -7,9 +7,10 @@ Kinds and keys (frequencies in Hz, durations in seconds, each a whole number of 
     aprbs:lo=V,hi=V,min_hold=T,max_hold=T
     levels:lo=V,hi=V,min_hold=T,max_hold=T[,ramp=T]
     const:value=V
+    triangle:amp=A,period=T[,offset=V]             offset + A·tri(t/T): 0 → A → −A → 0 each period
 
-``multisine`` and ``prbs`` are centred on ``offset``; when it is not given, the caller's operating
-value is used (the FMU input's start value in open loop, 0 for an excitation added to a controller
+``multisine``, ``prbs`` and ``triangle`` are centred on ``offset``; when it is not given, the caller's
+operating value is used (the FMU input's start value in open loop, 0 for an excitation added to a controller
 output). The other kinds give absolute values. ``period`` defaults to the whole experiment.
 """
 
@@ -29,10 +30,11 @@ _KEYS: dict[str, tuple[frozenset[str], frozenset[str]]] = {
     "aprbs": (frozenset({"lo", "hi", "min_hold", "max_hold"}), frozenset()),
     "levels": (frozenset({"lo", "hi", "min_hold", "max_hold"}), frozenset({"ramp"})),
     "const": (frozenset({"value"}), frozenset()),
+    "triangle": (frozenset({"amp", "period"}), frozenset({"offset"})),
 }
 _TEXT_KEYS = frozenset({"phases"})
 _DURATION_KEYS = frozenset({"period", "clock", "min_hold", "max_hold", "ramp"})
-CENTRED_KINDS = frozenset({"multisine", "prbs"})
+CENTRED_KINDS = frozenset({"multisine", "prbs", "triangle"})
 
 
 @dataclass(frozen=True)
@@ -121,6 +123,8 @@ def generate(
             if spec.kind == "aprbs":
                 return signals.aprbs(*args)
             return signals.random_levels(*args, ramp=_samples(spec, "ramp", Ts) if "ramp" in p else 0)
+        if spec.kind == "triangle":
+            return centre + signals.triangle(n, _samples(spec, "period", Ts), float(p["amp"]))
         return np.full(n, float(p["value"]))
     except DataError as exc:
         if spec.text and spec.text in str(exc):

@@ -27,15 +27,15 @@ def _assignments(items: list[str] | None, what: str, example: str) -> dict[str, 
     return result
 
 
-def _numbers(items: dict[str, str]) -> dict[str, float]:
+def _numbers(items: dict[str, str], option: str = "--set") -> dict[str, float]:
     values = {}
     for name, text in items.items():
         try:
             values[name] = float(text)
         except ValueError:
-            raise DataError(f"--set {name}={text!r}: the value is not a number") from None
+            raise DataError(f"{option} {name}={text!r}: the value is not a number") from None
         if not math.isfinite(values[name]):
-            raise DataError(f"--set {name}={text}: the value must be finite")
+            raise DataError(f"{option} {name}={text}: the value must be finite")
     return values
 
 
@@ -45,13 +45,16 @@ def run(args: argparse.Namespace) -> int:
     setpoint = _assignments(args.setpoint, "--setpoint",
                             "arm_angle=levels:lo=-0.3,hi=0.3,min_hold=2,max_hold=4,ramp=0.5")
     parameters = _numbers(_assignments(args.set, "--set", "effect_noise_std=0.01"))
+    quantization = _numbers(_assignments(args.quantization, "--quantization", "arm_angle=0.001534"),
+                            "--quantization")
+    noise = _numbers(_assignments(args.noise, "--noise", "arm_angle=1e-4"), "--noise")
     scheduling = None
     if args.scheduling:
         scheduling = dict(parse_assignment(item) for item in args.scheduling)
     record = run_fmu_experiment(
         args.fmu, args.Ts, args.duration, inputs=inputs, controller=args.controller, excitation=excitation,
         parameters=parameters, scheduling_columns=scheduling, seed=args.seed,
-        record_diagnostics=args.diagnostics, setpoint=setpoint,
+        record_diagnostics=args.diagnostics, setpoint=setpoint, quantization=quantization, noise=noise,
     )
     if not inputs and not args.controller:  # refused after the run: every other defect is named first
         raise DataError("no --input and no --controller: every plant input stayed at its start value "
@@ -66,8 +69,9 @@ def run(args: argparse.Namespace) -> int:
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "Drive an FMU with excitation signals (open loop) or with a stabilising LTI controller plus an "
-        "excitation on its output and set-points on what it reads (closed loop); write CSV + <CSV>.json."
+        "Drive an FMU with excitation signals (open loop) or with a stabilising controller (LTI or "
+        "gain-scheduled on a grid) plus an excitation on its output and set-points on what it reads "
+        "(closed loop); write CSV + <CSV>.json."
     )
     parser.epilog = SPEC_HELP
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -79,7 +83,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--input", action="append", metavar="NAME=SPEC",
                         help="signal driving a plant input directly (repeat per input)")
     parser.add_argument("--controller", metavar="CTRL.json",
-                        help="stabilising LTI controller, format lpvflow/lti-controller (closed loop)")
+                        help="stabilising controller, format lpvflow/lti-controller or "
+                        "lpvflow/gridded-controller (closed loop)")
     parser.add_argument("--excitation", action="append", metavar="NAME=SPEC",
                         help="signal added to the controller output driving plant input NAME")
     parser.add_argument("--setpoint", action="append", metavar="NAME=SPEC",
@@ -90,6 +95,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scheduling", action="append", metavar="NAME=EXPR",
                         help="extra column computed from inputs/outputs, e.g. sin_arm=sin(arm_angle); "
                         "default: the plant's scheduling column, if it has one")
+    parser.add_argument("--quantization", action="append", metavar="OUTPUT=STEP",
+                        help="sensor quantization step of a plant output, e.g. "
+                        "arm_angle=0.0015339807878856412 (4096 counts/rev); the controller and the record "
+                        "see the quantized value")
+    parser.add_argument("--noise", action="append", metavar="OUTPUT=STD",
+                        help="standard deviation of white sensor noise on a plant output (added before "
+                        "the quantization)")
     parser.add_argument("--diagnostics", action="store_true",
                         help="also record the FMU's diag_* outputs (noise-free states, applied inputs)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the excitation signals (default 0)")

@@ -81,57 +81,88 @@ def configure_simulate(s: argparse.ArgumentParser) -> None:
     declare(s, inputs=("model", "data"), outputs=("json_out", "plot"))
 
 
-def _identify_io(args: argparse.Namespace, data: Dataset) -> LPVIO:
-    """The IO estimator chosen by --method (spline:free:K bases estimate their knots)."""
+def estimate(
+    data: Dataset,
+    method: str = "lpr-arx",
+    na: int | np.ndarray = 2,
+    nb: int | np.ndarray = 2,
+    nk: int | np.ndarray = 1,
+    basis: str = "affine",
+    *,
+    ridge: float = 0.0,
+    nc: int | None = None,
+    excitation: np.ndarray | None = None,
+    past: int | None = None,
+    order: int | None = None,
+) -> LPVIO | LPVSS | LPVLFR:
+    """The model of ``method`` (one of :data:`METHODS`) on ``data``: an :class:`LPVIO` for the IO
+    methods (``spline:free:K`` bases estimate their knots), an :class:`LPVSS` for pbsid and cva, an
+    :class:`LPVLFR` for kcca-lfr[-affine]. ``excitation`` is the external excitation two-step needs (one
+    value per sample), ``nc`` the armax noise order (default na), ``past`` the pbsid past window and
+    ``order`` the state order of the state-space and LFR methods (default: their own choice; 2 for LFR).
+    """
+    if method not in METHODS:
+        raise DataError(f"method {method!r} is unknown; use one of {', '.join(METHODS)}")
+    if method in SS_METHODS:
+        if method == "pbsid":
+            from lpvflow.identify.pbsid import identify_pbsid
+
+            return identify_pbsid(data, order=order, past=past, basis=basis, form="kernel",
+                                  regularization="gcv")
+        if method == "cva":
+            from lpvflow.identify.cva import identify_cva
+
+            return identify_cva(data, basis, state_order=order, feedthrough=bool(np.all(np.asarray(nk) == 0)))
+        from lpvflow.identify.kcca_lfr import identify_kcca_lfr
+
+        return identify_kcca_lfr(data, order or 2, affine=method == "kcca-lfr-affine")
     from lpvflow.identify.spline_sls import free_knot_count
 
-    kind, form = IO_METHODS[args.method]
-    na, nb, nk = parse_order(args.na), parse_order(args.nb), parse_order(args.nk)
-    n_knots = free_knot_count(args.basis)
+    kind, form = IO_METHODS[method]
+    n_knots = free_knot_count(basis)
     if kind == "two-step":
         from lpvflow.identify.two_step import identify_two_step
 
-        if not args.excitation:
-            raise DataError("--method two-step needs --excitation COL (the external excitation signal)")
-        r = read_columns(args.data, [args.excitation]).get(args.excitation)
-        if r is None:
-            raise DataError(f"excitation column {args.excitation!r} not found in {args.data}")
-        return identify_two_step(data, r, na, nb, nk, args.basis, form=form)
+        if excitation is None:
+            raise DataError("method two-step needs the external excitation signal")
+        return identify_two_step(data, np.asarray(excitation, dtype=float), na, nb, nk, basis, form=form)
     if n_knots is not None:
         if kind != "arx":
-            raise DataError("free spline knots (spline:free:K) are estimated with --method lpr-arx "
+            raise DataError("free spline knots (spline:free:K) are estimated with the methods lpr-arx "
                             "or static-arx")
         from lpvflow.identify.spline_sls import identify_spline_sls
 
         return identify_spline_sls(data, na, nb, nk, n_knots, form=form)
     if kind == "arx":
-        return identify_arx(data, na, nb, nk, args.basis, form=form, ridge=args.ridge)
+        return identify_arx(data, na, nb, nk, basis, form=form, ridge=ridge)
     from lpvflow.identify import armax, iv, oe
 
     if kind == "armax":
-        return armax.identify_armax(data, na, nb, nk, args.nc or int(np.max(na)), args.basis, form=form)
+        return armax.identify_armax(data, na, nb, nk, nc or int(np.max(na)), basis, form=form)
     if kind in ("riv", "sriv"):
-        return iv.identify_riv(data, na, nb, nk, args.basis, form=form, simplified=kind == "sriv")
+        return iv.identify_riv(data, na, nb, nk, basis, form=form, simplified=kind == "sriv")
     estimator = {"iv-arx": iv.identify_iv_arx, "iv-oe": iv.identify_iv_oe, "oe-paa": iv.identify_oe_paa,
                  "oe": oe.identify_oe}[kind]
-    return estimator(data, na, nb, nk, args.basis, form=form)
+    return estimator(data, na, nb, nk, basis, form=form)
+
+
+def _identify_io(args: argparse.Namespace, data: Dataset) -> LPVIO:
+    """The IO estimator chosen by --method (spline:free:K bases estimate their knots)."""
+    excitation = None
+    if IO_METHODS[args.method][0] == "two-step":
+        if not args.excitation:
+            raise DataError("--method two-step needs --excitation COL (the external excitation signal)")
+        excitation = read_columns(args.data, [args.excitation]).get(args.excitation)
+        if excitation is None:
+            raise DataError(f"excitation column {args.excitation!r} not found in {args.data}")
+    return estimate(data, args.method, parse_order(args.na), parse_order(args.nb), parse_order(args.nk),
+                    args.basis, ridge=args.ridge, nc=args.nc, excitation=excitation)
 
 
 def _identify_state_space(args: argparse.Namespace, data: Dataset):
     """Subspace (pbsid, cva) and LFR (kcca-lfr) methods: they return a state-space model directly."""
-    if args.method == "pbsid":
-        from lpvflow.identify.pbsid import identify_pbsid
-
-        return identify_pbsid(data, order=args.order, past=args.past, basis=args.basis, form="kernel",
-                              regularization="gcv")
-    if args.method == "cva":
-        from lpvflow.identify.cva import identify_cva
-
-        return identify_cva(data, args.basis, state_order=args.order,
-                            feedthrough=bool(np.all(parse_order(args.nk) == 0)))
-    from lpvflow.identify.kcca_lfr import identify_kcca_lfr
-
-    return identify_kcca_lfr(data, args.order or 2, affine=args.method == "kcca-lfr-affine")
+    return estimate(data, args.method, nk=parse_order(args.nk), basis=args.basis, past=args.past,
+                    order=args.order)
 
 
 def run_identify(args: argparse.Namespace) -> int:

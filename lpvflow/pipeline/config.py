@@ -143,6 +143,42 @@ def basis(value: Any, where: str) -> str:
     return spec
 
 
+def method(value: Any, where: str) -> str:
+    """An estimator of ``lpvflow identify`` with a state-space result (static-arx has none)."""
+    from lpvflow.pipeline.cli_identify import METHODS
+
+    usable = tuple(m for m in METHODS if m != "static-arx")
+    return string(usable)(value, where)
+
+
+def prefilter(value: Any, where: str) -> str:
+    """``none``, ``lowpass:F`` or ``bandpass:F1,F2`` (Hz)."""
+    from lpvflow.pipeline.stages import parse_prefilter
+
+    spec = string()(value, where)
+    if spec != "none":
+        try:
+            parse_prefilter(spec)
+        except DataError:
+            expected = '"none", "lowpass:F" or "bandpass:F1,F2" with 0 < F1 < F2 in Hz'
+            raise _fail(where, value, expected) from None
+    return spec
+
+
+def scaling(value: Any, where: str) -> str | dict[str, float]:
+    """``"data"``, ``"none"`` or a table of positive scales per signal."""
+    if isinstance(value, dict):
+        return mapping(number(0.0, open_low=True), "scale > 0")(value, where)
+    return string(("data", "none"))(value, where)
+
+
+def points(value: Any, where: str) -> list[list[float]]:
+    """A list of scheduling points, each a list of numbers."""
+    if not (isinstance(value, list) and all(isinstance(v, list) and v for v in value)):
+        raise _fail(where, value, "a list of scheduling points, e.g. [[-0.966, 0.259], [0.0, 1.0]]")
+    return [[number()(v, where) for v in point] for point in value]
+
+
 def formats(value: Any, where: str) -> list[str]:
     chosen = names()(value, where)
     unknown = [f for f in chosen if f not in ("fmu", "json", "mat")]
@@ -240,13 +276,18 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "Ts": Key(None, number(0.0, open_low=True),
                   "sampling time (communication step) in s, > 0; default: the controller's, else the FMU's"),
         "duration": Key(REQUIRED, number(0.0, open_low=True), "experiment length in s, > 0"),
-        "controller": Key(None, string(), "stabilizing LTI controller JSON: closed-loop experiment"),
+        "controller": Key(None, string(), "stabilizing controller JSON (lpvflow/lti-controller or "
+                          "lpvflow/gridded-controller): closed-loop experiment"),
         "inputs": Key({}, mapping(string(), '"SPEC"'), "signal per plant input driven directly (open loop)"),
         "excitation": Key({}, mapping(string(), '"SPEC"'), "signal added to the controller output per input"),
         "setpoint": Key({}, mapping(string(), '"SPEC"'), "set-point per plant output read by the controller"),
         "parameters": Key({}, mapping(number(), "number"), "FMU parameters set before initialisation"),
         "scheduling": Key({}, mapping(string(), '"EXPR"'), "extra columns computed from plant signals"),
         "seed": Key(0, integer(0), "seed of the random excitation signals"),
+        "quantization": Key({}, mapping(number(0.0, open_low=True), "step"),
+                            "sensor quantization step per plant output, > 0 (e.g. 2π/4096 rad)"),
+        "noise": Key({}, mapping(number(0.0), "std"),
+                     "sensor white-noise standard deviation per plant output, ≥ 0"),
     },
     "identify": {
         "u": Key(REQUIRED, names(), "input columns"),
@@ -260,6 +301,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
                      "fraction of the data used for estimation, in (0, 1); the rest validates"),
         "ridge": Key(0.0, number(0.0), "ridge regularization, ≥ 0"),
         "remove_offsets": Key(False, boolean, "work in deviations from the estimation data's means"),
+        "method": Key("lpr-arx", method, "estimator: any method of `lpvflow identify` but static-arx"),
+        "order": Key(None, integer(1), "state order of pbsid, cva, kcca-lfr (default: their own choice)"),
+        "nc": Key(None, integer(1), "armax noise-polynomial order (default na)"),
+        "past": Key(None, integer(1), "pbsid past window (default chosen from the order)"),
+        "excitation": Key(None, string(), "external excitation column of two-step "
+                          "(default <first input>_excitation)"),
+        "prefilter": Key("none", prefilter, "filter on u and y before estimation: none, lowpass:F, "
+                         "bandpass:F1,F2 (Hz)"),
     },
     "diagnose": {
         "adopt": Key(False, boolean, "let the diagnosed extension replace the identified model"),
@@ -273,7 +322,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "grid": Key(7, integer(2), "frozen scheduling points checked"),
         "reference": Key("none", string(("none", "linearization", "local")), "frozen FMU reference"),
         "operating_point": Key({}, mapping(number(), "number"), "FMU start values for the linearization"),
-        "scaling": Key("data", string(("data", "none")), "signal scaling of the ν-gap"),
+        "scaling": Key("data", scaling, "signal scaling of the ν-gap: data, none or { signal = scale }"),
+        "points": Key([], points, "frozen scheduling points checked instead of the grid"),
+        "gate": Key(True, boolean, "stop the design after validate when the model fails the ν-gap test"),
     },
     "synth": {
         "method": Key("common", string(("common", "rate-bounded")),

@@ -8,7 +8,9 @@ written, with the error, and the run counts as a failed finding (exit status 1).
 file's tables, keys, types and ranges, missing or unusable plant or controller files, an unwritable
 output folder) is refused before anything is written (exit 2). Ctrl-C removes the files the
 interrupted stage had written so far (exit 130).
-Without a [synth] table the run ends after validation. With [diagnose] adopt = true and an adopted
+Without a [synth] table the run ends after validation; so does a run whose identified model fails
+the ν-gap/b(P, K) gate of the validate stage ([validate] gate, :func:`lpvflow.pipeline.stages.gate_verdict`),
+with the reason as the failure. With [diagnose] adopt = true and an adopted
 extension, the adoption stage designs and verifies the identified model too and compares the two
 controllers in closed loop (:func:`lpvflow.pipeline.stages.adoption`).
 """
@@ -118,6 +120,11 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
         artifacts_of[stage.name] = record["artifacts"]
         summary["stages"][stage.name] = {"status": status, "seconds": record["seconds"],
                                          "outputs": record["outputs"], "artifacts": record["artifacts"]}
+        gate = record["outputs"].get("gate") if stage.name == "validate" else None
+        if gate and gate.get("passed") is False:
+            failed = {"stage": stage.name, "error": gate["reason"]}
+            log(f"[{i}/{len(STAGES)}] {stage.name}: {gate['reason']}")
+            break
         if record["outputs"].get("certificate_ok") is False:
             failed = {"stage": stage.name, "error": "the controller failed its certificate (see the synth "
                                                     "checks); verify and export were not run"}

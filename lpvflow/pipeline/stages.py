@@ -16,7 +16,7 @@ import numpy as np
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
-from lpvflow.errors import DataError
+from lpvflow.errors import DataError, LpvflowError
 from lpvflow.models import LPVSS, load
 
 
@@ -43,6 +43,7 @@ def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
         controller=cfg["controller"], excitation=cfg["excitation"] or None,
         parameters=cfg["parameters"] or None, scheduling_columns=cfg["scheduling"] or None,
         seed=cfg["seed"], output=ctx.path("data.csv"), progress=None, setpoint=cfg["setpoint"] or None,
+        quantization=cfg["quantization"] or None, noise=cfg["noise"] or None,
     )
     ranges = {name: [float(np.min(v)), float(np.max(v))]
               for name, v in record.columns.items() if name != "time"}
@@ -68,21 +69,96 @@ def without_offsets(data: Dataset, est: Dataset) -> Dataset:
 
 # -------------------------------------------------------------------------------------- identify
 def identify(ctx: StageContext) -> tuple[dict, list[str]]:
-    """LPR-ARX on the estimation part, realized exactly; fit on the validation part."""
-    from lpvflow.identify.arx import identify_arx, prediction_residuals
+    """The ``[identify] method`` estimator (:func:`lpvflow.pipeline.cli_identify.estimate`, any method of
+    ``lpvflow identify``) on the estimation part, as a state-space model: IO models realized exactly
+    (``LPVIO.to_ss``), pbsid and cva as estimated, an LFR converted when its dependence is affine
+    (kcca-lfr-affine). IO models get the one-step-ahead equation-error residuals on the validation part
+    (BFR, Ljung–Box p-value, residuals.png); state-space models do not (their fit is the validate stage's).
+    Two-step takes the external excitation from the column ``[identify] excitation`` (default: the
+    experiment's ``<input>_excitation`` column of the first input)."""
+    from lpvflow.identify.arx import prediction_residuals
+    from lpvflow.lfr import LPVLFR, require_affine
+    from lpvflow.pipeline.cli_identify import IO_METHODS, estimate
 
     cfg = ctx.config["identify"]
+    method = cfg["method"]
+    if method == "static-arx":
+        raise DataError("[identify] method = \"static-arx\" has no state-space realization (static "
+                        "dependence); use \"lpr-arx\" or another shifted-form method")
     est, val = read_data(ctx)
-    io = identify_arx(est, cfg["na"], cfg["nb"], cfg["nk"], cfg["basis"], ridge=cfg["ridge"])
-    ss = io.to_ss()
+    excitation = None
+    if method == "two-step":
+        from lpvflow.data import read_columns
+
+        column = cfg["excitation"] or f"{cfg['u'][0]}_excitation"
+        table = read_columns(ctx.path("data.csv"))
+        if column not in table:
+            raise DataError(f"[identify] method = \"two-step\" needs the excitation column {column!r}, which "
+                            "the data lack; set [identify] excitation to a column of data.csv")
+        excitation = table[column][: est.N]
+    try:
+        model = estimate(prefiltered(est, cfg["prefilter"]), method, cfg["na"], cfg["nb"], cfg["nk"],
+                         cfg["basis"], ridge=cfg["ridge"], nc=cfg["nc"], excitation=excitation,
+                         past=cfg["past"], order=cfg["order"])
+    except LpvflowError as exc:
+        raise DataError(f"[identify] method = {method!r}: {exc}") from None
+    outputs: dict[str, Any] = {"method": method}
+    artifacts = ["model_full.json"]
+    if method in IO_METHODS:
+        io, ss = model, model.to_ss()
+        residuals = prediction_residuals(io, val)
+        one_step = 100 * (1 - np.linalg.norm(residuals, axis=0)
+                          / np.linalg.norm(val.y[io.max_lag:] - val.y[io.max_lag:].mean(axis=0), axis=0))
+        outputs |= {"one_step_bfr_validation": one_step.tolist(),
+                    "ljung_box_p_value": plot_residuals(ctx.path("residuals.png"), residuals, val.Ts,
+                                                        val.y_names)}
+        artifacts.append("residuals.png")
+    else:
+        try:
+            ss = require_affine(model) if isinstance(model, LPVLFR) else model
+        except LpvflowError as exc:
+            raise DataError(f"[identify] method = {method!r}: {exc}; use \"kcca-lfr-affine\"") from None
     ss.save(ctx.path("model_full.json"))
-    residuals = prediction_residuals(io, val)
-    one_step = 100 * (1 - np.linalg.norm(residuals, axis=0)
-                      / np.linalg.norm(val.y[io.max_lag:] - val.y[io.max_lag:].mean(axis=0), axis=0))
-    whiteness = plot_residuals(ctx.path("residuals.png"), residuals, val.Ts, val.y_names)
-    return {"nx": ss.nx, "one_step_bfr_validation": one_step.tolist(), "offsets": est.offsets,
-            "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)],
-            "ljung_box_p_value": whiteness}, ["model_full.json", "residuals.png"]
+    outputs |= {"nx": ss.nx, "offsets": est.offsets,
+                "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)]}
+    return outputs, artifacts
+
+
+def prefiltered(data: Dataset, spec: str) -> Dataset:
+    """``data`` with its inputs and outputs filtered by the ``[identify] prefilter``: ``"none"``,
+    ``"lowpass:F"`` or ``"bandpass:F1,F2"`` (Hz), a 2nd-order Butterworth filter run forwards and backwards
+    (zero phase, ``scipy.signal.sosfiltfilt``); the scheduling signals stay as measured. Filtering u and y
+    by the same L(q) leaves an LTI relation between them unchanged and weights the equation error of
+    ARX by L, which keeps the quantization and sensor noise above F out of the fit (Ljung, *System
+    Identification*, 2nd ed., §14.4); for LPV data it is exact only while the scheduling varies slowly
+    compared with the filter."""
+    if spec == "none":
+        return data
+    import scipy.signal
+
+    kind, band = parse_prefilter(spec)
+    if band[-1] >= 0.5 / data.Ts:
+        raise DataError(f"[identify] prefilter = {spec!r}: the frequencies must lie below the Nyquist "
+                        f"frequency {0.5 / data.Ts:g} Hz of the data")
+    cutoff = band if kind == "bandpass" else band[0]
+    sos = scipy.signal.butter(2, cutoff, kind, fs=1.0 / data.Ts, output="sos")
+    return replace(data, u=scipy.signal.sosfiltfilt(sos, data.u, axis=0),
+                   y=scipy.signal.sosfiltfilt(sos, data.y, axis=0))
+
+
+def parse_prefilter(spec: str) -> tuple[str, list[float]]:
+    """``"lowpass:F"`` → ("lowpass", [F]); ``"bandpass:F1,F2"`` → ("bandpass", [F1, F2])."""
+    kind, _, body = spec.partition(":")
+    try:
+        band = [float(v) for v in body.split(",")]
+    except ValueError:
+        band = []
+    count = {"lowpass": 1, "bandpass": 2}.get(kind)
+    if count is None or len(band) != count or not all(np.isfinite(band)) or min(band) <= 0 or (
+            count == 2 and band[0] >= band[1]):
+        raise DataError(f"[identify] prefilter = {spec!r} must be \"none\", \"lowpass:F\" or "
+                        "\"bandpass:F1,F2\" with 0 < F1 < F2 in Hz")
+    return kind, band
 
 
 def plot_residuals(
@@ -226,10 +302,12 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     An unstable plant's model cannot be simulated open loop; the thesis validates the ADIP model by
     the closed loop T(Ĝ, K_id) (notes_002 §6.4). The scheduling p(k) is recomputed from the simulated
     outputs with the experiment's scheduling expressions (quasi-LPV, as on the plant); y(k) uses C at
-    p(k−1), which is exact for the observable-form realizations (C independent of p).
+    p(k−1), which is exact for the observable-form realizations (C independent of p). A gridded
+    (gain-scheduled) controller runs its own law on the simulated outputs and the recorded set-points
+    (``<output>_setpoint``) and excitation (``<input>_excitation``).
     """
     from lpvflow.data import read_columns
-    from lpvflow.experiment.controller import load_controller
+    from lpvflow.experiment.controller import GriddedController, load_experiment_controller
     from lpvflow.experiment.scheduling import compile_expression
 
     cfg = ctx.config["experiment"]
@@ -237,7 +315,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SchedulingRangeWarning)
             return model.simulate(data.u, data.p)
-    K = load_controller(cfg["controller"])
+    K = load_experiment_controller(cfg["controller"])
     table = read_columns(ctx.path("data.csv"))
     start = len(table["time"]) - data.N
     zero = np.zeros(len(table["time"]))
@@ -245,7 +323,14 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     u_index = [data.u_names.index(n) for n in K.outputs]
     y_index = [data.y_names.index(n) for n in K.inputs]
     expressions = [compile_expression(cfg["scheduling"][name], data.y_names) for name in data.p_names]
-    x, xc = np.zeros(model.nx), np.zeros(K.A.shape[0])
+    gridded = isinstance(K, GriddedController)
+    if gridded:
+        given = [j for j, n in enumerate(K.inputs) if f"{n}_setpoint" in table]
+        setpoints = np.zeros((data.N, len(K.inputs)))
+        for j in given:
+            setpoints[:, j] = table[f"{K.inputs[j]}_setpoint"][start:]
+        theta_of = K.scheduling_function()
+    x, xc = np.zeros(model.nx), np.zeros(K.A.shape[-2])
     y_sim = np.zeros_like(data.y)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)
@@ -255,10 +340,17 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
             y_sim[k] = y
             p = np.array([scheduling_of(y) for scheduling_of in expressions])
             A, B, C, _ = model.matrices(p)
-            dy = y[y_index] - K.y_op
             u = np.zeros(model.nu)
-            u[u_index] = K.u_op + K.C @ xc + K.D @ dy + excitation[k]
-            xc = K.A @ xc + K.B @ dy
+            if gridded:
+                Ak, Bk, Ck, Dk, y_bar, u_op = K.at(theta_of(np.concatenate([y[y_index], setpoints[k]])))
+                y_bar[given] = setpoints[k, given]
+                dy = y[y_index] - y_bar
+                u[u_index] = u_op + Ck @ xc + Dk @ dy + excitation[k]
+                xc = Ak @ xc + Bk @ dy
+            else:
+                dy = y[y_index] - K.y_op
+                u[u_index] = K.u_op + K.C @ xc + K.D @ dy + excitation[k]
+                xc = K.A @ xc + K.B @ dy
             x = A @ x + B @ u
             if not np.all(np.abs(x) < 1e12):
                 raise DataError(f"the identified model's closed loop diverges at sample {k}: it does not "
@@ -272,34 +364,45 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     ``reference = "linearization"`` or ``"local"`` — the ν-gap δν(G_FMU(θ), Ĝ(θ)) to the plant FMU at
     its equilibrium with that scheduling value (thesis Fig. 6.11, notes_002 §6.4: δν < b over the range
     means K_id stabilizes every frozen plant the model is that close to)."""
-    from lpvflow.experiment.controller import load_controller
     from lpvflow.pipeline.cli_identify import plot_fit
     from lpvflow.validate.frozen import compare_frozen
     from lpvflow.validate.metrics import fit_report
     from lpvflow.validate.plots import bode_overlay, gap_margin_plot
-    from lpvflow.validate.scaling import SignalScaling
 
     cfg = ctx.config["validate"]
-    if cfg["scaling"] not in ("data", "none"):
-        raise DataError(f"[validate] scaling = {cfg['scaling']!r}; use \"data\" or \"none\"")
     model = load(ctx.path("model.json"))
     est, val = read_data(ctx)
-    y_sim = closed_loop_simulation(model, val, ctx)
-    fit = fit_report(val.y, y_sim, val.y_names)
-    plot_fit(ctx.path("fit.png"), val, y_sim)
-    artifacts = ["fit.png"]
-    controller = ctx.config["experiment"]["controller"]
-    K = load_controller(controller).negative_feedback(model.y_names, model.u_names) if controller else None
+    artifacts = []
+    fit_failure = None
+    try:
+        y_sim = closed_loop_simulation(model, val, ctx)
+    except DataError as exc:  # a finding about the model, reported; the frozen checks still run
+        fit, fit_failure = None, str(exc)
+    else:
+        fit = fit_report(val.y, y_sim, val.y_names)
+        plot_fit(ctx.path("fit.png"), val, y_sim)
+        artifacts.append("fit.png")
     reference = _fmu_reference(ctx, model)
-    scale = SignalScaling(est.u.std(axis=0), est.y.std(axis=0), enabled=cfg["scaling"] == "data")
+    K, K_note = _frozen_experiment_controller(ctx, model, reference)
+    scale = _scaling(cfg["scaling"], est, model)
     box = np.column_stack([model.basis.p_min, model.basis.p_max])
+    points = cfg["points"]
+    if points and any(len(point) != model.basis.n_p for point in points):
+        raise DataError(f"[validate] points: each point needs {model.basis.n_p} value(s), one per scheduling "
+                        f"signal {model.p_names}")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SchedulingRangeWarning)
             rows = []
             if K is not None or reference is not None:
-                rows = compare_frozen(scale.model(model), scale.plant_at(reference), cfg["grid"],
-                                      scale.controller(K), box=box)
+                frozen_K = K is not None and not hasattr(K, "A")  # a gridded K_id: p ↦ K_id(θ(p))
+                scaled_K = (lambda p: scale.controller(K(p))) if frozen_K else scale.controller(K)
+                if points:
+                    rows = [compare_frozen(scale.model(model), scale.plant_at(reference), 2, scaled_K,
+                                           box=[[v, v + _POINT_WIDTH] for v in point])[0] for point in points]
+                else:
+                    rows = compare_frozen(scale.model(model), scale.plant_at(reference), cfg["grid"],
+                                          scaled_K, box=box)
             if reference is not None:
                 points = [np.asarray(row["p"]) for row in rows]
                 shown = [points[i] for i in sorted({0, len(points) // 2, len(points) - 1})]
@@ -312,12 +415,94 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     outputs: dict[str, Any] = {"fit": fit, "scaling": cfg["scaling"], "theta": [row["p"] for row in rows],
                                "b_P_Kid": [row["stability_margin_b"] for row in rows
                                            if "stability_margin_b" in row]}
+    if fit_failure:
+        outputs["fit_failure"] = fit_failure
+    if K_note:
+        outputs["b_P_Kid_note"] = K_note
     if reference is not None:
         outputs["reference"] = cfg["reference"]
         outputs["nugap"] = [row["nugap"] for row in rows]
         if K is not None:
             outputs["nugap_below_b_everywhere"] = all(row["passes"] for row in rows)
+    outputs["gate"] = gate_verdict(outputs, cfg["gate"])
     return outputs, artifacts
+
+
+def gate_verdict(outputs: dict, enabled: bool) -> dict:
+    """The ν-gap/b(P, K) gate of the validate stage: ``{"passed": bool | None, "reason": str}``.
+
+    The model passes when δν(G_FMU(θ), Ĝ(θ)) < b(Ĝ(θ), K_id) at every frozen grid point, i.e. the
+    identification controller provably stabilizes every frozen plant as close to the model as the FMU
+    is (Vinnicombe's robust-stability test; thesis Fig. 6.11). ``passed`` is False when it fails, with the
+    worst point in the reason (the design then stops after validate when the gate is on), and None when
+    it was not evaluated (gate off, or no FMU reference or no experiment controller to compute it)."""
+    if not enabled:
+        return {"passed": None, "reason": "gate off ([validate] gate = false)"}
+    if "nugap_below_b_everywhere" not in outputs:
+        return {"passed": None, "reason": "not evaluated: the ν-gap test needs [validate] reference = "
+                                          "\"linearization\" or \"local\" and an [experiment] controller"}
+    gaps, margins, theta = outputs["nugap"], outputs["b_P_Kid"], outputs["theta"]
+    worst = int(np.argmax(np.asarray(gaps) - np.asarray(margins)))
+    where = ", ".join(f"{v:.3g}" for v in theta[worst])
+    if outputs["nugap_below_b_everywhere"]:
+        return {"passed": True, "reason": f"ν-gap < b(P, K_id) at all {len(gaps)} frozen points (closest at "
+                                          f"θ = {where}: ν-gap {gaps[worst]:.3g} < b {margins[worst]:.3g})"}
+    failing = sum(g >= b for g, b in zip(gaps, margins, strict=True))
+    reason = (f"the identified model fails the ν-gap test at {failing} of {len(gaps)} frozen points "
+              f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g}); "
+              "it is not used for synthesis")
+    return {"passed": False, "reason": reason}
+
+
+#: compare_frozen takes a box; an explicit point p is the first corner of the box [p, p + width].
+_POINT_WIDTH = 1e-9
+
+
+def _scaling(setting: str | dict, est: Dataset, model: LPVSS):
+    """The ν-gap's signal scaling: the estimation data's standard deviations (``"data"``), none, or the
+    scales of a table ``{ signal = scale }`` naming every model input and output."""
+    from lpvflow.validate.scaling import SignalScaling
+
+    if isinstance(setting, dict):
+        missing = [n for n in [*model.u_names, *model.y_names] if n not in setting]
+        extra = sorted(set(setting) - set(model.u_names) - set(model.y_names))
+        if missing or extra:
+            what = (f"; missing {missing}" if missing else "") + (f"; unknown {extra}" if extra else "")
+            raise DataError(f"[validate] scaling needs one scale per model input and output "
+                            f"{[*model.u_names, *model.y_names]}{what}")
+        return SignalScaling(np.array([setting[n] for n in model.u_names]),
+                             np.array([setting[n] for n in model.y_names]))
+    return SignalScaling(est.u.std(axis=0), est.y.std(axis=0), enabled=setting == "data")
+
+
+def _frozen_experiment_controller(ctx: StageContext, model: LPVSS, reference) -> tuple[object, str | None]:
+    """K_id for b(Ĝ(θ), K_id), in negative feedback over the model's signals, and a note (or None).
+
+    An LTI experiment controller is the same at every θ. A gridded one is linearized
+    (:meth:`~lpvflow.experiment.controller.GriddedController.linearized`: frozen at its own scheduling
+    value, with the trim's feedback) at the FMU equilibrium with that θ (the reference's operating point,
+    set-points equal to the outputs there); without an FMU reference that point is unknown and b is not
+    computed (the note says so)."""
+    from lpvflow.experiment.controller import GriddedController, load_experiment_controller
+
+    path = ctx.config["experiment"]["controller"]
+    if not path:
+        return None, None
+    K = load_experiment_controller(path)
+    if not isinstance(K, GriddedController):
+        return K.negative_feedback(model.y_names, model.u_names), None
+    if reference is None:
+        return None, ("b(Ĝ(θ), K_id) needs the operating point of the gridded controller at each θ; "
+                      "set [validate] reference = \"linearization\" to compute it")
+    operating = reference.reference
+
+    def frozen(p: np.ndarray):
+        point = operating.equilibrium(p)
+        outputs = dict(zip(operating.plant.output_names, point.y, strict=True))
+        read = np.array([outputs[name] for name in K.inputs])
+        return K.linearized(read).negative_feedback(model.y_names, model.u_names)
+
+    return frozen, None
 
 
 def _fmu_reference(ctx: StageContext, model: LPVSS):

@@ -1,0 +1,225 @@
+"""Identification over the ADIP's whole arm range (issue 24, item 1): the gain-scheduled identification
+controller (``lpvflow/gridded-controller``), set-point sweeps, encoder quantization and sensor noise,
+and the ν-gap/b(P, K) gate of the validate stage."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lpvflow.errors import DataError, ModelError
+from lpvflow.experiment import run_fmu_experiment
+from lpvflow.experiment.controller import GriddedController, load_experiment_controller
+from lpvflow.pipeline.config import check_table
+from lpvflow.pipeline.design import run_design
+from lpvflow.pipeline.stages import gate_verdict
+
+ROOT = Path(__file__).resolve().parents[1]
+SCHEDULED = ROOT / "fmu_plants" / "adip" / "scheduled_controller.json"
+STABILIZING = ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json"
+COUNT = 2 * np.pi / 4096  # one count of a 4096-counts/rev encoder [rad]
+
+
+@pytest.fixture(scope="module")
+def adip() -> Path:
+    path = ROOT / "fmu_plants" / "build" / "adip.fmu"
+    if not path.is_file():
+        subprocess.run([sys.executable, str(ROOT / "fmu_plants" / "build.py"), "adip"], check=True)
+    return path
+
+
+@pytest.fixture(scope="module")
+def sweep(adip):
+    """±66° triangle sweep of the arm set-point (80 s period) with a 0.5 V multisine on the voltage,
+    4096-count encoders with 1e-4 rad of noise on both angles, under the scheduled controller."""
+    return run_fmu_experiment(
+        adip, None, 80.0, controller=SCHEDULED, excitation={"voltage": "multisine:f_lo=0.5,f_hi=20,rms=0.5"},
+        setpoint={"arm_angle": "triangle:amp=1.15,period=80"},
+        scheduling_columns={"sin_arm": "sin(arm_angle)"},
+        seed=1, quantization={"arm_angle": COUNT, "pendulum_angle": COUNT},
+        noise={"arm_angle": 1e-4, "pendulum_angle": 1e-4}, progress=False)
+
+
+def test_scheduled_controller_holds_the_pendulum_across_the_sweep(sweep):
+    """The arm follows the set-point across ±66° (the excitation takes it beyond) with the pendulum
+    within ±3°; the LTI stabilizing controller of the bundled design does not go there (next test)."""
+    c = sweep.columns
+    assert np.rad2deg(c["arm_angle"].max()) > 66 and np.rad2deg(c["arm_angle"].min()) < -66
+    assert np.rad2deg(np.abs(c["pendulum_angle"]).max()) < 3.0
+    assert np.rad2deg(np.abs(c["arm_angle"] - c["arm_angle_setpoint"]).max()) < 12.0
+    assert np.abs(c["voltage"]).max() < 10.0  # inside the actuator range
+    assert sweep.metadata["controller"]["format"] == "lpvflow/gridded-controller"
+    assert sweep.metadata["sensors"]["quantization"]["arm_angle"] == COUNT
+
+
+def test_the_lti_stabilizing_controller_does_not_follow_the_sweep(adip):
+    """The bundled design's LTI regulator (no trim, no integrator) asked for the same ±66° sweep holds the
+    arm within ±28°: gravity balances its proportional action (measured 27.2°)."""
+    record = run_fmu_experiment(adip, None, 80.0, controller=STABILIZING,
+                                setpoint={"arm_angle": "triangle:amp=1.15,period=80"}, progress=False)
+    assert np.rad2deg(np.abs(record.columns["arm_angle"]).max()) < 28.0
+
+
+def test_quantized_data_sit_on_the_encoder_grid(sweep):
+    """Recorded angles (and the scheduling computed from them) are whole counts; noise below half a
+    count still moves some samples to the neighbouring count (compared with a noise-free record)."""
+    for name in ("arm_angle", "pendulum_angle"):
+        counts = sweep.columns[name] / COUNT
+        np.testing.assert_allclose(counts, np.round(counts), atol=1e-9)
+    np.testing.assert_allclose(sweep.columns["sin_arm"], np.sin(sweep.columns["arm_angle"]))
+    assert len(np.unique(np.round(sweep.columns["pendulum_angle"] / COUNT))) > 10
+
+
+def test_noise_alone_is_seeded_white_and_of_the_given_size(adip):
+    kwargs = dict(controller=SCHEDULED, progress=False)
+    clean = run_fmu_experiment(adip, None, 2.0, **kwargs)
+    noisy = run_fmu_experiment(adip, None, 2.0, noise={"pendulum_angle": 1e-3}, seed=3, **kwargs)
+    again = run_fmu_experiment(adip, None, 2.0, noise={"pendulum_angle": 1e-3}, seed=3, **kwargs)
+    np.testing.assert_array_equal(noisy.columns["pendulum_angle"], again.columns["pendulum_angle"])
+    assert np.all(clean.columns["pendulum_angle"] == 0.0)  # upright at rest: nothing moves it
+    assert 0.7e-3 < np.std(noisy.columns["pendulum_angle"]) < 1.6e-3  # the noise, and what K makes of it
+
+
+def test_gridded_controller_interpolates_linearly_and_round_trips(tmp_path):
+    K = load_experiment_controller(SCHEDULED)
+    assert isinstance(K, GriddedController) and K.scheduling == "arm_angle"
+    i = len(K.grid) // 2 + 3
+    np.testing.assert_array_equal(K.at(K.grid[i])[0], K.A[i])
+    mid = K.at(0.5 * (K.grid[i] + K.grid[i + 1]))
+    np.testing.assert_allclose(mid[0], 0.5 * (K.A[i] + K.A[i + 1]))
+    np.testing.assert_allclose(mid[5], 0.5 * (K.u_op[i] + K.u_op[i + 1]))
+    np.testing.assert_array_equal(K.at(10.0)[0], K.A[-1])  # clipped to the grid
+    # the trim is the ADIP's gravity voltage: −4.21 sin φ1 V (README), odd in the arm angle
+    np.testing.assert_allclose(K.at(np.deg2rad(60))[5], -K.at(np.deg2rad(-60))[5])
+    assert K.at(np.deg2rad(60))[5][0] == pytest.approx(-4.21 * np.sin(np.deg2rad(60)), rel=0.01)
+    path = tmp_path / "copy.json"
+    path.write_text(json.dumps(K.to_dict()))
+    again = load_experiment_controller(path)
+    np.testing.assert_array_equal(again.C, K.C)
+    # linearized at 60°: the trim's slope −4.21 cos 60° V/rad joins D's arm column
+    lin = K.linearized(np.array([np.deg2rad(60), 0.0]))
+    slope = lin.D[0, 0] - K.frozen_at(np.deg2rad(60)).D[0, 0]
+    assert slope == pytest.approx(-4.21 * np.cos(np.deg2rad(60)), rel=0.02)
+
+
+def test_bad_controller_files_and_sensor_settings_give_one_line(tmp_path, adip):
+    doc = json.loads(SCHEDULED.read_text())
+    cases = {
+        "points": ({**doc, "points": doc["points"][:-1]}, "one entry per grid value"),
+        "grid": ({**doc, "grid": doc["grid"][::-1]}, "increasing"),
+        "scheduling": ({**doc, "scheduling": "speed"}, "unknown name 'speed'"),
+        "format": ({**doc, "format": "lpvflow/lpv-model"}, "an experiment runs"),
+    }
+    for name, (bad, message) in cases.items():
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(bad))
+        with pytest.raises(ModelError, match=message):
+            load_experiment_controller(path)
+    with pytest.raises(ModelError, match="quantized output 'arm'"):
+        run_fmu_experiment(adip, None, 1.0, controller=SCHEDULED, quantization={"arm": COUNT})
+    with pytest.raises(DataError, match=r"quantization step of arm_angle = -0\.1 must be a positive"):
+        run_fmu_experiment(adip, None, 1.0, controller=SCHEDULED, quantization={"arm_angle": -0.1})
+    with pytest.raises(DataError, match=r"\[experiment\] quantization.arm_angle = 0 must be a number in \(0"):
+        check_table("experiment", {"duration": 1.0, "quantization": {"arm_angle": 0}}, "design.toml")
+    with pytest.raises(DataError, match=r"\[experiment\] noise.pendulum_angle = 'x' must be a number"):
+        check_table("experiment", {"duration": 1.0, "noise": {"pendulum_angle": "x"}}, "design.toml")
+
+
+def test_triangle_setpoint_spec():
+    from lpvflow.experiment.specs import generate, parse_spec
+
+    x = generate(parse_spec("triangle:amp=2,period=0.8"), 12, 0.1, np.random.default_rng(0))
+    np.testing.assert_allclose(x[:9], [0, 1, 2, 1, 0, -1, -2, -1, 0])
+    with pytest.raises(DataError, match="triangle needs period"):
+        parse_spec("triangle:amp=1")
+
+
+# ------------------------------------------------------------------------------------------- gate
+def test_gate_verdict_names_the_worst_point():
+    outputs = {"theta": [[-0.5], [0.0], [0.5]], "nugap": [0.05, 0.02, 0.2], "b_P_Kid": [0.1, 0.1, 0.08],
+               "nugap_below_b_everywhere": False}
+    verdict = gate_verdict(outputs, True)
+    assert verdict["passed"] is False
+    assert "1 of 3 frozen points (worst θ = 0.5: ν-gap 0.2 ≥ b(P, K_id) 0.08)" in verdict["reason"]
+    assert "not used for synthesis" in verdict["reason"]
+    outputs.update(nugap=[0.05, 0.02, 0.07], nugap_below_b_everywhere=True)
+    assert gate_verdict(outputs, True)["passed"] is True
+    assert gate_verdict(outputs, False)["passed"] is None
+    assert gate_verdict({"theta": [], "b_P_Kid": []}, True)["passed"] is None
+
+
+NEAR_ZERO_DESIGN = """
+[design]
+name = "near_zero"
+plant = "{plant}"
+output_dir = "{out}"
+
+[experiment]
+Ts = 0.005
+duration = 30.0
+controller = "{controller}"
+excitation = {{ voltage = "multisine:f_lo=0.02,f_hi=20,rms=1.5" }}
+scheduling = {{ sin_arm = "sin(arm_angle)" }}
+seed = 1
+
+[identify]
+u = ["voltage"]
+y = ["arm_angle", "pendulum_angle"]
+p = ["sin_arm"]
+
+[reduce]
+order = 4
+
+[validate]
+grid = 5
+reference = "linearization"
+{gate}
+[synth]
+weights.S = {{ bandwidth = 2.0 }}
+weights.K = {{ num = [0.05], den = [1] }}
+"""
+
+
+@pytest.mark.parametrize("gate", [True, False])
+def test_gate_refuses_the_model_identified_near_zero(tmp_path, adip, gate):
+    """The old bundled experiment (LTI regulator, arm near 0°, here 30 s) gives a model whose ν-gap to the
+    FMU exceeds b(P, K_id): with the gate the design stops after validate with that reason and no synth
+    is run; with gate = false it goes on to synthesis."""
+    text = NEAR_ZERO_DESIGN.format(plant=adip, out=tmp_path, controller=STABILIZING,
+                                   gate="" if gate else "gate = false\n")
+    (tmp_path / "design.toml").write_text(text)
+    lines: list[str] = []
+    summary = run_design(tmp_path / "design.toml", log=lines.append)
+    validate = summary["stages"]["validate"]["outputs"]
+    assert validate["nugap_below_b_everywhere"] is False
+    assert any(g >= b for g, b in zip(validate["nugap"], validate["b_P_Kid"], strict=True))
+    if gate:
+        assert validate["gate"]["passed"] is False
+        assert summary["failed"] == {"stage": "validate", "error": validate["gate"]["reason"]}
+        assert "synth" not in summary["stages"] or summary["stages"]["synth"].get("status") is None
+        assert any("not used for synthesis" in line for line in lines)
+        assert "not used for synthesis" in (tmp_path / "near_zero" / "report.html").read_text()
+    else:
+        assert validate["gate"]["passed"] is None
+        assert summary["stages"]["synth"]["status"] in ("ran", "failed")
+
+
+def test_cli_runs_the_scheduled_controller_with_sensors(adip, tmp_path, capsys):
+    from lpvflow.pipeline.cli import main
+
+    out = tmp_path / "sweep.csv"
+    status = main(["experiment", str(adip), "--duration", "4", "--controller", str(SCHEDULED),
+                   "--setpoint", "arm_angle=triangle:amp=0.5,period=4",
+                   "--quantization", f"arm_angle={COUNT!r}", "--noise", "pendulum_angle=1e-4",
+                   "-o", str(out)])
+    assert status == 0 and "arm_angle_setpoint" in capsys.readouterr().out
+    meta = json.loads((tmp_path / "sweep.csv.json").read_text())
+    assert meta["sensors"] == {"quantization": {"arm_angle": COUNT}, "noise": {"pendulum_angle": 1e-4}}
+    assert main(["experiment", str(adip), "--duration", "1", "--controller", str(SCHEDULED),
+                 "--noise", "pendulum_angle=lots", "-o", str(out)]) == 2
+    assert "--noise pendulum_angle='lots': the value is not a number" in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""`lpvflow synth MODEL.json --config DESIGN.toml -o CONTROLLER.json`: polytopic H∞ synthesis.
+"""`lpvflow synth MODEL.json --config DESIGN.toml -o CONTROLLER.json`: gain-scheduled H∞ synthesis.
 
 DESIGN.toml is a design file (docs/design_file.md); synth reads its ``[synth]`` table, the same one
 ``lpvflow design`` uses, so a whole design file works too::
@@ -6,6 +6,9 @@ DESIGN.toml is a design file (docs/design_file.md); synth reads its ``[synth]`` 
     [synth]
     solver = "CLARABEL"          # or "SCS"
     box = [[-1.0, 1.0]]          # optional; default: the scheduling range recorded in the model
+    method = "rate-bounded"      # optional; default "common" (one Lyapunov matrix)
+    rate_bound = 0.01            # rate-bounded: largest |p(k+1) − p(k)| per sample
+    structure = "2dof"           # optional; default "1dof" (the controller reads r − y)
     weights.S = [{ num = [0.02, 0.02], den = [1, -1] }]
     weights.K = { bandwidth = 50.0, dc_gain = 0.01, hf_gain = 1.0 }
     weights.B = { num = [0, 0.3], den = [1, -0.7] }
@@ -34,25 +37,23 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from lpvflow.pipeline.export import describe_signals
-    from lpvflow.synth.certify import certify
-    from lpvflow.synth.hinf import synthesize
-    from lpvflow.synth.plant import generalized_plant
+    from lpvflow.synth.design import synthesize_design
 
     settings = load_tables(args.config, need=("synth",))["synth"]
     model = load(args.model)
     if not isinstance(model, LPVSS):
         raise ModelError(f"{args.model} holds a {type(model).__name__}; synth needs an LPVSS")
-    weights = settings["weights"]
-    plant = generalized_plant(model, weights, settings["box"])
-    result = synthesize(plant, solver=settings["solver"])
-    cert = certify(result, model, weights)
-    print(f"common Lyapunov matrix, polytope {plant.polytope.kind} with {plant.polytope.n_vertices} vertices")
-    print(f"gamma = {result.gamma:.6g}  ({result.report.solver}, {result.report.status}, "
-          f"{result.report.seconds:.2f} s)")
-    for line in cert.lines():
+    design = synthesize_design(model, settings)
+    poly = design.plant.polytope
+    lyapunov = ("one common Lyapunov matrix" if settings["method"] == "common" else
+                f"rate-bounded parameter-dependent Lyapunov function (ν = {settings['rate_bound']})")
+    print(f"{lyapunov}, polytope {poly.kind} with {poly.n_vertices} vertices, {settings['structure']}")
+    print(f"gamma = {design.gamma:.6g}  (lower bound {design.gamma_lower:.6g}, {design.seconds:.2f} s)")
+    for line in design.certificate.lines():
         print(line)
-    result.controller.info["certificate"] = cert.__dict__ | {"ok": cert.ok}
-    result.controller.info["signals"] = describe_signals(model)  # ports named after the model's signals
-    result.controller.save(args.output)
-    print(f"controller of order {result.controller.order} written to {args.output}")
+    cert = design.certificate
+    design.controller.info["certificate"] = cert.__dict__ | {"ok": cert.ok}
+    design.controller.info["signals"] = describe_signals(model)  # ports named after the model's signals
+    design.controller.save(args.output)
+    print(f"controller of order {design.controller.order} written to {args.output}")
     return 0 if cert.ok else 1

@@ -188,7 +188,7 @@ def formats(value: Any, where: str) -> list[str]:
 
 
 #: The weights of the mixed-sensitivity design (lpvflow.synth.plant.weight_systems).
-WEIGHT_KEYS = ("S", "K", "B", "T", "R", "M", "N", "integrator_shift")
+WEIGHT_KEYS = ("S", "K", "B", "T", "R", "N", "integrator_shift")
 
 
 def weights(value: Any, where: str) -> dict[str, Any]:
@@ -333,7 +333,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
         "breakpoints": Key(None, numbers, "piecewise polytope: ascending values from box end to box end"),
         "structure": Key("1dof", string(("1dof", "2dof")), "1dof: controller reads r − y; 2dof: [r; y]"),
-        "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R, M, N], [shift]"),
+        "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R, N], [integrator_shift]"),
         "vertex_weights": Key(None, vertex_weights, "scheduled weights: per vertex, replacing entries"),
         "box": Key(None, box, "scheduling box [[lo, hi], …] (default: the model's recorded range)"),
         "solver": Key("CLARABEL", string(("CLARABEL", "SCS"), upper=True), "SDP solver"),

@@ -535,46 +535,32 @@ def _fmu_reference(ctx: StageContext, model: LPVSS):
 
 # ----------------------------------------------------------------------------------------- synth
 def synth(ctx: StageContext) -> tuple[dict, list[str]]:
-    """Gain-scheduled H∞ controller (``method = "common"``: :func:`lpvflow.synth.hinf.synthesize`, one
-    Lyapunov matrix; ``"rate-bounded"``: :func:`lpvflow.synth.rate_bounded.synthesize_rate_bounded`) and the
-    LTI baseline designed at one frozen point (``baseline_at``, default the centre of the scheduling box)
-    by :func:`lpvflow.synth.hinf.synthesize`, both with the design's ``structure`` (1-DOF or 2-DOF)."""
-    from lpvflow.synth.certify import certify, certify_rate_bounded
-    from lpvflow.synth.hinf import synthesize
-    from lpvflow.synth.plant import generalized_plant
+    """Gain-scheduled H∞ controller of the ``[synth]`` table (:func:`lpvflow.synth.design.synthesize_design`)
+    and the LTI baseline designed by the same table at one frozen point (``baseline_at``, default the
+    centre of the scheduling box; one common Lyapunov matrix there is exact)."""
+    from lpvflow.synth.design import synthesize_design
     from lpvflow.synth.polytope import scheduling_box
-    from lpvflow.synth.rate_bounded import synthesize_rate_bounded
 
     cfg = ctx.config["synth"]
-    box, weights, structure = cfg["box"], cfg["weights"], cfg["structure"]
     model = load(ctx.path("model.json"))
-    plant = generalized_plant(model, weights, box, structure, cfg["breakpoints"], cfg["vertex_weights"])
-    if cfg["method"] == "rate-bounded":
-        result, controller = synthesize_rate_bounded(plant, cfg["rate_bound"], cfg["solver"])
-        frozen_model = None if cfg["vertex_weights"] else model  # scheduled weights: the design's own plant
-        certificate = certify_rate_bounded(result, frozen_model, weights, structure)
-        gamma_lower = result.gamma_min
-    else:
-        result = synthesize(plant, cfg["solver"])
-        controller, gamma_lower = result.controller, result.gamma_lower
-        certificate = certify(result, model, weights)
+    design = synthesize_design(model, cfg)
+    controller = design.controller
     signals = design_signals(ctx, model)
     controller.info["signals"] = signals
     controller.antiwindup = antiwindup(ctx, controller, signals)
     controller.trim = trim(ctx, controller)
     controller.save(ctx.path("controller.json"))
-    centre = scheduling_box(model, box).mean(axis=1).tolist()
+    centre = scheduling_box(model, cfg["box"]).mean(axis=1).tolist()
     at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre
-    nominal = [[v, v] for v in at]
-    baseline = synthesize(generalized_plant(model, weights, nominal, structure), cfg["solver"])
+    baseline = synthesize_design(model, cfg, box=[[v, v] for v in at])
     baseline.controller.antiwindup = antiwindup(ctx, baseline.controller, signals)
     baseline.controller.trim = trim(ctx, baseline.controller)
     baseline.controller.save(ctx.path("baseline.json"))
-    return ({"method": cfg["method"], "structure": structure, "gamma": result.gamma,
-             "gamma_lower": gamma_lower, "baseline_gamma": baseline.gamma, "baseline_at": at,
-             "certificate": certificate.lines(),
-             "certificate_ok": bool(certificate.ok), "solve_seconds": result.report.seconds,
-             "order": controller.order, "polytope": plant.polytope.kind},
+    return ({"method": cfg["method"], "structure": cfg["structure"], "gamma": design.gamma,
+             "gamma_lower": design.gamma_lower, "baseline_gamma": baseline.gamma, "baseline_at": at,
+             "certificate": design.certificate.lines(), "certificate_ok": bool(design.certificate.ok),
+             "solve_seconds": design.seconds, "order": controller.order,
+             "polytope": design.plant.polytope.kind},
             ["controller.json", "baseline.json"])
 
 

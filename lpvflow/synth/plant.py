@@ -9,9 +9,8 @@ Signals (1-DOF loop, reference r, control u from the controller, plant input u_p
 2-DOF loop (``structure = "2dof"``; Apkarian et al. 1995 and the thesis §6.3 use this structure): the
 controller reads the reference and the measurement separately, u = K [r; y_m], with y_m = y + W_N n
 (measurement noise n, W_N default 0.01·I: without it D21 has no full row rank and the H∞ problem is
-singular), exogenous inputs [w; n], and the tracking error is taken against an optional reference
-model M: e = M r − y (M = I without ``weights.M``): z = [W_S e ; W_K u ; W_T y]. The controller may
-then shape the reference path (feed-forward) apart from the feedback.
+singular), exogenous inputs [w; n], and z = [W_S e ; W_K u ; W_T y] with e = r − y as above. The
+controller may then shape the reference path (feed-forward) apart from the feedback.
 
 With state x = [x_G; x_weights] this is the discrete-time LFT plant of Apkarian, Gahinet & Becker
 (1995, eq. (2))
@@ -124,8 +123,8 @@ def _named_ss(M: control.StateSpace, inp: str, out: str, name: str) -> control.S
 
 
 def weight_systems(weights: dict, ny: int, nu: int, Ts: float) -> dict[str, control.StateSpace]:
-    """The diagonal weights W_S, W_K and the optional W_B, W_T, W_R, W_M (2-DOF reference model), W_N (2-DOF
-    measurement noise) of a ``[weights]`` table."""
+    """The diagonal weights W_S, W_K and the optional W_B, W_T, W_R, W_N (2-DOF measurement noise) of a
+    ``[weights]`` table."""
     for key in ("S", "K"):
         if key not in weights:
             raise ModelError(f"design spec lacks the weight [weights.{key}] "
@@ -133,7 +132,7 @@ def weight_systems(weights: dict, ny: int, nu: int, Ts: float) -> dict[str, cont
     eps = float(weights.get("integrator_shift", DEFAULT_INTEGRATOR_SHIFT))
     if not 0.0 < eps < 0.5:
         raise ModelError(f"integrator_shift must be in (0, 0.5), got {eps}")
-    sizes = {"S": ny, "K": nu, "B": nu, "T": ny, "R": ny, "M": ny, "N": ny}
+    sizes = {"S": ny, "K": nu, "B": nu, "T": ny, "R": ny, "N": ny}
     return {k: diagonal_weight(weights[k], sizes[k], Ts, f"W_{k}", eps) for k in sizes if k in weights}
 
 
@@ -155,11 +154,8 @@ def augment(G: control.StateSpace, W: dict[str, control.StateSpace], Ts: float, 
         _named_ss(G, "up" if "B" in W else "u", "y", "G"),
         _named_ss(W["S"], "e", "zS", "WS"),
         _named_ss(W["K"], "u", "zK", "WK"),
-        control.summing_junction(inputs=["rm" if "M" in W else "r", "-y"], output="e", dimension=ny,
-                                 name="sum"),
+        control.summing_junction(inputs=["r", "-y"], output="e", dimension=ny, name="sum"),
     ]
-    if "M" in W:
-        blocks.append(_named_ss(W["M"], "r", "rm", "M"))
     if two:
         WN = W.get("N", control.ss([], [], [], DEFAULT_NOISE_WEIGHT * np.eye(ny), Ts))
         blocks += [_named_ss(WN, "n", "nw", "WN"),

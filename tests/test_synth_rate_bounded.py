@@ -53,8 +53,10 @@ def test_gamma_is_ordered_by_the_rate_bound_and_close_to_the_frozen_optimum(desi
     gamma = {name: r.gamma for name, (r, _) in results.items()}
     # each certified γ is within its 1 % level search of the minimum of its own LMIs
     assert gamma["slow"] <= gamma["fast"] * 1.01 <= gamma["arbitrary"] * 1.0201
-    assert results["slow"][0].gamma_min <= results["fast"][0].gamma_min <= results["arbitrary"][0].gamma_min
     worst = frozen_optimum(model, np.linspace(-1, 1, 11))
+    # the reported lower bound is the frozen optimum at the worst breakpoint (SB10DD agrees)
+    assert all(r.gamma_min <= r.gamma for r, _ in results.values())
+    assert abs(results["slow"][0].gamma_min / frozen_optimum(model, np.array([-1.0, 1.0])) - 1) < 1e-2
     assert gamma["slow"] <= 1.25 * worst
     assert gamma["arbitrary"] > gamma["slow"]  # the rate bound is worth something on this plant
 

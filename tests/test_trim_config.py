@@ -76,15 +76,14 @@ def test_the_trim_stage_helper_builds_the_trim_and_checks_its_width(tmp_path: Pa
 
 def test_the_synth_stage_gives_the_lpv_controller_and_the_baseline_the_trim(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import lpvflow.synth.certify
-    import lpvflow.synth.hinf
+    import lpvflow.synth.design
 
     def fake_synthesize(plant: object, solver: str) -> SimpleNamespace:  # a controller, no SDP
         return SimpleNamespace(gamma=1.0, gamma_lower=1.0, controller=_controller(1),
                                report=SimpleNamespace(seconds=0.0), plant=plant)
 
-    monkeypatch.setattr(lpvflow.synth.hinf, "synthesize", fake_synthesize)
-    monkeypatch.setattr(lpvflow.synth.certify, "certify",
+    monkeypatch.setattr(lpvflow.synth.design, "synthesize", fake_synthesize)
+    monkeypatch.setattr(lpvflow.synth.design, "certify",
                         lambda *args: SimpleNamespace(lines=lambda: [], ok=True))
     basis = Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,))
     C = np.array([[[1.0], [1.0]], [[0.0], [0.0]]])
@@ -93,7 +92,8 @@ def test_the_synth_stage_gives_the_lpv_controller_and_the_baseline_the_trim(
     trim = {"p": [-1.0, 0.0, 1.0], "u": [[4.21], [0.0], [-4.21]]}
     config = {"synth": {"weights": {"S": {"num": [0.5], "den": [1]}, "K": {"num": [0.1], "den": [1]}},
                         "box": None, "method": "common", "solver": "CLARABEL", "baseline_at": None,
-                        "trim": trim},
+                        "trim": trim, "structure": "1dof", "breakpoints": None, "vertex_weights": None,
+                        "rate_bound": None},
               "design": {"plant": None}, "experiment": {"scheduling": {}}, "verify": None}
     stages.synth(stages.StageContext(tmp_path, config))
     for name in ("controller.json", "baseline.json"):

@@ -47,10 +47,12 @@ breakpoint. Nothing is gridded, so nothing is missed between grid points; :func:
 for the plant at the breakpoint nearest the centre (a state transform that balances the interior
 Lyapunov matrices of a frozen design, and u/y scalings; the state transform commutes with the Cayley
 map, so it is the discrete one too); strictness is Φ ⪰ t·I with the margin t maximised at each γ level
-(t ≤ 1), the level search is :func:`lpvflow.synth.hinf.lowest_certified_level` on the γ minimum of the
-same LMIs, and a level passes only when the reconstructed controller's Φ, rebuilt from the returned
-discrete numbers, is positive definite at every (p, p⁺) with a Jacobi-scaled margin above round-off
-(:data:`lpvflow.synth.hinf.ROUNDOFF_FACTOR`).
+(t ≤ 1), the level search is :func:`lpvflow.synth.hinf.lowest_certified_level` from the largest frozen
+γ lower bound over the breakpoints (a bound no controller beats; minimising γ over these LMIs directly
+is ill-posed — the slack and P̂ grow without bound near the optimum, and Clarabel stops with a numerical
+error on the ADIP), and a level passes only when the reconstructed controller's Φ, rebuilt from the
+returned discrete numbers, is positive definite at every (p, p⁺) with a Jacobi-scaled margin above
+round-off (:class:`Slack`).
 """
 
 from __future__ import annotations
@@ -67,6 +69,7 @@ import numpy as np
 from lpvflow.errors import ModelError
 from lpvflow.synth.controller import LPVController, series_input_filter
 from lpvflow.synth.hinf import (
+    LEVEL_STEPS,
     ROUNDOFF_FACTOR,
     _cayley_vertex,
     _Coordinates,
@@ -179,8 +182,8 @@ class ScheduledResult:
     """Certified rate-bounded design.
 
     Attributes:
-        gamma: the certified level; gamma_min: minimum of the same LMIs (no controller of this class,
-            with these breakpoints and rate bound, does better).
+        gamma: the certified level; gamma_min: the largest frozen γ lower bound over the breakpoints
+            (:func:`lpvflow.synth.hinf.balanced_coordinates`): no controller of any kind does better.
         K_vertices: discrete vertex controllers (A_K, B_K, C_K, D_K) from y to u at the breakpoints.
         schedule: breakpoints and rate bound; vertices: the generalized plant at the breakpoints.
         lyapunov: P̂ = 𝒯ᵀ𝒫𝒯 at the breakpoints (:class:`Slack`); slack: the slack and coordinates.
@@ -253,14 +256,13 @@ def _unscaled(coords: _Coordinates, K: tuple[np.ndarray, ...]) -> tuple[np.ndarr
 
 # ------------------------------------------------------------------------------------------ LMIs
 class _Levels:
-    """Φ of the module docstring at every pair, in scaled coordinates; γ a Parameter (margin problem) or a
-    Variable (γ minimum)."""
+    """Φ of the module docstring at every pair, in scaled coordinates, at the level γ (a Parameter):
+    maximise t subject to Φ ⪰ t·I, t ≤ 1."""
 
     def __init__(self, verts: list[VertexPlant], schedule: Schedule, pairs: list) -> None:
         n, _nw, nu, _nz, ny = verts[0].dims
         M = len(verts)
         self.gamma, self.t = cp.Parameter(pos=True), cp.Variable()
-        self.g_min = cp.Variable()
         self.X, self.Y, self.S = (cp.Variable((n, n)) for _ in range(3))
         self.P = [cp.Variable((2 * n, 2 * n), symmetric=True) for _ in range(M)]
         self.L = [cp.Variable((nu, n)) for _ in range(M)]
@@ -268,14 +270,12 @@ class _Levels:
         self.F = [cp.Variable((n, ny)) for _ in range(M)]
         self.Q = [cp.Variable((n, n)) for _ in range(M)]
         self.verts, self.schedule, self.pairs = verts, schedule, pairs
-        margin_rows, minimum_rows = [], []
+        margin_rows = []
         for p, nexts in pairs:
             for q in nexts:
                 margin_rows.append(self._phi(p, q, self.gamma))
-                minimum_rows.append(self._phi(p, q, self.g_min))
         self.margin_problem = cp.Problem(cp.Maximize(self.t), [Phi >> self.t * np.eye(Phi.shape[0])
                                                                 for Phi in margin_rows] + [self.t <= 1])
-        self.minimum_problem = cp.Problem(cp.Minimize(self.g_min), [Phi >> 0 for Phi in minimum_rows])
 
     def _mix(self, mats: list, lam: np.ndarray):
         return sum(float(li) * M for li, M in zip(lam, mats, strict=True) if li != 0.0)
@@ -340,15 +340,17 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
         raise ModelError(f"{len(vertices)} vertex plants for {len(schedule.breakpoints)} breakpoints")
     check_a3(vertices)
     start = time.perf_counter()
+    # per breakpoint: the frozen γ lower bound (no controller does better there, so none does over the
+    # range) and the balanced coordinates; the LMIs are posed in those of the breakpoint nearest the centre
+    frozen = [balanced_coordinates([_cayley_vertex(v)], None, solver) for v in vertices]
     centre = int(np.argmin(np.abs(schedule.breakpoints - schedule.breakpoints.mean())))
-    coords, _, _, attempts = balanced_coordinates([_cayley_vertex(vertices[centre])], None, solver)
+    coords = frozen[centre][0]
+    gamma_lower = max(f[2] for f in frozen)
+    attempts = [a for f in frozen for a in f[3]]
     verts = [_discrete(coords, v) for v in vertices]
     levels = _Levels(verts, schedule, schedule.pairs(points))
     what = (f"the rate-bounded H∞ LMIs ({len(verts)} breakpoints, "
             f"ν = {'any' if rate_bound is None else f'{rate_bound:g}'} per sample)")
-    report = solve(levels.minimum_problem, solver, what)
-    attempts += report.attempts
-    gamma_min = float(levels.g_min.value)
 
     def certified(gamma: float) -> ScheduledResult | None:
         levels.gamma.value = gamma
@@ -358,16 +360,17 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
             return None
         attempts.extend(level_report.attempts)
         try:
-            result = _reconstruct(levels, vertices, coords, schedule, gamma, gamma_min, Ts)
+            result = _reconstruct(levels, vertices, coords, schedule, gamma, gamma_lower, Ts)
         except np.linalg.LinAlgError:
             return None
         return result if min(result.margins) > 0 else None
 
-    best = lowest_certified_level(certified, gamma_min, suboptimality, None)
+    best = lowest_certified_level(certified, gamma_lower, suboptimality, None)
     if best is None:
-        raise SynthesisError(f"{what}: γ minimum {gamma_min:.4g}, but no level up to "
-                             f"{gamma_min * (1 + suboptimality * 2 ** 8):.4g} gave a controller that passes "
-                             "the certificate; loosen the weights or the rate bound")
+        top = gamma_lower * (1 + suboptimality * 2 ** (LEVEL_STEPS - 1))
+        raise SynthesisError(f"{what}: no level from the frozen lower bound {gamma_lower:.4g} up to "
+                             f"{top:.4g} gave a controller that passes the certificate: lower the rate "
+                             "bound, shrink the range, add breakpoints or loosen the weights")
     best.report = SolveReport(solver, "optimal", time.perf_counter() - start, attempts)
     return best
 

@@ -324,8 +324,7 @@ def test_lti_baseline_defaults_to_the_centre_of_the_box(tmp_path, monkeypatch):
     maglev and airpath scheduling ranges, where the poly:2 model is an extrapolation)."""
     from types import SimpleNamespace
 
-    import lpvflow.synth.certify
-    import lpvflow.synth.hinf
+    import lpvflow.synth.design
     from lpvflow.pipeline import stages
 
     boxes = []
@@ -336,14 +335,15 @@ def test_lti_baseline_defaults_to_the_centre_of_the_box(tmp_path, monkeypatch):
         return SimpleNamespace(gamma=1.0, gamma_lower=1.0, controller=controller,
                                report=SimpleNamespace(seconds=0.0), plant=plant)
 
-    monkeypatch.setattr(lpvflow.synth.hinf, "synthesize", fake_synthesize)
-    monkeypatch.setattr(lpvflow.synth.certify, "certify",
+    monkeypatch.setattr(lpvflow.synth.design, "synthesize", fake_synthesize)
+    monkeypatch.setattr(lpvflow.synth.design, "certify",
                         lambda *args: SimpleNamespace(lines=lambda: [], ok=True))
     _badly_scaled_model().save(tmp_path / "model.json")
     weights = {"S": {"num": [0.5], "den": [1]}, "K": {"num": [0.1], "den": [1]},
                "B": {"num": [0, 0.5], "den": [1, -0.5]}}
     config = {"synth": {"weights": weights, "box": [[0.072, 0.088]], "method": "common",
-                        "solver": "CLARABEL", "baseline_at": None},
+                        "solver": "CLARABEL", "baseline_at": None, "structure": "1dof", "breakpoints": None,
+                        "vertex_weights": None, "rate_bound": None},
               "design": {"plant": None}, "experiment": {"scheduling": {}}, "verify": None}
     outputs, _ = stages.synth(stages.StageContext(tmp_path, config))
     assert outputs["baseline_at"] == pytest.approx([0.08])

@@ -213,6 +213,13 @@ def weights(value: Any, where: str) -> dict[str, Any]:
     return value
 
 
+def breakpoints(value: Any, where: str) -> list:
+    """Values of the one scheduling signal, or rows of scheduling points (one value per signal)."""
+    if isinstance(value, list) and value and all(isinstance(v, list) for v in value):
+        return [numbers(row, f"{where}[{i}]") for i, row in enumerate(value)]
+    return numbers(value, where)
+
+
 def vertex_weights(value: Any, where: str) -> list[dict[str, Any]]:
     """A list of partial weight tables, one per vertex (breakpoint) of the design polytope: each replaces
     entries of ``[synth] weights`` at its vertex (scheduled weights)."""
@@ -331,7 +338,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
                       "common: one Lyapunov matrix; rate-bounded: parameter-dependent, |Δp| ≤ rate_bound"),
         "rate_bound": Key(None, number(0.0, open_low=True),
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
-        "breakpoints": Key(None, numbers, "piecewise polytope: ascending values from box end to box end"),
+        "breakpoints": Key(None, breakpoints, "piecewise polytope: ascending values (or rows) end to end"),
         "structure": Key("1dof", string(("1dof", "2dof")), "1dof: controller reads r − y; 2dof: [r; y]"),
         "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R, N], [integrator_shift]"),
         "vertex_weights": Key(None, vertex_weights, "scheduled weights: per vertex, replacing entries"),

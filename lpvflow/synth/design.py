@@ -42,7 +42,8 @@ def synthesize_design(model: LPVSS, settings: dict, box: list | None = None) -> 
                               None if point else settings["vertex_weights"])
     if settings["method"] == "rate-bounded" and not point:
         result, controller = synthesize_rate_bounded(plant, settings["rate_bound"], settings["solver"])
-        frozen_model = None if settings["vertex_weights"] else model  # scheduled weights: the design's plant
+        # scheduled weights, or scheduling signals tied along the breakpoints: the design's own plant
+        frozen_model = None if settings["vertex_weights"] or model.basis.n_p > 1 else model
         certificate = certify_rate_bounded(result, frozen_model, weights, structure)
         return Design(controller, result.gamma, result.gamma_min, certificate, plant, result.report.seconds)
     result = synthesize(plant, settings["solver"])

@@ -111,18 +111,24 @@ def hat_coordinates(breakpoints: np.ndarray, p1: float) -> np.ndarray:
 
 def piecewise_polytope(model: LPVSS, box: np.ndarray | list | None, breakpoints: np.ndarray | list
                        ) -> Polytope:
-    """The ``"piecewise"`` polytope (multi-simplex) of one scheduling signal: vertices ψ(b_i) at ascending
-    breakpoints that start and end at the box; the model frozen at the breakpoints, interpolated with
-    the hat functions, is exact between them when ψ is affine in p (else a piecewise-linear model)."""
+    """The ``"piecewise"`` polytope (multi-simplex) along the first scheduling signal: vertices ψ(b_i) at
+    ascending breakpoints from the box's lower to its upper end of that signal. ``breakpoints`` are values
+    of the one scheduling signal, or rows of full scheduling points (b_i1, …, b_in_p) when the signals are
+    tied to one another (sin and cos of one angle), ascending in the first. The model frozen at the
+    breakpoints and interpolated with the hat functions of the first signal is exact between them when ψ
+    is affine in p along the segment (one affine signal), else a piecewise-linear model of the curve."""
     box = scheduling_box(model, box)
-    b = np.asarray(breakpoints, dtype=float).reshape(-1)
-    if model.basis.n_p != 1:
-        raise ModelError(f"breakpoints need one scheduling signal; the model has {model.basis.n_p}")
-    if len(b) < 2 or not np.all(np.diff(b) > 0) or not np.allclose([b[0], b[-1]], box[0]):
-        raise ModelError(f"breakpoints must ascend from the box's lower to its upper end {box[0].tolist()}, "
-                         f"got {b.tolist()}")
-    psi = model.basis.eval(b.reshape(-1, 1), check_range=False)
-    return Polytope("piecewise", box, psi, breakpoints=b)
+    b = np.asarray(breakpoints, dtype=float)
+    b = b.reshape(-1, 1) if b.ndim == 1 else b
+    if b.shape[1] != model.basis.n_p:
+        raise ModelError(f"breakpoints need {model.basis.n_p} value(s) per row (one per scheduling signal), "
+                         f"got rows of {b.shape[1]}")
+    first = b[:, 0]
+    if len(b) < 2 or not np.all(np.diff(first) > 0) or not np.allclose([first[0], first[-1]], box[0]):
+        raise ModelError(f"breakpoints must ascend in the first scheduling signal from the box's lower to "
+                         f"its upper end {box[0].tolist()}, got {first.tolist()}")
+    psi = model.basis.eval(b, check_range=False)
+    return Polytope("piecewise", box, psi, breakpoints=first)
 
 
 def _corners(bounds: np.ndarray) -> np.ndarray:

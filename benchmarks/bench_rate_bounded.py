@@ -1,0 +1,75 @@
+"""Rate-bounded gain-scheduled H∞ synthesis (lpvflow.synth.rate_bounded): wall time as a ratio to one
+solve of its SDP, and γ against the frozen lower bound (issue 23's benchmark).
+
+Case: ``random_lpv(3, nx=6, n_p=1, nu=1, ny=1)`` on p ∈ [−1, 1] with W_S (integral action) and a
+strictly proper W_B: a generalized plant of order 8; 11 breakpoints (a piecewise polytope over the
+model's own vertices, so the plant is exact between them); rate bound 0.02 per sample and any rate.
+
+``ratio`` = the synthesis' wall time / the wall time of one Clarabel solve of its margin SDP (the
+maximisation of t at one γ level, timed around the solver call in the same run): the floor of any
+synthesis that has to solve these LMIs once. One thread (OPENBLAS_NUM_THREADS=1 is set below), one run.
+
+Run:  .venv/bin/python benchmarks/bench_rate_bounded.py   → benchmarks/results/rate_bounded.json
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np
+
+from lpvflow.synth import rate_bounded
+from lpvflow.synth.examples import random_lpv
+from lpvflow.synth.plant import generalized_plant
+
+OUT = Path(__file__).parent / "results" / "rate_bounded.json"
+WEIGHTS = {"S": {"bandwidth": 1.0, "hf_gain": 2.0}, "K": {"num": [0.05], "den": [1]},
+           "B": {"num": [0, 0.4], "den": [1, -0.6]}, "integrator_shift": 1e-3}
+
+
+def measure(rate_bound: float | None) -> dict:
+    model = random_lpv(3, nx=6, n_p=1, nu=1, ny=1)
+    plant = generalized_plant(model, WEIGHTS, [[-1.0, 1.0]], breakpoints=np.linspace(-1.0, 1.0, 11))
+    solves = []
+    inner = rate_bounded.solve
+
+    def timed(problem, solver, what):
+        start = time.perf_counter()
+        out = inner(problem, solver, what)
+        if " at γ = " in what:
+            solves.append(time.perf_counter() - start)
+        return out
+
+    rate_bounded.solve = timed
+    try:
+        start = time.perf_counter()
+        result, _ = rate_bounded.synthesize_rate_bounded(plant, rate_bound)
+        seconds = time.perf_counter() - start
+    finally:
+        rate_bounded.solve = inner
+    pairs = sum(len(nexts) for _, nexts in result.schedule.pairs())
+    return {"rate_bound": rate_bound, "order": plant.dims[0], "breakpoints": 11, "lmis": pairs,
+            "gamma": result.gamma, "frozen_lower_bound": result.gamma_min, "seconds": seconds,
+            "level_solves": len(solves), "one_sdp_seconds": min(solves), "ratio": seconds / min(solves)}
+
+
+def main() -> None:
+    rows = [measure(nu) for nu in (0.02, None)]
+    OUT.write_text(json.dumps({"rows": rows}, indent=1, default=float) + "\n")
+    heads = ("ν", "n", "LMIs", "γ", "frozen", "s", "solves", "SDP s", "ratio")
+    print(" ".join(f"{h:>7}" for h in heads))
+    for r in rows:
+        nu = "any" if r["rate_bound"] is None else f"{r['rate_bound']:g}"
+        print(f"{nu:>7} {r['order']:>7} {r['lmis']:>7} {r['gamma']:7.4g} {r['frozen_lower_bound']:7.4g} "
+              f"{r['seconds']:7.1f} {r['level_solves']:>7} {r['one_sdp_seconds']:7.2f} {r['ratio']:7.1f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -2,10 +2,10 @@
 solve of its SDP, and γ against the frozen lower bound (issue 23's benchmark).
 
 Cases: ``random_lpv(3, nx, n_p=1, nu=1, ny=1)`` on p ∈ [−1, 1] with W_S (integral action) and a
-strictly proper W_B (two states): 11 breakpoints with nx = 2 (generalized plant of order 4), rate bound
-0.02 per sample and any rate; 3 breakpoints with nx = 6 (order 8, the size issue 23 names with 11
-breakpoints; that one does not finish in reasonable time, see benchmarks/README.md). The breakpoints
-form a piecewise polytope over the affine model, so the plant is exact between them.
+strictly proper W_B (two states): 3 breakpoints with nx = 2 (generalized plant of order 4), rate bound
+0.02 per sample and any rate; 2 breakpoints with nx = 6 (order 8). Issue 23's case, 11 breakpoints at
+order 8, does not finish in reasonable time (benchmarks/README.md says why). The breakpoints form a
+piecewise polytope over the affine model, so the plant is exact between them.
 
 ``ratio`` = the synthesis' wall time / the wall time of one Clarabel solve of its margin SDP (the
 maximisation of t at one γ level, timed around the solver call in the same run): the floor of any
@@ -63,7 +63,7 @@ def measure(nx: int, breakpoints: int, rate_bound: float | None) -> dict:
 
 
 def main() -> None:
-    rows = [measure(2, 11, 0.02), measure(2, 11, None), measure(6, 3, 0.02)]
+    rows = [measure(2, 3, 0.02), measure(2, 3, None), measure(6, 2, 0.02)]
     OUT.write_text(json.dumps({"rows": rows}, indent=1, default=float) + "\n")
     heads = ("ν", "n", "bps", "LMIs", "γ", "frozen", "s", "solves", "SDP s", "ratio")
     print(" ".join(f"{h:>7}" for h in heads))

@@ -3,8 +3,8 @@ solve of its SDP, and γ against the frozen lower bound (issue 23's benchmark).
 
 Cases: ``random_lpv(3, nx, n_p=1, nu=1, ny=1)`` on p ∈ [−1, 1] with W_S (integral action) and a
 strictly proper W_B (two states): 3 breakpoints with nx = 2 (generalized plant of order 4), rate bound
-0.02 per sample and any rate; 2 breakpoints with nx = 6 (order 8). Issue 23's case, 11 breakpoints at
-order 8, does not finish in reasonable time (benchmarks/README.md says why). The breakpoints form a
+0.02 per sample and any rate; 2 breakpoints with nx = 6 (order 8: no level certified, recorded as such).
+Issue 23's case, 11 breakpoints at order 8, does not finish in reasonable time (benchmarks/README.md). The breakpoints form a
 piecewise polytope over the affine model, so the plant is exact between them.
 
 ``ratio`` = the synthesis' wall time / the wall time of one Clarabel solve of its margin SDP (the
@@ -50,14 +50,19 @@ def measure(nx: int, breakpoints: int, rate_bound: float | None) -> dict:
         return out
 
     rate_bounded.solve = timed
+    row = {"rate_bound": rate_bound, "order": plant.dims[0], "breakpoints": breakpoints,
+           "lmis": sum(len(nexts) for _, nexts in rate_bounded.Schedule(
+               np.linspace(-1.0, 1.0, breakpoints), rate_bound).pairs())}
+    start = time.perf_counter()
     try:
-        start = time.perf_counter()
         result, _ = rate_bounded.synthesize_rate_bounded(plant, rate_bound)
-        seconds = time.perf_counter() - start
+    except rate_bounded.SynthesisError as exc:
+        return row | {"error": str(exc)[:300], "seconds": time.perf_counter() - start,
+                      "level_solves": len(solves), "one_sdp_seconds": min(solves)}
     finally:
         rate_bounded.solve = inner
-    pairs = sum(len(nexts) for _, nexts in result.schedule.pairs())
-    return {"rate_bound": rate_bound, "order": plant.dims[0], "breakpoints": breakpoints, "lmis": pairs,
+    seconds = time.perf_counter() - start
+    return row | {
             "gamma": result.gamma, "frozen_lower_bound": result.gamma_min, "seconds": seconds,
             "level_solves": len(solves), "one_sdp_seconds": min(solves), "ratio": seconds / min(solves)}
 
@@ -69,6 +74,10 @@ def main() -> None:
     print(" ".join(f"{h:>7}" for h in heads))
     for r in rows:
         nu = "any" if r["rate_bound"] is None else f"{r['rate_bound']:g}"
+        if "error" in r:
+            print(f"{nu:>7} {r['order']:>7} {r['breakpoints']:>7} {r['lmis']:>7}  {r['seconds']:.0f} s, "
+                  f"{r['level_solves']} solves of ≥ {r['one_sdp_seconds']:.1f} s: {r['error']}")
+            continue
         print(f"{nu:>7} {r['order']:>7} {r['breakpoints']:>7} {r['lmis']:>7} {r['gamma']:7.4g} "
               f"{r['frozen_lower_bound']:7.4g} {r['seconds']:7.1f} {r['level_solves']:>7} "
               f"{r['one_sdp_seconds']:7.2f} {r['ratio']:7.1f}")

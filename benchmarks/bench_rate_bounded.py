@@ -3,8 +3,9 @@ solve of its SDP, and γ against the frozen lower bound (issue 23's benchmark).
 
 Cases: ``random_lpv(3, nx, n_p=1, nu=1, ny=1)`` on p ∈ [−1, 1] with W_S (integral action) and a
 strictly proper W_B (two states): 3 breakpoints with nx = 2 (generalized plant of order 4), rate bound
-0.02 per sample and any rate; 2 breakpoints with nx = 6 (order 8: no level certified, recorded as such).
-Issue 23's case, 11 breakpoints at order 8, does not finish in reasonable time (benchmarks/README.md). The breakpoints form a
+0.02 per sample and any rate; 2 breakpoints with nx = 6 (order 8: no level certified, recorded as
+such). Issue 23's case, 11 breakpoints at order 8, does not finish in reasonable time
+(benchmarks/README.md). The breakpoints form a
 piecewise polytope over the affine model, so the plant is exact between them.
 
 ``ratio`` = the synthesis' wall time / the wall time of one Clarabel solve of its margin SDP (the

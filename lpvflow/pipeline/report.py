@@ -460,9 +460,11 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
              "table{border-collapse:collapse;margin:0.5em 0}th,td{border:1px solid #ccc;padding:3px 8px;"
              "text-align:left;font-size:13px;vertical-align:top}th{background:#f4f4f4}"
              "img{max-width:100%}figcaption{font-size:12px;color:#555}.fail{color:#b00}.pass{color:#070}"
-             ".summary{border:1px solid #bbb;border-radius:6px;padding:0.5em 1.2em;background:#fcfcfc;overflow-x:auto}"
+             ".summary{border:1px solid #bbb;border-radius:6px;padding:0.5em 1.2em;background:#fcfcfc;"
+             "overflow-x:auto}"
              ".summary h2{margin-top:0.4em}.verdict{font-size:17px}.why{font-size:12px;color:#555}"
-             "table.card td{text-align:right}table.card td:first-child{text-align:left}table.card th{font-size:12px}")
+             "table.card td{text-align:right}table.card td:first-child{text-align:left}"
+             "table.card th{font-size:12px}")
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>lpvflow design {summary['name']}"
             f"</title><style>{style}</style></head><body>{''.join(sections)}</body></html>")
     path = folder / "report.html"

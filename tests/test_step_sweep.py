@@ -83,3 +83,33 @@ def test_scaled_step_keeps_everything_but_the_step_size():
 def test_bad_input_is_one_clear_line(template, kwargs, message):
     with pytest.raises(DataError, match=message):
         largest_held_step(None, ADIP, LOOP, template, held=lambda s: True, **kwargs)
+
+
+def test_the_verify_stage_records_the_largest_step_each_controller_holds(tmp_path, lti_controller):
+    """[verify] largest_step: the stage runs the sweep for the LPV controller and the baseline, and the
+    summary card states it."""
+    from lpvflow.pipeline import stages
+    from lpvflow.pipeline.report import summary_card
+
+    lti_controller.save(tmp_path / "controller.json")
+    lti_controller.save(tmp_path / "baseline.json")
+    loop = {"measured": ["arm_angle", "pendulum_angle"], "actuated": ["voltage"],
+            "scheduling": ["sin(arm_angle)"], "actuator_limits": {"voltage": [-10.0, 10.0]}}
+    step = {"name": "arm to +75 deg", "duration": 4.0, "reference": {"arm_angle": {"steps": [[0.5, 1.309]]}},
+            "settling_band": {"arm_angle": 0.0175}, "output_bounds": {"pendulum_angle": [-0.5, 0.5]}}
+    config = {"design": {"plant": str(ADIP)},
+              "verify": {"loop": loop, "scenario": [step],
+                         "largest_step": {"scenario": "arm to +75 deg", "criterion": "bounded"}}}
+    outputs, _ = stages.verify(stages.StageContext(tmp_path, config))
+    record = outputs["largest_held_step"]
+    assert record["output"] == "arm_angle" and record["criterion"] == "bounded"
+    # the upright controller loses the pendulum on the full 75° step (the scenario's own verdict) ...
+    assert not outputs["scenarios"][0]["controller"]["stable"]
+    # ... but holds a smaller one; the same controller twice gives the same amplitude
+    assert 0.0 < record["baseline"] < 1.309 and record["lpv"] == record["baseline"]
+    summary = {"name": "t", "stages": {"verify": {"status": "ran", "outputs": outputs}}}
+    assert f"{math.degrees(record['baseline']):.1f}" in summary_card(summary, {"arm_angle": "rad"})
+
+    config["verify"]["largest_step"] = {"scenario": "arm to +80 deg", "criterion": "bounded"}
+    with pytest.raises(DataError, match="names no scenario; known: \\['arm to \\+75 deg'\\]"):
+        stages.verify(stages.StageContext(tmp_path, config))

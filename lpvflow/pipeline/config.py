@@ -220,6 +220,15 @@ def breakpoints(value: Any, where: str) -> list:
     return numbers(value, where)
 
 
+def largest_step(value: Any, where: str) -> dict[str, str]:
+    """``{ scenario = "name of a step scenario", criterion = "bounded" | "passes" }`` (criterion optional,
+    default "bounded": the run stays within its output_bounds)."""
+    if not isinstance(value, dict) or "scenario" not in value or set(value) - {"scenario", "criterion"}:
+        raise _fail(where, value, '{ scenario = "arm to +75 deg", criterion = "bounded" }')
+    criterion = string(("bounded", "passes"))(value.get("criterion", "bounded"), f"{where}.criterion")
+    return {"scenario": string()(value["scenario"], f"{where}.scenario"), "criterion": criterion}
+
+
 def vertex_weights(value: Any, where: str) -> list[dict[str, Any]]:
     """A list of partial weight tables, one per vertex (breakpoint) of the design polytope: each replaces
     entries of ``[synth] weights`` at its vertex (scheduled weights)."""
@@ -350,6 +359,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "verify": {
         "loop": Key(REQUIRED, loop, "how the controller is wired to the plant FMU ([verify.loop])"),
         "scenario": Key(REQUIRED, scenarios, "closed-loop runs ([[verify.scenario]])"),
+        "largest_step": Key(None, largest_step, "{ scenario = NAME, criterion = bounded|passes }: the "
+                            "largest step of that scenario each controller holds"),
     },
     "export": {
         "formats": Key(["fmu", "json", "mat"], formats, "controller files to write: fmu, json, mat"),

@@ -625,13 +625,35 @@ def verify(ctx: StageContext) -> tuple[dict, list[str]]:
     loop = parse_loop(cfg["loop"])
     scenarios = [parse_scenario(doc, i) for i, doc in enumerate(cfg["scenario"])]
     controller, baseline = load(ctx.path("controller.json")), load(ctx.path("baseline.json"))
-    result = run_verification(controller, ctx.config["design"]["plant"], scenarios, loop, baseline)
+    plant = ctx.config["design"]["plant"]
+    result = run_verification(controller, plant, scenarios, loop, baseline)
     artifacts = []
     for i, scenario_result in enumerate(result.results):
         name = f"verify_{i}.png"
         plot_runs(scenario_result.runs, ctx.path(name), title=scenarios[i].name)
         artifacts.append(name)
-    return result.to_dict(), artifacts
+    outputs = result.to_dict()
+    if cfg["largest_step"]:
+        outputs["largest_held_step"] = largest_steps(cfg["largest_step"], scenarios, plant, loop,
+                                                     {"lpv": controller, "baseline": baseline})
+    return outputs, artifacts
+
+
+def largest_steps(spec: dict, scenarios: list, plant: str, loop, controllers: dict) -> dict:
+    """``[verify] largest_step``: for each controller, the largest step of the named scenario it holds
+    (:func:`lpvflow.pipeline.step_sweep.largest_held_step`, bisection to its default resolution)."""
+    from lpvflow.errors import DataError
+    from lpvflow.pipeline.step_sweep import DEFAULT_RESOLUTION, largest_held_step, step_output
+
+    template = next((s for s in scenarios if s.name == spec["scenario"]), None)
+    if template is None:
+        raise DataError(f"[verify] largest_step.scenario = {spec['scenario']!r} names no scenario; "
+                        f"known: {[s.name for s in scenarios]}")
+    output = step_output(template, None)[0]
+    record = {"output": output, "criterion": spec["criterion"], "resolution": DEFAULT_RESOLUTION}
+    for key, law in controllers.items():
+        record[key] = largest_held_step(law, plant, loop, template, criterion=spec["criterion"])
+    return record
 
 
 # -------------------------------------------------------------------------------------- adoption

@@ -241,14 +241,17 @@ def hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, nc
     if len({v.dims for v in vertices}) > 1 or len({float(G.dt) for G in plants}) > 1:
         raise ModelError("the vertex plants differ in size, partition or sampling time")
     check_a3(vertices)
+    Ts = float(plants[0].dt)
     if breakpoints is not None:
         from lpvflow.synth.rate_bounded import synthesize_scheduled
 
-        return synthesize_scheduled(vertices, breakpoints, float(plants[0].dt), rate_bound=rate_bound,
-                                    suboptimality=suboptimality or 1e-2, solver=solver)
+        delta = 1e-2 if suboptimality is None else suboptimality
+        return synthesize_scheduled(vertices, breakpoints, Ts, rate_bound=rate_bound, suboptimality=delta,
+                                    solver=solver)
     if rate_bound is not None:
         raise ModelError("rate_bound needs breakpoints: the scheduling value of each plant in P")
-    return synthesize_vertices(vertices, float(plants[0].dt), suboptimality or 2.5e-3, gamma_max, solver)
+    delta = 2.5e-3 if suboptimality is None else suboptimality
+    return synthesize_vertices(vertices, Ts, delta, gamma_max, solver)
 
 
 def synthesize(plant: GeneralizedPlant, solver: str = "CLARABEL", gamma_max: float | None = None,

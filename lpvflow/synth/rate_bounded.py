@@ -335,6 +335,8 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
         ModelError: breakpoints that do not match the vertices, or B2, C2, D12, D21 not constant.
         SynthesisError: infeasible LMIs, or no level whose controller passes the certificate.
     """
+    if not suboptimality > 0:
+        raise ModelError(f"suboptimality must be positive, got {suboptimality!r}")
     schedule = Schedule(np.asarray(breakpoints, dtype=float), rate_bound)
     if len(vertices) != len(schedule.breakpoints):
         raise ModelError(f"{len(vertices)} vertex plants for {len(schedule.breakpoints)} breakpoints")

@@ -70,6 +70,17 @@ def adip_controller(structure: str, trim: Trim | None = TRIM) -> LPVController:
     return controller
 
 
+def fmu_open_loop(path: Path, w, p) -> np.ndarray:
+    """The exported controller FMU's outputs for inputs w(k) at scheduling p(k), from reset."""
+    fmu = FmuController(path)
+    try:
+        fmu.reset()
+        return np.array([fmu.step(np.asarray(wk, dtype=float), np.atleast_1d(pk))
+                         for wk, pk in zip(w, p, strict=True)])
+    finally:
+        fmu.close()
+
+
 def fmpy_closed_loop(controller_fmu: Path, plant_fmu: Path, scenario: Scenario, Ts: float, tmp: Path
                      ) -> tuple[np.ndarray, np.ndarray]:
     """An importer's loop with fmpy alone, wired by port names: per sample the plant's arm_angle and
@@ -153,12 +164,7 @@ def test_fmu_coordinates_are_the_python_hat_functions(tmp_path: Path) -> None:
                                np.eye(N)[:, :, None], _piecewise(), Basis("affine", 1), 0.01)
     path = export_fmu(controller, tmp_path / "lam.fmu")
     p = np.concatenate([BREAKPOINTS, np.linspace(-1.0, 1.0, 57), [-0.3, 0.3]])
-    fmu = FmuController(path)
-    try:
-        fmu.reset()
-        lam_fmu = np.array([fmu.step(np.array([1.0, 0.0]), np.array([pk])) for pk in p])  # w = r − y = 1
-    finally:
-        fmu.close()
+    lam_fmu = fmu_open_loop(path, [[1.0, 0.0]] * len(p), p)  # w = r − y = 1
     lam_python = np.array([controller.coordinates(np.array([pk])) for pk in p])
     np.testing.assert_allclose(lam_fmu, lam_python, rtol=0, atol=1e-15)
     np.testing.assert_array_equal(lam_python[:3], np.eye(3))  # a vertex at each breakpoint
@@ -173,12 +179,7 @@ def test_fmu_trim_is_np_interp_in_and_outside_the_table(tmp_path: Path) -> None:
                                Basis("affine", 1), 0.01, trim=trim)
     path = export_fmu(controller, tmp_path / "trim.fmu")
     p = np.concatenate([trim.p, np.linspace(-1.0, 1.0, 41)])
-    fmu = FmuController(path)
-    try:
-        fmu.reset()
-        u_fmu = np.array([fmu.step(np.zeros(2), np.array([pk])) for pk in p])
-    finally:
-        fmu.close()
+    u_fmu = fmu_open_loop(path, np.zeros((len(p), 2)), p)
     expected = np.array([[np.interp(pk, trim.p, column) for column in trim.u.T] for pk in p])
     np.testing.assert_allclose(u_fmu, expected, rtol=0, atol=1e-15)
 
@@ -227,12 +228,7 @@ def test_fmu_antiwindup_sees_the_command_with_the_trim(tmp_path: Path) -> None:
     path = export_fmu(controller, tmp_path / "aw.fmu")
     w, p = 0.3 * rng.standard_normal((300, 4)), rng.uniform(-0.9, 0.9, (300, 1))
     u_python = controller.simulate(w, p)
-    fmu = FmuController(path)
-    try:
-        fmu.reset()
-        u_fmu = np.array([fmu.step(wk, pk) for wk, pk in zip(w, p, strict=True)])
-    finally:
-        fmu.close()
+    u_fmu = fmu_open_loop(path, w, p)
     assert np.mean(np.abs(u_python) > 1.0) > 0.2  # the actuator saturates often
     np.testing.assert_allclose(u_fmu, u_python, rtol=0, atol=1e-9 * np.max(np.abs(u_python)))
 
@@ -249,10 +245,5 @@ def test_an_lti_baseline_on_a_point_polytope_exports_and_steps_like_python(tmp_p
     assert "LTI controller designed at p1 = 0.1" in read_model_description(str(path)).description
     w, p = rng.standard_normal((100, 2)), rng.uniform(-0.5, 1.5, (100, 1))
     u_python = controller.simulate(w, p)
-    fmu = FmuController(path)
-    try:
-        fmu.reset()
-        u_fmu = np.array([fmu.step(wk, pk) for wk, pk in zip(w, p, strict=True)])
-    finally:
-        fmu.close()
+    u_fmu = fmu_open_loop(path, w, p)
     np.testing.assert_allclose(u_fmu, u_python, rtol=0, atol=1e-12 * np.max(np.abs(u_python)))

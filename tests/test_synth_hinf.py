@@ -19,6 +19,7 @@ from lpvflow.synth.plant import generalized_plant
 from lpvflow.synth.polytope import polytope_of
 from lpvflow.synth.sdp import SynthesisError
 from tests.adip_cases import TS, adip_vertex, rm
+from tests.readme_blocks import run_python_block
 from tests.synth_cases import two_state_plant
 
 WEIGHTS = {"S": {"num": [0.1, 0.1], "den": [1, -1]}, "K": {"num": [0.01], "den": [1]},
@@ -340,16 +341,5 @@ def test_augw_generalized_plant_like_control_hinfsyn():
 
 def test_the_readme_example_runs_as_written():
     """The README's hinfsyn block, executed verbatim: the certified γ bounds the python-control norm."""
-    import contextlib
-    import io
-    import re
-    from pathlib import Path
-
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme[readme.index("## H∞ synthesis in python-control's idiom"):]
-    block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        exec(compile(block, "README.md", "exec"), {})
-    gamma, norm = (float(v) for v in out.getvalue().split())
+    gamma, norm = (float(v) for v in run_python_block("## H∞ synthesis in python-control's idiom").split())
     assert 0 < norm <= gamma

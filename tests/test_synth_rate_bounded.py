@@ -16,6 +16,7 @@ from lpvflow.synth.plant import VertexPlant, augment, generalized_plant, weight_
 from lpvflow.synth.rate_bounded import Schedule, fine_check, synthesize_rate_bounded
 from tests.adip_cases import TS as ADIP_TS
 from tests.adip_cases import adip_vertex, bundled_weights, rm
+from tests.readme_blocks import run_python_block
 
 TS = 0.01
 WEIGHTS = {"S": {"bandwidth": 1.0, "hf_gain": 2.0}, "K": {"num": [0.05], "den": [1]},
@@ -196,18 +197,7 @@ def test_bad_schedules_are_refused():
 
 def test_the_readme_example_runs_as_written():
     """The README's rate-bounded block, executed verbatim: the frozen loop's norm stays below γ."""
-    import contextlib
-    import io
-    import re
-    from pathlib import Path
-
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme[readme.index("### Gain scheduling with a rate bound"):]
-    block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        exec(compile(block, "README.md", "exec"), {})
-    gamma, norm = (float(v) for v in out.getvalue().split())
+    gamma, norm = (float(v) for v in run_python_block("### Gain scheduling with a rate bound").split())
     assert 0 < norm <= gamma
 
 

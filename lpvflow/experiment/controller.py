@@ -150,16 +150,20 @@ def _matrix(doc: dict, key: str, rows: int, cols: int) -> np.ndarray:
         raise ModelError(f"controller {key} is not a numeric matrix") from None
 
 
-def load_controller(path: str | Path) -> LtiController:
-    """Read a ``lpvflow/lti-controller`` JSON file; refuse other formats and versions."""
-    path = Path(path)
+def _read_controller_json(path: Path) -> object:
+    """The parsed JSON of a controller file; ModelError when it is missing or not JSON."""
     if not path.is_file():
         raise ModelError(f"controller file {path} does not exist")
     try:
-        doc = json.loads(path.read_text())
+        return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError):
         raise ModelError(f"controller file {path} is not valid JSON") from None
-    return LtiController.from_dict(doc, f"controller file {path}")
+
+
+def load_controller(path: str | Path) -> LtiController:
+    """Read a ``lpvflow/lti-controller`` JSON file; refuse other formats and versions."""
+    path = Path(path)
+    return LtiController.from_dict(_read_controller_json(path), f"controller file {path}")
 
 
 # ------------------------------------------------------------------------------ gridded (scheduled)
@@ -339,12 +343,7 @@ ExperimentController = LtiController | GriddedController
 def load_experiment_controller(path: str | Path) -> ExperimentController:
     """Read an ``lpvflow/lti-controller`` or ``lpvflow/gridded-controller`` JSON file."""
     path = Path(path)
-    if not path.is_file():
-        raise ModelError(f"controller file {path} does not exist")
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise ModelError(f"controller file {path} is not valid JSON") from None
+    doc = _read_controller_json(path)
     if isinstance(doc, dict) and doc.get("format") == GRIDDED_FORMAT:
         return GriddedController.from_dict(doc, f"controller file {path}")
     if isinstance(doc, dict) and doc.get("format") not in (FORMAT, None):

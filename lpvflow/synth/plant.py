@@ -93,9 +93,13 @@ class GeneralizedPlant:
 
     def at(self, lam: np.ndarray) -> VertexPlant:
         """The plant at convex coordinates λ."""
-        fields = VertexPlant.__dataclass_fields__
-        return VertexPlant(**{k: sum(w * getattr(v, k) for w, v in zip(lam, self.vertices, strict=True))
-                              for k in fields})
+        return interpolate(self.vertices, lam)
+
+
+def interpolate(vertices: list[VertexPlant], lam: np.ndarray) -> VertexPlant:
+    """Σ_i λ_i (vertex plant i), matrix by matrix."""
+    return VertexPlant(**{k: sum(w * getattr(v, k) for w, v in zip(lam, vertices, strict=True))
+                          for k in VertexPlant.__dataclass_fields__})
 
 
 def check_a3(vertices: list[VertexPlant]) -> None:

@@ -77,7 +77,7 @@ from lpvflow.synth.hinf import (
     closed_loop,
     lowest_certified_level,
 )
-from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
+from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3, interpolate
 from lpvflow.synth.polytope import hat_coordinates
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 
@@ -224,9 +224,7 @@ class ScheduledResult:
 
     def plant_at(self, p: float) -> VertexPlant:
         """The generalized plant at p: Σ λ_i(p) (vertex plant i)."""
-        lam = self.schedule.weights(p)
-        return VertexPlant(**{k: sum(li * getattr(v, k) for li, v in zip(lam, self.vertices, strict=True))
-                              for k in VertexPlant.__dataclass_fields__})
+        return interpolate(self.vertices, self.schedule.weights(p))
 
     def margin(self, plant: VertexPlant, p: float, q: float) -> float:
         """:meth:`Slack.certificate` of ``plant`` with the controller at p, from p to p⁺ = q."""
@@ -282,8 +280,7 @@ class _Levels:
 
     def _phi(self, p: float, q: float, gamma) -> cp.Expression:
         lam, lam_next = self.schedule.weights(p), self.schedule.weights(q)
-        v = VertexPlant(**{k: sum(li * getattr(w, k) for li, w in zip(lam, self.verts, strict=True))
-                           for k in VertexPlant.__dataclass_fields__})
+        v = interpolate(self.verts, lam)
         n, nw, _, nz, _ = v.dims
         X, Y, S = self.X, self.Y, self.S
         L, R, F, Q = (self._mix(m, lam) for m in (self.L, self.R, self.F, self.Q))

@@ -60,6 +60,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from itertools import pairwise
 
 import control
@@ -130,6 +131,22 @@ class Slack:
     V: np.ndarray
     T: np.ndarray
 
+    @cached_property
+    def T_inv(self) -> np.ndarray:
+        return np.linalg.inv(self.T)
+
+    @cached_property
+    def Pi_G(self) -> np.ndarray:
+        """𝒢𝒯 = [X I; U 0]."""
+        n = self.X.shape[0]
+        return np.block([[self.X, np.eye(n)], [self.U, np.zeros((n, n))]])
+
+    @cached_property
+    def Pi_V(self) -> np.ndarray:
+        """𝒯 = [I Yᵀ; 0 Vᵀ]."""
+        n = self.X.shape[0]
+        return np.block([[np.eye(n), self.Y.T], [np.zeros((n, n)), self.V.T]])
+
     def certificate(self, plant: VertexPlant, K: tuple[np.ndarray, ...], P_hat: np.ndarray,
                     P_hat_next: np.ndarray, gamma: float) -> float:
         """Margin of Φ(p, p⁺) for the closed loop of ``plant`` (original coordinates) and ``K`` (numbers as
@@ -142,15 +159,12 @@ class Slack:
         congruence); Φ̃ is where the blocks are O(1). Margin: λ_min of the Jacobi-scaled Φ̃ minus
         ROUNDOFF_FACTOR·m·ε·‖D⁻¹ E D⁻¹‖₂, E the same products formed with absolute values (the size of
         the terms that cancel in forming Φ̃)."""
-        Ti = np.linalg.inv(self.T)
+        Ti = self.T_inv
         v = VertexPlant(Ti @ plant.A @ self.T, Ti @ plant.B1, Ti @ plant.B2, plant.C1 @ self.T,
                         plant.C2 @ self.T, plant.D11, plant.D12, plant.D21, plant.D22)
         A, B, C, D = closed_loop(v, K)
-        n = self.X.shape[0]
-        I, Z = np.eye(n), np.zeros((n, n))
-        PiG = np.block([[self.X, I], [self.U, Z]])
-        PiV = np.block([[I, self.Y.T], [Z, self.V.T]])
-        nw, nz, m = B.shape[1], C.shape[0], 2 * n
+        PiG, PiV = self.Pi_G, self.Pi_V
+        nw, nz, m = B.shape[1], C.shape[0], 2 * self.X.shape[0]
 
         def assemble(A, B, C, D, PiG, PiV, Pn, P, g):
             He = PiV.T @ PiG
@@ -171,9 +185,8 @@ class Slack:
     def lyapunov_value(self, xi: np.ndarray, P_hat: np.ndarray) -> float:
         """V = ξᵀ𝒫⁻¹ξ = (𝒯ᵀξ̄)ᵀP̂⁻¹(𝒯ᵀξ̄), ξ̄ = [T⁻¹x; x_K] (ξ = [x; x_K] in original coordinates)."""
         n = self.X.shape[0]
-        xbar = np.concatenate([np.linalg.solve(self.T, xi[:n]), xi[n:]])
-        PiV = np.block([[np.eye(n), self.Y.T], [np.zeros((n, n)), self.V.T]])
-        w = PiV.T @ xbar
+        xbar = np.concatenate([self.T_inv @ xi[:n], xi[n:]])
+        w = self.Pi_V.T @ xbar
         return float(w @ np.linalg.solve(P_hat, w))
 
 

@@ -379,10 +379,10 @@ def scenario_tally(summary: dict) -> str:
 
 
 def summary_card(summary: dict, units: dict[str, str]) -> str:
-    """The report's first screen: the verdict, the specification, the LPV controller against the LTI
-    baseline per scenario (nominal, then on perturbed plants: scenarios with ``parameter_factors``), γ of
-    both and the largest step the baseline holds. ``units``: signal name → unit (angles in rad are shown
-    in degrees)."""
+    """The report's first screen: the verdict (and, for a run that stopped early, where and why), the
+    specification, the LPV controller against the LTI baseline per scenario (nominal, then on perturbed
+    plants: scenarios with ``parameter_factors``), γ of both and the largest step the baseline holds.
+    ``units``: signal name → unit (angles in rad are shown in degrees)."""
     shown = {name: _Unit.of(unit) for name, unit in units.items()}
     verdict = summary.get("verdict") or {"pass": False, "reason": "no verdict recorded"}
     stages = summary["stages"]
@@ -393,6 +393,10 @@ def summary_card(summary: dict, units: dict[str, str]) -> str:
     line = f"Verdict: {'pass' if verdict['pass'] else 'did not pass'}" + (f" — {tally}" if tally else "")
     parts = [f'<p class="verdict {css}"><b>{html.escape(line)}</b></p>',
              f'<p class="why">{html.escape(verdict["reason"])}</p>']
+    if summary.get("failed"):
+        f = summary["failed"]
+        parts.append(f'<p class="fail">Stopped at stage <b>{html.escape(f["stage"])}</b>: '
+                     f"{html.escape(f['error'])}</p>")
     if scenarios:
         nominal = [s for s in scenarios if not s.get("parameter_factors")]
         perturbed = [s for s in scenarios if s.get("parameter_factors")]
@@ -433,10 +437,6 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
     drawn = _figures(folder)
     sections = [f"<h1>lpvflow design: {html.escape(summary['name'])}</h1>",
                 summary_card(summary, signal_units(folder) if units is None else units)]
-    if summary.get("failed"):
-        f = summary["failed"]
-        sections.append(f'<p class="fail">Stopped at stage <b>{html.escape(f["stage"])}</b>: '
-                        f"{html.escape(f['error'])}</p>")
     times = [(n, f"{s.get('seconds', float('nan')):.1f} s ({s['status']})" if "seconds" in s else s["status"])
              for n, s in summary["stages"].items()]
     sections.append("<h2>Stages</h2>" + _table(times))

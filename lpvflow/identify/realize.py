@@ -107,3 +107,33 @@ def realize_io(io: LPVIO) -> LPVSS:
                          u_names=io.u_names, y_names=io.y_names, p_names=io.p_names)
     ss.io = io
     return ss
+
+
+def integrate_outputs(ss: LPVSS, outputs: list[str]) -> LPVSS:
+    """The model of y from a model ``ss`` whose outputs ``outputs`` are increments w_j(k) = y_j(k) − y_j(k−1).
+
+    With one extra state s_j(k) = y_j(k−1) per integrated output (J the rows of ``outputs``, E_J the
+    columns that put s_j into row j), y_j(k) = s_j(k) + w_j(k) and s_j(k+1) = y_j(k) give
+
+        [x; s](k+1) = [[A(θ), 0], [C_J(θ), I]] [x; s](k) + [B(θ); D_J(θ)] u(k),
+        y(k)        = [C(θ), E_J] [x; s](k) + D(θ) u(k),
+
+    affine in ψ(p(k)) like ``ss`` (the identity blocks are the ψ_0 = 1 component). The frozen transfer
+    function of row j is that of ``ss`` divided by (1 − q⁻¹); the other rows are unchanged. The
+    innovation gain K, if any, is dropped (the increments' noise model is not y's); ``io`` too.
+    """
+    missing = [name for name in outputs if name not in ss.y_names]
+    if missing:
+        raise ModelError(f"cannot integrate {missing}: the model's outputs are {ss.y_names}")
+    rows = [ss.y_names.index(name) for name in outputs]
+    n_psi, nx, nj = ss.A.shape[0], ss.nx, len(rows)
+    A = np.zeros((n_psi, nx + nj, nx + nj))
+    A[:, :nx, :nx] = ss.A
+    A[:, nx:, :nx] = ss.C[:, rows, :]
+    A[0, nx:, nx:] = np.eye(nj)
+    B = np.concatenate([ss.B, ss.D[:, rows, :]], axis=1)
+    C = np.zeros((n_psi, ss.ny, nx + nj))
+    C[:, :, :nx] = ss.C
+    C[0, rows, nx + np.arange(nj)] = 1.0
+    return LPVSS(A, B, C, ss.D.copy(), ss.basis, ss.Ts, u_names=list(ss.u_names), y_names=list(ss.y_names),
+                 p_names=list(ss.p_names))

@@ -325,6 +325,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
                           "(default <first input>_excitation)"),
         "prefilter": Key("none", prefilter, "filter on u and y before estimation: none, lowpass:F, "
                          "bandpass:F1,F2 (Hz)"),
+        "remove_trim": Key(False, boolean, "identify from the inputs minus the [experiment] controller's "
+                           "trim u_op(θ(k)) (the model's input is then u − u_op)"),
+        "increments": Key([], names(empty=True), "outputs identified through their increments y(k) − y(k−1) "
+                          "and integrated back in the model"),
     },
     "diagnose": {
         "adopt": Key(False, boolean, "let the diagnosed extension replace the identified model"),

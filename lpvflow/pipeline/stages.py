@@ -7,6 +7,7 @@ caches them (:mod:`lpvflow.pipeline.cache`) and reports them.
 
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -50,14 +51,77 @@ def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
     return {"samples": len(record.time), "Ts": record.Ts, "ranges": ranges}, ["data.csv"]
 
 
-def read_data(ctx: StageContext) -> tuple[Dataset, Dataset]:
-    """Estimation and validation parts; with ``remove_offsets`` both have the estimation part's mean
+def read_data(ctx: StageContext, model_signals: bool = False) -> tuple[Dataset, Dataset]:
+    """Estimation and validation parts, as measured or (``model_signals``) in the signals the model is
+    identified in (:func:`model_coordinates`); with ``remove_offsets`` both have the estimation part's mean
     inputs and outputs subtracted (the model then works in deviations from that operating point)."""
     cfg = ctx.config["identify"]
-    est, val = Dataset.read(ctx.path("data.csv"), cfg["u"], cfg["y"], cfg["p"]).split(cfg["split"])
+    data = Dataset.read(ctx.path("data.csv"), cfg["u"], cfg["y"], cfg["p"])
+    est, val = (model_coordinates(ctx, data) if model_signals else data).split(cfg["split"])
     if not cfg["remove_offsets"]:
         return est, val
     return without_offsets(est, est), without_offsets(val, est)
+
+
+def model_coordinates(ctx: StageContext, data: Dataset) -> Dataset:
+    """The whole record ``data`` in the signals the model is identified in.
+
+    * ``[identify] remove_trim``: each input the experiment controller drives minus that controller's
+      trim u_op(θ(k)) (:func:`controller_trim`). The model then describes the plant with the trim closed
+      around it. On the ADIP the trim V_eq(φ1) = −d1 sin φ1 / (motor gain) cancels the arm's gravity torque
+      d1 sin φ1; left in, that torque has to be carried by LPV coefficients of the absolute arm angle, whose
+      frozen value is the secant d1 sin φ1/φ1 instead of the linearization's d1 cos φ1 (ν-gap 0.19 at ±75°
+      between the two exact frozen models).
+    * ``[identify] increments``: the listed outputs replaced by their increments y(k) − y(k−1) (0 at k = 0);
+      :func:`identify` integrates the model back (:func:`lpvflow.identify.realize.integrate_outputs`).
+      Coefficients scheduled on a measured, fast-moving p(k) multiply the increments (small, like the
+      other signals) instead of an absolute angle of up to 1.3 rad, so an error in their timing stays small.
+    """
+    cfg = ctx.config["identify"]
+    changes: dict[str, np.ndarray] = {}
+    if cfg["remove_trim"]:
+        changes["u"] = data.u - controller_trim(ctx, data)
+    if cfg["increments"]:
+        unknown = [name for name in cfg["increments"] if name not in data.y_names]
+        if unknown:
+            raise DataError(f"[identify] increments {unknown} are not model outputs {data.y_names}")
+        y = data.y.copy()
+        rows = [data.y_names.index(name) for name in cfg["increments"]]
+        y[:, rows] = np.diff(data.y[:, rows], axis=0, prepend=data.y[:1, rows])
+        changes["y"] = y
+    return replace(data, **changes)
+
+
+def controller_trim(ctx: StageContext, data: Dataset) -> np.ndarray:
+    """The experiment controller's trim at every sample of ``data`` (the whole record), (N, nu) over the
+    model inputs (0 for inputs it does not drive): a gridded controller's u_op(θ(k)), θ(k) its scheduling
+    expression of the recorded measurements and set-points (``<output>_setpoint``, 0 where not recorded)
+    and u_op interpolated linearly on its grid, clipped at the ends, as the controller ran
+    (:meth:`~lpvflow.experiment.controller.GriddedController.at`); an LTI controller's constant u_op."""
+    from lpvflow.data import read_columns
+    from lpvflow.experiment.controller import GriddedController, load_experiment_controller
+    from lpvflow.experiment.scheduling import evaluate
+
+    path = ctx.config["experiment"]["controller"]
+    if not path:
+        raise DataError("[identify] remove_trim needs an [experiment] controller (its trim is removed)")
+    K = load_experiment_controller(path)
+    missing = [name for name in K.outputs if name not in data.u_names]
+    if missing:
+        raise DataError(f"[identify] remove_trim: the experiment controller drives {missing}, which are not "
+                        f"model inputs {data.u_names}")
+    trim = np.zeros_like(data.u)
+    columns = [data.u_names.index(name) for name in K.outputs]
+    if not isinstance(K, GriddedController):
+        trim[:, columns] = K.u_op
+        return trim
+    table = read_columns(ctx.path("data.csv"))
+    signals = {name: table[name][: data.N] for name in K.inputs}
+    signals |= {f"{name}_setpoint": table.get(f"{name}_setpoint", np.zeros(len(table["time"])))[: data.N]
+                for name in K.inputs}
+    theta = np.broadcast_to(evaluate(K.scheduling, signals), (data.N,))
+    trim[:, columns] = np.column_stack([np.interp(theta, K.grid, column) for column in K.u_op.T])
+    return trim
 
 
 def without_offsets(data: Dataset, est: Dataset) -> Dataset:
@@ -75,7 +139,9 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     (kcca-lfr-affine). IO models get the one-step-ahead equation-error residuals on the validation part
     (BFR, Ljung–Box p-value, residuals.png); state-space models do not (their fit is the validate stage's).
     Two-step takes the external excitation from the column ``[identify] excitation`` (default: the
-    experiment's ``<input>_excitation`` column of the first input)."""
+    experiment's ``<input>_excitation`` column of the first input). The estimator sees the signals of
+    :func:`model_coordinates` (the residuals are theirs: an output in ``increments`` has its increments'
+    residuals); outputs in ``increments`` are integrated back into the saved model."""
     from lpvflow.identify.arx import prediction_residuals
     from lpvflow.lfr import LPVLFR, require_affine
     from lpvflow.pipeline.cli_identify import IO_METHODS, estimate
@@ -85,7 +151,7 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     if method == "static-arx":
         raise DataError("[identify] method = \"static-arx\" has no state-space realization (static "
                         "dependence); use \"lpr-arx\" or another shifted-form method")
-    est, val = read_data(ctx)
+    est, val = read_data(ctx, model_signals=True)
     excitation = None
     if method == "two-step":
         from lpvflow.data import read_columns
@@ -118,7 +184,13 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
             ss = require_affine(model) if isinstance(model, LPVLFR) else model
         except LpvflowError as exc:
             raise DataError(f"[identify] method = {method!r}: {exc}; use \"kcca-lfr-affine\"") from None
+    if cfg["increments"]:
+        from lpvflow.identify.realize import integrate_outputs
+
+        ss = integrate_outputs(ss, cfg["increments"])
     ss.save(ctx.path("model_full.json"))
+    if cfg["remove_trim"]:
+        outputs["input"] = f"{', '.join(ss.u_names)} minus the trim u_op(θ) of the experiment controller"
     outputs |= {"nx": ss.nx, "offsets": est.offsets,
                 "scheduling_range": [list(ss.basis.p_min), list(ss.basis.p_max)]}
     return outputs, artifacts
@@ -225,6 +297,9 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     from lpvflow.validate.extensions import Structure
 
     cfg, ident = ctx.config["diagnose"], ctx.config["identify"]
+    if ident["remove_trim"] or ident["increments"]:
+        raise DataError("[diagnose] works on the measured signals: it cannot be combined with [identify] "
+                        "remove_trim or increments")
     table = read_columns(ctx.path("data.csv"))  # read once: the dataset and the candidate columns
     data = Dataset.from_columns(table, "data.csv", ident["u"], ident["y"], ident["p"], time="auto")
     experiment = ctx.config["experiment"]
@@ -304,7 +379,8 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     outputs with the experiment's scheduling expressions (quasi-LPV, as on the plant); y(k) uses C at
     p(k−1), which is exact for the observable-form realizations (C independent of p). A gridded
     (gain-scheduled) controller runs its own law on the simulated outputs and the recorded set-points
-    (``<output>_setpoint``) and excitation (``<input>_excitation``).
+    (``<output>_setpoint``) and excitation (``<input>_excitation``). With ``[identify] remove_trim`` the
+    model's input is the controller's output without its trim u_op (:func:`model_coordinates`).
     """
     from lpvflow.data import read_columns
     from lpvflow.experiment.controller import GriddedController, load_experiment_controller
@@ -324,6 +400,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     y_index = [data.y_names.index(n) for n in K.inputs]
     expressions = [compile_expression(cfg["scheduling"][name], data.y_names) for name in data.p_names]
     gridded = isinstance(K, GriddedController)
+    with_trim = not ctx.config["identify"]["remove_trim"]
     if gridded:
         given = [j for j, n in enumerate(K.inputs) if f"{n}_setpoint" in table]
         setpoints = np.zeros((data.N, len(K.inputs)))
@@ -345,11 +422,11 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
                 Ak, Bk, Ck, Dk, y_bar, u_op = K.at(theta_of(np.concatenate([y[y_index], setpoints[k]])))
                 y_bar[given] = setpoints[k, given]
                 dy = y[y_index] - y_bar
-                u[u_index] = u_op + Ck @ xc + Dk @ dy + excitation[k]
+                u[u_index] = with_trim * u_op + Ck @ xc + Dk @ dy + excitation[k]
                 xc = Ak @ xc + Bk @ dy
             else:
                 dy = y[y_index] - K.y_op
-                u[u_index] = K.u_op + K.C @ xc + K.D @ dy + excitation[k]
+                u[u_index] = with_trim * K.u_op + K.C @ xc + K.D @ dy + excitation[k]
                 xc = K.A @ xc + K.B @ dy
             x = A @ x + B @ u
             if not np.all(np.abs(x) < 1e12):
@@ -383,7 +460,8 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
         plot_fit(ctx.path("fit.png"), val, y_sim)
         artifacts.append("fit.png")
     reference = _fmu_reference(ctx, model)
-    K, K_note = _frozen_experiment_controller(ctx, model, reference)
+    K, K_note, trim_feedback = _frozen_experiment_controller(ctx, model, reference)
+    compared = reference if trim_feedback is None else _trim_closed(reference, trim_feedback)
     scale = _scaling(cfg["scaling"], est, model)
     box = np.column_stack([model.basis.p_min, model.basis.p_max])
     points = cfg["points"]
@@ -398,15 +476,15 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
                 frozen_K = K is not None and not hasattr(K, "A")  # a gridded K_id: p ↦ K_id(θ(p))
                 scaled_K = (lambda p: scale.controller(K(p))) if frozen_K else scale.controller(K)
                 if points:
-                    rows = [compare_frozen(scale.model(model), scale.plant_at(reference), 2, scaled_K,
+                    rows = [compare_frozen(scale.model(model), scale.plant_at(compared), 2, scaled_K,
                                            box=[[v, v + _POINT_WIDTH] for v in point])[0] for point in points]
                 else:
-                    rows = compare_frozen(scale.model(model), scale.plant_at(reference), cfg["grid"],
+                    rows = compare_frozen(scale.model(model), scale.plant_at(compared), cfg["grid"],
                                           scaled_K, box=box)
             if reference is not None:
                 points = [np.asarray(row["p"]) for row in rows]
                 shown = [points[i] for i in sorted({0, len(points) // 2, len(points) - 1})]
-                bode_overlay(ctx.path("bode.png"), model.frozen, reference, shown)
+                bode_overlay(ctx.path("bode.png"), model.frozen, compared, shown)
                 gap_margin_plot(ctx.path("nugap.png"), rows)
                 artifacts += ["bode.png", "nugap.png"]
     finally:
@@ -475,34 +553,61 @@ def _scaling(setting: str | dict, est: Dataset, model: LPVSS):
     return SignalScaling(est.u.std(axis=0), est.y.std(axis=0), enabled=setting == "data")
 
 
-def _frozen_experiment_controller(ctx: StageContext, model: LPVSS, reference) -> tuple[object, str | None]:
-    """K_id for b(Ĝ(θ), K_id), in negative feedback over the model's signals, and a note (or None).
+def _frozen_experiment_controller(
+    ctx: StageContext, model: LPVSS, reference
+) -> tuple[object, str | None, object]:
+    """K_id for b(Ĝ(θ), K_id), in negative feedback over the model's signals, a note (or None), and the
+    trim's feedback (or None).
 
     An LTI experiment controller is the same at every θ. A gridded one is linearized
     (:meth:`~lpvflow.experiment.controller.GriddedController.linearized`: frozen at its own scheduling
     value, with the trim's feedback) at the FMU equilibrium with that θ (the reference's operating point,
     set-points equal to the outputs there); without an FMU reference that point is unknown and b is not
-    computed (the note says so)."""
+    computed (the note says so). With ``[identify] remove_trim`` the model's input is u − u_op(θ), so K_id is
+    the controller frozen without the trim's feedback, and the third item is p ↦ that feedback T(p), the
+    static gain with u = −T y (−∂u_op/∂y at the equilibrium), which :func:`_trim_closed` closes around the
+    FMU linearization: the loop (G_FMU, K_id with trim) is the loop (G_FMU closed by T, K_id without it)."""
     from lpvflow.experiment.controller import GriddedController, load_experiment_controller
 
     path = ctx.config["experiment"]["controller"]
     if not path:
-        return None, None
+        return None, None, None
     K = load_experiment_controller(path)
-    if not isinstance(K, GriddedController):
-        return K.negative_feedback(model.y_names, model.u_names), None
+    if not isinstance(K, GriddedController):  # a constant trim has no feedback
+        return K.negative_feedback(model.y_names, model.u_names), None, None
     if reference is None:
         return None, ("b(Ĝ(θ), K_id) needs the operating point of the gridded controller at each θ; "
-                      "set [validate] reference = \"linearization\" to compute it")
+                      "set [validate] reference = \"linearization\" to compute it"), None
     operating = reference.reference
+    theta_of = K.scheduling_function()
+    trim_removed = ctx.config["identify"]["remove_trim"]
 
-    def frozen(p: np.ndarray):
-        point = operating.equilibrium(p)
+    @functools.cache
+    def laws(p: tuple[float, ...]) -> tuple:
+        point = operating.equilibrium(np.array(p))
         outputs = dict(zip(operating.plant.output_names, point.y, strict=True))
         read = np.array([outputs[name] for name in K.inputs])
-        return K.linearized(read).negative_feedback(model.y_names, model.u_names)
+        bare = K.frozen_at(theta_of(np.concatenate([read, read])))
+        return (K.linearized(read).negative_feedback(model.y_names, model.u_names),
+                bare.negative_feedback(model.y_names, model.u_names))
 
-    return frozen, None
+    def frozen(p: np.ndarray):
+        linearized, bare = laws(tuple(np.asarray(p, dtype=float).tolist()))
+        return bare if trim_removed else linearized
+
+    def trim_feedback(p: np.ndarray) -> np.ndarray:
+        linearized, bare = laws(tuple(np.asarray(p, dtype=float).tolist()))
+        return linearized.D - bare.D
+
+    return frozen, None, trim_feedback if trim_removed else None
+
+
+def _trim_closed(reference, trim_feedback):
+    """p ↦ the frozen reference G(p) with the trim's feedback closed around it, u = u_model − T(p) y: the
+    plant as the model sees it with ``[identify] remove_trim``."""
+    import control
+
+    return lambda p: control.feedback(reference(p), trim_feedback(p), sign=-1)
 
 
 def _fmu_reference(ctx: StageContext, model: LPVSS):

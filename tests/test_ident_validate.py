@@ -102,6 +102,7 @@ def test_bundled_adip_identification_covers_75_degrees_and_passes_the_gate(tmp_p
                                np.linspace(-75, 75, 9), atol=1e-6)
     assert validate["scaling"] == {"voltage": 3.0, "arm_angle": 0.3, "pendulum_angle": 0.025}
     nugap, b = np.array(validate["nugap"]), np.array(validate["b_P_Kid"])
+    np.testing.assert_allclose(validate["gate_margin"], b - nugap)
     assert np.all(nugap < 0.1) and np.all(b - nugap > 0.03)
     assert validate["gate"]["passed"] is True and summary["failed"] is None
     assert min(validate["fit"]["bfr"]) > 85

@@ -439,8 +439,9 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     """Fit on validation data (closed-loop simulation under the experiment's controller) and, on a grid
     of frozen scheduling values, the generalized stability margin b(Ĝ(θ), K_id) and — with
     ``reference = "linearization"`` or ``"local"`` — the ν-gap δν(G_FMU(θ), Ĝ(θ)) to the plant FMU at
-    its equilibrium with that scheduling value (thesis Fig. 6.11, notes_002 §6.4: δν < b over the range
-    means K_id stabilizes every frozen plant the model is that close to)."""
+    its equilibrium with that scheduling value, and the gate's margin b − δν at each point (thesis
+    Fig. 6.11, notes_002 §6.4: δν < b over the range means K_id stabilizes every frozen plant the model is
+    that close to)."""
     from lpvflow.pipeline.cli_identify import plot_fit
     from lpvflow.validate.frozen import compare_frozen
     from lpvflow.validate.metrics import fit_report
@@ -501,6 +502,7 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
         outputs["reference"] = cfg["reference"]
         outputs["nugap"] = [row["nugap"] for row in rows]
         if K is not None:
+            outputs["gate_margin"] = [row["stability_margin_b"] - row["nugap"] for row in rows]
             outputs["nugap_below_b_everywhere"] = all(row["passes"] for row in rows)
     outputs["gate"] = gate_verdict(outputs, cfg["gate"])
     return outputs, artifacts

@@ -13,8 +13,8 @@ Cases (all discrete generalized plants, inputs [w, u], outputs [z, y]):
   weights and box of lpvflow/pipeline/examples/maglev.toml.
 
 (``examples.maglev_like`` is not a case: its W_B = 0.99(z + 1)/(z(z + 0.98)) puts a zero of the control
-channel on the unit circle at z = −1, a singular H∞ problem whose LMI solutions grow without bound; the
-certified level stays 5× above γ_lower there.)
+channel on the unit circle at z = −1, a singular H∞ problem whose LMI solutions grow without bound; no
+level up to 1.6 γ_lower is certified there.)
 
 ``ratio`` = hinfsyn's wall time / the wall time of one Clarabel solve of the γ-minimisation SDP it
 poses (step 2 of the module docstring, in the same run and coordinates): the floor any LMI synthesis of

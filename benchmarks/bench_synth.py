@@ -13,12 +13,18 @@ Cases (all discrete generalized plants, inputs [w, u], outputs [z, y]):
   weights and box of lpvflow/pipeline/examples/maglev.toml.
 
 (``examples.maglev_like`` is not a case: its W_B = 0.99(z + 1)/(z(z + 0.98)) puts a zero of the control
-channel on the unit circle at z = −1, a singular H∞ problem whose LMI solutions grow without bound; the
-certified level stays 5× above γ_lower there.)
+channel on the unit circle at z = −1, a singular H∞ problem whose LMI solutions grow without bound; no
+level up to 1.6 γ_lower is certified there.)
 
 ``ratio`` = hinfsyn's wall time / the wall time of one Clarabel solve of the γ-minimisation SDP it
 poses (step 2 of the module docstring, in the same run and coordinates): the floor any LMI synthesis of
 this γ needs. One thread (OPENBLAS_NUM_THREADS=1 is set below), best of three runs each.
+
+``maglev_ceiling``: what any LPV controller of the maglev design can reach at best relative to the LTI
+point design (issue 22 asks LPV γ ≤ 1.15 × LTI γ): an LPV controller frozen at y2 is an LTI controller
+for the plant frozen there, so its γ is at least the frozen SB10DD optimum at every y2 of the box; the
+ceiling is the largest of these over a grid of the box divided by the LTI point design's γ at
+``baseline_at``.
 
 Run:  .venv/bin/python benchmarks/bench_synth.py   → benchmarks/results/synth.json + a table
 """
@@ -68,6 +74,24 @@ def cases() -> dict:
     }
 
 
+def maglev_ceiling(points: int = 23) -> dict:
+    """The frozen SB10DD optimum on a grid of the maglev box, the LTI point design (hinfsyn at
+    ``baseline_at``) and their ratio (module docstring)."""
+    synth = tomllib.loads(bundled_config("maglev").read_text())["synth"]
+    model = load(Path(__file__).resolve().parents[1] / "build" / "design" / "maglev" / "model.json")
+    (lo, hi), = synth["box"]
+    grid = np.linspace(lo, hi, points)
+    frozen = [riccati_gamma(generalized_plant(model, synth["weights"], [[p, p]]).vertices[0], model.Ts)
+              for p in grid]
+    at = synth["baseline_at"][0]
+    point = generalized_plant(model, synth["weights"], [[at, at]])
+    lti = hinf.synthesize_vertices(point.vertices, point.Ts).gamma
+    worst = int(np.argmax(frozen))
+    return {"y2_worst": float(grid[worst]), "frozen_optimum_worst": frozen[worst], "baseline_at": at,
+            "lti_gamma": lti, "lti_riccati": riccati_gamma(point.vertices[0], point.Ts),
+            "ceiling_ratio": frozen[worst] / lti}
+
+
 def one_sdp_seconds(vertices: list, Ts: float) -> float:
     """Wall time of one γ-minimisation solve, as hinfsyn poses it (timed around the solver call)."""
     timings = []
@@ -108,7 +132,8 @@ def measure(name: str, vertices: list, Ts: float) -> dict:
 
 def main() -> None:
     rows = [measure(name, *case) for name, case in cases().items()]
-    OUT.write_text(json.dumps({"rows": rows}, indent=1, default=float) + "\n")
+    ceiling = maglev_ceiling()
+    OUT.write_text(json.dumps({"rows": rows, "maglev_ceiling": ceiling}, indent=1, default=float) + "\n")
     print(f"{'case':12} {'N':>2} {'n':>3} {'γ':>9} {'γ/SB10DD':>9} {'s':>7} {'one SDP s':>9} {'ratio':>6}")
     for r in rows:
         if "error" in r:
@@ -117,6 +142,10 @@ def main() -> None:
         ric = f"{r['gamma_over_riccati']:.4f}" if "gamma_over_riccati" in r else "–"
         print(f"{r['case']:12} {r['vertices']:>2} {r['order']:>3} {r['gamma']:9.5g} {ric:>9} "
               f"{r['seconds']:7.3f} {r['one_sdp_seconds']:9.3f} {r['ratio']:6.1f}")
+    c = ceiling
+    print(f"maglev: worst frozen SB10DD optimum {c['frozen_optimum_worst']:.5f} at y2 = {c['y2_worst']:.4f}; "
+          f"LTI point design at {c['baseline_at']:g}: {c['lti_gamma']:.5f} (SB10DD {c['lti_riccati']:.5f}); "
+          f"ceiling ratio {c['ceiling_ratio']:.4f}")
     print(f"numpy {np.__version__}")
 
 

@@ -275,12 +275,16 @@ def test_cli_synth_writes_controller_and_keeps_model(tmp_path):
     model.save(mpath)
     before = mpath.read_bytes()
     cpath.write_text('[synth]\nweights.S = {num = [0.1, 0.1], den = [1, -1]}\n'
-                     'weights.K = {num = [0.01], den = [1]}\nweights.B = {num = [0, 0.5], den = [1, -0.5]}\n')
+                     'weights.K = {num = [0.01], den = [1]}\nweights.B = {num = [0, 0.5], den = [1, -0.5]}\n'
+                     'trim = { p = [-1.0, 1.0], u = [[0.5], [-0.5]] }\n')
     run = subprocess.run([sys.executable, "-m", "lpvflow.pipeline.cli", "synth", str(mpath), "--config",
                           str(cpath), "-o", str(kpath)], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "gamma =" in run.stdout and "smallest margin" in run.stdout
-    assert isinstance(load(kpath), LPVController) and mpath.read_bytes() == before
+    K = load(kpath)
+    assert isinstance(K, LPVController) and mpath.read_bytes() == before
+    # the table's trim is part of the controller, as in the design's synth stage
+    np.testing.assert_array_equal(K.trim.u, [[0.5], [-0.5]])
     cpath.write_text("[synth]\nweights.S = {num = [0.1], den = [1]}\n")
     run = subprocess.run([sys.executable, "-m", "lpvflow.pipeline.cli", "synth", str(mpath), "--config",
                           str(cpath), "-o", str(kpath)], capture_output=True, text=True)

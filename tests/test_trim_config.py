@@ -15,6 +15,7 @@ from lpvflow.models import LPVSS, load
 from lpvflow.pipeline import stages
 from lpvflow.pipeline.config import load_tables
 from lpvflow.synth.controller import LPVController
+from lpvflow.synth.design import trim as design_trim
 from lpvflow.synth.polytope import Polytope
 
 SYNTH = '[synth]\nweights.S = { bandwidth = 1.0 }\nweights.K = { num = [1], den = [1] }\n'
@@ -65,13 +66,13 @@ def _controller(nu: int) -> LPVController:
                          poly, Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,)), 0.01)
 
 
-def test_the_trim_stage_helper_builds_the_trim_and_checks_its_width(tmp_path: Path) -> None:
-    ctx = stages.StageContext(tmp_path, {"synth": {"trim": {"p": [-1.0, 1.0], "u": [[4.0], [-4.0]]}}})
-    trim = stages.trim(ctx, _controller(1))
+def test_the_trim_helper_builds_the_trim_and_checks_its_width() -> None:
+    settings = {"trim": {"p": [-1.0, 1.0], "u": [[4.0], [-4.0]]}}
+    trim = design_trim(settings, _controller(1))
     assert trim.value(np.array([0.5]))[0] == pytest.approx(-2.0)
     with pytest.raises(DataError, match=r"^\[synth\] trim.u rows have 1 value\(s\); the controller drives"):
-        stages.trim(ctx, _controller(2))
-    assert stages.trim(stages.StageContext(tmp_path, {"synth": {"trim": None}}), _controller(1)) is None
+        design_trim(settings, _controller(2))
+    assert design_trim({"trim": None}, _controller(1)) is None
 
 
 def test_the_synth_stage_gives_the_lpv_controller_and_the_baseline_the_trim(

@@ -655,13 +655,11 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     signals = design_signals(ctx, model)
     controller.info["signals"] = signals
     controller.antiwindup = antiwindup(ctx, controller, signals)
-    controller.trim = trim(ctx, controller)
     controller.save(ctx.path("controller.json"))
     centre = scheduling_box(model, cfg["box"]).mean(axis=1).tolist()
     at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre
     baseline = synthesize_design(model, cfg, box=[[v, v] for v in at])
     baseline.controller.antiwindup = antiwindup(ctx, baseline.controller, signals)
-    baseline.controller.trim = trim(ctx, baseline.controller)
     baseline.controller.save(ctx.path("baseline.json"))
     return ({"method": cfg["method"], "structure": cfg["structure"], "gamma": design.gamma,
              "gamma_lower": design.gamma_lower, "baseline_gamma": baseline.gamma, "baseline_at": at,
@@ -687,22 +685,6 @@ def antiwindup(ctx: StageContext, controller, signals: dict):
     lo, hi = (np.array([limits.get(name, (-np.inf, np.inf))[i] for name in names]) for i in (0, 1))
     u_op = np.array([port["operating_point"] for port in signals["actuated"]])
     return AntiWindup(observer_gains(controller.Ak, controller.Ck), lo, hi, u_op)
-
-
-def trim(ctx: StageContext, controller):
-    """The trim feed-forward u_eq(p) of ``[synth] trim`` (:class:`lpvflow.synth.controller.Trim`) for a
-    synthesized controller, None without the key; a table whose rows do not have one value per controller
-    output is one DataError line."""
-    from lpvflow.synth.controller import Trim
-
-    table = ctx.config["synth"].get("trim")  # configs built in code may leave the key out
-    if table is None:
-        return None
-    width = len(table["u"][0])
-    if width != controller.n_out:
-        raise DataError(f"[synth] trim.u rows have {width} value(s); the controller drives "
-                        f"{controller.n_out} plant input(s): give one value per input in each row")
-    return Trim(table["p"], table["u"])
 
 
 def design_signals(ctx: StageContext, model: LPVSS) -> dict:

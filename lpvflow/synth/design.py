@@ -5,16 +5,20 @@ pipeline's synth stage.
 ``method = "rate-bounded"``: :func:`lpvflow.synth.rate_bounded.synthesize_rate_bounded` (parameter-
 dependent Lyapunov function, |p(k+1) − p(k)| ≤ ``rate_bound``); both on the generalized plant of
 :func:`lpvflow.synth.plant.generalized_plant` with the table's weights, box, breakpoints, scheduled
-weights and structure, and re-checked by :mod:`lpvflow.synth.certify`.
+weights and structure, and re-checked by :mod:`lpvflow.synth.certify`. The table's ``trim`` (feed-forward
+u_eq(p), :class:`lpvflow.synth.controller.Trim`) is part of the controller it returns: a model identified
+with the trim removed (``[identify] remove_trim``) describes the plant with that trim in the loop, so a
+controller without it would not be the one designed.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from lpvflow.errors import DataError
 from lpvflow.models import LPVSS
 from lpvflow.synth.certify import Certificate, certify, certify_rate_bounded
-from lpvflow.synth.controller import LPVController
+from lpvflow.synth.controller import LPVController, Trim
 from lpvflow.synth.hinf import synthesize
 from lpvflow.synth.plant import GeneralizedPlant, generalized_plant
 from lpvflow.synth.rate_bounded import synthesize_rate_bounded
@@ -45,7 +49,22 @@ def synthesize_design(model: LPVSS, settings: dict, box: list | None = None) -> 
         # scheduled weights, or scheduling signals tied along the breakpoints: the design's own plant
         frozen_model = None if settings["vertex_weights"] or model.basis.n_p > 1 else model
         certificate = certify_rate_bounded(result, frozen_model, weights, structure)
+        controller.trim = trim(settings, controller)
         return Design(controller, result.gamma, result.gamma_min, certificate, plant, result.report.seconds)
     result = synthesize(plant, settings["solver"])
+    result.controller.trim = trim(settings, result.controller)
     return Design(result.controller, result.gamma, result.gamma_lower, certify(result, model, weights), plant,
                   result.report.seconds)
+
+
+def trim(settings: dict, controller: LPVController) -> Trim | None:
+    """The trim feed-forward u_eq(p) of the table's ``trim`` (None without the key); a table whose rows do
+    not have one value per controller output is one DataError line."""
+    table = settings.get("trim")  # tables built in code may leave the key out
+    if table is None:
+        return None
+    width = len(table["u"][0])
+    if width != controller.n_out:
+        raise DataError(f"[synth] trim.u rows have {width} value(s); the controller drives "
+                        f"{controller.n_out} plant input(s): give one value per input in each row")
+    return Trim(table["p"], table["u"])

@@ -51,3 +51,28 @@ def test_integrator_is_shifted_inside_the_unit_circle_by_eps():
     Wb = siso_weight({"bandwidth": 10.0, "hf_gain": 0.5}, 0.01, "W_S", eps=1e-3)
     assert np.all(np.abs(Wb.poles()) <= 1 - 1e-3 + 1e-12)
     assert abs(abs(Wb(-1.0)) - 0.5) < 1e-3  # Tustin maps s = ∞ to z = −1 (shift changes it by ε/2)
+
+
+def test_a_design_on_signals_tied_along_breakpoints_is_checked_along_them_not_at_box_corners():
+    """x⁺ = (0.2 + 0.1s + 1.2c)x + u with (s, c) tied along the breakpoint rows (−1, 0), (0, 1), (1, 0) (sin
+    and cos of an angle from −90° to 90°): unstable at the middle row, stable at the ends. The box corner
+    (1, 1) is off that curve (no angle has it), and the controller scheduled there (on s = 1, the end
+    vertex's) does not hold γ on the model there. The frozen check runs on the design's own plant along
+    the breakpoints and passes; the same check on the box grid fails."""
+    from lpvflow.synth.certify import certify
+    from lpvflow.synth.design import synthesize_design
+    from lpvflow.synth.hinf import synthesize
+    from lpvflow.synth.plant import generalized_plant
+
+    basis = Basis("affine", 2, p_min=(-1.0, 0.0), p_max=(1.0, 1.0))
+    model = LPVSS(np.array([[[0.2]], [[0.1]], [[1.2]]]), np.array([[[1.0]], [[0.0]], [[0.0]]]),
+                  np.array([[[1.0]], [[0.0]], [[0.0]]]), np.zeros((3, 1, 1)), basis, 0.01)
+    weights = {"S": {"num": [0.3], "den": [1]}, "K": {"num": [0.1], "den": [1]}}
+    box, rows = [[-1.0, 1.0], [0.0, 1.0]], [[-1.0, 0.0], [0.0, 1.0], [1.0, 0.0]]
+    settings = {"weights": weights, "structure": "1dof", "box": box, "breakpoints": rows,
+                "vertex_weights": None, "method": "common", "solver": "CLARABEL", "rate_bound": None}
+    design = synthesize_design(model, settings)
+    assert design.certificate.ok and design.certificate.frozen_hinf_max <= design.gamma
+    result = synthesize(generalized_plant(model, weights, box, "1dof", rows))
+    assert certify(result, None, weights).frozen_hinf_max <= result.gamma
+    assert certify(result, model, weights).frozen_hinf_max > result.gamma

@@ -6,7 +6,9 @@
    round-off (Jacobi-scaled, in the bilinear image where small Ts does not hide it).
 2. **Frozen H∞ norms** of the true frozen closed loop (the generalized plant rebuilt from
    ``model.frozen(p)`` by ``control.interconnect``, the controller at λ(p), ``StateSpace.lft`` and
-   ``control.norm``) on a θ grid.
+   ``control.norm``) on a θ grid; with scheduled weights, or scheduling signals tied along breakpoints
+   (whose box corners lie off the curve they follow), of the design's own generalized plant Σλ_iP_i
+   along the breakpoints instead (:func:`interpolated_hinf_norms`).
 3. **Quadratic stability** of the closed-loop vertex matrices 𝒜_i by the common-Lyapunov LMI and
    eigenvalue re-check of :func:`lpvflow.validate.stability.quadratic_stability` (informative).
 4. **Switching simulation** (:func:`switching_simulation`): the vertex closed loops under convex
@@ -21,14 +23,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from itertools import pairwise
 
 import control
 import numpy as np
 
+from lpvflow.basis import Basis
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
 from lpvflow.synth.hinf import HinfResult, certificate_margin, closed_loop
-from lpvflow.synth.plant import VertexPlant, augment
+from lpvflow.synth.plant import VertexPlant, augment, interpolate
+from lpvflow.synth.polytope import Polytope, hat_coordinates
 from lpvflow.synth.rate_bounded import ScheduledResult, fine_check
 from lpvflow.validate.stability import quadratic_stability
 
@@ -61,6 +66,29 @@ def frozen_hinf_norms(controller_at: Callable[[np.ndarray], tuple[np.ndarray, ..
         K = control.ss(*controller_at(p), model.Ts)
         norms.append(float(control.norm(P.lft(K, nu, ny), "inf")))
     return np.array(norms)
+
+
+def interpolated_hinf_norms(vertices: list[VertexPlant], K_vertices: list[tuple[np.ndarray, ...]],
+                            lams: list[np.ndarray], Ts: float) -> np.ndarray:
+    """‖T_zw‖_∞ (``StateSpace.lft``, ``control.norm``) of the generalized plant Σλ_iP_i with the controller
+    Σλ_iK_i, at every λ of ``lams``."""
+    nu, ny = vertices[0].dims[2], vertices[0].dims[4]
+    norms = []
+    for lam in lams:
+        K = tuple(sum(li * k[m] for li, k in zip(lam, K_vertices, strict=True)) for m in range(4))
+        loop = interpolate(vertices, lam).ss(Ts).lft(control.ss(*K, Ts), nu, ny)
+        norms.append(float(control.norm(loop, "inf")))
+    return np.array(norms)
+
+
+def design_coordinates(polytope: Polytope, basis: Basis, per_axis: int) -> list[np.ndarray]:
+    """λ on a grid of the design: ``per_axis`` points per breakpoint interval of a piecewise polytope
+    (along its first signal), else λ(p) on a ``per_axis`` grid of the box."""
+    if polytope.kind == "piecewise":
+        b = polytope.breakpoints
+        t = np.unique(np.concatenate([np.linspace(lo, hi, per_axis) for lo, hi in pairwise(b)]))
+        return [hat_coordinates(b, ti) for ti in t]
+    return [polytope.coordinates_at(basis, p) for p in scheduling_grid(polytope.box, per_axis)]
 
 
 def vertex_interpolation(result: HinfResult) -> Callable[[np.ndarray], tuple[np.ndarray, ...]]:
@@ -173,10 +201,15 @@ class Certificate:
         ]
 
 
-def certify(result: HinfResult, model: LPVSS, weights: dict, per_axis: int = 21) -> Certificate:
-    """Run checks 1–4 of the module docstring."""
-    grid = scheduling_grid(result.plant.polytope.box, per_axis)
-    norms = frozen_hinf_norms(vertex_interpolation(result), model, weights, grid, result.plant.structure)
+def certify(result: HinfResult, model: LPVSS | None, weights: dict, per_axis: int = 21) -> Certificate:
+    """Run checks 1–4 of the module docstring (check 2 on the design's own plant when ``model`` is None)."""
+    poly = result.plant.polytope
+    if model is None:
+        lams = design_coordinates(poly, result.plant.basis, per_axis)
+        norms = interpolated_hinf_norms(result.vertices, result.K_vertices, lams, result.plant.Ts)
+    else:
+        grid = scheduling_grid(poly.box, per_axis)
+        norms = frozen_hinf_norms(vertex_interpolation(result), model, weights, grid, result.plant.structure)
     peak, final, growth = switching_simulation(result)
     A_cl = [closed_loop(v, K)[0] for v, K in zip(result.vertices, result.K_vertices, strict=True)]
     quadratic = quadratic_stability(A_cl).certified
@@ -226,10 +259,8 @@ def certify_rate_bounded(result: ScheduledResult, model: LPVSS | None, weights: 
     if model is not None:
         norms = frozen_hinf_norms(controller_at, model, weights, grid, structure)
     else:
-        nu = result.vertices[0].dims[2]
-        ny = result.vertices[0].dims[4]
-        norms = np.array([float(control.norm(result.plant_at(float(p[0])).ss(result.Ts).lft(
-            control.ss(*controller_at(p), result.Ts), nu, ny), "inf")) for p in grid])
+        lams = [result.schedule.weights(float(p[0])) for p in grid]
+        norms = interpolated_hinf_norms(result.vertices, result.K_vertices, lams, result.Ts)
     peak, final, growth = rate_bounded_walk(result)
     A_cl = [closed_loop(v, K)[0] for v, K in zip(result.vertices, result.K_vertices, strict=True)]
     quadratic = quadratic_stability(A_cl).certified

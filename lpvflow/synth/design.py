@@ -44,17 +44,19 @@ def synthesize_design(model: LPVSS, settings: dict, box: list | None = None) -> 
     plant = generalized_plant(model, weights, settings["box"] if box is None else box, structure,
                               None if point else settings["breakpoints"],
                               None if point else settings["vertex_weights"])
+    # scheduled weights, or scheduling signals tied along the breakpoints: the frozen check runs on the
+    # design's own plant (the model's box corners lie off the curve the signals follow)
+    tied = settings["breakpoints"] is not None and model.basis.n_p > 1
+    frozen_model = None if not point and (settings["vertex_weights"] or tied) else model
     if settings["method"] == "rate-bounded" and not point:
         result, controller = synthesize_rate_bounded(plant, settings["rate_bound"], settings["solver"])
-        # scheduled weights, or scheduling signals tied along the breakpoints: the design's own plant
-        frozen_model = None if settings["vertex_weights"] or model.basis.n_p > 1 else model
         certificate = certify_rate_bounded(result, frozen_model, weights, structure)
         controller.trim = trim(settings, controller)
         return Design(controller, result.gamma, result.gamma_min, certificate, plant, result.report.seconds)
     result = synthesize(plant, settings["solver"])
     result.controller.trim = trim(settings, result.controller)
-    return Design(result.controller, result.gamma, result.gamma_lower, certify(result, model, weights), plant,
-                  result.report.seconds)
+    return Design(result.controller, result.gamma, result.gamma_lower, certify(result, frozen_model, weights),
+                  plant, result.report.seconds)
 
 
 def trim(settings: dict, controller: LPVController) -> Trim | None:

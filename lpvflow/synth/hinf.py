@@ -22,16 +22,17 @@ continuous one with the *same* 𝒳 (the two are exact images of each other; tes
 straight chain:
 
 1. **Coordinates.** Frequency normalisation s = ω₀s' (A_c/ω₀, B_c/√ω₀, C_c/√ω₀: the continuous LMIs are
-   invariant under it with the same 𝒳), diagonal balancing of the mean |A_c|, then one state transform
-   x = T x̄ that balances R, S of an interior point: a γ-minimisation (step 2) gives γ₀; the matrices of
-   step 2 at f·γ₀ (f = :data:`INTERIOR_FACTOR`) with the largest margin relative to their diagonals at
-   the γ₀ minimiser (slow and fast directions get margins in proportion to their size) give a strictly
-   feasible, centred R, S (the γ-optimal pair itself is singular, RS − I loses rank, and balancing on it
-   is unstable); R = LLᵀ, LᵀSL = VΣ²Vᵀ, T = LVΣ^(−1/2), so T⁻¹RT⁻ᵀ = TᵀST = Σ (Moore's balancing
-   applied to R, S). In each state coordinate system u and y are scaled diagonally to unit columns of
-   B2 and rows of C2 (of D21 for a zero row of C2, a 2-DOF reference; w and z are not scaled per
-   channel: that would change ‖T_zw‖∞). Step 2 is solved again in the balanced coordinates: three SDPs
-   in all. Controllers map y to u, so none of this changes the closed loop's transfer function.
+   invariant under it with the same 𝒳), diagonal balancing of the mean |A_c|, diagonal scalings of u and
+   y (unit columns of B2, rows of C2 — of D21 for a zero row of C2, a 2-DOF reference; w and z are not
+   scaled per channel: that would change ‖T_zw‖∞),
+   then state transforms x = T x̄ that balance R, S of interior points: a γ-minimisation (step 2) gives
+   γ₀; the matrices of step 2 at f·γ₀ with the largest margin relative to their diagonals at the γ₀
+   minimiser (slow and fast directions get margins in proportion to their size) give a strictly
+   feasible, centred R, S, for f = 2 and then, in the new coordinates, f = 1.15
+   (:data:`INTERIOR_FACTORS`; the γ-optimal pair itself is singular, RS − I loses rank, and balancing
+   on it is unstable); R = LLᵀ, LᵀSL = VΣ²Vᵀ, T = LVΣ^(−1/2), so T⁻¹RT⁻ᵀ = TᵀST = Σ (Moore's balancing
+   applied to R, S). Step 2 is solved again after each balancing. Controllers map y to u, so none of
+   this changes the closed loop's transfer function.
 2. **γ lower bound** by the eliminated continuous conditions (Gahinet & Apkarian 1994, Thm. 4.3), per
    vertex with its own null-space bases N_R,i of [B2_iᵀ D12_iᵀ] and N_S,i of [C2_i D21_i] (the Cayley
    images have vertex-dependent B2, C2; the conditions are per vertex, so that is exact):
@@ -54,12 +55,8 @@ straight chain:
    passes the certificate of step 5; then geometric bisection between that level and the one below it
    to a relative width δ (δ = ``suboptimality``): the lowest passing level is the certified γ. In the
    balanced coordinates R ≈ S ≈ Σ and every block is O(1), so t·I is a margin relative to block scale,
-   and no bound on R, S is needed. Â_i enters only the (2,1) block, so it is eliminated (projection
-   lemma, :func:`_level_matrices`): the SDP imposes the matrix without its S-row and without its R-row,
-   two LMIs of size n + n_w + n_z instead of one of 2n + n_w + n_z (Clarabel's cost grows with the cube
-   of the PSD block size: the 4-vertex n = 12 level SDP took 0.9 s instead of 1.5–2 s).
-4. **Controller** per vertex: Â_i by the central completion (:func:`_eliminated_hat`), then (Scherer et
-   al. 1997, eq. (35)): MNᵀ = I − RS by a balanced SVD,
+   and no bound on R, S is needed.
+4. **Controller** per vertex (Scherer et al. 1997, eq. (35)): MNᵀ = I − RS by a balanced SVD,
    D_K = D̂, C_K = (Ĉ − D_KC2R)M⁻ᵀ, B_K = N⁻¹(B̂ − SB2D_K),
    A_K = N⁻¹(Â − NB_KC2R − SB2C_KMᵀ − S(A + B2D_KC2)R)M⁻ᵀ; it is designed for D22 = 0, while the Cayley
    image has D22_c = −C2(I + A)⁻¹B2, so K_c = K(I + D22_cK)⁻¹ (loop shifting: the same closed loop,
@@ -90,16 +87,14 @@ from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 
 #: Relative γ steps of the certified-level search (step 3): γ_lower·(1 + suboptimality·2^k), k < this.
 LEVEL_STEPS = 9
-#: Level, relative to the first γ-minimisation, of the interior point whose R, S balance the coordinates
-#: (step 1): central, because the unbalanced coordinates' solves are inaccurate near the optimum. One
-#: balancing suffices since D_u, D_y are recomputed in the balanced coordinates (:func:`_io_scaled`);
-#: with them kept from the unbalanced ones the level SDP of the README's augw example failed in Clarabel
-#: and two balancings (2γ₀, then 1.15γ₁: five SDPs before the first level) were needed. Measured
-#: (certified γ / SB10DD for ADIP 0°–75.5° and the augw example; the dead-time tanks design of
-#: tests/test_design.py): f = 2: ≤ 1.0055, 1.0024, certified 0.5 % above γ_lower; f = 3: ≤ 1.0033,
-#: 1.0024, nothing certified up to 1.64 γ_lower (its γ_lower 0.7 % high); f = 1.5, 4, 6: ≤ 1.0056,
-#: ≤ 1.0058, ≤ 1.0054 with augw 1.0024.
-INTERIOR_FACTOR = 2.0
+#: Levels, relative to the γ-minimisation before each, of the interior points whose R, S balance the
+#: coordinates (step 1), in turn: a central point first (the unbalanced coordinates' solves are
+#: inaccurate near the optimum), then one near the optimum, where R, S have its spread. Measured (certified
+#: γ / reference: SB10DD for a two-mass augw example and ADIP 75.5°, the discrete-form common-Lyapunov
+#: optimum for the dead-time tanks design's 2 vertices): (2.0,) → 1.20, 1.000, 1.005; (1.15,) → 1.003,
+#: none up to 6γ_lower, 1.006; (2.0, 1.15) → 1.029, 0.998, 1.003. Clarabel at 1e-10 did not help: it
+#: then fails outright on some of these SDPs.
+INTERIOR_FACTORS = (2.0, 1.15)
 #: A certificate's Jacobi-scaled margin must exceed ROUNDOFF_FACTOR·m·ε_mach·‖|M̃|‖₂ (m the size of the
 #: matrix M̃): a generous multiple of the backward error of forming M̃ and computing its eigenvalues.
 ROUNDOFF_FACTOR = 1e3
@@ -390,23 +385,29 @@ def _interior_point(verts: list[VertexPlant], scales: list[np.ndarray], gamma: f
 
 
 class _LevelProblem:
-    """Step 3 at a γ given as a cvxpy Parameter (compiled once, solved at each level), with Â_i eliminated:
-    per vertex the two LMIs of :func:`_level_matrices`."""
+    """Step 3 at a γ given as a cvxpy Parameter (compiled once, solved at each level)."""
 
     def __init__(self, verts: list[VertexPlant]) -> None:
         n = verts[0].dims[0]
         self.gamma, self.t = cp.Parameter(pos=True), cp.Variable()
         self.R = cp.Variable((n, n), symmetric=True)
         self.S = cp.Variable((n, n), symmetric=True)
-        R, S, t = self.R, self.S, self.t
+        R, S, g, t = self.R, self.S, self.gamma, self.t
         constraints = [cp.bmat([[R, np.eye(n)], [np.eye(n), S]]) >> t * np.eye(2 * n), t <= 1]
         self.hats = []
         for v in verts:
-            _, _, nu, _, ny = v.dims
-            hats = cp.Variable((n, ny)), cp.Variable((nu, n)), cp.Variable((nu, ny))
-            self.hats.append(hats)
-            for M in _level_matrices(v, R, S, hats, self.gamma):
-                constraints.append(_sym(M) << -t * np.eye(M.shape[0]))
+            _, nw, nu, nz, ny = v.dims
+            Ah, Bh = cp.Variable((n, n)), cp.Variable((n, ny))
+            Ch, Dh = cp.Variable((nu, n)), cp.Variable((nu, ny))
+            self.hats.append((Ah, Bh, Ch, Dh))
+            Phi = cp.bmat([[v.A @ R + v.B2 @ Ch, v.A + v.B2 @ Dh @ v.C2], [Ah, S @ v.A + Bh @ v.C2]])
+            Psi = cp.vstack([v.B1 + v.B2 @ Dh @ v.D21, S @ v.B1 + Bh @ v.D21])
+            Omega = cp.hstack([v.C1 @ R + v.D12 @ Ch, v.C1 + v.D12 @ Dh @ v.C2])
+            Delta = v.D11 + v.D12 @ Dh @ v.D21
+            M = cp.bmat([[Phi + Phi.T, Psi, Omega.T],
+                         [Psi.T, -g * np.eye(nw), Delta.T],
+                         [Omega, Delta, -g * np.eye(nz)]])
+            constraints.append(_sym(M) << -t * np.eye(M.shape[0]))
         self.problem = cp.Problem(cp.Maximize(t), constraints)
 
     def margin(self, gamma: float, solver: str) -> tuple[float, SolveReport | None]:
@@ -417,41 +418,6 @@ class _LevelProblem:
         except SynthesisError:
             return -np.inf, None
         return float(self.t.value), report
-
-
-def _level_blocks(v: VertexPlant, R, S, hats, gamma) -> tuple:
-    """Blocks of step 3's matrix without Â: (M11, M22, M13, M23, M33), rows 1 and 2 the n-blocks of R and
-    S, row 3 the [w; z] block; the (2,1) block is Â + (A + B2D̂C2)ᵀ."""
-    Bh, Ch, Dh = hats
-    nw, nz = v.dims[1], v.dims[3]
-    ARB = v.A @ R + v.B2 @ Ch
-    SAB = S @ v.A + Bh @ v.C2
-    Delta = v.D11 + v.D12 @ Dh @ v.D21
-    hstack, bmat = (cp.hstack, cp.bmat) if isinstance(R, cp.Expression) else (np.hstack, np.block)
-    M13 = hstack([v.B1 + v.B2 @ Dh @ v.D21, (v.C1 @ R + v.D12 @ Ch).T])
-    M23 = hstack([S @ v.B1 + Bh @ v.D21, (v.C1 + v.D12 @ Dh @ v.C2).T])
-    M33 = bmat([[-gamma * np.eye(nw), Delta.T], [Delta, -gamma * np.eye(nz)]])
-    return ARB + ARB.T, SAB + SAB.T, M13, M23, M33
-
-
-def _level_matrices(v: VertexPlant, R, S, hats, gamma) -> tuple:
-    """The two LMIs (⪯ 0) that step 3's matrix with Â eliminated reduces to: its principal submatrices
-    without block row 2 and without block row 1. Â enters only the (2,1) block through the selection
-    matrices E₂ᵀÂE₁ + E₁ᵀÂᵀE₂, so by the projection lemma (Gahinet & Apkarian 1994, Lemma 3.1) an Â
-    making the whole matrix ≺ 0 exists iff both submatrices are ≺ 0; :func:`_eliminated_hat` constructs
-    it. Each is of size n + n_w + n_z instead of 2n + n_w + n_z: the SDP's PSD blocks shrink by that
-    much."""
-    M11, M22, M13, M23, M33 = _level_blocks(v, R, S, hats, gamma)
-    return (cp.bmat([[M11, M13], [M13.T, M33]]), cp.bmat([[M22, M23], [M23.T, M33]]))
-
-
-def _eliminated_hat(v: VertexPlant, R: np.ndarray, S: np.ndarray, hats: tuple[np.ndarray, ...],
-                    gamma: float) -> np.ndarray:
-    """Â with the (2,1) block Â + (A + B2D̂C2)ᵀ = M23 M33⁻¹ M13ᵀ: the Schur complement of the [w; z]
-    block M33 ≺ 0 is then block diagonal, diag(M11 − M13M33⁻¹M13ᵀ, M22 − M23M33⁻¹M23ᵀ), negative
-    definite exactly when the two LMIs of :func:`_level_matrices` are (the central completion)."""
-    _, _, M13, M23, M33 = _level_blocks(v, R, S, hats, gamma)
-    return M23 @ np.linalg.solve(M33, M13.T) - (v.A + v.B2 @ hats[2] @ v.C2).T
 
 
 def _controller(v: VertexPlant, R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray,
@@ -485,30 +451,28 @@ def _lyapunov(R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray) -> np.
 def balanced_coordinates(cayleys: list[VertexPlant], gamma_max: float | None, solver: str
                          ) -> tuple[_Coordinates, list[VertexPlant], float, list]:
     """Step 1 on the Cayley images of the vertices: the coordinates, the vertices in them, the γ lower
-    bound of step 2 there, and the solver attempts made (three SDPs: γ-minimisation, interior point,
-    γ-minimisation)."""
+    bound of step 2 there, and the solver attempts made."""
     omega = max(float(np.linalg.norm(vc.A, 2)) for vc in cayleys)
     _, (s, _) = scipy.linalg.matrix_balance(np.mean([np.abs(vc.A) for vc in cayleys], axis=0) + 1e-300,
                                             permute=False, separate=True)
-    coords = _io_scaled(cayleys[0], np.diag(s), omega)
-    verts = [coords.apply(vc) for vc in cayleys]
-    gamma_lower, scales, report = _gamma_lower(verts, gamma_max, solver)
-    R, S, interior = _interior_point(verts, scales, INTERIOR_FACTOR * gamma_lower, solver)
-    coords = _io_scaled(cayleys[0], coords.T @ _lyapunov_balancing(R, S), omega)
-    verts = [coords.apply(vc) for vc in cayleys]
-    gamma_lower, _, final = _gamma_lower(verts, gamma_max, solver)
-    return coords, verts, gamma_lower, report.attempts + interior.attempts + final.attempts
-
-
-def _io_scaled(vc: VertexPlant, T: np.ndarray, omega: float) -> _Coordinates:
-    """Coordinates with state transform T and frequency scale ω₀ whose D_u, D_y give the first vertex
-    unit columns of B2 and unit rows of C2 in those state coordinates (a measured channel with no state
-    in it, the reference of a 2-DOF loop, is scaled by its D21 row)."""
-    v0 = _Coordinates(T, omega, np.ones(vc.dims[2]), np.ones(vc.dims[4])).apply(vc)
+    first = _Coordinates(np.diag(s), omega, np.ones(cayleys[0].dims[2]), np.ones(cayleys[0].dims[4]))
+    v0 = first.apply(cayleys[0])
     du = 1.0 / np.maximum(np.linalg.norm(v0.B2, axis=0), 1e-300)
+    # a measured channel with no state in it (the reference of a 2-DOF loop) is scaled by its D21 row
     dy = np.linalg.norm(v0.C2, axis=1)
     dy = np.maximum(np.where(dy > 0, dy, np.linalg.norm(v0.D21, axis=1)), 1e-300)
-    return _Coordinates(T, omega, du, dy)
+    coords = _Coordinates(np.diag(s), omega, du, dy)
+    verts = [coords.apply(vc) for vc in cayleys]
+    gamma_lower, scales, report = _gamma_lower(verts, gamma_max, solver)
+    attempts = list(report.attempts)
+    for factor in INTERIOR_FACTORS:
+        R, S, report = _interior_point(verts, scales, factor * gamma_lower, solver)
+        attempts += report.attempts
+        coords = _Coordinates(coords.T @ _lyapunov_balancing(R, S), omega, du, dy)
+        verts = [coords.apply(vc) for vc in cayleys]
+        gamma_lower, scales, report = _gamma_lower(verts, gamma_max, solver)
+        attempts += report.attempts
+    return coords, verts, gamma_lower, attempts
 
 
 def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: float = 2.5e-3,
@@ -579,10 +543,8 @@ def _reconstruct(vertices: list[VertexPlant], verts: list[VertexPlant], level: _
     W, sig, Zt = np.linalg.svd(np.eye(n) - R @ S)
     M, N = W * np.sqrt(sig), Zt.T * np.sqrt(sig)
     K_vertices = []
-    for v, variables in zip(verts, level.hats, strict=True):
-        hats = tuple(h.value for h in variables)
-        hats = (_eliminated_hat(v, R, S, hats, gamma), *hats)
-        K = _loop_shift(_controller(v, R, S, M, N, hats), v.D22)
+    for v, hats in zip(verts, level.hats, strict=True):
+        K = _loop_shift(_controller(v, R, S, M, N, tuple(h.value for h in hats)), v.D22)
         K_vertices.append(inverse_cayley(*coords.controller(K)))
     back = scipy.linalg.block_diag(np.linalg.inv(coords.T), np.eye(n))
     F = np.linalg.cholesky(_lyapunov(R, S, M, N)).T @ back  # 𝒳 = FᵀF in the original coordinates

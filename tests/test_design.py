@@ -369,6 +369,13 @@ def test_a_failed_verdict_names_where_the_scheduling_left_the_design_box():
         "far: unbounded: y left its output_bounds at t = 1.6 s; scheduling left the design box [-0.5, 0.5] "
         "at t = 0.71 s and spanned [-0.02, 0.97] (1.1 s outside) (identification data [-0.56, 0.61]); "
         "near: misses y settles in 1.8 s (limit 1.5 s)")}
+    # many failures: the first three, the box note once, and a count of the rest
+    many = [scenarios[0] | {"name": f"far {i}"} for i in range(5)]
+    summary["stages"]["verify"]["outputs"]["scenarios"] = many
+    reason = _verdict(summary)["reason"]
+    assert reason.startswith("far 0: unbounded") and "far 2: unbounded" in reason and "far 3" not in reason
+    assert reason.count("left the design box") == 1
+    assert reason.endswith("and 2 more (the report's scenario tables)")
 
 
 @pytest.mark.parametrize(("cause", "parameters", "inputs_added", "refused"), [

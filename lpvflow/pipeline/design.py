@@ -152,8 +152,13 @@ def _remove_changed(folder: Path, before: dict[Path, tuple[int, int]]) -> None:
             path.unlink(missing_ok=True)
 
 
+#: Failed scenarios a verdict names; the rest are counted (every one is in the report's tables).
+LISTED_FAILURES = 3
+
+
 def _verdict(summary: dict) -> dict:
-    """Pass when no stage failed and the LPV controller met every verification scenario."""
+    """Pass when no stage failed and the LPV controller met every verification scenario; else the first
+    LISTED_FAILURES failed scenarios, why, and where the first of them to leave the design box did."""
     if summary["failed"]:
         return {"pass": False, "reason": f"stage {summary['failed']['stage']} failed"}
     scenarios = summary["stages"].get("verify", {}).get("outputs", {}).get("scenarios", [])
@@ -165,10 +170,13 @@ def _verdict(summary: dict) -> dict:
 
         data = summary["stages"].get("identify", {}).get("outputs", {}).get("scheduling_range")
         data_note = f" (identification data {box_text(zip(*data, strict=True))})" if data else ""
-        reasons = []
-        for r, reason in failing:
-            note = coverage_note(r["controller"])
+        reasons, noted = [], False
+        for r, reason in failing[:LISTED_FAILURES]:
+            note = "" if noted else coverage_note(r["controller"])  # the first run that left the box says so
+            noted = noted or bool(note)
             reasons.append(f"{r['name']}: {reason}" + (f"; {note}{data_note}" if note else ""))
+        if len(failing) > LISTED_FAILURES:
+            reasons.append(f"and {len(failing) - LISTED_FAILURES} more (the report's scenario tables)")
         return {"pass": False, "reason": "; ".join(reasons)}
     return {"pass": True, "reason": "every configured stage ran and every scenario passed"}
 

@@ -49,7 +49,7 @@ def test_bundled_examples_find_their_files_from_any_folder(name: str, tmp_path: 
 def test_a_design_file_is_a_synth_config_and_a_scenario_file() -> None:
     path = bundled_config("adip")
     tables = load_tables(path, need=("synth",))
-    assert tables["synth"]["method"] == "rate-bounded" and tables["synth"]["structure"] == "2dof"
+    assert tables["synth"]["method"] == "common" and tables["synth"]["structure"] == "2dof"
     assert len(tables["synth"]["box"]) == 3 and [len(b) for b in tables["synth"]["breakpoints"]] == [3, 3, 3]
     assert set(tables["synth"]["weights"]) == {"S", "R", "K", "B", "integrator_shift"}
     scenarios = load_scenarios(path)

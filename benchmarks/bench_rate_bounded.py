@@ -8,6 +8,12 @@ such). Issue 23's case, 11 breakpoints at order 8, does not finish in reasonable
 (benchmarks/README.md). The breakpoints form a
 piecewise polytope over the affine model, so the plant is exact between them.
 
+The limit on the ADIP (issue 23's ±75° test): the exact linearizations at −75°, 0°, 75° with the bundled
+weights (1-DOF, ``tests/adip_cases.py``), breakpoints at sin φ1, and the largest margin t of the LMIs
+(Φ ⪰ t·I, t ≤ 1) at γ = 2 × the largest frozen bound — the level the issue allows — for the rate a 70°
+move in 2.0 s needs (0.006 per sample) and a tenth of it. t < 0: no controller of this class reaches
+that level, whatever the reconstruction.
+
 ``ratio`` = the synthesis' wall time / the wall time of one Clarabel solve of its margin SDP (the
 maximisation of t at one γ level, timed around the solver call in the same run): the floor of any
 synthesis that has to solve these LMIs once. One thread (OPENBLAS_NUM_THREADS=1 is set below), one run.
@@ -68,9 +74,29 @@ def measure(nx: int, breakpoints: int, rate_bound: float | None) -> dict:
             "level_solves": len(solves), "one_sdp_seconds": min(solves), "ratio": seconds / min(solves)}
 
 
+def adip_margin(rate_bound: float) -> dict:
+    """The ADIP row of the module docstring: t of the margin SDP at γ = 2 × the frozen bound."""
+    from lpvflow.synth.hinf import _cayley_vertex, balanced_coordinates
+    from tests.adip_cases import adip_vertex
+
+    degrees = (-75.0, 0.0, 75.0)
+    vertices = [adip_vertex(d) for d in degrees]
+    frozen = [balanced_coordinates([_cayley_vertex(v)], None, "CLARABEL") for v in vertices]
+    bound = max(f[2] for f in frozen)
+    schedule = rate_bounded.Schedule(np.sin(np.deg2rad(degrees)), rate_bound)
+    verts = [rate_bounded._discrete(frozen[1][0], v) for v in vertices]  # coordinates of the 0° vertex
+    levels = rate_bounded._Levels(verts, schedule, schedule.pairs())
+    levels.gamma.value = 2.0 * bound
+    start = time.perf_counter()
+    rate_bounded.solve(levels.margin_problem, "CLARABEL", "the ADIP margin SDP")
+    return {"rate_bound": rate_bound, "frozen_lower_bound": bound, "gamma": 2.0 * bound,
+            "margin_t": float(levels.t.value), "seconds": time.perf_counter() - start}
+
+
 def main() -> None:
     rows = [measure(2, 3, 0.02), measure(2, 3, None), measure(6, 2, 0.02)]
-    OUT.write_text(json.dumps({"rows": rows}, indent=1, default=float) + "\n")
+    adip = [adip_margin(0.006), adip_margin(0.0006)]
+    OUT.write_text(json.dumps({"rows": rows, "adip": adip}, indent=1, default=float) + "\n")
     heads = ("ν", "n", "bps", "LMIs", "γ", "frozen", "s", "solves", "SDP s", "ratio")
     print(" ".join(f"{h:>7}" for h in heads))
     for r in rows:
@@ -82,6 +108,9 @@ def main() -> None:
         print(f"{nu:>7} {r['order']:>7} {r['breakpoints']:>7} {r['lmis']:>7} {r['gamma']:7.4g} "
               f"{r['frozen_lower_bound']:7.4g} {r['seconds']:7.1f} {r['level_solves']:>7} "
               f"{r['one_sdp_seconds']:7.2f} {r['ratio']:7.1f}")
+    for r in adip:
+        print(f"ADIP ±75°, ν = {r['rate_bound']:g}: γ = 2 × {r['frozen_lower_bound']:.4g}, margin t = "
+              f"{r['margin_t']:.3g} ({r['seconds']:.0f} s)")
 
 
 if __name__ == "__main__":

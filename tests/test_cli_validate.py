@@ -1,8 +1,6 @@
 """`lpvflow validate` end to end: fit, frozen ν-gap vs b(P, K), margins, certificate, figures, bad input."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import control as ct
@@ -21,6 +19,7 @@ from lpvflow.synth.polytope import polytope_of
 from lpvflow.validate.fmu_reference import FmuLinearization
 from lpvflow.validate.margins import stability_margin
 from lpvflow.validate.nugap import nugap
+from tests.fmu_builds import built_fmu
 
 ROOT = Path(__file__).resolve().parents[1]
 Ts = 0.05
@@ -134,9 +133,7 @@ def test_non_affine_basis_certificate_is_not_applicable(files, tmp_path):
 
 @pytest.fixture(scope="module")
 def tanks_model(tmp_path_factory):
-    fmu = ROOT / "fmu_plants" / "build" / "tanks.fmu"
-    if not fmu.is_file():
-        subprocess.run([sys.executable, str(ROOT / "fmu_plants" / "build.py"), "tanks"], check=True)
+    fmu = built_fmu("tanks")
     folder = tmp_path_factory.mktemp("tanks")
     voltage = "aprbs:lo=4,hi=10,min_hold=10,max_hold=60"
     record = run_fmu_experiment(fmu, 0.2, 3000, inputs={"pump_voltage": voltage}, output=folder / "data.csv",

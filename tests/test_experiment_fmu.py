@@ -4,8 +4,6 @@ import csv
 import hashlib
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import control
@@ -16,28 +14,21 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment import run_fmu_experiment
 from lpvflow.pipeline.cli import main
+from tests.fmu_builds import built_fmu
 
 ROOT = Path(__file__).resolve().parents[1]
 ADIP_CONTROLLER = ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json"
 TANKS_INPUT = "pump_voltage=aprbs:lo=2,hi=8,min_hold=10,max_hold=60"
 
 
-def _fmu(name: str) -> Path:
-    """The built plant; built as `make fmus` would if it is missing."""
-    path = ROOT / "fmu_plants" / "build" / f"{name}.fmu"
-    if not path.is_file():
-        subprocess.run([sys.executable, str(ROOT / "fmu_plants" / "build.py"), name], check=True)
-    return path
-
-
 @pytest.fixture(scope="module")
 def tanks() -> Path:
-    return _fmu("tanks")
+    return built_fmu("tanks")
 
 
 @pytest.fixture(scope="module")
 def adip() -> Path:
-    return _fmu("adip")
+    return built_fmu("adip")
 
 
 def _cli(capsys, *argv) -> tuple[int, str, str]:
@@ -219,7 +210,7 @@ def test_output_never_overwrites_the_fmu_or_controller(adip, tmp_path, capsys):
 
 def test_airpath_with_exogenous_speed_trajectory(tmp_path):
     rec = run_fmu_experiment(
-        _fmu("airpath"), 0.01, 20,
+        built_fmu("airpath"), 0.01, 20,
         inputs={"engine_speed": "levels:lo=1000,hi=5000,min_hold=1,max_hold=3,ramp=0.5",
                 "throttle_position": "multisine:f_lo=0.1,f_hi=10,rms=3"},
         seed=2, output=tmp_path / "air.csv")

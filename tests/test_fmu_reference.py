@@ -1,7 +1,5 @@
 """FMU references for frozen validation: finite-difference linearization and small-signal local ARX."""
 
-import subprocess
-import sys
 from pathlib import Path
 
 import control as ct
@@ -17,6 +15,7 @@ from lpvflow.validate.fmu_reference import (
     sample_like_fmu,
 )
 from lpvflow.validate.nugap import nugap
+from tests.fmu_builds import built_fmu
 
 ROOT = Path(__file__).resolve().parents[1]
 Ts = 0.2
@@ -26,10 +25,7 @@ AREA, A1, A2, KP, G = 1.5518e-3, 1.7817e-5, 1.7817e-5, 3.3e-6, 9.81
 
 @pytest.fixture(scope="module")
 def tanks() -> Path:
-    path = ROOT / "fmu_plants" / "build" / "tanks.fmu"
-    if not path.is_file():
-        subprocess.run([sys.executable, str(ROOT / "fmu_plants" / "build.py"), "tanks"], check=True)
-    return path
+    return built_fmu("tanks")
 
 
 def analytic_tanks(h2: float) -> tuple[ct.StateSpace, float]:

@@ -5,8 +5,6 @@ and the ν-gap/b(P, K) gate of the validate stage."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +16,7 @@ from lpvflow.experiment.controller import GriddedController, load_experiment_con
 from lpvflow.pipeline.config import check_table
 from lpvflow.pipeline.design import run_design
 from lpvflow.pipeline.stages import gate_verdict
+from tests.fmu_builds import built_fmu
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEDULED = ROOT / "fmu_plants" / "adip" / "scheduled_controller.json"
@@ -27,10 +26,7 @@ COUNT = 2 * np.pi / 4096  # one count of a 4096-counts/rev encoder [rad]
 
 @pytest.fixture(scope="module")
 def adip() -> Path:
-    path = ROOT / "fmu_plants" / "build" / "adip.fmu"
-    if not path.is_file():
-        subprocess.run([sys.executable, str(ROOT / "fmu_plants" / "build.py"), "adip"], check=True)
-    return path
+    return built_fmu("adip")
 
 
 @pytest.fixture(scope="module")

@@ -112,13 +112,7 @@ class LtiController:
     @classmethod
     def from_dict(cls, doc: dict, source: str = "controller") -> LtiController:
         """The controller of a ``lpvflow/lti-controller`` document (``source`` names it in errors)."""
-        if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-            raise ModelError(f"{source} is not of format {FORMAT!r}")
-        if doc.get("version") != VERSION:
-            raise ModelError(f"{source} has version {doc.get('version')!r}; expected {VERSION}")
-        missing = [k for k in ("Ts", "A", "B", "C", "D", "inputs", "outputs") if k not in doc]
-        if missing:
-            raise ModelError(f"{source} lacks {', '.join(missing)}")
+        _check_document(doc, FORMAT, VERSION, ("Ts", "A", "B", "C", "D", "inputs", "outputs"), source)
         inputs, outputs = tuple(doc["inputs"]), tuple(doc["outputs"])
         A = _matrix(doc, "A", 0, 0)
         n = A.shape[0]
@@ -137,6 +131,17 @@ class LtiController:
             "inputs": list(self.inputs), "outputs": list(self.outputs),
             "y_operating_point": self.y_op.tolist(), "u_operating_point": self.u_op.tolist(),
         }
+
+
+def _check_document(doc: object, fmt: str, version: int, keys: tuple[str, ...], source: str) -> None:
+    """One ModelError line when ``doc`` is not a ``fmt`` document of ``version`` holding ``keys``."""
+    if not isinstance(doc, dict) or doc.get("format") != fmt:
+        raise ModelError(f"{source} is not of format {fmt!r}")
+    if doc.get("version") != version:
+        raise ModelError(f"{source} has version {doc.get('version')!r}; expected {version}")
+    missing = [k for k in keys if k not in doc]
+    if missing:
+        raise ModelError(f"{source} lacks {', '.join(missing)}")
 
 
 def _matrix(doc: dict, key: str, rows: int, cols: int) -> np.ndarray:
@@ -292,13 +297,8 @@ class GriddedController:
     @classmethod
     def from_dict(cls, doc: dict, source: str = "controller") -> GriddedController:
         """The controller of a ``lpvflow/gridded-controller`` document (``source`` names it in errors)."""
-        if not isinstance(doc, dict) or doc.get("format") != GRIDDED_FORMAT:
-            raise ModelError(f"{source} is not of format {GRIDDED_FORMAT!r}")
-        if doc.get("version") != GRIDDED_VERSION:
-            raise ModelError(f"{source} has version {doc.get('version')!r}; expected {GRIDDED_VERSION}")
-        missing = [k for k in ("Ts", "inputs", "outputs", "scheduling", "grid", "points") if k not in doc]
-        if missing:
-            raise ModelError(f"{source} lacks {', '.join(missing)}")
+        _check_document(doc, GRIDDED_FORMAT, GRIDDED_VERSION,
+                        ("Ts", "inputs", "outputs", "scheduling", "grid", "points"), source)
         points = doc["points"]
         if not isinstance(points, list) or len(points) != len(doc["grid"]) or not points:
             raise ModelError(f"{source}: 'points' must hold one entry per grid value")

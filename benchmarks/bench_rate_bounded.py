@@ -84,7 +84,8 @@ def adip_margin(rate_bound: float) -> dict:
     frozen = [balanced_coordinates([_cayley_vertex(v)], None, "CLARABEL") for v in vertices]
     bound = max(f[2] for f in frozen)
     schedule = rate_bounded.Schedule(np.sin(np.deg2rad(degrees)), rate_bound)
-    verts = [rate_bounded._discrete(frozen[1][0], v) for v in vertices]  # coordinates of the 0° vertex
+    coords = rate_bounded.discrete_coordinates(frozen[1][0])  # those of the 0° vertex
+    verts = [coords.apply(v) for v in vertices]
     levels = rate_bounded._Levels(verts, schedule, schedule.pairs())
     levels.gamma.value = 2.0 * bound
     start = time.perf_counter()

@@ -71,7 +71,6 @@ from lpvflow.errors import ModelError
 from lpvflow.synth.controller import LPVController, series_input_filter
 from lpvflow.synth.hinf import (
     LEVEL_STEPS,
-    ROUNDOFF_FACTOR,
     _cayley_vertex,
     _Coordinates,
     balanced_coordinates,
@@ -81,6 +80,7 @@ from lpvflow.synth.hinf import (
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3, interpolate
 from lpvflow.synth.polytope import hat_coordinates
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
+from lpvflow.validate.stability import scaled_margin
 
 #: Points per breakpoint interval of :func:`fine_check` (the issue's "10× finer" than the breakpoints).
 FINE_PER_SEGMENT = 10
@@ -156,10 +156,10 @@ class Slack:
 
         Π_G = 𝒢𝒯 = [X I; U 0], Π_V = 𝒯 = [I Yᵀ; 0 Vᵀ] (so Π_VᵀΠ_G = 𝒯ᵀ𝒢𝒯), and (𝒜, ℬ, 𝒞, 𝒟) the loop of
         the plant with its state scaled by T⁻¹. Positive definiteness of Φ̃ and of Φ are the same (a
-        congruence); Φ̃ is where the blocks are O(1). Margin: λ_min of the Jacobi-scaled Φ̃ minus
-        ROUNDOFF_FACTOR·m·ε·‖D⁻¹ E D⁻¹‖₂, E the same products formed with absolute values (the size of
-        the terms that cancel in forming Φ̃)."""
-        Ti = self.T_inv
+        congruence); Φ̃ is where the blocks are O(1). Margin: :func:`lpvflow.validate.stability.scaled_margin`
+        of Φ̃, λ_min of the Jacobi-scaled Φ̃ minus ROUNDOFF_FACTOR·m·ε·‖D⁻¹ E D⁻¹‖₂, E the same products
+        formed with absolute values (the size of the terms that cancel in forming Φ̃)."""
+        Ti = self.T_inv  # cached: this runs at every (p, p⁺) of the design and the fine grid
         v = VertexPlant(Ti @ plant.A @ self.T, Ti @ plant.B1, Ti @ plant.B2, plant.C1 @ self.T,
                         plant.C2 @ self.T, plant.D11, plant.D12, plant.D21, plant.D22)
         A, B, C, D = closed_loop(v, K)
@@ -175,12 +175,7 @@ class Slack:
 
         Phi = assemble(A, B, C, D, PiG, PiV, P_hat_next, P_hat, gamma)
         E = assemble(*(np.abs(M) for M in (A, B, C, D, PiG, PiV, P_hat_next)), -np.abs(P_hat), gamma)
-        Phi = 0.5 * (Phi + Phi.T)
-        d = np.sqrt(np.clip(np.abs(np.diag(Phi)), 1e-300, None))
-        scaled = Phi / d[:, None] / d[None, :]
-        bound = ROUNDOFF_FACTOR * len(Phi) * np.finfo(float).eps * np.linalg.norm(
-            np.abs(E) / d[:, None] / d[None, :], 2)
-        return float(np.linalg.eigvalsh(scaled)[0] - bound)
+        return scaled_margin(Phi, E)
 
     def lyapunov_value(self, xi: np.ndarray, P_hat: np.ndarray) -> float:
         """V = ξᵀ𝒫⁻¹ξ = (𝒯ᵀξ̄)ᵀP̂⁻¹(𝒯ᵀξ̄), ξ̄ = [T⁻¹x; x_K] (ξ = [x; x_K] in original coordinates)."""
@@ -250,19 +245,10 @@ def _mix(K_vertices: list[tuple[np.ndarray, ...]], lam: np.ndarray) -> tuple[np.
 
 
 # ---------------------------------------------------------------------------------- coordinates
-def _discrete(coords: _Coordinates, v: VertexPlant) -> VertexPlant:
-    """The discrete vertex in the state/u/y coordinates of ``coords`` (no frequency scaling)."""
-    T, du, dy = coords.T, coords.du, coords.dy
-    Ti = np.linalg.inv(T)
-    return VertexPlant(Ti @ v.A @ T, Ti @ v.B1, Ti @ v.B2 * du, v.C1 @ T, (v.C2 @ T) / dy[:, None], v.D11,
-                       v.D12 * du, v.D21 / dy[:, None], v.D22 * du / dy[:, None])
-
-
-def _unscaled(coords: _Coordinates, K: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
-    """The controller from y to u of one designed from ȳ to ū (same state)."""
-    Ak, Bk, Ck, Dk = K
-    du, dy = coords.du, coords.dy
-    return Ak, Bk / dy[None, :], du[:, None] * Ck, du[:, None] * Dk / dy[None, :]
+def discrete_coordinates(coords: _Coordinates) -> _Coordinates:
+    """The state and u/y scaling of ``coords`` without its frequency scale (ω₀ = 1): the rate-bounded LMIs
+    are posed on the discrete vertices, not on their Cayley images."""
+    return _Coordinates(coords.T, 1.0, coords.du, coords.dy)
 
 
 # ------------------------------------------------------------------------------------------ LMIs
@@ -327,7 +313,7 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: _Coordina
         Bk = np.linalg.solve(V, F - Y @ v.B2 @ R)
         core = Q - Y @ v.A @ X - Y @ v.B2 @ L - V @ Bk @ v.C2 @ X
         Ak = np.linalg.solve(V, np.linalg.solve(U.T, core.T).T)
-        K_vertices.append(_unscaled(coords, (Ak, Bk, Ck, Dk)))
+        K_vertices.append(coords.controller((Ak, Bk, Ck, Dk)))
     lyapunov = [0.5 * (P.value + P.value.T) for P in levels.P]
     result = ScheduledResult(gamma, gamma_min, K_vertices, schedule, vertices, Ts, lyapunov,
                              Slack(X, Y, U, V, np.asarray(coords.T)))
@@ -356,10 +342,10 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
     # range) and the balanced coordinates; the LMIs are posed in those of the breakpoint nearest the centre
     frozen = [balanced_coordinates([_cayley_vertex(v)], None, solver) for v in vertices]
     centre = int(np.argmin(np.abs(schedule.breakpoints - schedule.breakpoints.mean())))
-    coords = frozen[centre][0]
+    coords = discrete_coordinates(frozen[centre][0])
     gamma_lower = max(f[2] for f in frozen)
     attempts = [a for f in frozen for a in f[3]]
-    verts = [_discrete(coords, v) for v in vertices]
+    verts = [coords.apply(v) for v in vertices]
     levels = _Levels(verts, schedule, schedule.pairs(points))
     what = (f"the rate-bounded H∞ LMIs ({len(verts)} breakpoints, "
             f"ν = {'any' if rate_bound is None else f'{rate_bound:g}'} per sample)")

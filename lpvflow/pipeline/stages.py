@@ -476,12 +476,8 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
             if K is not None or reference is not None:
                 frozen_K = K is not None and not hasattr(K, "A")  # a gridded K_id: p ↦ K_id(θ(p))
                 scaled_K = (lambda p: scale.controller(K(p))) if frozen_K else scale.controller(K)
-                if points:
-                    rows = [compare_frozen(scale.model(model), scale.plant_at(compared), 2, scaled_K,
-                                           box=[[v, v + _POINT_WIDTH] for v in point])[0] for point in points]
-                else:
-                    rows = compare_frozen(scale.model(model), scale.plant_at(compared), cfg["grid"],
-                                          scaled_K, box=box)
+                rows = compare_frozen(scale.model(model), scale.plant_at(compared), cfg["grid"], scaled_K,
+                                      box=box, points=points or None)
             if reference is not None:
                 points = [np.asarray(row["p"]) for row in rows]
                 shown = [points[i] for i in sorted({0, len(points) // 2, len(points) - 1})]
@@ -532,10 +528,6 @@ def gate_verdict(outputs: dict, enabled: bool) -> dict:
               f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g}); "
               "it is not used for synthesis")
     return {"passed": False, "reason": reason}
-
-
-#: compare_frozen takes a box; an explicit point p is the first corner of the box [p, p + width].
-_POINT_WIDTH = 1e-9
 
 
 def _scaling(setting: str | dict, est: Dataset, model: LPVSS):

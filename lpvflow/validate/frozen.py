@@ -54,9 +54,13 @@ def frozen_grid(model: object, n: int, box: object = None) -> list[FrozenPoint]:
 
 
 def compare_frozen(
-    model: object, reference: object, n: int, controller: object = None, box: object = None
+    model: object, reference: object, n: int, controller: object = None, box: object = None,
+    points: object = None,
 ) -> list[dict]:
     """Frozen ν-gap table: one row per grid point, with b(Ĝ(p), K) and δν < b when a controller is given.
+
+    `points`: scheduling points (rows) to use instead of the `n`-point grid of `box` (kind "point"), e.g.
+    points along a curve that tied scheduling signals follow.
 
     `reference`: another LPV model (anything with `frozen(p)`), a callable p ↦ LTI system (e.g. a
     local model identified at a frozen operating point), or None (no ν-gap; b and margins only).
@@ -67,7 +71,11 @@ def compare_frozen(
     reference_at = None if reference is None else _frozen_getter(reference, "reference")
     controller_at = None if controller is None else _frozen_getter(controller, "controller")
     rows = []
-    for point in frozen_grid(model, n, box):
+    if points is None:
+        grid = frozen_grid(model, n, box)
+    else:
+        grid = [FrozenPoint(p, "point", model.frozen(p)) for p in np.atleast_2d(np.asarray(points, float))]
+    for point in grid:
         row: dict = {"p": point.p.tolist(), "kind": point.kind}
         if reference_at is not None:
             gap = nugap(reference_at(point.p), point.system)

@@ -60,8 +60,7 @@ def test_adip_equilibria_are_found_across_the_upright_point_in_grid_order():
     # Regression: θ = 0 solved from θ < 0 comes out as ~1e-22 in every entry; started from there,
     # least_squares' first trust region had that size and the θ > 0 points were refused.
     grid = np.linspace(-0.6, 0.6, 9)
-    adip = ROOT / "fmu_plants" / "build" / "adip.fmu"
-    with FmuOperatingPoints(adip, 0.005, ["sin(arm_angle)"]) as reference:
+    with FmuOperatingPoints(built_fmu("adip"), 0.005, ["sin(arm_angle)"]) as reference:
         points = [reference.equilibrium(np.array([theta])) for theta in grid]
     np.testing.assert_allclose([op.x[0] for op in points], np.arcsin(grid), atol=1e-9)
     # holding voltage −d1 sin φ1 / k_τ (fmu_plants/adip/README.md): odd in θ, 4.07 V at sin 75°

@@ -79,9 +79,9 @@ def point_design(phi1: float, p: dict) -> dict:
     """The controller matrices, y_op and u_op at arm angle ``phi1`` (rad)."""
     u_eq = rm.adip_equilibrium(phi1, p)[1]
     a, b = rm.adip_linearization(phi1, p)
-    if SCHEDULING == "arm_angle":  # the trim V_eq(φ1) is a feedback of the measured arm angle
-        trim_slope = (rm.adip_equilibrium(phi1 + 1e-6, p)[1] - rm.adip_equilibrium(phi1 - 1e-6, p)[1]) / 2e-6
-        a = a + b @ np.array([[trim_slope[0], 0.0, 0.0, 0.0]])
+    # scheduled on the measured arm angle: the trim V_eq(φ1) is a feedback of it
+    trim_slope = (rm.adip_equilibrium(phi1 + 1e-6, p)[1] - rm.adip_equilibrium(phi1 - 1e-6, p)[1]) / 2e-6
+    a = a + b @ np.array([[trim_slope[0], 0.0, 0.0, 0.0]])
     K, _ = loop_shaping(a, b, np.eye(2, 4))
     Kd = control.c2d(K, TS, method="tustin")
     return {"A": Kd.A.tolist(), "B": Kd.B.tolist(), "C": Kd.C.tolist(), "D": Kd.D.tolist(),

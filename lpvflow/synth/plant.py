@@ -177,6 +177,21 @@ def augment(G: control.StateSpace, W: dict[str, control.StateSpace], Ts: float, 
     return control.interconnect(blocks, inplist=[*exogenous, "u"], outlist=[*outputs, *measured], dt=Ts)
 
 
+def state_blocks(model: LPVSS, weights: dict, structure: str = "1dof") -> dict[str, slice]:
+    """Where each part of :func:`augment`'s state lies: ``"G"`` (the plant model) first, then the weights
+    in the order of its blocks (W_S, W_K, W_N for 2-DOF, W_R, W_B, W_T; ``control.interconnect`` stacks the
+    blocks' states in list order). Only the parts with states are listed."""
+    W = weight_systems(weights, model.ny, model.nu, model.Ts)
+    order = ["S", "K"] + (["N"] if structure == "2dof" and "N" in W else []) + [k for k in ("R", "B", "T")
+                                                                                  if k in W]
+    blocks, start = {"G": slice(0, model.nx)}, model.nx
+    for key in order:
+        if W[key].nstates:
+            blocks[key] = slice(start, start + W[key].nstates)
+            start += W[key].nstates
+    return blocks
+
+
 def generalized_plant(model: LPVSS, weights: dict, box: np.ndarray | list | None = None,
                       structure: str = "1dof", breakpoints: np.ndarray | list | None = None,
                       vertex_weights: list[dict] | None = None) -> GeneralizedPlant:

@@ -17,7 +17,7 @@ from lpvflow.synth.controller import AntiWindup, LPVController, observer_gains
 from lpvflow.synth.hinf import synthesize
 from lpvflow.synth.plant import generalized_plant
 from lpvflow.synth.polytope import Polytope
-from tests.adip_cases import TS, bundled_weights, rm
+from tests.adip_cases import HINF_WEIGHTS, TS, rm
 from tests.test_verify import _constant
 from tests.test_verify import plants as plants  # the analytic plant FMUs (a pytest fixture)
 
@@ -31,8 +31,8 @@ STEP = Scenario("20° step", 4.0, reference={"arm_angle": Signal(steps=((0.2, np
 
 
 def upright_controller() -> LPVController:
-    """The H∞ controller at the upright point of the exact ADIP linearization with the bundled weights
-    (W_B in series), as an LPVController on a one-point polytope."""
+    """The H∞ controller at the upright point of the exact ADIP linearization with the H∞ weights of
+    tests/adip_cases.py (W_B in series), as an LPVController on a one-point polytope."""
     import control
 
     a, b = rm.adip_linearization(0.0, rm.default_parameters("adip"))
@@ -40,7 +40,7 @@ def upright_controller() -> LPVController:
     basis = Basis("affine", 1, p_min=(-0.5,), p_max=(0.5,))
     model = LPVSS(np.array([G.A, 0 * G.A]), np.array([G.B, 0 * G.B]), np.array([G.C, 0 * G.C]),
                   np.array([G.D, 0 * G.D]), basis, TS)
-    point = synthesize(generalized_plant(model, bundled_weights(), [[0.0, 0.0]])).controller
+    point = synthesize(generalized_plant(model, HINF_WEIGHTS, [[0.0, 0.0]])).controller
     # the same controller at both vertices of a box: exportable (the FMU knows box polytopes)
     box = Polytope("box", np.array([[-0.5, 0.5]]), np.array([[1.0, -0.5], [1.0, 0.5]]))
     return LPVController(*(np.repeat(M, 2, axis=0) for M in (point.Ak, point.Bk, point.Ck, point.Dk)), box,

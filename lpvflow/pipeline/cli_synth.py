@@ -48,7 +48,9 @@ def run(args: argparse.Namespace) -> int:
     lyapunov = ("one common Lyapunov matrix" if settings["method"] == "common" else
                 f"rate-bounded parameter-dependent Lyapunov function (ν = {settings['rate_bound']})")
     print(f"{lyapunov}, polytope {poly.kind} with {poly.n_vertices} vertices, {settings['structure']}")
-    print(f"gamma = {design.gamma:.6g}  (lower bound {design.gamma_lower:.6g}, {design.seconds:.2f} s)")
+    bound = ("largest frozen closed-loop norm" if design.gamma_lower is None
+             else f"lower bound {design.gamma_lower:.6g}")
+    print(f"gamma = {design.gamma:.6g}  ({bound}, {design.seconds:.2f} s)")
     for line in design.certificate.lines():
         print(line)
     cert = design.certificate

@@ -241,6 +241,24 @@ def vertex_weights(value: Any, where: str) -> list[dict[str, Any]]:
     return value
 
 
+def observer(value: Any, where: str) -> dict[str, float]:
+    """``{ input, state, disturbance, noise }`` (each optional, > 0): the Kalman filter's noise model of the
+    observer design (:class:`lpvflow.synth.observer.ObserverSettings`)."""
+    keys = ("input", "state", "disturbance", "noise")
+    if not isinstance(value, dict) or set(value) - set(keys):
+        raise _fail(where, value, "a table with some of the keys input, state, disturbance, noise, e.g. "
+                    "{ input = 1.0, state = 1e-6, disturbance = 1.0, noise = 1e-3 }")
+    return {k: number(0.0, open_low=True)(v, f"{where}.{k}") for k, v in value.items()}
+
+
+def reference_filter(value: Any, where: str) -> dict[str, float]:
+    """``{ bandwidth = ω [rad/s], damping = ζ }`` (damping optional, default 1): the observer design's
+    reference filter ω²/(s² + 2ζωs + ω²)."""
+    if not isinstance(value, dict) or "bandwidth" not in value or set(value) - {"bandwidth", "damping"}:
+        raise _fail(where, value, "{ bandwidth = 2.2, damping = 1.0 } (rad/s; damping optional)")
+    return {k: number(0.0, open_low=True)(v, f"{where}.{k}") for k, v in value.items()}
+
+
 def trim(value: Any, where: str) -> dict[str, list]:
     """``{ p = [p_1, …, p_M], u = [[u_11, …, u_1nu], …] }``: breakpoints of the first scheduling signal,
     strictly ascending, and one row of plant inputs per breakpoint (the trim feed-forward u_eq(p))."""
@@ -347,8 +365,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gate": Key(True, boolean, "stop the design after validate when the model fails the ν-gap test"),
     },
     "synth": {
-        "method": Key("common", string(("common", "rate-bounded")),
-                      "common: one Lyapunov matrix; rate-bounded: parameter-dependent, |Δp| ≤ rate_bound"),
+        "method": Key("common", string(("common", "rate-bounded", "observer")),
+                      "common: one Lyapunov matrix; rate-bounded: parameter-dependent, |Δp| ≤ rate_bound; "
+                      "observer: frozen LQG designs at the breakpoints, interpolated (2dof)"),
         "rate_bound": Key(None, number(0.0, open_low=True),
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
         "breakpoints": Key(None, breakpoints, "piecewise polytope: ascending values (or rows) end to end"),
@@ -359,6 +378,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "solver": Key("CLARABEL", string(("CLARABEL", "SCS"), upper=True), "SDP solver"),
         "baseline_at": Key(None, numbers, "scheduling point of the LTI baseline (default: box centre)"),
         "trim": Key(None, trim, "trim feed-forward u_eq(p): { p = [...], u = [[...], ...] }, interpolated"),
+        "observer": Key({}, observer, "observer: Kalman noise { input, state, disturbance, noise }"),
+        "reference_filter": Key(None, reference_filter, "observer: { bandwidth = rad/s, damping } on r"),
     },
     "verify": {
         "loop": Key(REQUIRED, loop, "how the controller is wired to the plant FMU ([verify.loop])"),

@@ -335,7 +335,9 @@ def _gamma_line(synth: dict) -> str:
     if "gamma" not in synth:
         return ""
     text = f"H∞ γ: LPV controller {synth['gamma']:.4g}"
-    if synth.get("gamma_lower") is not None:
+    if synth.get("method") == "observer":
+        text += " (largest frozen closed-loop ‖T_zw‖∞ of the observer design; no LMI bound)"
+    elif synth.get("gamma_lower") is not None:
         text += f" (LMI lower bound {synth['gamma_lower']:.4g})"
     if synth.get("baseline_gamma") is not None:
         at = ", ".join(f"{v:.3g}" for v in synth.get("baseline_at") or [])

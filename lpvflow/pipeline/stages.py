@@ -646,7 +646,7 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     controller = design.controller
     signals = design_signals(ctx, model)
     controller.info["signals"] = signals
-    controller.antiwindup = antiwindup(ctx, controller, signals)
+    controller.antiwindup = antiwindup(ctx, controller, signals, design.antiwindup_gains)
     controller.save(ctx.path("controller.json"))
     centre = scheduling_box(model, cfg["box"]).mean(axis=1).tolist()
     at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre
@@ -661,10 +661,11 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
             ["controller.json", "baseline.json"])
 
 
-def antiwindup(ctx: StageContext, controller, signals: dict):
+def antiwindup(ctx: StageContext, controller, signals: dict, gains: np.ndarray | None = None):
     """The anti-windup law of a synthesized controller (:class:`lpvflow.synth.controller.AntiWindup`) for
-    the actuator limits of ``[verify.loop]`` around the actuated inputs' operating points; None when the
-    design has no verification loop or limits none of the controller's outputs."""
+    the actuator limits of ``[verify.loop]`` around the actuated inputs' operating points, with the
+    design's own ``gains`` (the observer design's) or :func:`lpvflow.synth.controller.observer_gains`;
+    None when the design has no verification loop or limits none of the controller's outputs."""
     from lpvflow.pipeline.scenarios import parse_loop
     from lpvflow.synth.controller import AntiWindup, observer_gains
 
@@ -676,7 +677,8 @@ def antiwindup(ctx: StageContext, controller, signals: dict):
         return None
     lo, hi = (np.array([limits.get(name, (-np.inf, np.inf))[i] for name in names]) for i in (0, 1))
     u_op = np.array([port["operating_point"] for port in signals["actuated"]])
-    return AntiWindup(observer_gains(controller.Ak, controller.Ck), lo, hi, u_op)
+    L = observer_gains(controller.Ak, controller.Ck) if gains is None else gains
+    return AntiWindup(L, lo, hi, u_op)
 
 
 def design_signals(ctx: StageContext, model: LPVSS) -> dict:

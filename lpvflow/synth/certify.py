@@ -45,8 +45,9 @@ def vertex_margins(result: HinfResult) -> list[float]:
 
 
 def scheduling_grid(box: np.ndarray, per_axis: int) -> np.ndarray:
-    """(per_axis^{n_p}, n_p) grid of the scheduling box."""
-    axes = [np.linspace(lo, hi, per_axis) for lo, hi in box]
+    """(per_axis^{n_p}, n_p) grid of the scheduling box; a degenerate axis (lo = hi, an LTI design's point)
+    contributes one value, not per_axis copies of it."""
+    axes = [np.linspace(lo, hi, per_axis if hi > lo else 1) for lo, hi in box]
     return np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(box), -1).T
 
 

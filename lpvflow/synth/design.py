@@ -3,7 +3,9 @@ pipeline's synth stage.
 
 ``method = "common"``: :func:`lpvflow.synth.hinf.synthesize` (one Lyapunov matrix, any polytope);
 ``method = "rate-bounded"``: :func:`lpvflow.synth.rate_bounded.synthesize_rate_bounded` (parameter-
-dependent Lyapunov function, |p(k+1) − p(k)| ≤ ``rate_bound``); both on the generalized plant of
+dependent Lyapunov function, |p(k+1) − p(k)| ≤ ``rate_bound``); ``method = "observer"``:
+:func:`lpvflow.synth.observer.observer_design` (frozen LQG designs at the breakpoints, interpolated; checked
+at frozen points only, :class:`lpvflow.synth.observer.FrozenCheck`); all on the generalized plant of
 :func:`lpvflow.synth.plant.generalized_plant` with the table's weights, box, breakpoints, scheduled
 weights and structure, and re-checked by :mod:`lpvflow.synth.certify`. The table's ``trim`` (feed-forward
 u_eq(p), :class:`lpvflow.synth.controller.Trim`) is part of the controller it returns: a model identified
@@ -13,27 +15,35 @@ controller without it would not be the one designed.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
+
+import numpy as np
 
 from lpvflow.errors import DataError
 from lpvflow.models import LPVSS
 from lpvflow.synth.certify import Certificate, certify, certify_rate_bounded
 from lpvflow.synth.controller import LPVController, Trim
 from lpvflow.synth.hinf import synthesize
+from lpvflow.synth.observer import FrozenCheck, ObserverSettings, observer_design
 from lpvflow.synth.plant import GeneralizedPlant, generalized_plant
 from lpvflow.synth.rate_bounded import synthesize_rate_bounded
 
 
 @dataclass
 class Design:
-    """A certified controller and what the report states about it."""
+    """A checked controller and what the report states about it: ``gamma`` the certified level (LMI
+    methods) or the largest frozen ‖T_zw‖∞ (observer, ``gamma_lower`` None); ``antiwindup_gains`` the
+    design's own anti-windup gains (observer), None for the generic
+    :func:`lpvflow.synth.controller.observer_gains`."""
 
     controller: LPVController
     gamma: float
-    gamma_lower: float
-    certificate: Certificate
+    gamma_lower: float | None
+    certificate: Certificate | FrozenCheck
     plant: GeneralizedPlant
     seconds: float
+    antiwindup_gains: np.ndarray | None = None
 
 
 def synthesize_design(model: LPVSS, settings: dict, box: list | None = None) -> Design:
@@ -53,6 +63,15 @@ def synthesize_design(model: LPVSS, settings: dict, box: list | None = None) -> 
         certificate = certify_rate_bounded(result, frozen_model, weights, structure)
         controller.trim = trim(settings, controller)
         return Design(controller, result.gamma, result.gamma_min, certificate, plant, result.report.seconds)
+    if settings["method"] == "observer" and not point:
+        start = time.perf_counter()
+        filt = settings.get("reference_filter") or {}
+        observer = observer_design(plant, model, weights, ObserverSettings(
+            **(settings.get("observer") or {}), filter_bandwidth=filt.get("bandwidth"),
+            filter_damping=filt.get("damping", 1.0)))
+        observer.controller.trim = trim(settings, observer.controller)
+        return Design(observer.controller, observer.check.hinf_max, None, observer.check, plant,
+                      time.perf_counter() - start, observer.antiwindup_gains)
     result = synthesize(plant, settings["solver"])
     result.controller.trim = trim(settings, result.controller)
     return Design(result.controller, result.gamma, result.gamma_lower, certify(result, frozen_model, weights),

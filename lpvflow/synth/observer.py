@@ -16,12 +16,17 @@ scheduling", Automatica 36, §4: the controller family must be realized in commo
   L_W = [B1_W D21_r⁺, A_WG C_G⁺]) instead of estimating them. The integral action of W_S therefore acts on
   the *measured* error.
 * **Kalman filter for the model states with an input-disturbance state** d (x_G⁺ = A_G x_G + B_G(u_p + d),
-  d⁺ = d): ``control.dlqe`` with process noise ``input``·B_G B_Gᵀ + ``state``·I on the model, ``disturbance``
-  on d and measurement noise ``noise``² (standard deviation ``noise``). u subtracts W_B(1)⁻¹d̂: a constant load or
-  trim error is cancelled at the observer's speed, not the integrator's.
+  d⁺ = d): ``control.dlqe`` with process noise ``input``·B_G B_Gᵀ + ``state``·I on the model,
+  ``disturbance`` on d and measurement noise ``noise``² (standard deviation ``noise``). u subtracts
+  K_d d̂, K_d = (I − F_B(I − A_B)⁻¹B_B) W_B(1)⁻¹ (F_B: F on W_B's state): a constant load or trim error is
+  cancelled exactly at steady state, at the observer's speed rather than the integrator's.
 * **Reference feed-forward** (2-DOF): for every reference channel whose steady state the model can reach
   (x_ss = N_x r, u_ss = N_u r from [A_G − I, B_G; C_G, 0][N_x; N_u] = [0; e_j]), u = u_ss + F(x̂ − x_ss).
   A channel the plant cannot hold at DC (the ADIP's pendulum) has none.
+* **Anti-windup** (:func:`antiwindup_gains`): when the actuator saturates, the model estimate is driven by
+  the applied input, x̂_G⁺ += B_G(u_a − u) — the observer form of anti-windup (Åström & Rundqwist 1989,
+  "Integrator windup and how to avoid it", ACC): the estimate, and with it the integral action on the
+  measured error, stays consistent with the plant.
 * **Reference filter** (optional): every reference passes ω²/(s² + 2ζωs + ω²) (zero-order hold) before
   the controller, so a step asks for a move the loop can follow (``reference_filter = { bandwidth = ω,
   damping = ζ }``).
@@ -175,7 +180,7 @@ def _vertex_controller(v, model_matrices: tuple[np.ndarray, ...], blocks: dict[s
                        WB: control.StateSpace | None, settings: ObserverSettings) -> tuple[np.ndarray, ...]:
     """(Ak, Bk, Ck, Dk) from [r; y_m] to u (before W_B) at one breakpoint, state [x̂; d̂] (module
     docstring): x̂⁺ = A x̂ + B2 u + E d̂ + L([r; y_m] − C2 x̂), d̂⁺ = d̂ + L_d(y_m − C_G x̂_G),
-    u = F x̂ − W_B(1)⁻¹ d̂ + N r."""
+    u = F x̂ − K_d d̂ + N r."""
     Ag, Bg, Cg, _ = model_matrices
     n, _, nu, _, nmeas = v.dims
     ny, nG, G = nmeas // 2, Ag.shape[0], blocks["G"]
@@ -195,8 +200,11 @@ def _vertex_controller(v, model_matrices: tuple[np.ndarray, ...], blocks: dict[s
     L[G, ny:] = La[:nG]
     E = np.zeros((n, nu))
     E[G] = Bg
-    dc, _ = _input_filter_dc(WB, nu)
-    Fc = np.hstack([F, -np.linalg.inv(dc)])
+    # u = F x̂ − K_d d̂ with K_d = (I − F_B (I − A_B)⁻¹B_B) W_B(1)⁻¹: the load is cancelled at steady state
+    # including W_B's own state, on which F also acts
+    dc, per_u = _input_filter_dc(WB, nu)
+    F_B = F[:, blocks["B"]] if "B" in blocks else np.zeros((nu, 0))
+    Fc = np.hstack([F, -(np.eye(nu) - F_B @ per_u) @ np.linalg.inv(dc)])
     Ao = np.block([[v.A - L @ v.C2, E], [np.hstack([-La[nG:] @ Cg, np.zeros((nu, n - nG))]), np.eye(nu)]])
     Bo = np.vstack([L, np.hstack([np.zeros((nu, ny)), La[nG:]])])
     Bu = np.vstack([v.B2, np.zeros((nu, nu))])
@@ -207,11 +215,23 @@ def _vertex_controller(v, model_matrices: tuple[np.ndarray, ...], blocks: dict[s
 @dataclass
 class ObserverResult:
     """The vertex controllers (from [r; y_m] to u before W_B, reference filter included), the exported
-    :class:`LPVController` (W_B in series) and the frozen check."""
+    :class:`LPVController` (W_B in series), its anti-windup gains (N, n, nu) and the frozen check."""
 
     K_vertices: list[tuple[np.ndarray, ...]]
     controller: LPVController
+    antiwindup_gains: np.ndarray
     check: FrozenCheck
+
+
+def antiwindup_gains(model: LPVSS, plant: GeneralizedPlant, order: int) -> np.ndarray:
+    """(N, order, nu) gains L_i of the exported controller's anti-windup x⁺ += L_i(u_a − u): B_G at the
+    model-estimate rows (its first states), zero elsewhere (module docstring)."""
+    gains = []
+    for _, B, _, _ in vertex_matrices(model, plant.polytope):
+        L = np.zeros((order, B.shape[1]))
+        L[:B.shape[0]] = B
+        gains.append(L)
+    return np.array(gains)
 
 
 def frozen_check(plant: GeneralizedPlant, K_vertices: list[tuple[np.ndarray, ...]]) -> FrozenCheck:
@@ -258,4 +278,4 @@ def observer_design(plant: GeneralizedPlant, model: LPVSS, weights: dict, settin
                                                            "damping": settings.filter_damping}}
     controller = LPVController(*stacks, plant.polytope, plant.basis, plant.Ts, info=info,
                                structure=plant.structure)
-    return ObserverResult(K, controller, check)
+    return ObserverResult(K, controller, antiwindup_gains(model, plant, controller.order), check)

@@ -81,12 +81,14 @@ def fmu_open_loop(path: Path, w, p) -> np.ndarray:
         fmu.close()
 
 
-def fmpy_closed_loop(controller_fmu: Path, plant_fmu: Path, scenario: Scenario, Ts: float, tmp: Path
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def fmpy_closed_loop(controller_fmu: Path, plant_fmu: Path, scenario: Scenario, Ts: float, tmp: Path,
+                     scheduling: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """An importer's loop with fmpy alone, wired by port names: per sample the plant's arm_angle and
     pendulum_angle go to the controller ports of the same names, the references to ``<output>_ref``,
-    sin(arm_angle) to ``sin_arm``; the controller's ``voltage``, clipped to ±10 V, drives the plant for
-    one step. Returns the measured outputs (n, 2) and the applied voltage (n,)."""
+    ``scheduling[name](arm_angle)`` to each scheduling port (default: sin(arm_angle) to ``sin_arm``); the
+    controller's ``voltage``, clipped to ±10 V, drives the plant for one step. Returns the measured
+    outputs (n, 2) and the applied voltage (n,)."""
+    scheduling = {"sin_arm": np.sin} if scheduling is None else scheduling
     slaves, refs = {}, {}
     for key, path in (("K", controller_fmu), ("G", plant_fmu)):
         description = read_model_description(str(path))
@@ -111,8 +113,8 @@ def fmpy_closed_loop(controller_fmu: Path, plant_fmu: Path, scenario: Scenario, 
     for k in range(n):
         arm, pendulum = G.getReal([refs["G"][name] for name in names])
         outputs[k] = arm, pendulum
-        K.setReal([refs["K"][name] for name in ("arm_angle_ref", "pendulum_angle_ref", *names, "sin_arm")],
-                  [r[k], 0.0, arm, pendulum, np.sin(arm)])
+        K.setReal([refs["K"][name] for name in ("arm_angle_ref", "pendulum_angle_ref", *names, *scheduling)],
+                  [r[k], 0.0, arm, pendulum, *(f(arm) for f in scheduling.values())])
         applied[k] = np.clip(K.getReal([refs["K"]["voltage"]])[0], *LIMITS)
         G.setReal([refs["G"]["voltage"]], [applied[k]])
         G.doStep(t, Ts)

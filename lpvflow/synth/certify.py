@@ -31,6 +31,7 @@ import numpy as np
 from lpvflow.basis import Basis
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
+from lpvflow.synth.controller import mix
 from lpvflow.synth.hinf import HinfResult, certificate_margin, closed_loop
 from lpvflow.synth.plant import VertexPlant, augment, interpolate
 from lpvflow.synth.polytope import Polytope, hat_coordinates
@@ -76,8 +77,7 @@ def interpolated_hinf_norms(vertices: list[VertexPlant], K_vertices: list[tuple[
     nu, ny = vertices[0].dims[2], vertices[0].dims[4]
     norms = []
     for lam in lams:
-        K = tuple(sum(li * k[m] for li, k in zip(lam, K_vertices, strict=True)) for m in range(4))
-        loop = interpolate(vertices, lam).ss(Ts).lft(control.ss(*K, Ts), nu, ny)
+        loop = interpolate(vertices, lam).ss(Ts).lft(control.ss(*mix(K_vertices, lam), Ts), nu, ny)
         norms.append(float(control.norm(loop, "inf")))
     return np.array(norms)
 
@@ -96,7 +96,7 @@ def vertex_interpolation(result: HinfResult) -> Callable[[np.ndarray], tuple[np.
     """p ↦ Σ λ_i(p) K_i of a polytopic result (λ of its controller's polytope)."""
     def at(p: np.ndarray) -> tuple[np.ndarray, ...]:
         lam = result.controller.coordinates(p)
-        return tuple(sum(li * k[m] for li, k in zip(lam, result.K_vertices, strict=True)) for m in range(4))
+        return mix(result.K_vertices, lam)
     return at
 
 

@@ -33,6 +33,7 @@ runs it) and the exported FMU apply the same law.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import control
@@ -122,6 +123,12 @@ def observer_gains(Ak: np.ndarray, Ck: np.ndarray) -> np.ndarray:
         P = scipy.linalg.solve_discrete_are(A.T, C.T, np.eye(n), np.eye(nu))
         gains.append(A @ P @ C.T @ np.linalg.inv(C @ P @ C.T + np.eye(nu)))
     return np.array(gains)
+
+
+def mix(K_vertices: Sequence[tuple[np.ndarray, ...]], lam: Sequence[float]) -> tuple[np.ndarray, ...]:
+    """Σ_i λ_i K_i of vertex controllers K_i = (A_K, B_K, C_K, D_K), matrix by matrix: the controller at
+    convex coordinates λ (every design interpolates with the plant's own λ)."""
+    return tuple(sum(float(li) * K[m] for li, K in zip(lam, K_vertices, strict=True)) for m in range(4))
 
 
 @dataclass

@@ -81,7 +81,7 @@ import numpy as np
 import scipy.linalg
 
 from lpvflow.errors import ModelError
-from lpvflow.synth.controller import LPVController, series_input_filter
+from lpvflow.synth.controller import LPVController, mix, series_input_filter
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 
@@ -162,9 +162,7 @@ class VertexController:
 
     def __call__(self, lam: Sequence[float]) -> control.StateSpace:
         """The controller frozen at λ: Σ λ_i K_i."""
-        lam = np.asarray(lam, dtype=float)
-        mats = (sum(li * k[m] for li, k in zip(lam, self.vertices, strict=True)) for m in range(4))
-        return control.ss(*mats, self.Ts)
+        return control.ss(*mix(self.vertices, lam), self.Ts)
 
 
 @dataclass

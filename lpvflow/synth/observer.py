@@ -47,7 +47,7 @@ import numpy as np
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
 from lpvflow.synth.certify import design_coordinates, interpolated_hinf_norms
-from lpvflow.synth.controller import LPVController, series_input_filter
+from lpvflow.synth.controller import LPVController, mix, series_input_filter
 from lpvflow.synth.hinf import closed_loop
 from lpvflow.synth.plant import GeneralizedPlant, interpolate, state_blocks
 from lpvflow.synth.polytope import vertex_matrices
@@ -239,9 +239,8 @@ def frozen_check(plant: GeneralizedPlant, K_vertices: list[tuple[np.ndarray, ...
     lams = design_coordinates(plant.polytope, plant.basis, FROZEN_PER_SEGMENT)
     radius = 0.0
     for lam in lams:
-        K = tuple(sum(li * k[m] for li, k in zip(lam, K_vertices, strict=True)) for m in range(4))
-        radius = max(radius, float(np.abs(np.linalg.eigvals(closed_loop(interpolate(plant.vertices, lam),
-                                                                         K)[0])).max()))
+        loop = closed_loop(interpolate(plant.vertices, lam), mix(K_vertices, lam))[0]
+        radius = max(radius, float(np.abs(np.linalg.eigvals(loop)).max()))
     norms = interpolated_hinf_norms(plant.vertices, K_vertices, lams, plant.Ts)
     return FrozenCheck(radius, float(norms.max()), len(lams))
 

@@ -68,7 +68,7 @@ import cvxpy as cp
 import numpy as np
 
 from lpvflow.errors import ModelError
-from lpvflow.synth.controller import LPVController, series_input_filter
+from lpvflow.synth.controller import LPVController, mix, series_input_filter
 from lpvflow.synth.hinf import (
     LEVEL_STEPS,
     _cayley_vertex,
@@ -211,7 +211,7 @@ class ScheduledResult:
 
     def controller_at(self, p: float) -> tuple[np.ndarray, ...]:
         """(A_K, B_K, C_K, D_K) at p: Σ λ_i(p) K_i."""
-        return _mix(self.K_vertices, self.schedule.weights(p))
+        return mix(self.K_vertices, self.schedule.weights(p))
 
     def controller(self, p: float) -> control.StateSpace:
         """The controller frozen at p (from y to u, dt = Ts)."""
@@ -238,10 +238,6 @@ class ScheduledResult:
         """:meth:`Slack.certificate` of ``plant`` with the controller at p, from p to p⁺ = q."""
         return self.slack.certificate(plant, self.controller_at(p), self.lyapunov_at(p), self.lyapunov_at(q),
                                       self.gamma)
-
-
-def _mix(K_vertices: list[tuple[np.ndarray, ...]], lam: np.ndarray) -> tuple[np.ndarray, ...]:
-    return tuple(sum(li * K[m] for li, K in zip(lam, K_vertices, strict=True)) for m in range(4))
 
 
 # ---------------------------------------------------------------------------------- coordinates

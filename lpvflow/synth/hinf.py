@@ -66,7 +66,8 @@ straight chain:
 5. **Certificate** (:func:`certificate_margin`): every vertex closed loop is rebuilt from the returned
    discrete plant and controller numbers, mapped by :func:`cayley`, and its bounded-real matrix with 𝒳
    must be negative definite, in the coordinates where 𝒳 = I and after Jacobi scaling, with a margin above
-   the round-off bound (:data:`ROUNDOFF_FACTOR`); a level whose controller fails it does not pass.
+   the round-off bound (:func:`lpvflow.validate.stability.scaled_margin`); a level whose controller fails it
+   does not pass.
 """
 
 from __future__ import annotations
@@ -84,6 +85,7 @@ from lpvflow.errors import ModelError
 from lpvflow.synth.controller import LPVController, mix, series_input_filter
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
+from lpvflow.validate.stability import scaled_margin
 
 #: Relative γ steps of the certified-level search (step 3): γ_lower·(1 + suboptimality·2^k), k < this.
 LEVEL_STEPS = 9
@@ -95,11 +97,6 @@ LEVEL_STEPS = 9
 #: none up to 6γ_lower, 1.006; (2.0, 1.15) → 1.029, 0.998, 1.003. Clarabel at 1e-10 did not help: it
 #: then fails outright on some of these SDPs.
 INTERIOR_FACTORS = (2.0, 1.15)
-#: A certificate's Jacobi-scaled margin must exceed ROUNDOFF_FACTOR·m·ε_mach·‖|M̃|‖₂ (m the size of the
-#: matrix M̃): a generous multiple of the backward error of forming M̃ and computing its eigenvalues.
-ROUNDOFF_FACTOR = 1e3
-
-
 def cayley(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, ...]:
     """Bilinear image (A_c, B_c, C_c, D_c) of a discrete system, z = (1 + s)/(1 − s) (module docstring)."""
     n = A.shape[0]
@@ -141,16 +138,13 @@ def certificate_margin(v: VertexPlant, K: tuple[np.ndarray, ...], F: np.ndarray,
     with the same 𝒳), then written in the coordinates ξ̃ = Fξ where 𝒳 becomes I (𝒜̃ = F𝒜F⁻¹, ℬ̃ = Fℬ,
     𝒞̃ = 𝒞F⁻¹: a congruence, so definiteness is unchanged, while the small and large directions of 𝒳 no
     longer share one floating-point scale). With M = :func:`bounded_real_matrix` there, M̃ = D⁻¹(−M)D⁻¹
-    (D² = |diag M|) and the margin is λ_min(M̃) − ROUNDOFF_FACTOR·m·ε·‖|M̃|‖₂.
+    (D² = |diag M|) and the margin is :func:`lpvflow.validate.stability.scaled_margin` of −M with its own
+    absolute values as the size of its terms: λ_min(M̃) − ROUNDOFF_FACTOR·m·ε·‖|M̃|‖₂.
     """
     A, B, C, D = cayley(*closed_loop(v, K))
     Fi = np.linalg.inv(F)
     M = bounded_real_matrix((F @ A @ Fi, F @ B, C @ Fi, D), np.eye(len(F)), gamma)
-    M = -0.5 * (M + M.T)
-    d = np.sqrt(np.clip(np.abs(np.diag(M)), 1e-300, None))
-    Mt = M / d[:, None] / d[None, :]
-    roundoff = ROUNDOFF_FACTOR * len(Mt) * np.finfo(float).eps * np.linalg.norm(np.abs(Mt), 2)
-    return float(np.linalg.eigvalsh(Mt)[0] - roundoff)
+    return scaled_margin(-M, np.abs(M))
 
 
 @dataclass

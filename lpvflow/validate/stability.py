@@ -43,7 +43,7 @@ from lpvflow.errors import ModelError
 #: Margin δ of the rate-bounded LMI in the balanced coordinates (relative to the normalisation P̃ ⪰ I).
 LMI_MARGIN = 1e-4
 #: A quadratic certificate's Jacobi-scaled margin must exceed ROUNDOFF_FACTOR·m·ε·‖D⁻¹|N|D⁻¹‖₂
-#: (:func:`scaled_margin`), as :data:`lpvflow.synth.hinf.ROUNDOFF_FACTOR` for the H∞ certificates.
+#: (:func:`scaled_margin`); the H∞ certificates of lpvflow.synth use the same rule.
 ROUNDOFF_FACTOR = 1e3
 
 

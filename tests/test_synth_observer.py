@@ -12,8 +12,9 @@ import scipy.linalg
 
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, ModelError
-from lpvflow.models import LPVSS
-from lpvflow.pipeline.config import check_table
+from lpvflow.models import LPVSS, load
+from lpvflow.pipeline.cli import main
+from lpvflow.pipeline.config import bundled_config, check_table
 from lpvflow.synth.controller import AntiWindup, LPVController
 from lpvflow.synth.observer import ObserverSettings, frozen_check, observer_design
 from lpvflow.synth.plant import generalized_plant, weight_systems
@@ -133,3 +134,27 @@ def test_settings_and_config_errors_name_the_key():
     with pytest.raises(DataError, match=r"\[synth\] reference_filter .*bandwidth = 2.2"):
         check_table("synth", {"weights": bundled_weights(), "reference_filter": {"damping": 1.0}},
                     "design.toml")
+
+
+def test_lpvflow_synth_designs_it_from_a_design_file(tmp_path, capsys):
+    """`lpvflow synth --config` with method = "observer": names the method, reports the frozen check, and
+    writes the controller of observer_design with W_B in series (same numbers as the library call)."""
+    model = adip_family()
+    model.save(tmp_path / "model.json")
+    text = bundled_config("adip").read_text()
+    weights = [line for line in text.splitlines() if line.startswith("weights.")]
+    (tmp_path / "synth.toml").write_text("\n".join([
+        "[synth]", 'method = "observer"', 'structure = "2dof"', "box = [[0.0, 1.0]]",
+        "breakpoints = [0.0, 0.5, 1.0]", "reference_filter = { bandwidth = 2.2 }", *weights]) + "\n")
+    status = main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "synth.toml"),
+                   "-o", str(tmp_path / "K.json")])
+    out = capsys.readouterr().out
+    assert status == 0
+    assert out.startswith("observer-based: frozen LQG designs at the breakpoints, interpolated, polytope "
+                          "piecewise with 3 vertices, 2dof")
+    assert "largest frozen closed-loop norm" in out and "largest spectral radius" in out
+    K = load(tmp_path / "K.json")
+    expected = observer_design(generalized_plant(model, bundled_weights(), [[0.0, 1.0]], "2dof", BREAKPOINTS),
+                               model, bundled_weights(), SETTINGS).controller
+    np.testing.assert_allclose(K.Ck, expected.Ck, rtol=1e-9, atol=1e-12)
+    assert K.info["method"] == "observer" and K.info["certificate"]["ok"] is True

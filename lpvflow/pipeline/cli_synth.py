@@ -45,9 +45,12 @@ def run(args: argparse.Namespace) -> int:
         raise ModelError(f"{args.model} holds a {type(model).__name__}; synth needs an LPVSS")
     design = synthesize_design(model, settings)
     poly = design.plant.polytope
-    lyapunov = ("one common Lyapunov matrix" if settings["method"] == "common" else
-                f"rate-bounded parameter-dependent Lyapunov function (ν = {settings['rate_bound']})")
-    print(f"{lyapunov}, polytope {poly.kind} with {poly.n_vertices} vertices, {settings['structure']}")
+    method = {"common": "one common Lyapunov matrix",
+              "rate-bounded": "rate-bounded parameter-dependent Lyapunov function "
+                              f"(ν = {settings['rate_bound']})",
+              "observer": "observer-based: frozen LQG designs at the breakpoints, interpolated"}
+    print(f"{method[settings['method']]}, polytope {poly.kind} with {poly.n_vertices} vertices, "
+          f"{settings['structure']}")
     bound = ("largest frozen closed-loop norm" if design.gamma_lower is None
              else f"lower bound {design.gamma_lower:.6g}")
     print(f"gamma = {design.gamma:.6g}  ({bound}, {design.seconds:.2f} s)")

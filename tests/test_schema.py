@@ -51,7 +51,7 @@ def test_a_design_file_is_a_synth_config_and_a_scenario_file() -> None:
     tables = load_tables(path, need=("synth",))
     assert tables["synth"]["method"] == "observer" and tables["synth"]["structure"] == "2dof"
     assert len(tables["synth"]["box"]) == 3 and [len(b) for b in tables["synth"]["breakpoints"]] == [3] * 13
-    assert tables["synth"]["reference_filter"] == {"bandwidth": 2.2, "damping": 1.0}
+    assert tables["synth"]["reference_filter"] == {"bandwidth": 2.12, "damping": 1.0}
     assert set(tables["synth"]["weights"]) == {"S", "R", "K", "B", "integrator_shift"}
     scenarios = load_scenarios(path)
     assert scenarios.loop.actuated == ("voltage",)

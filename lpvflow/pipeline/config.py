@@ -322,6 +322,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                             "sensor quantization step per plant output, > 0 (e.g. 2π/4096 rad)"),
         "noise": Key({}, mapping(number(0.0), "std"),
                      "sensor white-noise standard deviation per plant output, ≥ 0"),
+        "iterate": Key(0, integer(0), "identification for control: after synth, rerun experiment → synth "
+                       "this many times with the just-designed controller as experiment controller"),
     },
     "identify": {
         "u": Key(REQUIRED, names(), "input columns"),

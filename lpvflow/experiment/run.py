@@ -191,14 +191,11 @@ def run_experiment(
     if isinstance(controller, GriddedController):
         s = {name: generate(spec, n, Ts, signal_rng(seed, "setpoint:" + name), 0.0)
              for name, spec in setpoint_specs.items()}
-    elif isinstance(controller, SynthesizedController):
-        y_op = dict(zip(controller.inputs, controller.y_op, strict=True))
-        s = {name: generate(spec, n, Ts, signal_rng(seed, "setpoint:" + name), y_op[name])
-             for name, spec in setpoint_specs.items()}
     elif controller is not None and setpoint_specs:
         y_op = dict(zip(controller.inputs, controller.y_op, strict=True))
         s = {name: generate(spec, n, Ts, signal_rng(seed, "setpoint:" + name), y_op[name])
              for name, spec in setpoint_specs.items()}
+    if isinstance(controller, LtiController) and setpoint_specs:
         shift = np.column_stack([y_op[name] - s[name] if name in s else np.zeros(n)
                                  for name in controller.inputs])
         r_s = controller.response(shift)

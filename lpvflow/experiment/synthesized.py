@@ -128,9 +128,9 @@ class SynthesizedController:
         return np.array([self.trim(p_k) for p_k in p])
 
     def frozen_at(self, p: np.ndarray) -> LtiController:
-        """The law frozen at p as seen from the measurements (references held), without the trim:
-        x⁺ = A x + B_y (y − y_op), v = C x + D_y (y − y_op), B_y, D_y the measurement columns
-        (−B, −D of w = r − y for a 1-DOF controller; the y half of [r; y] for a 2-DOF one)."""
+        """The law frozen at p as a map from the measurements, without the trim and without what constant
+        references add: x⁺ = A x + B_y (y − y_op), v = C x + D_y (y − y_op), B_y, D_y the measurement
+        columns (−B, −D of w = r − y for a 1-DOF controller; the y half of [r; y] for a 2-DOF one)."""
         from lpvflow.experiment.controller import LtiController  # it imports this module
 
         A, B, C, D = self.law.matrices(np.asarray(p, dtype=float))
@@ -154,5 +154,4 @@ class SynthesizedController:
             step = _STEP * np.eye(len(names))[names.index(name)]
             columns.append((self.law.feedforward(p_of(sample + step))
                             - self.law.feedforward(p_of(sample - step))) / (2 * _STEP))
-        trim_feedback = np.column_stack(columns) if columns else np.zeros_like(frozen.D)
-        return replace(frozen, D=frozen.D + trim_feedback), frozen
+        return replace(frozen, D=frozen.D + np.column_stack(columns)), frozen

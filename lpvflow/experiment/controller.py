@@ -10,6 +10,7 @@ File format ``lpvflow/lti-controller`` version 1 (JSON): ``Ts``, matrices ``A``,
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -17,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lpvflow.errors import DataError, ModelError
+from lpvflow.experiment.synthesized import SynthesizedController
 
 if TYPE_CHECKING:  # python-control takes ~1 s to import; the controller law needs only numpy
     import control
@@ -288,6 +290,13 @@ class GriddedController:
                               for e in np.eye(len(y))])
         return replace(frozen, D=frozen.D + np.outer(du_dtheta, dtheta_dy))
 
+    def operating_laws(self, outputs: Mapping[str, float]) -> tuple[LtiController, LtiController]:
+        """(linearized, frozen) at the plant outputs ``outputs`` (name → value) with the set-points equal
+        to them: :meth:`linearized` there and the law :meth:`frozen_at` its θ there."""
+        read = np.array([outputs[name] for name in self.inputs], dtype=float)
+        theta = self.scheduling_function()(np.concatenate([read, read]))
+        return self.linearized(read), self.frozen_at(theta)
+
     def negative_feedback(
         self, y_names: list[str] | None = None, u_names: list[str] | None = None, theta: float = 0.0,
     ) -> control.StateSpace:
@@ -337,16 +346,29 @@ class GriddedController:
 
 
 #: Controllers an experiment can run.
-ExperimentController = LtiController | GriddedController
+ExperimentController = LtiController | GriddedController | SynthesizedController
+
+#: Format of the synthesized LPV controllers (:class:`lpvflow.synth.controller.LPVController`).
+LPV_FORMAT = "lpvflow/lpv-controller"
 
 
 def load_experiment_controller(path: str | Path) -> ExperimentController:
-    """Read an ``lpvflow/lti-controller`` or ``lpvflow/gridded-controller`` JSON file."""
+    """Read an ``lpvflow/lti-controller``, ``lpvflow/gridded-controller`` or ``lpvflow/lpv-controller`` JSON
+    file (the last wired by its ``info["signals"]``, :mod:`lpvflow.experiment.synthesized`)."""
     path = Path(path)
     doc = _read_controller_json(path)
-    if isinstance(doc, dict) and doc.get("format") == GRIDDED_FORMAT:
+    kind = doc.get("format") if isinstance(doc, dict) else None
+    if kind == GRIDDED_FORMAT:
         return GriddedController.from_dict(doc, f"controller file {path}")
-    if isinstance(doc, dict) and doc.get("format") not in (FORMAT, None):
-        raise ModelError(f"controller file {path} has format {doc.get('format')!r}; an experiment runs "
-                         f"{FORMAT!r} or {GRIDDED_FORMAT!r} controllers")
+    if kind == LPV_FORMAT:
+        from lpvflow.synth.controller import LPVController
+
+        try:
+            law = LPVController.from_dict(doc)
+        except (TypeError, ValueError, IndexError) as exc:  # ModelError is a ValueError: one line either way
+            raise ModelError(f"controller file {path}: {str(exc).splitlines()[0]}") from None
+        return SynthesizedController.from_controller(law, f"controller file {path}")
+    if kind not in (FORMAT, None):
+        raise ModelError(f"controller file {path} has format {kind!r}; an experiment runs "
+                         f"{FORMAT!r}, {GRIDDED_FORMAT!r} or {LPV_FORMAT!r} controllers")
     return LtiController.from_dict(doc, f"controller file {path}")

@@ -12,7 +12,9 @@ from lpvflow.experiment.plant import open_plant, sha256_of
 from lpvflow.experiment.record import check_output_path, write_record
 from lpvflow.experiment.run import ExperimentRecord, run_experiment
 from lpvflow.experiment.specs import SignalSpec
+from lpvflow.experiment.synthesized import SynthesizedController
 from lpvflow.fmu import declared_step
+from lpvflow.synth.controller import LPVController
 
 
 def run_fmu_experiment(
@@ -20,7 +22,8 @@ def run_fmu_experiment(
     Ts: float | None,
     duration: float,
     inputs: Mapping[str, str | SignalSpec] | None = None,
-    controller: str | Path | LtiController | GriddedController | control.StateSpace | None = None,
+    controller: (str | Path | LtiController | GriddedController | SynthesizedController | LPVController
+                 | control.StateSpace | None) = None,
     excitation: Mapping[str, str | SignalSpec] | None = None,
     parameters: Mapping[str, float] | None = None,
     scheduling_columns: Mapping[str, str] | None = None,
@@ -35,10 +38,11 @@ def run_fmu_experiment(
     """Run :func:`~lpvflow.experiment.run.run_experiment` on the FMU at ``fmu`` with ``parameters``
     set before initialisation, and write ``output`` (+ ``<output>.json``) when given.
 
-    ``controller`` is a ``lpvflow/lti-controller`` or ``lpvflow/gridded-controller`` JSON path, an
-    :class:`LtiController`, a :class:`GriddedController` or a discrete
-    python-control ``StateSpace`` whose input/output labels are plant output/input names (operating
-    points zero). ``Ts=None`` takes the controller's sampling time, else the step the FMU declares.
+    ``controller`` is a ``lpvflow/lti-controller``, ``lpvflow/gridded-controller`` or
+    ``lpvflow/lpv-controller`` JSON path, an :class:`LtiController`, a :class:`GriddedController`, an
+    :class:`LPVController` with its ``info["signals"]`` (:mod:`lpvflow.experiment.synthesized`) or a
+    discrete python-control ``StateSpace`` whose input/output labels are plant output/input names
+    (operating points zero). ``Ts=None`` takes the controller's sampling time, else the step the FMU declares.
     """
     fmu = Path(fmu)
     protected = [fmu]
@@ -47,6 +51,8 @@ def run_fmu_experiment(
         protected.append(Path(controller))
         controller_path, controller = controller, load_experiment_controller(controller)
         source = {"path": str(controller_path), "sha256": sha256_of(controller_path)}
+    elif isinstance(controller, LPVController):
+        controller = SynthesizedController.from_controller(controller)
     elif isinstance(controller, control.StateSpace):
         controller = LtiController.from_statespace(controller)
     if Ts is None:

@@ -28,6 +28,14 @@ u_K(k) = u_op(θ) + C(θ) xc + D(θ) (y_K − ȳ) + r(k). Its set-points are abs
 (multisine, prbs and triangle centred on 0 unless they give ``offset``); only the excitation r is
 recorded as ``<input>_excitation``, the set-points as ``<output>_setpoint``.
 
+A :class:`~lpvflow.experiment.synthesized.SynthesizedController` (an ``lpvflow/lpv-controller`` of
+``lpvflow synth`` or the design pipeline, wired by its ``info["signals"]``) runs the law of
+:mod:`lpvflow.pipeline.verify` (its module docstring): the set-points of the outputs it reads are its
+references r (the outputs' operating points where none is given; multisine, prbs and triangle centred
+on them), w = r − y (1-DOF) or [r; y] (2-DOF), the scheduling p(k) its expressions of the measured plant
+outputs, and u_K(k) = u_op + u_eq(p) + C(p) xc + D(p) w (clipped to its anti-windup range) + r_e(k)
+with the excitation r_e recorded as ``<input>_excitation``, the set-points as ``<output>_setpoint``.
+
 Sensors (``quantization``, ``noise``, per plant output): what the controller reads and the record holds
 is y_m(k) = q·round((y(k) + v(k))/q) with v white Gaussian of the given standard deviation (seeded per
 output) and q the quantization step (an encoder of 4096 counts per revolution: q = 2π/4096 rad); either
@@ -49,6 +57,7 @@ from lpvflow.experiment import scheduling
 from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.experiment.plant import Plant
 from lpvflow.experiment.specs import SignalSpec, generate, parse_spec
+from lpvflow.experiment.synthesized import SynthesizedController
 
 #: Tolerance on the controller Ts matching the experiment Ts.
 _STEP_TOLERANCE = 1e-9
@@ -119,7 +128,7 @@ def run_experiment(
     Ts: float,
     duration: float,
     inputs: Mapping[str, str | SignalSpec] | None = None,
-    controller: LtiController | GriddedController | None = None,
+    controller: LtiController | GriddedController | SynthesizedController | None = None,
     excitation: Mapping[str, str | SignalSpec] | None = None,
     scheduling_columns: Mapping[str, str] | None = None,
     seed: int = 0,
@@ -153,6 +162,8 @@ def run_experiment(
         what = "an excitation is added to a controller output" if excitation_specs else \
             "a set-point is what a controller tracks"
         raise DataError(f"{what}; give a controller (or use --input for an open-loop signal)")
+    if isinstance(controller, SynthesizedController):
+        controller.check_plant(plant.output_names, plant.input_names, model)
     if controller is not None:
         _check_names("controller input (plant output)", controller.inputs, plant.output_names, model)
         _check_names("controller output (plant input)", controller.outputs, plant.input_names, model)
@@ -184,6 +195,7 @@ def run_experiment(
         y_op = dict(zip(controller.inputs, controller.y_op, strict=True))
         s = {name: generate(spec, n, Ts, signal_rng(seed, "setpoint:" + name), y_op[name])
              for name, spec in setpoint_specs.items()}
+    if isinstance(controller, LtiController) and setpoint_specs:
         shift = np.column_stack([y_op[name] - s[name] if name in s else np.zeros(n)
                                  for name in controller.inputs])
         r_s = controller.response(shift)
@@ -193,7 +205,16 @@ def run_experiment(
     u = u_open.copy()
     measure = sensors(n, seed)
     gridded = isinstance(controller, GriddedController)
-    if gridded:
+    synthesized = isinstance(controller, SynthesizedController)
+    if synthesized:
+        y_index = [plant.output_names.index(name) for name in controller.inputs]
+        u_index = [plant.input_names.index(name) for name in controller.outputs]
+        r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in controller.outputs])
+        references = np.column_stack([s.get(name, np.full(n, y0))
+                                      for name, y0 in zip(controller.inputs, controller.y_op, strict=True)])
+        schedule = controller.scheduling_function(plant.output_names)
+        controller.reset()
+    elif gridded:
         y_index = [plant.output_names.index(name) for name in controller.inputs]
         u_index = [plant.input_names.index(name) for name in controller.outputs]
         r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in controller.outputs])
@@ -224,6 +245,11 @@ def run_experiment(
                 dy = y_k - y_bar
                 u[k, u_index] = u_op + C @ xc + D @ dy + r_matrix[k]
                 xc = A @ xc + B @ dy
+            elif synthesized:
+                if not np.all(np.isfinite(y[k])):
+                    _check_finite(y, k, k + 1, plant.output_names, Ts)
+                p = schedule(y[k])
+                u[k, u_index] = controller.command(references[k], y[k, y_index], p) + r_matrix[k]
             elif controller is not None:
                 np.subtract(y[k, y_index], controller.y_op, out=w[nx:])
                 z = law @ w

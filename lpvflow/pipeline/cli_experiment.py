@@ -69,9 +69,9 @@ def run(args: argparse.Namespace) -> int:
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
-        "Drive an FMU with excitation signals (open loop) or with a stabilising controller (LTI or "
-        "gain-scheduled on a grid) plus an excitation on its output and set-points on what it reads "
-        "(closed loop); write CSV + <CSV>.json."
+        "Drive an FMU with excitation signals (open loop) or with a stabilising controller (LTI, "
+        "gain-scheduled on a grid, or an LPV controller of `lpvflow synth`/`lpvflow design`) plus an "
+        "excitation on its output and set-points on what it reads (closed loop); write CSV + <CSV>.json."
     )
     parser.epilog = SPEC_HELP
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -83,13 +83,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--input", action="append", metavar="NAME=SPEC",
                         help="signal driving a plant input directly (repeat per input)")
     parser.add_argument("--controller", metavar="CTRL.json",
-                        help="stabilising controller, format lpvflow/lti-controller or "
-                        "lpvflow/gridded-controller (closed loop)")
+                        help="stabilising controller, format lpvflow/lti-controller, "
+                        "lpvflow/gridded-controller or lpvflow/lpv-controller (closed loop)")
     parser.add_argument("--excitation", action="append", metavar="NAME=SPEC",
                         help="signal added to the controller output driving plant input NAME")
     parser.add_argument("--setpoint", action="append", metavar="NAME=SPEC",
                         help="set-point for plant output NAME read by the controller, replacing its "
-                        "y_operating_point (moves the operating point; multisine/prbs are centred on it)")
+                        "y_operating_point (moves the operating point; multisine/prbs are centred on it); "
+                        "an LPV controller's reference")
     parser.add_argument("--set", action="append", metavar="PARAM=VALUE",
                         help="FMU parameter set before initialisation, e.g. effect_noise_std=0.01")
     parser.add_argument("--scheduling", action="append", metavar="NAME=EXPR",

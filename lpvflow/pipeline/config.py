@@ -310,8 +310,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "Ts": Key(None, number(0.0, open_low=True),
                   "sampling time (communication step) in s, > 0; default: the controller's, else the FMU's"),
         "duration": Key(REQUIRED, number(0.0, open_low=True), "experiment length in s, > 0"),
-        "controller": Key(None, string(), "stabilizing controller JSON (lpvflow/lti-controller or "
-                          "lpvflow/gridded-controller): closed-loop experiment"),
+        "controller": Key(None, string(), "stabilizing controller JSON (lpvflow/lti-controller, "
+                          "lpvflow/gridded-controller or lpvflow/lpv-controller): closed-loop experiment"),
         "inputs": Key({}, mapping(string(), '"SPEC"'), "signal per plant input driven directly (open loop)"),
         "excitation": Key({}, mapping(string(), '"SPEC"'), "signal added to the controller output per input"),
         "setpoint": Key({}, mapping(string(), '"SPEC"'), "set-point per plant output read by the controller"),
@@ -322,6 +322,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                             "sensor quantization step per plant output, > 0 (e.g. 2π/4096 rad)"),
         "noise": Key({}, mapping(number(0.0), "std"),
                      "sensor white-noise standard deviation per plant output, ≥ 0"),
+        "iterate": Key(0, integer(0), "identification for control: after synth, rerun experiment → synth "
+                       "this many times with the just-designed controller as experiment controller"),
     },
     "identify": {
         "u": Key(REQUIRED, names(), "input columns"),

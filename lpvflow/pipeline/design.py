@@ -12,7 +12,9 @@ Without a [synth] table the run ends after validation; so does a run whose ident
 the ν-gap/b(P, K) gate of the validate stage ([validate] gate, :func:`lpvflow.pipeline.stages.gate_verdict`),
 with the reason as the failure. With [diagnose] adopt = true and an adopted
 extension, the adoption stage designs and verifies the identified model too and compares the two
-controllers in closed loop (:func:`lpvflow.pipeline.stages.adoption`).
+controllers in closed loop (:func:`lpvflow.pipeline.stages.adoption`). With [experiment] iterate = N the
+experiment → synth stages first run N rounds, each under the controller the round before designed
+(identification for control, :func:`_run_stages`).
 """
 
 from __future__ import annotations
@@ -69,25 +71,120 @@ def run_design(config_path: str | Path, log: Callable[[str], None] = print, root
     if inside:
         raise DataError(f"{inside[0]} is inside the design folder {folder}, which the run rewrites; "
                         "move it or change [design] output_dir or name")
+    check_iterate(config)
     writable_folder(folder, "the design folder ([design] output_dir / name)")
     with cache.folder_lock(folder):
         return _run_stages(config, str(config_path), folder, log)
 
 
+def check_iterate(config: Config) -> None:
+    """One DataError line when ``[experiment] iterate`` cannot run: the rounds need a ``[synth]`` table (the
+    controller each round designs), and that controller drives the model inputs, so their signals must be
+    ``[experiment] excitation``, not open-loop ``inputs``."""
+    rounds = config["experiment"]["iterate"]
+    if not rounds:
+        return
+    if config["synth"] is None:
+        raise DataError(f"[experiment] iterate = {rounds} needs a [synth] table: each round runs the "
+                        "experiment under the controller the round before designed")
+    driven = sorted(set(config["experiment"]["inputs"]) & set(config["identify"]["u"]))
+    if driven:
+        raise DataError(f"[experiment] iterate = {rounds}: the designed controller drives "
+                        f"{', '.join(driven)}; give its signal as [experiment] excitation, not inputs")
+
+
+#: The stages an ``[experiment] iterate`` round repeats (identification for control).
+ROUND_STAGES = ("experiment", "identify", "diagnose", "reduce", "validate", "synth")
+
+
 def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[str], None]) -> dict:
-    """The stages of :func:`run_design` in the locked ``folder``."""
+    """The stages of :func:`run_design` in the locked ``folder``.
+
+    With ``[experiment] iterate = N`` (identification for control) N rounds of the stages
+    :data:`ROUND_STAGES` run first, round i in ``iteration_<i>/`` with round i − 1's ``controller.json``
+    (the configured controller for round 0) as the experiment controller, same set-points, excitation and
+    duration; then every stage runs in ``folder`` with the controller of round N − 1, so the summary's
+    stages are the last round's as without iterations. A round that fails (a stage error, the ν-gap gate,
+    the certificate) ends the run: its stages become the summary's. ``summary["iterations"]`` lists each
+    round's key numbers (:func:`_round_numbers`), the last entry the final design in ``folder``."""
     from lpvflow.pipeline.report import write_report
 
+    summary: dict = report_header("design") | {"name": config["design"]["name"], "config": config_path,
+                                               "stages": {}}
+    controller, failed, rounds = config["experiment"]["controller"], None, []
+    round_stages = tuple(stage for stage in STAGES if stage.name in ROUND_STAGES)
+    for n in range(config["experiment"]["iterate"]):
+        sub = folder / f"iteration_{n}"
+        sub.mkdir(exist_ok=True)
+        outcome: dict = {}
+        failed = _run_pass(round_stages, _round_config(config, controller), sub, outcome,
+                           lambda line, n=n: log(f"iteration {n}: {line}"))
+        rounds.append(_round_numbers(n, sub.name, controller, outcome))
+        if failed:
+            failed["stage"] = f"{failed['stage']} (iteration {n})"
+            summary["stages"] = {name: _in_subfolder(record, sub.name) for name, record in outcome.items()}
+            break
+        controller = str(sub / "controller.json")
+    if failed is None:
+        failed = _run_pass(STAGES, _round_config(config, controller), folder, summary["stages"], log)
+        if rounds:
+            rounds.append(_round_numbers(len(rounds), ".", controller, summary["stages"]))
+    if rounds:
+        summary["iterations"] = rounds
+    summary["failed"] = failed
+    summary["verdict"] = _verdict(summary)
+    summary["stage_seconds"] = {n: s.get("seconds") for n, s in summary["stages"].items()}
+    atomic_write_json(folder / "summary.json", summary)
+    write_report(folder, summary)
+    log(f"report: {folder / 'report.html'}")
+    return summary
+
+
+def _in_subfolder(record: dict, sub: str) -> dict:
+    """A stage record of a round with its artifacts named relative to the design folder."""
+    if "artifacts" not in record:
+        return record
+    return record | {"artifacts": [f"{sub}/{artifact}" for artifact in record["artifacts"]]}
+
+
+def _round_config(config: Config, controller: str | None) -> Config:
+    """``config`` with ``controller`` as the ``[experiment] controller`` and ``iterate`` set to 0 in the
+    stages' view, so a round's cache keys do not depend on how many rounds follow it."""
+    return {**config, "experiment": {**config["experiment"], "controller": controller, "iterate": 0}}
+
+
+def _round_numbers(n: int, folder: str, controller: str | None, outcome: dict) -> dict:
+    """Key numbers of one identification-for-control round from its stages' records: the experiment
+    controller, the model order, validation (fit BFR per output, largest ν-gap, smallest b(P, K_id), the
+    gate), synthesis (γ, the baseline's γ) and the stage times."""
+    def outputs(name: str) -> dict:
+        return outcome.get(name, {}).get("outputs") or {}
+
+    validate = outputs("validate")
+    return {"iteration": n, "folder": folder, "experiment_controller": controller,
+            "scheduling_range": outputs("identify").get("scheduling_range"),
+            "order": outputs("reduce").get("order"),
+            "fit_bfr": (validate.get("fit") or {}).get("bfr"),
+            "max_nugap": max(validate["nugap"]) if validate.get("nugap") else None,
+            "min_b_P_Kid": min(validate["b_P_Kid"]) if validate.get("b_P_Kid") else None,
+            "gate": validate.get("gate"),
+            "gamma": outputs("synth").get("gamma"), "baseline_gamma": outputs("synth").get("baseline_gamma"),
+            "stage_seconds": {name: record.get("seconds") for name, record in outcome.items()}}
+
+
+def _run_pass(
+    pass_stages: tuple[Stage, ...], config: Config, folder: Path, outcome: dict, log: Callable[[str], None]
+) -> dict | None:
+    """Run (or reuse) ``pass_stages`` in ``folder`` with ``config``, recording each stage's status, outputs
+    and artifacts in ``outcome``; returns the failure ``{"stage", "error"}`` that ended the pass, or None."""
     ctx = stages.StageContext(folder, config)
     keys: dict[str, str] = {}
     artifacts_of: dict[str, list[str]] = {}
     code = cache.code_digest()  # any change to lpvflow's code reruns every stage
-    summary: dict = report_header("design") | {"name": config["design"]["name"], "config": config_path,
-                                               "stages": {}}
-    failed = None
-    for i, stage in enumerate(STAGES, 1):
+    count = len(pass_stages)
+    for i, stage in enumerate(pass_stages, 1):
         if any(config[t] is None for t in stage.tables):
-            summary["stages"][stage.name] = {"status": "not configured"}
+            outcome[stage.name] = {"status": "not configured"}
             continue
         files = [config[t][k] for t, k in stage.file_keys if config[t][k]]
         files += [folder / a for u in stage.upstream for a in artifacts_of.get(u, [])]
@@ -96,47 +193,39 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
         keys[stage.name] = key
         record = cache.load_record(folder, stage.name, key)
         if record is not None:
-            log(f"[{i}/{len(STAGES)}] {stage.name}: unchanged, reused ({record['seconds']:.1f} s when run)")
+            log(f"[{i}/{count}] {stage.name}: unchanged, reused ({record['seconds']:.1f} s when run)")
             status = "cached"
         else:
-            log(f"[{i}/{len(STAGES)}] {stage.name} …")
+            log(f"[{i}/{count}] {stage.name} …")
             t0 = time.perf_counter()
             before = _file_states(folder)
             try:
                 outputs, artifacts = stage.run(ctx)
             except LpvflowError as exc:
-                failed = {"stage": stage.name, "error": str(exc)}
-                summary["stages"][stage.name] = {"status": "failed", "error": str(exc)}
-                log(f"[{i}/{len(STAGES)}] {stage.name} failed: {exc}")
-                break
+                outcome[stage.name] = {"status": "failed", "error": str(exc)}
+                log(f"[{i}/{count}] {stage.name} failed: {exc}")
+                return {"stage": stage.name, "error": str(exc)}
             except KeyboardInterrupt:
                 _remove_changed(folder, before)
-                log(f"[{i}/{len(STAGES)}] {stage.name} interrupted: its unfinished files were removed")
+                log(f"[{i}/{count}] {stage.name} interrupted: its unfinished files were removed")
                 raise
             record = cache.save_record(folder, stage.name, key, outputs, artifacts, time.perf_counter() - t0)
-            log(f"[{i}/{len(STAGES)}] {stage.name}: done in {record['seconds']:.1f} s")
+            log(f"[{i}/{count}] {stage.name}: done in {record['seconds']:.1f} s")
             status = "ran"
         ctx.outputs[stage.name] = record["outputs"]
         artifacts_of[stage.name] = record["artifacts"]
-        summary["stages"][stage.name] = {"status": status, "seconds": record["seconds"],
-                                         "outputs": record["outputs"], "artifacts": record["artifacts"]}
+        outcome[stage.name] = {"status": status, "seconds": record["seconds"],
+                               "outputs": record["outputs"], "artifacts": record["artifacts"]}
         gate = record["outputs"].get("gate") if stage.name == "validate" else None
         if gate and gate.get("passed") is False:
-            failed = {"stage": stage.name, "error": gate["reason"]}
-            log(f"[{i}/{len(STAGES)}] {stage.name}: {gate['reason']}")
-            break
+            log(f"[{i}/{count}] {stage.name}: {gate['reason']}")
+            return {"stage": stage.name, "error": gate["reason"]}
         if record["outputs"].get("certificate_ok") is False:
-            failed = {"stage": stage.name, "error": "the controller failed its certificate (see the synth "
-                                                    "checks); verify and export were not run"}
-            log(f"[{i}/{len(STAGES)}] {stage.name}: {failed['error']}")
-            break
-    summary["failed"] = failed
-    summary["verdict"] = _verdict(summary)
-    summary["stage_seconds"] = {n: s.get("seconds") for n, s in summary["stages"].items()}
-    atomic_write_json(folder / "summary.json", summary)
-    write_report(folder, summary)
-    log(f"report: {folder / 'report.html'}")
-    return summary
+            error = ("the controller failed its certificate (see the synth checks); verify and export "
+                     "were not run")
+            log(f"[{i}/{count}] {stage.name}: {error}")
+            return {"stage": stage.name, "error": error}
+    return None
 
 
 def _file_states(folder: Path) -> dict[Path, tuple[int, int]]:

@@ -97,10 +97,13 @@ def controller_trim(ctx: StageContext, data: Dataset) -> np.ndarray:
     model inputs (0 for inputs it does not drive): a gridded controller's u_op(θ(k)), θ(k) its scheduling
     expression of the recorded measurements and set-points (``<output>_setpoint``, 0 where not recorded)
     and u_op interpolated linearly on its grid, clipped at the ends, as the controller ran
-    (:meth:`~lpvflow.experiment.controller.GriddedController.at`); an LTI controller's constant u_op."""
+    (:meth:`~lpvflow.experiment.controller.GriddedController.at`); an LTI controller's constant u_op; an LPV
+    controller's u_op + u_eq(p(k)), p(k) its scheduling expressions of the recorded outputs
+    (:meth:`~lpvflow.experiment.synthesized.SynthesizedController.trim_along`)."""
     from lpvflow.data import read_columns
     from lpvflow.experiment.controller import GriddedController, load_experiment_controller
     from lpvflow.experiment.scheduling import evaluate
+    from lpvflow.experiment.synthesized import SynthesizedController
 
     path = ctx.config["experiment"]["controller"]
     if not path:
@@ -112,10 +115,13 @@ def controller_trim(ctx: StageContext, data: Dataset) -> np.ndarray:
                         f"model inputs {data.u_names}")
     trim = np.zeros_like(data.u)
     columns = [data.u_names.index(name) for name in K.outputs]
-    if not isinstance(K, GriddedController):
+    if not isinstance(K, GriddedController | SynthesizedController):
         trim[:, columns] = K.u_op
         return trim
     table = read_columns(ctx.path("data.csv"))
+    if isinstance(K, SynthesizedController):
+        trim[:, columns] = K.trim_along(table, data.N)
+        return trim
     signals = {name: table[name][: data.N] for name in K.inputs}
     signals |= {f"{name}_setpoint": table.get(f"{name}_setpoint", np.zeros(len(table["time"])))[: data.N]
                 for name in K.inputs}
@@ -291,7 +297,7 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     coordinates.
     """
     from lpvflow.data import read_columns
-    from lpvflow.experiment.controller import load_controller
+    from lpvflow.experiment.controller import LtiController, load_experiment_controller
     from lpvflow.validate.diagnose import diagnose as run_diagnosis
     from lpvflow.validate.diagnose_plot import plot_diagnosis
     from lpvflow.validate.extensions import Structure
@@ -312,7 +318,10 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     if missing:
         raise DataError(f"[diagnose] candidate column(s) {missing} are not in the experiment data")
     structure = Structure(ident["na"], ident["nb"], ident["nk"], ident["basis"])
-    controller = load_controller(experiment["controller"]) if experiment["controller"] else None
+    controller = load_experiment_controller(experiment["controller"]) if experiment["controller"] else None
+    if controller is not None and not isinstance(controller, LtiController):
+        raise DataError("[diagnose] simulates the identification loop with an lpvflow/lti-controller only; "
+                        f"the [experiment] controller is a scheduled one ({controller.to_dict()['format']})")
     result = run_diagnosis(data, structure, {c: table[c] for c in cfg["candidates"]}, split=cfg["split"],
                            controller=controller, scheduling=experiment["scheduling"])
     plot_diagnosis(result, data, ctx.path("diagnosis.png"), cfg["split"])
@@ -379,12 +388,15 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     outputs with the experiment's scheduling expressions (quasi-LPV, as on the plant); y(k) uses C at
     p(k−1), which is exact for the observable-form realizations (C independent of p). A gridded
     (gain-scheduled) controller runs its own law on the simulated outputs and the recorded set-points
-    (``<output>_setpoint``) and excitation (``<input>_excitation``). With ``[identify] remove_trim`` the
+    (``<output>_setpoint``) and excitation (``<input>_excitation``); so does an LPV controller
+    (:class:`~lpvflow.experiment.synthesized.SynthesizedController`: references from the recorded set-points,
+    else its operating points, scheduling from the simulated outputs). With ``[identify] remove_trim`` the
     model's input is the controller's output without its trim u_op (:func:`model_coordinates`).
     """
     from lpvflow.data import read_columns
     from lpvflow.experiment.controller import GriddedController, load_experiment_controller
     from lpvflow.experiment.scheduling import compile_expression
+    from lpvflow.experiment.synthesized import SynthesizedController
 
     cfg = ctx.config["experiment"]
     if not cfg["controller"]:
@@ -396,6 +408,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     start = len(table["time"]) - data.N
     zero = np.zeros(len(table["time"]))
     excitation = np.column_stack([table.get(f"{n}_excitation", zero)[start:] for n in K.outputs])
+    check_wiring(K, data.u_names, data.y_names, "[validate] closed-loop fit")
     u_index = [data.u_names.index(n) for n in K.outputs]
     y_index = [data.y_names.index(n) for n in K.inputs]
     expressions = [compile_expression(cfg["scheduling"][name], data.y_names) for name in data.p_names]
@@ -407,7 +420,14 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
         for j in given:
             setpoints[:, j] = table[f"{K.inputs[j]}_setpoint"][start:]
         theta_of = K.scheduling_function()
-    x, xc = np.zeros(model.nx), np.zeros(K.A.shape[-2])
+    synthesized = isinstance(K, SynthesizedController)
+    if synthesized:
+        references = np.column_stack([table[f"{n}_setpoint"][start:] if f"{n}_setpoint" in table
+                                      else np.full(data.N, y0)
+                                      for n, y0 in zip(K.inputs, K.y_op, strict=True)])
+        schedule = K.scheduling_function(data.y_names)
+        K.reset()
+    x, xc = np.zeros(model.nx), np.zeros(0 if synthesized else K.A.shape[-2])
     y_sim = np.zeros_like(data.y)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)
@@ -424,6 +444,11 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
                 dy = y[y_index] - y_bar
                 u[u_index] = with_trim * u_op + Ck @ xc + Dk @ dy + excitation[k]
                 xc = Ak @ xc + Bk @ dy
+            elif synthesized:
+                p_K = schedule(y)
+                u[u_index] = K.command(references[k], y[y_index], p_K) + excitation[k]
+                if not with_trim:
+                    u[u_index] -= K.trim(p_K)
             else:
                 dy = y[y_index] - K.y_op
                 u[u_index] = with_trim * K.u_op + K.C @ xc + K.D @ dy + excitation[k]
@@ -433,6 +458,15 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
                 raise DataError(f"the identified model's closed loop diverges at sample {k}: it does not "
                                 "describe the plant under the identification controller")
     return y_sim
+
+
+def check_wiring(K, u_names: list[str], y_names: list[str], where: str) -> None:
+    """One DataError line when the experiment controller ``K`` reads an output or drives an input that
+    is not a model signal (``where`` names the check)."""
+    unknown = [n for n in K.inputs if n not in y_names] + [n for n in K.outputs if n not in u_names]
+    if unknown:
+        raise DataError(f"{where}: the experiment controller reads {list(K.inputs)} and drives "
+                        f"{list(K.outputs)}; {unknown[0]!r} is not a model signal {u_names + y_names}")
 
 
 def validate(ctx: StageContext) -> tuple[dict, list[str]]:
@@ -553,37 +587,36 @@ def _frozen_experiment_controller(
     """K_id for b(Ĝ(θ), K_id), in negative feedback over the model's signals, a note (or None), and the
     trim's feedback (or None).
 
-    An LTI experiment controller is the same at every θ. A gridded one is linearized
-    (:meth:`~lpvflow.experiment.controller.GriddedController.linearized`: frozen at its own scheduling
-    value, with the trim's feedback) at the FMU equilibrium with that θ (the reference's operating point,
-    set-points equal to the outputs there); without an FMU reference that point is unknown and b is not
-    computed (the note says so). With ``[identify] remove_trim`` the model's input is u − u_op(θ), so K_id is
-    the controller frozen without the trim's feedback, and the third item is p ↦ that feedback T(p), the
-    static gain with u = −T y (−∂u_op/∂y at the equilibrium), which :func:`_trim_closed` closes around the
-    FMU linearization: the loop (G_FMU, K_id with trim) is the loop (G_FMU closed by T, K_id without it)."""
-    from lpvflow.experiment.controller import GriddedController, load_experiment_controller
+    An LTI experiment controller is the same at every θ. A scheduled one (gridded or LPV) is linearized
+    (:meth:`~lpvflow.experiment.controller.GriddedController.operating_laws`,
+    :meth:`~lpvflow.experiment.synthesized.SynthesizedController.operating_laws`: frozen at its own
+    scheduling value, with the trim's feedback) at the FMU equilibrium with that θ (the reference's
+    operating point, set-points equal to the outputs there); without an FMU reference that point is
+    unknown and b is not computed (the note says so). With ``[identify] remove_trim`` the model's input is
+    u − u_op(θ), so K_id is the controller frozen without the trim's feedback, and the third item is
+    p ↦ that feedback T(p), the static gain with u = −T y (−∂u_op/∂y at the equilibrium), which
+    :func:`_trim_closed` closes around the FMU linearization: the loop (G_FMU, K_id with trim) is the loop
+    (G_FMU closed by T, K_id without it)."""
+    from lpvflow.experiment.controller import LtiController, load_experiment_controller
 
     path = ctx.config["experiment"]["controller"]
     if not path:
         return None, None, None
     K = load_experiment_controller(path)
-    if not isinstance(K, GriddedController):  # a constant trim has no feedback
+    check_wiring(K, model.u_names, model.y_names, "[validate] b(Ĝ(θ), K_id)")
+    if isinstance(K, LtiController):  # a constant trim has no feedback
         return K.negative_feedback(model.y_names, model.u_names), None, None
     if reference is None:
-        return None, ("b(Ĝ(θ), K_id) needs the operating point of the gridded controller at each θ; "
-                      "set [validate] reference = \"linearization\" to compute it"), None
+        return None, ("b(Ĝ(θ), K_id) needs the operating point of the scheduled experiment controller at "
+                      "each θ; set [validate] reference = \"linearization\" to compute it"), None
     operating = reference.reference
-    theta_of = K.scheduling_function()
     trim_removed = ctx.config["identify"]["remove_trim"]
 
     @functools.cache
     def laws(p: tuple[float, ...]) -> tuple:
         point = operating.equilibrium(np.array(p))
         outputs = dict(zip(operating.plant.output_names, point.y, strict=True))
-        read = np.array([outputs[name] for name in K.inputs])
-        bare = K.frozen_at(theta_of(np.concatenate([read, read])))
-        return (K.linearized(read).negative_feedback(model.y_names, model.u_names),
-                bare.negative_feedback(model.y_names, model.u_names))
+        return tuple(law.negative_feedback(model.y_names, model.u_names) for law in K.operating_laws(outputs))
 
     def frozen(p: np.ndarray):
         linearized, bare = laws(tuple(np.asarray(p, dtype=float).tolist()))

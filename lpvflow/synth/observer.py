@@ -49,7 +49,7 @@ from lpvflow.models import LPVSS
 from lpvflow.synth.certify import design_coordinates, interpolated_hinf_norms
 from lpvflow.synth.controller import LPVController, mix, series_input_filter
 from lpvflow.synth.hinf import closed_loop
-from lpvflow.synth.plant import GeneralizedPlant, interpolate, state_blocks
+from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, interpolate, state_blocks
 from lpvflow.synth.polytope import vertex_matrices
 
 #: Relative residual above which a weight state is not a function of r, y and u (a dynamic W_R or W_N).
@@ -127,7 +127,7 @@ def _with_reference_filter(K: tuple[np.ndarray, ...], filt: tuple[np.ndarray, ..
     return A, B, np.hstack([Ck, Dk[:, :ny] @ Cf]), np.hstack([Dk[:, :ny] @ Df, Dk[:, ny:]])
 
 
-def _copy_gains(v, G: slice, ny: int) -> np.ndarray:
+def _copy_gains(v: VertexPlant, G: slice, ny: int) -> np.ndarray:
     """Observer rows of the weight states, [B1_W D21_r⁺, A_WG C_G⁺] (module docstring); ModelError when a
     weight state depends on the noise or on anything but r, y and u."""
     n = v.A.shape[0]
@@ -176,7 +176,7 @@ def _feedforward(Ag: np.ndarray, Bg: np.ndarray, Cg: np.ndarray, F: np.ndarray, 
     return out
 
 
-def _vertex_controller(v, model_matrices: tuple[np.ndarray, ...], blocks: dict[str, slice],
+def _vertex_controller(v: VertexPlant, model_matrices: tuple[np.ndarray, ...], blocks: dict[str, slice],
                        WB: control.StateSpace | None, settings: ObserverSettings) -> tuple[np.ndarray, ...]:
     """(Ak, Bk, Ck, Dk) from [r; y_m] to u (before W_B) at one breakpoint, state [x̂; d̂] (module
     docstring): x̂⁺ = A x̂ + B2 u + E d̂ + L([r; y_m] − C2 x̂), d̂⁺ = d̂ + L_d(y_m − C_G x̂_G),

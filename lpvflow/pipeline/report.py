@@ -10,6 +10,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from lpvflow.pipeline.scenarios import run_passed
+
 FIGURE_CAPTIONS = {
     "data.png": "Identification experiment: inputs, outputs and scheduling.",
     "fit.png": "Validation: measured outputs and the model simulated in the identification loop.",
@@ -202,10 +204,6 @@ def _ordered(names: list[str]) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def _run_passed(run: dict) -> bool:
-    return bool(run["stable"]) and not run.get("requirements_failed")
-
-
 def _requirement_text(requirements: dict | None, bands: dict[str, float], units: dict[str, _Unit]) -> str:
     """One scenario's specification as a phrase, e.g. "arm_angle into ±1° within 1.5 s, overshoot ≤ 2°;
     pendulum_angle within ±1° after settling"."""
@@ -314,7 +312,7 @@ def _run_cells(run: dict, tracked: list[str], after: list[str], requirements: di
         peak = run.get("after_settling", {}).get(name)
         cells.append(cell(units.get(name, _Unit("")).value(peak),
                           peak is not None and name in bounds and peak > bounds[name]))
-    if _run_passed(run):
+    if run_passed(run):
         cells.append('<td class="pass">pass</td>' if "requirements_failed" in run else
                      '<td class="pass">stable</td>')
     else:
@@ -372,11 +370,11 @@ def scenario_tally(summary: dict) -> str:
     scenarios = summary["stages"].get("verify", {}).get("outputs", {}).get("scenarios", [])
     if not scenarios:
         return ""
-    text = (f"LPV controller passes {sum(_run_passed(s['controller']) for s in scenarios)} of "
+    text = (f"LPV controller passes {sum(run_passed(s['controller']) for s in scenarios)} of "
             f"{len(scenarios)} scenarios")
     baselines = [s["baseline"] for s in scenarios if s.get("baseline")]
     if baselines:
-        text += f", LTI baseline {sum(_run_passed(b) for b in baselines)} of {len(baselines)}"
+        text += f", LTI baseline {sum(run_passed(b) for b in baselines)} of {len(baselines)}"
     return text
 
 

@@ -153,6 +153,12 @@ class Requirements:
                 "after_settling": dict(self.after_settling)}
 
 
+def run_passed(metrics: Mapping) -> bool:
+    """A run's verdict from its metrics (:func:`lpvflow.pipeline.verify.run_metrics`): stable and no
+    requirement missed (``requirements_failed`` empty or absent)."""
+    return bool(metrics["stable"]) and not metrics.get("requirements_failed")
+
+
 @dataclass(frozen=True)
 class Scenario:
     """One closed-loop run: references, disturbances, exogenous inputs, plant parameters, checks."""

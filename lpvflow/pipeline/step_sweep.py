@@ -24,7 +24,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from lpvflow.errors import DataError
-from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
+from lpvflow.pipeline.scenarios import Loop, Scenario, Signal, run_passed
 from lpvflow.pipeline.verify import Baseline, run_metrics, simulate_loop
 
 #: Criteria a run can be judged by (module docstring).
@@ -69,8 +69,7 @@ def step_is_held(controller: Baseline, plant_fmu: str | Path, loop: Loop, scenar
     run = simulate_loop(controller, plant_fmu, scenario, loop, "step sweep")
     if criterion == "bounded":
         return run.failure is None
-    metrics = run_metrics(run, scenario, loop)
-    return bool(metrics["stable"] and not metrics.get("requirements_failed"))
+    return run_passed(run_metrics(run, scenario, loop))
 
 
 def largest_held_step(

@@ -66,7 +66,7 @@ from lpvflow.experiment.run import step_count
 from lpvflow.fmu import check_fmu
 from lpvflow.models import report_header, user_mode
 from lpvflow.pipeline.export import load_lpv_controller
-from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal
+from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal, run_passed
 from lpvflow.synth.controller import LPVController
 
 #: Fraction of the run forming the final window of the steady-state checks.
@@ -623,7 +623,7 @@ class Verification:
     @property
     def passed(self) -> bool:
         """True when the controller is stable on every scenario and meets every scenario's requirements."""
-        return self.stable and not any(r.metrics[0].get("requirements_failed") for r in self.results)
+        return all(run_passed(r.metrics[0]) for r in self.results)
 
     def to_dict(self) -> dict:
         return {

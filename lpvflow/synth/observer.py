@@ -5,8 +5,9 @@ At every breakpoint b_i of a piecewise polytope the 2-DOF generalized plant of
 :func:`lpvflow.synth.plant.generalized_plant` (state x = [x_G; x_W]: the model's states, then the weights')
 gets an observer-based controller in the *same* state coordinates — the model's observable-form states and
 the weights' — so that the controllers at neighbouring breakpoints mean the same thing and interpolating
-their matrices with the plant's own λ(p) is interpolating gains (Rugh & Shamma 2000, "Research on gain
-scheduling", Automatica 36, §4: the controller family must be realized in common coordinates). The parts:
+their matrices with the plant's own λ(p) is interpolating gains (interpolating state-space matrices of
+controllers realized in different coordinates is not; Rugh & Shamma 2000, "Research on gain scheduling",
+Automatica 36(10), discuss this realization issue). The parts:
 
 * **State feedback** u = F x̂: the LQ regulator of the weighted plant, the H2 cost ‖z‖² = ‖C1x + D12u‖²
   of the design's own weights (W_S on the tracking error, W_K on u): ``control.dlqr(A, B2, C1ᵀC1, D12ᵀD12,

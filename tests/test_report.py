@@ -117,6 +117,25 @@ def test_a_card_without_a_step_sweep_or_scenarios_says_so(summary):
     assert "<table" not in card and "LPV controller 1.476" in card
 
 
+def test_the_card_lists_identification_for_control_rounds_and_marks_a_refused_model(summary):
+    first = {"iteration": 0, "folder": "iteration_0",
+             "experiment_controller": "/x/adip/scheduled_controller.json", "order": 5,
+             "fit_bfr": [98.43, 91.17], "max_nugap": 0.0662, "min_b_P_Kid": 0.1033,
+             "gate": {"passed": True}, "gamma": 2.7707, "baseline_gamma": 1.5567}
+    second = {"iteration": 1, "folder": ".", "experiment_controller": "/x/iteration_0/controller.json",
+              "order": 5, "fit_bfr": [99.09, 59.92], "max_nugap": 0.2772, "min_b_P_Kid": 0.0,
+              "gate": {"passed": False}, "gamma": None, "baseline_gamma": None}
+    summary["iterations"] = [first, second]
+    table = summary_card(summary, UNITS).split("Identification for control")[1]
+    found = [[html.unescape(c) for c in re.findall(r"<td[^>]*>(.*?)</td>", row)]
+             for row in re.findall(r"<tr[^>]*>(.*?)</tr>", table)]
+    assert [cells for cells in found if cells] == [
+        ["0", "adip/scheduled_controller.json", "5", "98.4, 91.2", "0.0662", "0.103", "passed",
+         "2.771 / 1.557"],
+        ["1", "iteration_0/controller.json", "5", "99.1, 59.9", "0.277", "0", "failed", "– / –"]]
+    assert table.count('<tr class="fail">') == 1
+
+
 def test_the_report_opens_with_the_card_and_has_no_json_cells(tmp_path, summary):
     summary["stages"]["experiment"] = {"status": "ran", "seconds": 0.1, "artifacts": [], "outputs": {
         "ranges": {"voltage": [-4.855, 4.407]}, "offsets": {}, "nested": {"a": {"b": [1.0, 2.0]}}}}

@@ -410,7 +410,30 @@ def summary_card(summary: dict, units: dict[str, str]) -> str:
     parts.append(_gamma_line(stages.get("synth", {}).get("outputs", {})))
     if scenarios:
         parts.append(_held_step_line(verify, shown))
+    if summary.get("iterations"):
+        parts.append(_iterations_table(summary["iterations"]))
     return f'<section class="summary"><h2>Results at a glance</h2>{"".join(parts)}</section>'
+
+
+def _iterations_table(rounds: list[dict]) -> str:
+    """The identification-for-control rounds (``[experiment] iterate``, ``summary["iterations"]``): per
+    round its experiment controller, model order, fit, largest ν-gap against smallest b(P, K_id), the
+    gate, and the γ of its design."""
+    head = ["round", "experiment controller", "order", "fit BFR [%]", "largest ν-gap", "smallest b(P, K_id)",
+            "gate", "γ (LPV / LTI baseline)"]
+    body = []
+    for r in rounds:
+        gate = r.get("gate") or {}
+        used = Path(r["experiment_controller"]) if r.get("experiment_controller") else None
+        cells = [str(r["iteration"]), "open loop" if used is None else f"{used.parent.name}/{used.name}",
+                 _number(r.get("order")), ", ".join(_number(b, "", 3) for b in r.get("fit_bfr") or []) or "–",
+                 _number(r.get("max_nugap")), _number(r.get("min_b_P_Kid")),
+                 "–" if not gate else ("passed" if gate.get("passed") else "failed"),
+                 f"{_number(r.get('gamma'), '', 4)} / {_number(r.get('baseline_gamma'), '', 4)}"]
+        css = ' class="fail"' if gate and not gate.get("passed") else ""
+        body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
+    return ("<h3>Identification for control ([experiment] iterate)</h3><table><tr>"
+            + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" + "".join(body) + "</table>")
 
 
 def _adoption_table(rows: list[dict]) -> str:

@@ -70,16 +70,20 @@ def frozen_hinf_norms(controller_at: Callable[[np.ndarray], tuple[np.ndarray, ..
     return np.array(norms)
 
 
+def interpolated_loops(vertices: list[VertexPlant], K_vertices: list[tuple[np.ndarray, ...]],
+                       lams: list[np.ndarray], Ts: float) -> list[control.StateSpace]:
+    """The closed loops (``StateSpace.lft``) of the generalized plant Σλ_iP_i with the controller Σλ_iK_i,
+    at every λ of ``lams``."""
+    nu, ny = vertices[0].dims[2], vertices[0].dims[4]
+    return [interpolate(vertices, lam).ss(Ts).lft(control.ss(*mix(K_vertices, lam), Ts), nu, ny)
+            for lam in lams]
+
+
 def interpolated_hinf_norms(vertices: list[VertexPlant], K_vertices: list[tuple[np.ndarray, ...]],
                             lams: list[np.ndarray], Ts: float) -> np.ndarray:
-    """‖T_zw‖_∞ (``StateSpace.lft``, ``control.norm``) of the generalized plant Σλ_iP_i with the controller
-    Σλ_iK_i, at every λ of ``lams``."""
-    nu, ny = vertices[0].dims[2], vertices[0].dims[4]
-    norms = []
-    for lam in lams:
-        loop = interpolate(vertices, lam).ss(Ts).lft(control.ss(*mix(K_vertices, lam), Ts), nu, ny)
-        norms.append(float(control.norm(loop, "inf")))
-    return np.array(norms)
+    """‖T_zw‖_∞ (``control.norm``) of :func:`interpolated_loops`."""
+    return np.array([float(control.norm(loop, "inf")) for loop in interpolated_loops(vertices, K_vertices,
+                                                                                      lams, Ts)])
 
 
 def design_coordinates(polytope: Polytope, basis: Basis, per_axis: int) -> list[np.ndarray]:

@@ -47,10 +47,9 @@ import numpy as np
 
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
-from lpvflow.synth.certify import design_coordinates, interpolated_hinf_norms
-from lpvflow.synth.controller import LPVController, mix, series_input_filter
-from lpvflow.synth.hinf import closed_loop
-from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, interpolate, state_blocks
+from lpvflow.synth.certify import design_coordinates, interpolated_loops
+from lpvflow.synth.controller import LPVController, series_input_filter
+from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, state_blocks
 from lpvflow.synth.polytope import vertex_matrices
 
 #: Relative residual above which a weight state is not a function of r, y and u (a dynamic W_R or W_N).
@@ -224,26 +223,21 @@ class ObserverResult:
     check: FrozenCheck
 
 
-def antiwindup_gains(model: LPVSS, plant: GeneralizedPlant, order: int) -> np.ndarray:
-    """(N, order, nu) gains L_i of the exported controller's anti-windup x⁺ += L_i(u_a − u): B_G at the
-    model-estimate rows (its first states), zero elsewhere (module docstring)."""
-    gains = []
-    for _, B, _, _ in vertex_matrices(model, plant.polytope):
-        L = np.zeros((order, B.shape[1]))
+def antiwindup_gains(model_B: list[np.ndarray], order: int) -> np.ndarray:
+    """(N, order, nu) gains L_i of the exported controller's anti-windup x⁺ += L_i(u_a − u): the model's
+    B_G at vertex i at the model-estimate rows (its first states), zero elsewhere (module docstring)."""
+    gains = np.zeros((len(model_B), order, model_B[0].shape[1]))
+    for L, B in zip(gains, model_B, strict=True):
         L[:B.shape[0]] = B
-        gains.append(L)
-    return np.array(gains)
+    return gains
 
 
 def frozen_check(plant: GeneralizedPlant, K_vertices: list[tuple[np.ndarray, ...]]) -> FrozenCheck:
     """:class:`FrozenCheck` of the controller Σλ_iK_i on the plant Σλ_iP_i along the breakpoints."""
     lams = design_coordinates(plant.polytope, plant.basis, FROZEN_PER_SEGMENT)
-    radius = 0.0
-    for lam in lams:
-        loop = closed_loop(interpolate(plant.vertices, lam), mix(K_vertices, lam))[0]
-        radius = max(radius, float(np.abs(np.linalg.eigvals(loop)).max()))
-    norms = interpolated_hinf_norms(plant.vertices, K_vertices, lams, plant.Ts)
-    return FrozenCheck(radius, float(norms.max()), len(lams))
+    loops = interpolated_loops(plant.vertices, K_vertices, lams, plant.Ts)
+    radius = max(float(np.abs(loop.poles()).max()) for loop in loops)
+    return FrozenCheck(radius, max(float(control.norm(loop, "inf")) for loop in loops), len(lams))
 
 
 def observer_design(plant: GeneralizedPlant, model: LPVSS, weights: dict, settings: ObserverSettings
@@ -262,8 +256,9 @@ def observer_design(plant: GeneralizedPlant, model: LPVSS, weights: dict, settin
                          f"breakpoints (this design's polytope is {plant.polytope.kind!r})")
     blocks = state_blocks(model, weights, plant.structure)
     WB = plant.input_filter
+    model_vertices = vertex_matrices(model, plant.polytope)
     K = [_vertex_controller(v, mats, blocks, WB, settings)
-         for v, mats in zip(plant.vertices, vertex_matrices(model, plant.polytope), strict=True)]
+         for v, mats in zip(plant.vertices, model_vertices, strict=True)]
     filt = _reference_filter(settings, model.ny, model.Ts)
     if filt is not None:
         K = [_with_reference_filter(k, filt, model.ny) for k in K]
@@ -278,4 +273,5 @@ def observer_design(plant: GeneralizedPlant, model: LPVSS, weights: dict, settin
                                                            "damping": settings.filter_damping}}
     controller = LPVController(*stacks, plant.polytope, plant.basis, plant.Ts, info=info,
                                structure=plant.structure)
-    return ObserverResult(K, controller, antiwindup_gains(model, plant, controller.order), check)
+    gains = antiwindup_gains([B for _, B, _, _ in model_vertices], controller.order)
+    return ObserverResult(K, controller, gains, check)

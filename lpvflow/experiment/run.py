@@ -206,30 +206,25 @@ def run_experiment(
     measure = sensors(n, seed)
     gridded = isinstance(controller, GriddedController)
     synthesized = isinstance(controller, SynthesizedController)
-    if synthesized:
+    if controller is not None:  # the plant signals the controller reads and drives, its output signal r
         y_index = [plant.output_names.index(name) for name in controller.inputs]
         u_index = [plant.input_names.index(name) for name in controller.outputs]
         r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in controller.outputs])
+    if synthesized:
         references = np.column_stack([s.get(name, np.full(n, y0))
                                       for name, y0 in zip(controller.inputs, controller.y_op, strict=True)])
         schedule = controller.scheduling_function(plant.output_names)
         controller.reset()
     elif gridded:
-        y_index = [plant.output_names.index(name) for name in controller.inputs]
-        u_index = [plant.input_names.index(name) for name in controller.outputs]
-        r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in controller.outputs])
         s_index = [controller.inputs.index(name) for name in s]
         s_matrix = np.column_stack([s[name] for name in s]) if s else np.zeros((n, 0))
         theta_of = controller.scheduling_function()
         setpoints = np.zeros(len(controller.inputs))
         xc = np.zeros(controller.order)
     elif controller is not None:
-        y_index = [plant.output_names.index(name) for name in controller.inputs]
-        u_index = [plant.input_names.index(name) for name in controller.outputs]
         nx = controller.A.shape[0]
         # one product per step: [xc(k+1); u_K(k) - u_op - r(k)] = [[A, B], [C, D]] [xc(k); y_K(k) - y_op]
         law = np.block([[controller.A, controller.B], [controller.C, controller.D]])
-        r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in controller.outputs])
         u_offset = controller.u_op + r_matrix
         w = np.zeros(nx + len(y_index))
     show = None if progress is None else not progress

@@ -49,7 +49,7 @@ def test_an_lti_loop_gets_its_hinf_norm_despite_poles_at_one_minus_ts():
     loop = closed_loop(vertex, K)
     norm = float(control.norm(control.ss(*loop, ADIP_TS), "inf"))
     result = rate_bounded_gain(lambda p: loop, [-1.0, 1.0], 0.5)
-    assert norm <= result.gamma <= norm * 1.011  # the level at which the storage is centred: 1 % above
+    assert norm <= result.gamma <= norm * 1.011  # the level search's width: 1 %
     assert result.margin > 0
 
 
@@ -109,8 +109,8 @@ def test_an_unstable_frozen_loop_is_refused_naming_the_point(synthesized):
 
     with pytest.raises(ModelError, match=r"p = 1 is unstable"):
         rate_bounded_gain(broken, [-1.0, 1.0], 0.01)
-    with pytest.raises(ModelError, match="gamma_slack"):
-        rate_bounded_gain(loop_at, [-1.0, 1.0], 0.01, gamma_slack=0.0)
+    with pytest.raises(ModelError, match="suboptimality"):
+        rate_bounded_gain(loop_at, [-1.0, 1.0], 0.01, suboptimality=0.0)
 
 
 def test_the_readme_example_runs_as_written():

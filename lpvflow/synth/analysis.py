@@ -39,17 +39,17 @@ breakpoints between covers every admissible p⁺ (:meth:`lpvflow.synth.rate_boun
 is not affine in p between breakpoints (plant and controller both vary), so p is gridded:
 ``design_per_segment`` points per breakpoint interval, the breakpoints ± ν, and ``points``.
 
-**The SDPs and the certificate.** First γ* = min γ subject to every pair's matrix ⪯ 0 and P̃_i ⪰ 0; then,
-at the level (1 + ``gamma_slack``)·γ*, the storage with the largest margin t (every matrix ⪯ −t·I,
-P̃_i ⪰ t·I, t ≤ 1; the minimiser itself sits on the boundary, where the state block is only semidefinite).
-The solver is not trusted: a level γ is certified when every pair's matrix, rebuilt in numpy from the
-returned P̃_i and ``loop_at`` (:meth:`RateBoundedGain.margin_at`), is negative definite with a
-Jacobi-scaled margin above round-off (:func:`lpvflow.validate.stability.scaled_margin`), every P̃_i is
-positive definite the same way, and all of this holds on a grid ``per_segment`` times finer than the
-breakpoints. Where it fails, that p joins the design grid and both SDPs are solved again (at most
-``refinements`` times), else the point is named. The matrix only gains from a larger γ (its −γI blocks), so
-the certified γ is the smallest level in [γ*, (1 + gamma_slack)·γ*] at which the centred storage passes,
-by bisection to 0.1 % (no further SDP).
+**The level search and the certificate.** At a level γ, the storage with the largest margin t (every
+matrix ⪯ −t·I, P̃_i ⪰ t·I, t ≤ 1, in the scaled coordinates). (Minimising γ directly is not used: on the
+ADIP its minimiser came back "inaccurate" 1 % below a level at which the margin SDP found t < 0.) The
+solver is not trusted: a level is certified when every pair's matrix, rebuilt in numpy from the returned
+P̃_i and ``loop_at`` (:meth:`RateBoundedGain.margin_at`), is negative definite with a Jacobi-scaled margin
+above round-off (:func:`lpvflow.validate.stability.scaled_margin`), every P̃_i is positive definite the same
+way, and all of this holds on a grid ``per_segment`` times finer than the breakpoints. The levels are those
+of :func:`lpvflow.synth.hinf.lowest_certified_level` from the largest frozen ‖T_zw(b_i)‖∞ (python-control;
+no storage does better): γ_low·(1 + δ·2^k) until one passes, then bisection to a relative width δ
+(``suboptimality``). When none passes, the point where the highest level failed joins the LMI grid and the
+search is repeated (at most ``refinements`` times); then the point is named.
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ import numpy as np
 import scipy.linalg
 
 from lpvflow.errors import ModelError
-from lpvflow.synth.hinf import cayley
+from lpvflow.synth.hinf import cayley, lowest_certified_level
 from lpvflow.synth.rate_bounded import FINE_PER_SEGMENT, Schedule
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 from lpvflow.validate.stability import scaled_margin
@@ -84,7 +84,7 @@ class RateBoundedGain:
 
     Attributes:
         gamma: the certified level (‖z‖₂ < γ‖w‖₂ for every trajectory with |Δp| ≤ ν per sample).
-        gamma_sdp: the SDP's minimiser γ* (not certified by itself).
+        gamma_lower: the largest frozen ‖T_zw‖∞ at the breakpoints: no storage certifies less.
         schedule: breakpoints and rate bound; lyapunov: 𝒫_i at the breakpoints (loop coordinates);
             scalings, scaled: S_i and P̃_i of 𝒫_i = S_iᵀP̃_iS_i (module docstring, Scaling).
         margin, where: the smallest certificate margin at γ and the p where it occurs (design pairs and
@@ -93,7 +93,7 @@ class RateBoundedGain:
     """
 
     gamma: float
-    gamma_sdp: float
+    gamma_lower: float
     schedule: Schedule
     margin: float
     where: float
@@ -182,20 +182,20 @@ def _riccati_scaling(loop: Loop, p: float) -> tuple[np.ndarray, float]:
 def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], breakpoints: Sequence[float],
                       rate_bound: float | None, *, points: Sequence[float] = (),
                       design_per_segment: int = DESIGN_PER_SEGMENT, per_segment: int = FINE_PER_SEGMENT,
-                      refinements: int = 3, gamma_slack: float = 0.01, solver: str = "CLARABEL"
+                      refinements: int = 3, suboptimality: float = 1e-2, solver: str = "CLARABEL"
                       ) -> RateBoundedGain:
     """Certified gain of the discrete closed loop ``loop_at(p)`` — (𝒜, ℬ, 𝒞, 𝒟) or a ``control.StateSpace``,
-    e.g. ``plant(p).lft(controller(p))`` — for scheduling signals
-    with |p(k+1) − p(k)| ≤ ``rate_bound`` in [b_0, b_M] (module docstring; ``None``: any jump).
+    e.g. ``plant(p).lft(controller(p))`` — for scheduling signals with |p(k+1) − p(k)| ≤ ``rate_bound`` in
+    [b_0, b_M] (module docstring; ``None``: any jump).
 
     The LMIs are imposed at p on ``design_per_segment`` points per breakpoint interval, the breakpoints ± ν
-    and ``points``; the certificate is re-checked on ``per_segment`` points per interval. Where it fails,
-    that p joins the design points and the SDPs are solved again, at most ``refinements`` times.
+    and ``points``; the certificate is re-checked on ``per_segment`` points per interval. When no level
+    passes, the point where the highest level tried failed joins the LMI grid and the search is repeated,
+    at most ``refinements`` times.
 
     Raises:
-        ModelError: bad breakpoints, rate bound or gamma_slack; an unstable frozen loop at a breakpoint.
-        SynthesisError: no storage of this form (the SDP is infeasible or unsolved), or the certificate still
-            fails after the refinements (naming the point).
+        ModelError: bad breakpoints, rate bound or suboptimality; an unstable frozen loop at a breakpoint.
+        SynthesisError: no level up to the search's top passes after the refinements (naming the point).
     """
     user_loop = loop_at
 
@@ -204,40 +204,45 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
         return (loop.A, loop.B, loop.C, loop.D) if isinstance(loop, control.StateSpace) else tuple(loop)
 
     schedule = Schedule(np.asarray(breakpoints, dtype=float), rate_bound)
-    if not gamma_slack > 0:
-        raise ModelError(f"gamma_slack must be positive, got {gamma_slack!r}")
+    if not suboptimality > 0:
+        raise ModelError(f"suboptimality must be positive, got {suboptimality!r}")
     start = time.perf_counter()
     b = schedule.breakpoints
-    scalings, norms = zip(*(_riccati_scaling(loop_at(float(bi)), float(bi)) for bi in b), strict=True)
+    scalings, norms = (list(x) for x in zip(*(_riccati_scaling(loop_at(float(bi)), float(bi)) for bi in b),
+                                            strict=True))
     what = (f"the rate-bounded dissipation LMIs ({len(b)} breakpoints, "
             f"ν = {'any' if rate_bound is None else f'{rate_bound:g}'} per sample)")
     checked = schedule.pairs(np.concatenate([_grid(b, per_segment), np.asarray(points, dtype=float)]))
     loops = {p: loop_at(p) for p, _ in checked}
     design = np.concatenate([_grid(b, design_per_segment), np.asarray(points, dtype=float)])
-    attempts = []
+    attempts: list = []
     for _ in range(refinements + 1):
         pairs = schedule.pairs(design)
         loops.update({p: loop_at(p) for p, _ in pairs if p not in loops})
-        result, report = _centred_storage(loops, pairs, schedule, list(scalings), list(norms), gamma_slack,
-                                          solver, what)
-        attempts += report.attempts
-        result.margin, result.where = _worst(result, checked, loops, result.gamma)
-        if result.margin > 0:
-            break
-        design = np.append(design, result.where)
-    else:
-        raise SynthesisError(f"{what}: after {refinements} refinements the storage found at γ = "
-                             f"{result.gamma:.4g} ({1 + gamma_slack:g}× the minimum {result.gamma_sdp:.4g}) "
-                             f"still fails the certificate at p = {result.where:.4g}: lower the rate bound "
-                             "or add breakpoints near that point")
-    lo, hi = result.gamma_sdp, result.gamma
-    while hi / lo > 1 + 1e-3:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if _worst(result, checked, loops, mid)[0] > 0 else (mid, hi)
-    result.gamma = hi
-    result.margin, result.where = _worst(result, checked, loops, hi)
-    result.report = SolveReport(report.solver, report.status, time.perf_counter() - start, attempts)
-    return result
+        levels = _MarginProblem(loops, pairs, schedule, scalings)
+        failed: list[tuple[float, float]] = []
+
+        def certified(gamma: float, levels: _MarginProblem = levels, failed: list = failed
+                      ) -> RateBoundedGain | None:
+            try:
+                attempts.extend(levels.solve(gamma, solver, f"{what} at γ = {gamma:.6g}").attempts)
+            except SynthesisError:
+                return None
+            result = RateBoundedGain(gamma, max(norms), schedule, -np.inf, float(b[0]), norms, scalings,
+                                     levels.scaled())
+            result.margin, result.where = _worst(result, checked, loops, gamma)
+            failed.append((gamma, result.where))
+            return result if result.margin > 0 else None
+
+        best = lowest_certified_level(certified, max(norms), suboptimality, None)
+        if best is not None:
+            best.report = SolveReport(solver, "optimal", time.perf_counter() - start, attempts)
+            return best
+        top, where = max(failed) if failed else (max(norms), float(b[0]))
+        design = np.append(design, where)
+    raise SynthesisError(f"{what}: after {refinements} refinements no level up to γ = {top:.4g} (the "
+                         f"largest frozen norm is {max(norms):.4g}) passes the certificate; it fails at "
+                         f"p = {where:.4g}: lower the rate bound or add breakpoints near that point")
 
 
 def _worst(result: RateBoundedGain, pairs: list, loops: dict[float, Loop], gamma: float
@@ -250,45 +255,46 @@ def _worst(result: RateBoundedGain, pairs: list, loops: dict[float, Loop], gamma
     return out
 
 
-def _centred_storage(loops: dict[float, Loop], pairs: list, schedule: Schedule, scalings: list[np.ndarray],
-                     norms: list[float], gamma_slack: float, solver: str, what: str
-                     ) -> tuple[RateBoundedGain, SolveReport]:
-    """The two SDPs of the module docstring at ``pairs``: γ* = min γ, then the storage with the largest
-    margin t (every matrix ⪯ −t·I, P̃_i ⪰ t·I, t ≤ 1, in the scaled coordinates) at (1 + gamma_slack)·γ*."""
-    b = schedule.breakpoints
-    m = scalings[0].shape[0]
-    P_tilde = [cp.Variable((m, m), symmetric=True) for _ in b]
-    gamma = cp.Variable()
+class _MarginProblem:
+    """The margin SDP of the module docstring at ``pairs``, compiled once with γ a Parameter: maximise t
+    subject to every pair's matrix ⪯ −t·I and P̃_i ⪰ t·I (scaled coordinates), t ≤ 1."""
 
-    def storage(lam: np.ndarray, T: np.ndarray) -> cp.Expression:
-        """Tᵀ𝒫(λ)T = Σ λ_i (S_iT)ᵀ P̃_i (S_iT)."""
-        return sum(float(li) * ((scalings[i] @ T).T @ P_tilde[i] @ (scalings[i] @ T))
-                   for i, li in enumerate(lam) if li != 0.0)
+    def __init__(self, loops: dict[float, Loop], pairs: list, schedule: Schedule, scalings: list[np.ndarray]
+                 ) -> None:
+        b = schedule.breakpoints
+        m = scalings[0].shape[0]
+        self.P_tilde = [cp.Variable((m, m), symmetric=True) for _ in b]
+        self.gamma, t = cp.Parameter(pos=True), cp.Variable()
+        gamma, P_tilde = self.gamma, self.P_tilde
 
-    matrices = []
-    for p, nexts in pairs:
-        T = np.linalg.inv(scalings[int(np.argmin(np.abs(b - p)))])
-        Ac, Bc, Cc, Dc = cayley(*loops[p])
-        nw, nz = Bc.shape[1], Cc.shape[0]
-        a, bc, cc = np.linalg.solve(T, Ac @ T), np.linalg.solve(T, Bc), Cc @ T
-        N = np.hstack([(np.eye(m) + Ac) @ T, Bc]) / np.sqrt(2.0)  # [ζ̄; w] ↦ ξ⁺
-        lam = schedule.weights(p)
-        P = storage(lam, T)
-        for q in nexts:
-            F = cp.bmat([[a.T @ P + P @ a, P @ bc], [bc.T @ P, -gamma * np.eye(nw)]])
-            dlam = schedule.weights(q) - lam
-            if np.any(dlam != 0.0):
-                F = F + sum(float(d) * ((scalings[i] @ N).T @ P_tilde[i] @ (scalings[i] @ N))
-                            for i, d in enumerate(dlam) if d != 0.0)
-            M = cp.bmat([[F, np.vstack([cc.T, Dc.T])], [np.hstack([cc, Dc]), -gamma * np.eye(nz)]])
-            matrices.append(0.5 * (M + M.T))
-    solve(cp.Problem(cp.Minimize(gamma), [P >> 0 for P in P_tilde] + [M << 0 for M in matrices]), solver,
-          what)
-    gamma_sdp = max(float(gamma.value), max(norms))
-    level = gamma_sdp * (1 + gamma_slack)
-    t = cp.Variable()
-    report = solve(cp.Problem(cp.Maximize(t), [gamma == level, t <= 1] + [P >> t * np.eye(m) for P in P_tilde]
-                              + [M << -t * np.eye(M.shape[0]) for M in matrices]), solver,
-                   f"{what} at γ = {level:.6g}")
-    return RateBoundedGain(level, gamma_sdp, schedule, -np.inf, float(b[0]), norms, scalings,
-                           [0.5 * (P.value + P.value.T) for P in P_tilde]), report
+        def storage(lam: np.ndarray, T: np.ndarray) -> cp.Expression:
+            """Tᵀ𝒫(λ)T = Σ λ_i (S_iT)ᵀ P̃_i (S_iT)."""
+            return sum(float(li) * ((scalings[i] @ T).T @ P_tilde[i] @ (scalings[i] @ T))
+                       for i, li in enumerate(lam) if li != 0.0)
+
+        constraints = [t <= 1] + [P >> t * np.eye(m) for P in P_tilde]
+        for p, nexts in pairs:
+            T = np.linalg.inv(scalings[int(np.argmin(np.abs(b - p)))])
+            Ac, Bc, Cc, Dc = cayley(*loops[p])
+            nw, nz = Bc.shape[1], Cc.shape[0]
+            a, bc, cc = np.linalg.solve(T, Ac @ T), np.linalg.solve(T, Bc), Cc @ T
+            N = np.hstack([(np.eye(m) + Ac) @ T, Bc]) / np.sqrt(2.0)  # [ζ̄; w] ↦ ξ⁺
+            lam = schedule.weights(p)
+            P = storage(lam, T)
+            for q in nexts:
+                F = cp.bmat([[a.T @ P + P @ a, P @ bc], [bc.T @ P, -gamma * np.eye(nw)]])
+                dlam = schedule.weights(q) - lam
+                if np.any(dlam != 0.0):
+                    F = F + sum(float(d) * ((scalings[i] @ N).T @ P_tilde[i] @ (scalings[i] @ N))
+                                for i, d in enumerate(dlam) if d != 0.0)
+                M = cp.bmat([[F, np.vstack([cc.T, Dc.T])], [np.hstack([cc, Dc]), -gamma * np.eye(nz)]])
+                constraints.append(0.5 * (M + M.T) << -t * np.eye(M.shape[0]))
+        self.problem = cp.Problem(cp.Maximize(t), constraints)
+
+    def solve(self, gamma: float, solver: str, what: str) -> SolveReport:
+        self.gamma.value = gamma
+        return solve(self.problem, solver, what)
+
+    def scaled(self) -> list[np.ndarray]:
+        """The P̃_i of the last solve."""
+        return [0.5 * (P.value + P.value.T) for P in self.P_tilde]

@@ -212,18 +212,19 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
                                             strict=True))
     what = (f"the rate-bounded dissipation LMIs ({len(b)} breakpoints, "
             f"ν = {'any' if rate_bound is None else f'{rate_bound:g}'} per sample)")
-    checked = schedule.pairs(np.concatenate([_grid(b, per_segment), np.asarray(points, dtype=float)]))
-    loops = {p: loop_at(p) for p, _ in checked}
+    fine = _grid(b, per_segment)
     design = np.concatenate([_grid(b, design_per_segment), np.asarray(points, dtype=float)])
+    loops: dict[float, Loop] = {}
     attempts: list = []
     for _ in range(refinements + 1):
         pairs = schedule.pairs(design)
-        loops.update({p: loop_at(p) for p, _ in pairs if p not in loops})
+        checked = schedule.pairs(np.concatenate([fine, design]))  # the design's own pairs and the fine grid
+        loops.update({p: loop_at(p) for p, _ in checked if p not in loops})
         levels = _MarginProblem(loops, pairs, schedule, scalings)
         failed: list[tuple[float, float]] = []
 
-        def certified(gamma: float, levels: _MarginProblem = levels, failed: list = failed
-                      ) -> RateBoundedGain | None:
+        def certified(gamma: float, levels: _MarginProblem = levels, failed: list = failed,
+                      checked: list = checked) -> RateBoundedGain | None:
             try:
                 attempts.extend(levels.solve(gamma, solver, f"{what} at γ = {gamma:.6g}").attempts)
             except SynthesisError:
@@ -238,7 +239,10 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
         if best is not None:
             best.report = SolveReport(solver, "optimal", time.perf_counter() - start, attempts)
             return best
-        top, where = max(failed) if failed else (max(norms), float(b[0]))
+        if not failed:
+            raise SynthesisError(f"{what}: the SDP solver returned no point at any level from the largest "
+                                 f"frozen norm {max(norms):.4g} up: lower the rate bound or check the loop")
+        top, where = max(failed)
         design = np.append(design, where)
     raise SynthesisError(f"{what}: after {refinements} refinements no level up to γ = {top:.4g} (the "
                          f"largest frozen norm is {max(norms):.4g}) passes the certificate; it fails at "

@@ -17,17 +17,29 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from lpvflow.errors import DataError
 from lpvflow.models import LPVSS
-from lpvflow.synth.certify import Certificate, certify, certify_rate_bounded
+from lpvflow.synth.certify import certify, certify_rate_bounded
 from lpvflow.synth.controller import LPVController, Trim
 from lpvflow.synth.hinf import synthesize
-from lpvflow.synth.observer import FrozenCheck, ObserverSettings, observer_design
+from lpvflow.synth.observer import ObserverSettings, observer_design
 from lpvflow.synth.plant import GeneralizedPlant, generalized_plant
 from lpvflow.synth.rate_bounded import synthesize_rate_bounded
+
+
+class Check(Protocol):
+    """A design's check as the report and ``lpvflow synth`` read it: a verdict and the lines that say why
+    (:class:`lpvflow.synth.certify.Certificate` of the LMI methods,
+    :class:`lpvflow.synth.observer.FrozenCheck` of the observer design)."""
+
+    @property
+    def ok(self) -> bool: ...
+
+    def lines(self) -> list[str]: ...
 
 
 @dataclass
@@ -40,7 +52,7 @@ class Design:
     controller: LPVController
     gamma: float
     gamma_lower: float | None
-    certificate: Certificate | FrozenCheck
+    certificate: Check
     plant: GeneralizedPlant
     seconds: float
     antiwindup_gains: np.ndarray | None = None

@@ -42,8 +42,8 @@ def gains(synthesized):
 
 def test_an_lti_loop_gets_its_hinf_norm_despite_poles_at_one_minus_ts():
     """The exact ADIP linearization at 0° (Ts = 5 ms, a W_S pole at 1 − 1e-4) with SB10DD's controller at
-    1.5× its optimum: the same loop at every p, so the bound is python-control's ‖T_zw‖∞ (in the shift
-    form, Clarabel stops "inaccurate" on this loop's one frozen LMI)."""
+    1.5× its optimum: the same loop at every p, so the bound is python-control's ‖T_zw‖∞ (in the loop's
+    own coordinates, without the Riccati scaling, Clarabel stops "inaccurate" on its one frozen LMI)."""
     vertex = adip_vertex(0.0)
     K = riccati_controller(vertex, ADIP_TS, 1.5 * riccati_gamma(vertex, ADIP_TS, 1e-3))
     loop = closed_loop(vertex, K)

@@ -100,7 +100,7 @@ def test_the_certificate_refuses_a_faster_schedule_than_it_was_made_for(synthesi
     assert scaled_margin(-M, E) > 0
 
 
-def test_an_unstable_frozen_loop_is_refused_naming_the_point(synthesized):
+def test_unstable_or_broken_loops_and_bad_settings_are_refused_naming_the_point(synthesized):
     _, loop_at = synthesized
 
     def broken(p: float):
@@ -109,6 +109,8 @@ def test_an_unstable_frozen_loop_is_refused_naming_the_point(synthesized):
 
     with pytest.raises(ModelError, match=r"p = 1 is unstable"):
         rate_bounded_gain(broken, [-1.0, 1.0], 0.01)
+    with pytest.raises(ModelError, match=r"p = -1 has non-finite entries"):
+        rate_bounded_gain(lambda p: tuple(np.full_like(M, np.nan) for M in loop_at(p)), [-1.0, 1.0], 0.01)
     with pytest.raises(ModelError, match="suboptimality"):
         rate_bounded_gain(loop_at, [-1.0, 1.0], 0.01, suboptimality=0.0)
 

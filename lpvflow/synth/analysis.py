@@ -159,8 +159,11 @@ def _riccati_scaling(loop: Loop, p: float) -> tuple[np.ndarray, float]:
     loop's Cayley image at level SCALING_LEVEL·‖T_zw‖∞, divided by that level (module docstring, Scaling).
 
     Raises:
-        ModelError: the loop is unstable, or the Riccati equation has no stabilizing solution."""
+        ModelError: the loop has non-finite entries or is unstable, or the Riccati equation has no
+            stabilizing solution."""
     A, B, C, D = loop
+    if not all(np.all(np.isfinite(M)) for M in loop):
+        raise ModelError(f"the closed loop at p = {p:.4g} has non-finite entries: check loop_at")
     radius = float(np.max(np.abs(np.linalg.eigvals(A))))
     if radius >= 1.0:
         raise ModelError(f"the frozen closed loop at p = {p:.4g} is unstable (spectral radius {radius:.6g}): "

@@ -10,9 +10,10 @@ piecewise polytope over the affine model, so the plant is exact between them.
 
 The limit on the ADIP (issue 23's ±75° test): the exact linearizations at −75°, 0°, 75° with the bundled
 weights (1-DOF, ``tests/adip_cases.py``), breakpoints at sin φ1, and the largest margin t of the LMIs
-(Φ ⪰ t·I, t ≤ 1) at γ = 2 × the largest frozen bound — the level the issue allows — for the rate a 70°
-move in 2.0 s needs (0.006 per sample) and a tenth of it. t < 0: no controller of this class reaches
-that level, whatever the reconstruction.
+(Φ ⪰ t·I, t ≤ 1) at γ = 2 × the largest frozen bound at these three points (over the whole range the
+frozen optimum peaks higher, at ±70°: see the next row) for the rate of a 70° move in 2.0 s with a
+triangular velocity profile (0.006 per sample) and a tenth of it. t < 0: no controller of this class
+reaches that level, whatever the reconstruction.
 
 The same ±75° range with another controller class (``adip_interpolated``): SLICOT SB10DD controllers at
 every 5° (each at 1.5 × its frozen optimum; SB10DD's formulae are continuous in the plant data, so

@@ -197,7 +197,8 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
     at most ``refinements`` times.
 
     Raises:
-        ModelError: bad breakpoints, rate bound or suboptimality; an unstable frozen loop at a breakpoint.
+        ModelError: bad breakpoints, rate bound or suboptimality; a frozen loop at a breakpoint that is
+            unstable or has non-finite entries.
         SynthesisError: no level up to the search's top passes after the refinements (naming the point).
     """
     user_loop = loop_at
@@ -229,26 +230,31 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
         def certified(gamma: float, levels: _MarginProblem = levels, failed: list = failed,
                       checked: list = checked) -> RateBoundedGain | None:
             try:
-                attempts.extend(levels.solve(gamma, solver, f"{what} at γ = {gamma:.6g}").attempts)
+                report = levels.solve(gamma, solver, f"{what} at γ = {gamma:.6g}")
             except SynthesisError:
                 return None
+            attempts.extend(report.attempts)
             result = RateBoundedGain(gamma, max(norms), schedule, -np.inf, float(b[0]), norms, scalings,
-                                     levels.scaled())
+                                     levels.scaled(), report)
             result.margin, result.where = _worst(result, checked, loops, gamma)
             failed.append((gamma, result.where))
             return result if result.margin > 0 else None
 
         best = lowest_certified_level(certified, max(norms), suboptimality, None)
         if best is not None:
-            best.report = SolveReport(solver, "optimal", time.perf_counter() - start, attempts)
+            best.report = SolveReport(best.report.solver, best.report.status, time.perf_counter() - start,
+                                      attempts)
             return best
         if not failed:
             raise SynthesisError(f"{what}: the SDP solver returned no point at any level from the largest "
                                  f"frozen norm {max(norms):.4g} up: lower the rate bound or check the loop")
         top, where = max(failed)
+        if np.any(design == where):  # the LMIs are imposed there already: refining cannot help
+            break
         design = np.append(design, where)
-    raise SynthesisError(f"{what}: after {refinements} refinements no level up to γ = {top:.4g} (the "
-                         f"largest frozen norm is {max(norms):.4g}) passes the certificate; it fails at "
+    raise SynthesisError(f"{what}: no level up to γ = {top:.4g} (the largest frozen norm is "
+                         f"{max(norms):.4g}) passes the certificate with the LMIs at "
+                         f"{len(np.unique(design))} points, refined where it failed; it fails at "
                          f"p = {where:.4g}: lower the rate bound or add breakpoints near that point")
 
 

@@ -57,7 +57,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from itertools import pairwise
 
 import control
 import cvxpy as cp
@@ -66,7 +65,7 @@ import scipy.linalg
 
 from lpvflow.errors import ModelError
 from lpvflow.synth.hinf import cayley, lowest_certified_level
-from lpvflow.synth.rate_bounded import FINE_PER_SEGMENT, Schedule
+from lpvflow.synth.rate_bounded import FINE_PER_SEGMENT, Schedule, segment_grid
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 from lpvflow.validate.stability import scaled_margin
 
@@ -148,12 +147,6 @@ def dissipation_matrix(loop: Loop, P: np.ndarray, P_next: np.ndarray, gamma: flo
     return 0.5 * (M + M.T), E
 
 
-def _grid(breakpoints: np.ndarray, per_segment: int) -> np.ndarray:
-    """``per_segment`` equal intervals in every breakpoint interval."""
-    return np.unique(np.concatenate([np.linspace(lo, hi, per_segment + 1)
-                                     for lo, hi in pairwise(breakpoints)]))
-
-
 def _riccati_scaling(loop: Loop, p: float) -> tuple[np.ndarray, float]:
     """(S, ‖T_zw‖∞) of the frozen loop at breakpoint p: X = SᵀS the bounded-real Riccati storage of the
     loop's Cayley image at level SCALING_LEVEL·‖T_zw‖∞, divided by that level (module docstring, Scaling).
@@ -216,8 +209,8 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
                                             strict=True))
     what = (f"the rate-bounded dissipation LMIs ({len(b)} breakpoints, "
             f"ν = {'any' if rate_bound is None else f'{rate_bound:g}'} per sample)")
-    fine = _grid(b, per_segment)
-    design = np.concatenate([_grid(b, design_per_segment), np.asarray(points, dtype=float)])
+    fine = segment_grid(b, per_segment)
+    design = np.concatenate([segment_grid(b, design_per_segment), np.asarray(points, dtype=float)])
     loops: dict[float, Loop] = {}
     attempts: list = []
     for _ in range(refinements + 1):

@@ -369,13 +369,19 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
     return best
 
 
+def segment_grid(breakpoints: np.ndarray, per_segment: int) -> np.ndarray:
+    """``per_segment`` equal intervals in every breakpoint interval (the breakpoints included)."""
+    return np.unique(np.concatenate([np.linspace(lo, hi, per_segment + 1)
+                                     for lo, hi in pairwise(breakpoints)]))
+
+
 def fine_check(result: ScheduledResult, plant_at: Callable[[float], VertexPlant] | None = None,
                per_segment: int = FINE_PER_SEGMENT) -> tuple[float, float]:
     """(smallest margin, where) of Φ on a grid ``per_segment`` times finer than the breakpoints, with
     p⁺ = p ± ν (clipped) and the breakpoints between: the design's own piecewise-linear plant, or
     ``plant_at(p)`` (the true plant, e.g. exact linearizations) with the interpolated controller."""
     b = result.schedule.breakpoints
-    fine = np.unique(np.concatenate([np.linspace(lo, hi, per_segment + 1) for lo, hi in pairwise(b)]))
+    fine = segment_grid(b, per_segment)
     worst = (np.inf, float(fine[0]))
     for p, nexts in result.schedule.pairs(fine):
         v = result.plant_at(p) if plant_at is None else plant_at(p)

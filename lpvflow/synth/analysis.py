@@ -57,6 +57,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import control
 import cvxpy as cp
@@ -110,12 +111,17 @@ class RateBoundedGain:
         """𝒫(p) = Σ λ_i(p) 𝒫_i."""
         return sum(li * P for li, P in zip(self.schedule.weights(p), self.lyapunov, strict=True))
 
-    def margin_at(self, loop: Loop, p: float, q: float, gamma: float) -> float:
-        """:func:`lpvflow.validate.stability.scaled_margin` of minus the dissipation matrix of ``loop`` (the
-        closed loop at p) from p to p⁺ = q at level γ, formed in the coordinates of the breakpoint nearest
-        p (T = S_j⁻¹): > 0 certifies the pair."""
-        T = np.linalg.inv(self.scalings[int(np.argmin(np.abs(self.schedule.breakpoints - p)))])
-        M, E = dissipation_matrix(loop, self._storage(p, T), self._storage(q, T), gamma, T)
+    @cached_property
+    def inverse_scalings(self) -> list[np.ndarray]:
+        """S_i⁻¹: the congruence of every pair whose p is nearest b_i."""
+        return [np.linalg.inv(S) for S in self.scalings]
+
+    def margin_at(self, image: Loop, p: float, q: float, gamma: float) -> float:
+        """:func:`lpvflow.validate.stability.scaled_margin` of minus the dissipation matrix from p to p⁺ = q
+        at level γ, ``image`` the Cayley image (:func:`lpvflow.synth.hinf.cayley`) of the closed loop at p,
+        formed in the coordinates of the breakpoint nearest p (T = S_j⁻¹): > 0 certifies the pair."""
+        T = self.inverse_scalings[int(np.argmin(np.abs(self.schedule.breakpoints - p)))]
+        M, E = _dissipation(image, self._storage(p, T), self._storage(q, T), gamma, T)
         return scaled_margin(-M, E)
 
     def _storage(self, p: float, T: np.ndarray) -> np.ndarray:
@@ -132,7 +138,13 @@ def dissipation_matrix(loop: Loop, P: np.ndarray, P_next: np.ndarray, gamma: flo
     values of its terms (for the round-off bound of :func:`lpvflow.validate.stability.scaled_margin`).
     With a state transform ``T`` (ζ = Tζ̄), ``P`` and ``P_next`` are Tᵀ𝒫T and M is
     diag(T, I, I)ᵀ(…)diag(T, I, I)."""
-    Ac, Bc, Cc, Dc = cayley(*loop)
+    return _dissipation(cayley(*loop), P, P_next, gamma, T)
+
+
+def _dissipation(image: Loop, P: np.ndarray, P_next: np.ndarray, gamma: float, T: np.ndarray | None
+                 ) -> tuple[np.ndarray, ...]:
+    """:func:`dissipation_matrix` from the loop's Cayley image (formed once per p by the caller)."""
+    Ac, Bc, Cc, Dc = image
     if T is not None:
         Ac, Bc, Cc = np.linalg.solve(T, Ac @ T), np.linalg.solve(T, Bc), Cc @ T
     m, nw, nz = Ac.shape[0], Bc.shape[1], Cc.shape[0]
@@ -211,13 +223,13 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
             f"ν = {'any' if rate_bound is None else f'{rate_bound:g}'} per sample)")
     fine = segment_grid(b, per_segment)
     design = np.concatenate([segment_grid(b, design_per_segment), np.asarray(points, dtype=float)])
-    loops: dict[float, Loop] = {}
+    images: dict[float, Loop] = {}  # the Cayley image of the loop at every p of the LMIs and the check
     attempts: list = []
     for _ in range(refinements + 1):
         pairs = schedule.pairs(design)
         checked = schedule.pairs(np.concatenate([fine, design]))  # the design's own pairs and the fine grid
-        loops.update({p: loop_at(p) for p, _ in checked if p not in loops})
-        levels = _MarginProblem(loops, pairs, schedule, scalings)
+        images.update({p: cayley(*loop_at(p)) for p, _ in checked if p not in images})
+        levels = _MarginProblem(images, pairs, schedule, scalings)
         failed: list[tuple[float, float]] = []
 
         def certified(gamma: float, levels: _MarginProblem = levels, failed: list = failed,
@@ -229,7 +241,7 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
             attempts.extend(report.attempts)
             result = RateBoundedGain(gamma, max(norms), schedule, -np.inf, float(b[0]), norms, scalings,
                                      levels.scaled(), report)
-            result.margin, result.where = _worst(result, checked, loops, gamma)
+            result.margin, result.where = _worst(result, checked, images, gamma)
             failed.append((gamma, result.where))
             return result if result.margin > 0 else None
 
@@ -251,13 +263,13 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
                          f"p = {where:.4g}: lower the rate bound or add breakpoints near that point")
 
 
-def _worst(result: RateBoundedGain, pairs: list, loops: dict[float, Loop], gamma: float
+def _worst(result: RateBoundedGain, pairs: list, images: dict[float, Loop], gamma: float
            ) -> tuple[float, float]:
     """(smallest margin, p) of the certificate at γ: every P̃_i ≻ 0 and every pair's dissipation matrix."""
     b = result.schedule.breakpoints
     out = min((scaled_margin(P, np.abs(P)), float(bi)) for P, bi in zip(result.scaled, b, strict=True))
     for p, nexts in pairs:
-        out = min(out, *((result.margin_at(loops[p], p, q, gamma), p) for q in nexts))
+        out = min(out, *((result.margin_at(images[p], p, q, gamma), p) for q in nexts))
     return out
 
 
@@ -265,7 +277,7 @@ class _MarginProblem:
     """The margin SDP of the module docstring at ``pairs``, compiled once with γ a Parameter: maximise t
     subject to every pair's matrix ⪯ −t·I and P̃_i ⪰ t·I (scaled coordinates), t ≤ 1."""
 
-    def __init__(self, loops: dict[float, Loop], pairs: list, schedule: Schedule, scalings: list[np.ndarray]
+    def __init__(self, images: dict[float, Loop], pairs: list, schedule: Schedule, scalings: list[np.ndarray]
                  ) -> None:
         b = schedule.breakpoints
         m = scalings[0].shape[0]
@@ -279,9 +291,10 @@ class _MarginProblem:
                        for i, li in enumerate(lam) if li != 0.0)
 
         constraints = [t <= 1] + [P >> t * np.eye(m) for P in P_tilde]
+        inverses = [np.linalg.inv(S) for S in scalings]
         for p, nexts in pairs:
-            T = np.linalg.inv(scalings[int(np.argmin(np.abs(b - p)))])
-            Ac, Bc, Cc, Dc = cayley(*loops[p])
+            T = inverses[int(np.argmin(np.abs(b - p)))]
+            Ac, Bc, Cc, Dc = images[p]
             nw, nz = Bc.shape[1], Cc.shape[0]
             a, bc, cc = np.linalg.solve(T, Ac @ T), np.linalg.solve(T, Bc), Cc @ T
             N = np.hstack([(np.eye(m) + Ac) @ T, Bc]) / np.sqrt(2.0)  # [ζ̄; w] ↦ ξ⁺

@@ -24,6 +24,7 @@ from lpvflow.pipeline.design import run_design
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
 from lpvflow.pipeline.verify import simulate_loop
 from lpvflow.synth.controller import AntiWindup, LPVController, observer_gains
+from tests.design_files import adip_identification
 from tests.fmu_builds import built_fmu
 from tests.test_2dof_export import TRIM, adip_controller
 
@@ -229,20 +230,7 @@ excitation = {{ voltage = "multisine:f_lo=0.1,f_hi=20,rms=0.15" }}
 scheduling = {{ sin_arm = "sin(arm_angle)" }}
 seed = 1
 
-[identify]
-u = ["voltage"]
-y = ["arm_angle", "pendulum_angle"]
-p = ["sin_arm"]
-remove_trim = true
-
-[reduce]
-order = 4
-
-[validate]
-grid = 3
-reference = "linearization"
-gate = false
-{extra}
+""" + adip_identification(3, remove_trim=True) + """{extra}
 """
 
 

@@ -16,6 +16,7 @@ from lpvflow.experiment.controller import GriddedController, load_experiment_con
 from lpvflow.pipeline.config import check_table
 from lpvflow.pipeline.design import run_design
 from lpvflow.pipeline.stages import gate_verdict
+from tests.design_files import adip_identification
 from tests.fmu_builds import built_fmu
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -163,19 +164,7 @@ excitation = {{ voltage = "multisine:f_lo=0.02,f_hi=20,rms=1.5" }}
 scheduling = {{ sin_arm = "sin(arm_angle)" }}
 seed = 1
 
-[identify]
-u = ["voltage"]
-y = ["arm_angle", "pendulum_angle"]
-p = ["sin_arm"]
-
-[reduce]
-order = 4
-
-[validate]
-grid = 5
-reference = "linearization"
-{gate}
-[synth]
+""" + adip_identification(5, "{gate}") + """[synth]
 weights.S = {{ bandwidth = 2.0 }}
 weights.K = {{ num = [0.05], den = [1] }}
 """

@@ -12,6 +12,7 @@ import pytest
 from lpvflow.errors import DataError
 from lpvflow.pipeline.config import check_table
 from lpvflow.pipeline.design import run_design
+from tests.design_files import adip_identification
 from tests.fmu_builds import built_fmu
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,19 +33,7 @@ scheduling = {{ sin_arm = "sin(arm_angle)" }}
 seed = 1
 iterate = 1
 
-[identify]
-u = ["voltage"]
-y = ["arm_angle", "pendulum_angle"]
-p = ["sin_arm"]
-
-[reduce]
-order = 4
-
-[validate]
-grid = 3
-reference = "linearization"
-gate = false
-
+""" + adip_identification(3) + """
 [synth]
 weights.S = [{{ bandwidth = 2.0, hf_gain = 1.0 }}, {{ num = [0.3], den = [1] }}]
 weights.R = [{{ num = [1.0], den = [1] }}, {{ num = [0.01], den = [1] }}]

@@ -125,7 +125,8 @@ class SynthesizedController:
         signals = {name: values[:n] for name, values in columns.items()}
         p = np.column_stack([np.broadcast_to(evaluate(expression, signals), (n,))
                              for expression in self.scheduling])
-        return np.array([self.trim(p_k) for p_k in p])
+        trim = self.law.trim
+        return self.u_op + (np.zeros((n, len(self.u_op))) if trim is None else trim.along(p[:, 0]))
 
     def frozen_at(self, p: np.ndarray) -> LtiController:
         """The law frozen at p as a map from the measurements, without the trim and without what constant

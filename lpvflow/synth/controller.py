@@ -100,8 +100,11 @@ class Trim:
 
     def value(self, p: np.ndarray) -> np.ndarray:
         """u_eq(p) (nu,) at the scheduling point p (n_p,): interpolation in p[0], clamped at the ends."""
-        p1 = float(np.asarray(p, dtype=float).reshape(-1)[0])
-        return np.array([np.interp(p1, self.p, column) for column in self.u.T])
+        return self.along(np.asarray(p, dtype=float).reshape(-1)[:1])[0]
+
+    def along(self, p1: np.ndarray) -> np.ndarray:
+        """(n, nu) u_eq at n values of the first scheduling signal (:meth:`value` at each)."""
+        return np.column_stack([np.interp(p1, self.p, column) for column in self.u.T])
 
     def to_dict(self) -> dict:
         return {"p": self.p.tolist(), "u": self.u.tolist()}

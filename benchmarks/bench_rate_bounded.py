@@ -108,10 +108,10 @@ def adip_interpolated(rate_bound: float) -> dict:
     import control
 
     from lpvflow.synth.analysis import rate_bounded_gain
-    from lpvflow.synth.certify import riccati_controller, riccati_gamma
     from lpvflow.synth.controller import mix
     from lpvflow.synth.hinf import closed_loop
     from lpvflow.synth.polytope import hat_coordinates
+    from lpvflow.synth.riccati import riccati_controller, riccati_gamma
     from tests.adip_cases import TS, adip_vertex
 
     degrees = np.arange(-75.0, 75.01, 5.0)

@@ -46,9 +46,9 @@ import numpy as np
 from lpvflow.models import load
 from lpvflow.pipeline.config import bundled_config
 from lpvflow.synth import hinf
-from lpvflow.synth.certify import riccati_gamma
 from lpvflow.synth.examples import random_lpv
 from lpvflow.synth.plant import generalized_plant
+from lpvflow.synth.riccati import riccati_gamma
 from tests.adip_cases import TS, adip_vertex
 
 OUT = Path(__file__).parent / "results" / "synth.json"

@@ -15,3 +15,17 @@ class DataError(LpvflowError, ValueError):
 
 class ModelError(LpvflowError, ValueError):
     """A model that cannot be used as asked: wrong shapes, unknown file format or version, ill-posed."""
+
+
+class SynthesisError(ModelError):
+    """No controller was returned, and why: ``category`` is ``"infeasible"`` (the LMIs have no solution at
+    any level tried, proven by an accurate solve), ``"accuracy"`` (the solver could not reach the accuracy
+    a certificate needs) or ``"assumption"`` (the plant violates an assumption of the method)."""
+
+    CATEGORIES = ("infeasible", "accuracy", "assumption")
+
+    def __init__(self, message: str, category: str = "infeasible") -> None:
+        if category not in self.CATEGORIES:
+            raise ValueError(f"unknown SynthesisError category {category!r}")
+        super().__init__(message)
+        self.category = category

@@ -9,10 +9,10 @@ import pytest
 
 from lpvflow.errors import ModelError
 from lpvflow.synth.analysis import dissipation_matrix, rate_bounded_gain
-from lpvflow.synth.certify import riccati_controller, riccati_gamma
 from lpvflow.synth.hinf import closed_loop
 from lpvflow.synth.plant import generalized_plant
 from lpvflow.synth.rate_bounded import synthesize_rate_bounded
+from lpvflow.synth.riccati import riccati_controller, riccati_gamma
 from lpvflow.validate.stability import scaled_margin
 from tests.adip_cases import TS as ADIP_TS
 from tests.adip_cases import adip_vertex

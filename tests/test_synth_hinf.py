@@ -12,11 +12,12 @@ import scipy.linalg
 
 from lpvflow.errors import ModelError
 from lpvflow.models import load
-from lpvflow.synth.certify import certify, riccati_controller, riccati_gamma, vertex_margins
+from lpvflow.synth.certify import certify, vertex_margins
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.hinf import cayley, certificate_margin, hinfsyn, inverse_cayley, synthesize
 from lpvflow.synth.plant import generalized_plant
 from lpvflow.synth.polytope import polytope_of
+from lpvflow.synth.riccati import riccati_controller, riccati_gamma
 from lpvflow.synth.sdp import SynthesisError
 from tests.adip_cases import TS, adip_vertex, rm
 from tests.readme_blocks import run_python_block

@@ -15,11 +15,12 @@ from lpvflow.errors import DataError, ModelError
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.config import bundled_config, check_table
-from lpvflow.synth.certify import frozen_hinf_norms, riccati_gamma
+from lpvflow.synth.certify import frozen_hinf_norms
 from lpvflow.synth.controller import AntiWindup, LPVController, mix
 from lpvflow.synth.observer import ObserverSettings, frozen_check, observer_design
 from lpvflow.synth.plant import generalized_plant, weight_systems
 from lpvflow.synth.polytope import hat_coordinates
+from lpvflow.synth.riccati import riccati_gamma
 from tests.adip_cases import TS, bundled_weights, rm
 
 BREAKPOINTS = [0.0, 0.5, 1.0]

@@ -10,10 +10,11 @@ import pytest
 from lpvflow.basis import Basis
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
-from lpvflow.synth.certify import certify_rate_bounded, rate_bounded_walk, riccati_gamma
+from lpvflow.synth.certify import certify_rate_bounded, rate_bounded_walk
 from lpvflow.synth.hinf import closed_loop, hinfsyn
 from lpvflow.synth.plant import VertexPlant, augment, generalized_plant, weight_systems
 from lpvflow.synth.rate_bounded import Schedule, fine_check, synthesize_rate_bounded, synthesize_scheduled
+from lpvflow.synth.riccati import riccati_gamma
 from tests.adip_cases import TS as ADIP_TS
 from tests.adip_cases import adip_vertex, bundled_weights, rm
 from tests.readme_blocks import run_python_block

@@ -9,14 +9,15 @@
    ``control.norm``) on a θ grid; with scheduled weights, or scheduling signals tied along breakpoints
    (whose box corners lie off the curve they follow), of the design's own generalized plant Σλ_iP_i
    along the breakpoints instead (:func:`interpolated_hinf_norms`).
-3. **Quadratic stability** of the closed-loop vertex matrices 𝒜_i by the common-Lyapunov LMI and
-   eigenvalue re-check of :func:`lpvflow.validate.stability.quadratic_stability` (informative).
+3. **Quadratic stability** of the closed-loop vertex matrices 𝒜_i. For a common-Lyapunov design it is the
+   certificate of check 1 itself (its bounded-real inequality with one 𝒳 at every vertex contains
+   𝒜_iᵀ𝒳𝒜_i − 𝒳 ≺ 0), so the two lines cannot disagree; for a rate-bounded design it is the separate
+   LMI and eigenvalue re-check of :func:`lpvflow.validate.stability.quadratic_stability`, informative
+   (the rate-bounded certificate does not need it).
 4. **Switching simulation** (:func:`switching_simulation`): the vertex closed loops under convex
    coordinates drawn afresh every sample, judged by the decay of the certificate's Lyapunov function.
 
-:func:`riccati_gamma` gives an LMI-free reference for one vertex: the optimal γ of the same discrete H∞
-problem by the Riccati solution (SLICOT SB10DD, :func:`riccati_controller`), a lower bound for every
-polytope containing that plant.
+:func:`lpvflow.synth.riccati.riccati_gamma` gives an LMI-free reference for one vertex.
 """
 
 from __future__ import annotations
@@ -29,18 +30,19 @@ import control
 import numpy as np
 
 from lpvflow.basis import Basis
-from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
 from lpvflow.synth.controller import mix
 from lpvflow.synth.hinf import HinfResult, certificate_margin, closed_loop
 from lpvflow.synth.plant import VertexPlant, augment, interpolate
 from lpvflow.synth.polytope import Polytope, hat_coordinates
 from lpvflow.synth.rate_bounded import ScheduledResult, fine_check
+from lpvflow.validate.norms import hinf_norm
 from lpvflow.validate.stability import quadratic_stability
 
 
 def vertex_margins(result: HinfResult) -> list[float]:
-    """:func:`lpvflow.synth.hinf.certificate_margin` at every vertex, recomputed from the result's numbers."""
+    """:func:`lpvflow.synth.hinf.certificate_margin` at every vertex, recomputed from the result's
+    numbers."""
     return [certificate_margin(v, K, result.lyapunov_factor, result.gamma)
             for v, K in zip(result.vertices, result.K_vertices, strict=True)]
 
@@ -54,7 +56,8 @@ def scheduling_grid(box: np.ndarray, per_axis: int) -> np.ndarray:
 
 def frozen_hinf_norms(controller_at: Callable[[np.ndarray], tuple[np.ndarray, ...]], model: LPVSS,
                       weights: dict, grid: np.ndarray, structure: str = "1dof") -> np.ndarray:
-    """‖T_zw‖_∞ of the frozen closed loop at every grid point (python-control lft and norm):
+    """‖T_zw‖_∞ of the frozen closed loop at every grid point (python-control lft,
+    :func:`lpvflow.validate.norms.hinf_norm`):
     ``controller_at(p)`` gives (Ak, Bk, Ck, Dk) from the measured signals to u before W_B (augment puts
     W_B in the plant)."""
     from lpvflow.synth.plant import weight_systems
@@ -66,7 +69,7 @@ def frozen_hinf_norms(controller_at: Callable[[np.ndarray], tuple[np.ndarray, ..
     for p in grid:
         P = augment(model.frozen(p), W, model.Ts, structure)
         K = control.ss(*controller_at(p), model.Ts)
-        norms.append(float(control.norm(P.lft(K, nu, ny), "inf")))
+        norms.append(hinf_norm(P.lft(K, nu, ny)))
     return np.array(norms)
 
 
@@ -81,9 +84,8 @@ def interpolated_loops(vertices: list[VertexPlant], K_vertices: list[tuple[np.nd
 
 def interpolated_hinf_norms(vertices: list[VertexPlant], K_vertices: list[tuple[np.ndarray, ...]],
                             lams: list[np.ndarray], Ts: float) -> np.ndarray:
-    """‖T_zw‖_∞ (``control.norm``) of :func:`interpolated_loops`."""
-    return np.array([float(control.norm(loop, "inf")) for loop in interpolated_loops(vertices, K_vertices,
-                                                                                      lams, Ts)])
+    """‖T_zw‖_∞ (:func:`lpvflow.validate.norms.hinf_norm`) of :func:`interpolated_loops`."""
+    return np.array([hinf_norm(loop) for loop in interpolated_loops(vertices, K_vertices, lams, Ts)])
 
 
 def design_coordinates(polytope: Polytope, basis: Basis, per_axis: int) -> list[np.ndarray]:
@@ -102,53 +104,6 @@ def vertex_interpolation(result: HinfResult) -> Callable[[np.ndarray], tuple[np.
         lam = result.controller.coordinates(p)
         return mix(result.K_vertices, lam)
     return at
-
-
-def riccati_controller(vertex: VertexPlant, Ts: float, gamma: float) -> tuple[np.ndarray, ...] | None:
-    """(Ak, Bk, Ck, Dk) from y to u of SLICOT SB10DD (slycot; the discrete-time H∞ controller formulae
-    from two Riccati equations) for ``vertex`` at level γ, if its closed loop is stable with
-    ‖T_zw‖∞ ≤ γ (``StateSpace.lft``, ``control.norm``, relative slack 1e-3); None otherwise."""
-    import slycot
-
-    n, nw, nu, nz, ny = vertex.dims
-    B, C = np.hstack([vertex.B1, vertex.B2]), np.vstack([vertex.C1, vertex.C2])
-    D = np.block([[vertex.D11, vertex.D12], [vertex.D21, vertex.D22]])
-    try:
-        K = tuple(np.asarray(m) for m in slycot.sb10dd(n, nw + nu, nz + ny, nu, ny, gamma,
-                                                        A=vertex.A, B=B, C=C, D=D)[1:5])
-    except slycot.exceptions.SlycotError:
-        return None
-    loop = vertex.ss(Ts).lft(control.ss(*K, Ts), nu, ny)
-    stable = np.max(np.abs(np.linalg.eigvals(loop.A))) < 1.0
-    return K if stable and float(control.norm(loop, "inf")) <= gamma * (1 + 1e-3) else None
-
-
-def riccati_gamma(vertex: VertexPlant, Ts: float, rel: float = 1e-4) -> float:
-    """Smallest γ (to relative width ``rel``) at which :func:`riccati_controller` returns a controller:
-    the frozen optimum the LMI synthesis should reach at one vertex, found without any LMI.
-
-    The bracket is found first: from γ = 1, doubled until achieved or halved until not achieved (within
-    [1e-6, 1e6]); then geometric bisection.
-
-    Raises:
-        ModelError: no γ up to 1e6 is achieved.
-    """
-    def achieved(gamma: float) -> bool:
-        return riccati_controller(vertex, Ts, gamma) is not None
-
-    lo = hi = 1.0
-    if achieved(hi):
-        while lo > 1e-6 and achieved(lo):
-            hi, lo = lo, lo / 2.0
-    else:
-        while not achieved(hi):
-            if hi >= 1e6:
-                raise ModelError("SB10DD finds no controller with γ ≤ 1e6 for this vertex")
-            lo, hi = hi, hi * 2.0
-    while hi / lo > 1 + rel:
-        mid = (lo * hi) ** 0.5
-        lo, hi = (lo, mid) if achieved(mid) else (mid, hi)
-    return hi
 
 
 def switching_simulation(result: HinfResult, n_steps: int = 4000, seed: int = 0
@@ -188,6 +143,7 @@ class Certificate:
     switching_final: float
     switching_growth: float
     quadratically_stable: bool
+    quadratic_source: str = "the vertex certificates' common Lyapunov matrix"
 
     @property
     def ok(self) -> bool:
@@ -199,7 +155,7 @@ class Certificate:
         return [
             f"vertex certificates re-evaluated: smallest margin {self.margin:.3e} (must be > 0)",
             f"frozen closed-loop H∞ max {self.frozen_hinf_max:.6g} vs γ = {self.gamma:.6g}",
-            f"closed loop quadratically stable (common Lyapunov LMI): {self.quadratically_stable}",
+            f"closed loop quadratically stable ({self.quadratic_source}): {self.quadratically_stable}",
             f"switching simulation: peak ‖ξ‖/‖ξ0‖ = {self.switching_peak:.3g}, "
             f"final = {self.switching_final:.3g}, largest V(k+1)/V(k) = {self.switching_growth:.9f} "
             "(must be ≤ 1)",
@@ -216,10 +172,8 @@ def certify(result: HinfResult, model: LPVSS | None, weights: dict, per_axis: in
         grid = scheduling_grid(poly.box, per_axis)
         norms = frozen_hinf_norms(vertex_interpolation(result), model, weights, grid, result.plant.structure)
     peak, final, growth = switching_simulation(result)
-    A_cl = [closed_loop(v, K)[0] for v, K in zip(result.vertices, result.K_vertices, strict=True)]
-    quadratic = quadratic_stability(A_cl).certified
-    return Certificate(min(vertex_margins(result)), float(norms.max()), result.gamma, peak, final, growth,
-                       quadratic)
+    margin = min(vertex_margins(result))
+    return Certificate(margin, float(norms.max()), result.gamma, peak, final, growth, margin > 0)
 
 
 def rate_bounded_walk(result: ScheduledResult, n_steps: int = 4000, seed: int = 0
@@ -269,4 +223,5 @@ def certify_rate_bounded(result: ScheduledResult, model: LPVSS | None, weights: 
     peak, final, growth = rate_bounded_walk(result)
     A_cl = [closed_loop(v, K)[0] for v, K in zip(result.vertices, result.K_vertices, strict=True)]
     quadratic = quadratic_stability(A_cl).certified
-    return Certificate(margin, float(norms.max()), result.gamma, peak, final, growth, quadratic)
+    return Certificate(margin, float(norms.max()), result.gamma, peak, final, growth, quadratic,
+                       "separate LMI, informative: the rate-bounded certificate does not need it")

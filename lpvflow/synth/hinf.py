@@ -477,7 +477,8 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     try:
         coords, verts, gamma_lower, attempts = balanced_coordinates(cayleys, gamma_max, solver)
     except SynthesisError as exc:
-        raise SynthesisError(f"{exc}: {_infeasibility_hint(vertices, gamma_max)}") from None
+        hint = _infeasibility_hint(vertices, gamma_max)
+        raise SynthesisError(f"{exc}: {hint}", category=exc.category) from None
     level = _LevelProblem(verts)
 
     def certified(gamma: float) -> HinfResult | None:
@@ -499,7 +500,7 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
         top = gamma_lower * (1 + suboptimality * 2 ** (LEVEL_STEPS - 1))
         top = top if gamma_max is None else min(top, gamma_max * (1 + suboptimality))
         raise SynthesisError(f"no certified H∞ controller up to γ = {top:.4g} (γ lower bound "
-                             f"{gamma_lower:.4g}): {_infeasibility_hint(vertices, gamma_max)}")
+                             f"{gamma_lower:.4g}): {_infeasibility_hint(vertices, gamma_max)}", category="accuracy")
     best.report = SolveReport(solver, best.report.status, time.perf_counter() - start, attempts)
     return best
 

@@ -14,7 +14,9 @@ from dataclasses import dataclass, field
 import cvxpy as cp
 import numpy as np
 
-from lpvflow.errors import ModelError
+from lpvflow.errors import ModelError, SynthesisError
+
+__all__ = ["ACCEPTED", "SOLVERS", "SolveReport", "SynthesisError", "psd", "solve"]
 
 SOLVERS = ("CLARABEL", "SCS")
 ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
@@ -25,10 +27,6 @@ _CLARABEL_SETTINGS = {"tol_gap_abs": 1e-8, "tol_gap_rel": 1e-8, "tol_feas": 1e-8
                       "reduced_tol_gap_abs": 1e-5, "reduced_tol_gap_rel": 1e-4, "reduced_tol_feas": 1e-6,
                       "max_threads": 1, "chordal_decomposition_enable": False}
 _SCS_SETTINGS = {"max_iters": 20000, "eps_abs": 1e-6, "eps_rel": 1e-6}
-
-
-class SynthesisError(ModelError):
-    """No (reliable) solution: infeasible LMIs, a failed solve or a failed re-check."""
 
 
 @dataclass
@@ -75,6 +73,6 @@ def solve(problem: cp.Problem, solver: str = "CLARABEL", what: str = "the LMIs")
         if status in (cp.INFEASIBLE, cp.UNBOUNDED, cp.INFEASIBLE_INACCURATE):
             break
     tried = "; ".join(f"{n}: {s}" for n, s, _ in attempts)
-    if attempts[-1][1] in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
-        raise SynthesisError(f"{what} are infeasible ({tried})")
-    raise SynthesisError(f"no solver returned a solution of {what} ({tried})")
+    if attempts[-1][1] == cp.INFEASIBLE:
+        raise SynthesisError(f"{what} are infeasible ({tried})", category="infeasible")
+    raise SynthesisError(f"no solver returned a solution of {what} ({tried})", category="accuracy")

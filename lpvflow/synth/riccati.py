@@ -1,0 +1,63 @@
+"""LMI-free reference for one generalized plant: SLICOT's discrete H∞ Riccati synthesis (SB10DD).
+
+:func:`riccati_gamma` bisects on γ with :func:`riccati_controller`, accepting a level only when SB10DD
+returns a controller whose closed loop, rebuilt and measured independently (``StateSpace.lft``,
+:func:`lpvflow.validate.norms.hinf_norm`), is stable with ‖T_zw‖∞ ≤ γ. It is the optimum the LMI synthesis
+must reach at one vertex, and a lower bound for every polytope containing that plant. SB10DD assumes
+(A, B2) stabilizable, (C2, A) detectable, D12 full column rank, D21 full row rank and no invariant zeros
+of the P12, P21 blocks on the unit circle (SLICOT documentation of SB10DD).
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import slycot
+
+from lpvflow.errors import ModelError
+from lpvflow.synth.plant import VertexPlant
+from lpvflow.validate.norms import hinf_norm
+
+
+def riccati_controller(vertex: VertexPlant, Ts: float, gamma: float) -> tuple[np.ndarray, ...] | None:
+    """(Ak, Bk, Ck, Dk) from y to u of SLICOT SB10DD (slycot; the discrete-time H∞ controller formulae
+    from two Riccati equations) for ``vertex`` at level γ, if its closed loop is stable with
+    ‖T_zw‖∞ ≤ γ (``StateSpace.lft``, :func:`hinf_norm`, relative slack 1e-3); None otherwise."""
+    n, nw, nu, nz, ny = vertex.dims
+    B, C = np.hstack([vertex.B1, vertex.B2]), np.vstack([vertex.C1, vertex.C2])
+    D = np.block([[vertex.D11, vertex.D12], [vertex.D21, vertex.D22]])
+    try:
+        K = tuple(np.asarray(m) for m in slycot.sb10dd(n, nw + nu, nz + ny, nu, ny, gamma,
+                                                        A=vertex.A, B=B, C=C, D=D)[1:5])
+    except slycot.exceptions.SlycotError:
+        return None
+    loop = vertex.ss(Ts).lft(control.ss(*K, Ts), nu, ny)
+    return K if hinf_norm(loop) <= gamma * (1 + 1e-3) else None
+
+
+def riccati_gamma(vertex: VertexPlant, Ts: float, rel: float = 1e-4) -> float:
+    """Smallest γ (to relative width ``rel``) at which :func:`riccati_controller` returns a controller:
+    the frozen optimum the LMI synthesis should reach at one vertex, found without any LMI.
+
+    The bracket is found first: from γ = 1, doubled until achieved or halved until not achieved (within
+    [1e-6, 1e6]); then geometric bisection.
+
+    Raises:
+        ModelError: no γ up to 1e6 is achieved.
+    """
+    def achieved(gamma: float) -> bool:
+        return riccati_controller(vertex, Ts, gamma) is not None
+
+    lo = hi = 1.0
+    if achieved(hi):
+        while lo > 1e-6 and achieved(lo):
+            hi, lo = lo, lo / 2.0
+    else:
+        while not achieved(hi):
+            if hi >= 1e6:
+                raise ModelError("SB10DD finds no controller with γ ≤ 1e6 for this vertex")
+            lo, hi = hi, hi * 2.0
+    while hi / lo > 1 + rel:
+        mid = (lo * hi) ** 0.5
+        lo, hi = (lo, mid) if achieved(mid) else (mid, hi)
+    return hi

@@ -79,21 +79,23 @@ def measure(nx: int, breakpoints: int, rate_bound: float | None) -> dict:
         rate_bounded.solve = inner
     seconds = time.perf_counter() - start
     return row | {
-            "gamma": result.gamma, "frozen_lower_bound": result.gamma_min, "seconds": seconds,
+            "gamma": result.gamma, "frozen_lower_bound": result.gamma_lower, "seconds": seconds,
             "level_solves": len(solves), "one_sdp_seconds": min(solves), "ratio": seconds / min(solves)}
 
 
 def adip_margin(rate_bound: float) -> dict:
     """The ADIP row of the module docstring: t of the margin SDP at γ = 2 × the frozen bound."""
-    from lpvflow.synth.hinf import _cayley_vertex, balanced_coordinates
+    from lpvflow.synth.bilinear import cayley_vertex
+    from lpvflow.synth.eliminated import preconditioned
+    from lpvflow.synth.levels import GAMMA_MAX
     from tests.adip_cases import adip_vertex
 
     degrees = (-75.0, 0.0, 75.0)
     vertices = [adip_vertex(d) for d in degrees]
-    frozen = [balanced_coordinates([_cayley_vertex(v)], None, "CLARABEL") for v in vertices]
-    bound = max(f[2] for f in frozen)
+    frozen = [preconditioned([cayley_vertex(v)], GAMMA_MAX, "CLARABEL") for v in vertices]
+    bound = max(f.estimate.gamma for f in frozen)
     schedule = rate_bounded.Schedule(np.sin(np.deg2rad(degrees)), rate_bound)
-    coords = rate_bounded.discrete_coordinates(frozen[1][0])  # those of the 0° vertex
+    coords = frozen[1].coordinates.discrete()  # those of the 0° vertex
     verts = [coords.apply(v) for v in vertices]
     levels = rate_bounded._Levels(verts, schedule, schedule.pairs())
     levels.gamma.value = 2.0 * bound
@@ -108,8 +110,8 @@ def adip_interpolated(rate_bound: float) -> dict:
     import control
 
     from lpvflow.synth.analysis import rate_bounded_gain
+    from lpvflow.synth.bilinear import closed_loop
     from lpvflow.synth.controller import mix
-    from lpvflow.synth.hinf import closed_loop
     from lpvflow.synth.polytope import hat_coordinates
     from lpvflow.synth.riccati import riccati_controller, riccati_gamma
     from tests.adip_cases import TS, adip_vertex

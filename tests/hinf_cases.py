@@ -5,7 +5,8 @@ a SISO or 2×2 continuous plant of one of the kinds below, sampled by zero-order
 (log-uniform), an integral-like performance weight on S with DC gain 10–1000, a control weight (constant
 or high-pass), optionally a weight on T, and the measured output and control input scaled by random
 factors (non-standard D12, D21). Frequencies are relative to a bandwidth ω_b drawn so that ω_b·Ts spans
-1e-4…0.3: poles near z = 1 at millisecond sampling are the hard cases the synthesis must survive.
+1e-3…0.3 (a bandwidth between Nyquist/3000 and Nyquist/10): poles near z = 1 at millisecond sampling —
+the integral weight's at 1 − ω_b·Ts/1000, down to 1 − 1e-6 — are the hard cases the synthesis must survive.
 
 Plant kinds: ``stable`` (real poles), ``unstable`` (one real pole in the right half plane),
 ``lightly_damped`` (two modes with ζ = 0.005–0.05), ``nonminimum_phase`` (a real zero in the right half
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 
 import control
 import numpy as np
+import scipy.linalg
 
 KINDS = ("stable", "unstable", "lightly_damped", "nonminimum_phase", "near_integrator", "coupled", "chain")
 
@@ -31,6 +33,7 @@ class WeightedCase:
     nmeas: int
     ncon: int
     label: str
+    plant_states: int = 0
 
 
 def _continuous_plant(rng: np.random.Generator, kind: str, wb: float) -> control.StateSpace:
@@ -84,7 +87,7 @@ def weighted_case(rng: np.random.Generator, kind: str | None = None) -> Weighted
     """Draw one mixed-sensitivity case (module docstring)."""
     kind = kind or str(rng.choice(KINDS))
     Ts = float(10 ** rng.uniform(-3, np.log10(0.05)))
-    wb = float(10 ** rng.uniform(np.log10(1e-4 / Ts), np.log10(0.3 / Ts)))
+    wb = float(10 ** rng.uniform(np.log10(1e-3 / Ts), np.log10(0.3 / Ts)))
     G = _continuous_plant(rng, kind, wb)
     ny, nu = G.noutputs, G.ninputs
     s = control.tf("s")
@@ -109,10 +112,33 @@ def weighted_case(rng: np.random.Generator, kind: str | None = None) -> Weighted
     D[-ny:, :] *= sy[:, None]
     P = control.ss(P.A, B, C, D, Ts)
     label = f"{kind}, {ny}x{nu}, Ts = {Ts * 1e3:.3g} ms, wb·Ts = {wb * Ts:.2g}, DC weight {dc:.0f}"
-    return WeightedCase(P, ny, nu, label)
+    return WeightedCase(P, ny, nu, label, Gd.nstates)
 
 
 def weighted_cases(count: int, seed: int) -> list[WeightedCase]:
     """``count`` cases, the kinds in turn (every kind equally often), from one seeded generator."""
     rng = np.random.default_rng(seed)
     return [weighted_case(rng, KINDS[i % len(KINDS)]) for i in range(count)]
+
+
+def polytopic_case(rng: np.random.Generator) -> tuple[list[control.StateSpace], int, int, str]:
+    """A 2–4-vertex family: a drawn SISO case (Ts ≥ 10 ms) whose plant dynamics A_c = logm(A_G)/Ts are moved
+    at each vertex by a random perturbation of 2–15 % of ‖A_c‖ and sampled again, A_G,i = expm(A_c,i Ts)
+    (a fraction of ‖A_G‖ itself would move poles near z = 1 far outside the circle). The input matrix is
+    the nominal one at every vertex, so B2, C2, D12, D21 stay constant and D22 = 0, as the polytopic
+    design needs."""
+    while True:
+        case = weighted_case(rng, str(rng.choice(("stable", "unstable", "nonminimum_phase", "near_integrator"))))
+        if case.P.dt >= 0.01 and np.allclose(np.asarray(case.P.D)[-case.nmeas:, -case.ncon:], 0):
+            break
+    count, size = int(rng.integers(2, 5)), float(rng.uniform(0.02, 0.15))
+    A, nG, Ts = np.asarray(case.P.A, dtype=float), case.plant_states, case.P.dt
+    Ac = np.real(scipy.linalg.logm(A[-nG:, -nG:])) / Ts  # augw puts the plant's states last
+    vertices = []
+    for _ in range(count):
+        delta = rng.standard_normal((nG, nG))
+        Ai = A.copy()
+        Ai[-nG:, -nG:] = scipy.linalg.expm((Ac + size * np.linalg.norm(Ac, 2) * delta / np.linalg.norm(delta, 2))
+                                           * Ts)
+        vertices.append(control.ss(Ai, case.P.B, case.P.C, case.P.D, Ts))
+    return vertices, case.nmeas, case.ncon, f"{count} vertices ±{100 * size:.0f} %, {case.label}"

@@ -9,7 +9,7 @@ import pytest
 
 from lpvflow.errors import ModelError
 from lpvflow.synth.analysis import dissipation_matrix, rate_bounded_gain
-from lpvflow.synth.hinf import closed_loop
+from lpvflow.synth.bilinear import closed_loop
 from lpvflow.synth.plant import generalized_plant
 from lpvflow.synth.rate_bounded import synthesize_rate_bounded
 from lpvflow.synth.riccati import riccati_controller, riccati_gamma

@@ -12,9 +12,10 @@ import scipy.linalg
 
 from lpvflow.errors import ModelError
 from lpvflow.models import load
+from lpvflow.synth.bilinear import cayley, certificate_margin, inverse_cayley
 from lpvflow.synth.certify import certify, vertex_margins
 from lpvflow.synth.controller import LPVController
-from lpvflow.synth.hinf import cayley, certificate_margin, hinfsyn, inverse_cayley, synthesize
+from lpvflow.synth.hinf import hinfsyn, synthesize
 from lpvflow.synth.plant import generalized_plant
 from lpvflow.synth.polytope import polytope_of
 from lpvflow.synth.riccati import riccati_controller, riccati_gamma
@@ -53,7 +54,7 @@ def test_adip_gamma_is_within_one_percent_of_the_riccati_optimum(arm_degrees):
     v = adip_vertex(arm_degrees)
     res = hinfsyn(v.ss(TS), 2, 1)
     gamma_ric = riccati_gamma(v, TS)
-    assert gamma_ric * (1 - 1e-3) <= res.gamma <= 1.03 * gamma_ric
+    assert gamma_ric * (1 - 1e-3) <= res.gamma <= 1.01 * gamma_ric
     norm, radius = _closed_loop_norm(v, res.controller, TS)
     assert radius < 1 and norm <= res.gamma * (1 + 1e-6)
     assert min(res.certificate) > 0
@@ -324,22 +325,22 @@ def test_fmu_operating_point_gamma_is_within_one_percent_of_the_riccati_optimum(
     res = hinfsyn(P, ny, nu)
     v = res.vertices[0]
     gamma_ric = riccati_gamma(v, Ts)
-    assert gamma_ric * (1 - 1e-3) <= res.gamma <= 1.03 * gamma_ric
+    assert gamma_ric * (1 - 1e-3) <= res.gamma <= 1.01 * gamma_ric
     norm, radius = _closed_loop_norm(v, res.controller, Ts)
     assert radius < 1 and norm <= res.gamma * (1 + 1e-6)
 
 
 def test_augw_generalized_plant_like_control_hinfsyn():
     """The README's example: a lightly damped plant with control.augw weights (a W1 pole at z = 0.9999):
-    the certified γ within 3 % of SB10DD (measured 2.9 %: γ_lower is 0.9 % high, the certified level
-    2 % above it; with one balancing point at 2γ₀ it was 20 %) and the python-control closed-loop norm
-    below it."""
+    the certified γ within 1 % of SB10DD (measured 0.24 %; the previous core answered 2.9 % above, and
+    4.8 % or 17.7 % above depending on the installed Clarabel and SCS) and the python-control closed-loop
+    norm below it."""
     G = control.c2d(control.tf([4.0], [1.0, 0.4, 4.0]), 0.01)
     W1 = control.c2d(control.tf([0.5, 1.0], [1.0, 0.01]), 0.01)
     P = control.augw(G, W1, control.tf(0.1, 1, 0.01))
     res = hinfsyn(P, 1, 1)
     gamma_ric = riccati_gamma(res.vertices[0], 0.01)
-    assert gamma_ric * (1 - 1e-3) <= res.gamma <= 1.03 * gamma_ric
+    assert gamma_ric * (1 - 1e-3) <= res.gamma <= 1.01 * gamma_ric
     norm, radius = _closed_loop_norm(res.vertices[0], res.controller, 0.01)
     assert radius < 1 and norm <= res.gamma * (1 + 1e-6)
 

@@ -12,7 +12,7 @@ L2-norm control for LPV systems with bounded parameter variation rates", IJRNC 6
 
 **The bilinear image.** With A ≈ I (Ts = 2–5 ms) the shift form carries its information in O(Ts)
 differences of O(‖𝒫‖) blocks. In the coordinates ζ = (ξ + ξ⁺)/√2 of the loop's Cayley image at p,
-(A_c, B_c, C_c, D_c) = :func:`lpvflow.synth.hinf.cayley` (𝒜, ℬ, 𝒞, 𝒟), the same inequality reads exactly
+(A_c, B_c, C_c, D_c) = :func:`lpvflow.synth.bilinear.cayley` (𝒜, ℬ, 𝒞, 𝒟), the same inequality reads exactly
 
     ξ = ((I − A_c)ζ − B_cw)/√2,   ξ⁺ = ((I + A_c)ζ + B_cw)/√2,   z = C_cζ + D_cw,
     ξ⁺ᵀ𝒫ξ⁺ − ξᵀ𝒫ξ = 2(A_cζ + B_cw)ᵀ𝒫ζ        (𝒫 = 𝒫(p)),
@@ -46,7 +46,7 @@ solver is not trusted: a level is certified when every pair's matrix, rebuilt in
 P̃_i and ``loop_at`` (:meth:`RateBoundedGain.margin_at`), is negative definite with a Jacobi-scaled margin
 above round-off (:func:`lpvflow.validate.stability.scaled_margin`), every P̃_i is positive definite the same
 way, and all of this holds on a grid ``per_segment`` times finer than the breakpoints. The levels are those
-of :func:`lpvflow.synth.hinf.lowest_certified_level` from the largest frozen ‖T_zw(b_i)‖∞ (python-control;
+of :func:`lpvflow.synth.levels.lowest_certified_level` from the largest frozen ‖T_zw(b_i)‖∞ (python-control;
 no storage does better): γ_low·(1 + δ·2^k) until one passes, then bisection to a relative width δ
 (``suboptimality``). When none passes, the point where the highest level failed joins the LMI grid and the
 search is repeated (at most ``refinements`` times); then the point is named.
@@ -65,7 +65,8 @@ import numpy as np
 import scipy.linalg
 
 from lpvflow.errors import ModelError
-from lpvflow.synth.hinf import cayley, lowest_certified_level
+from lpvflow.synth.bilinear import cayley
+from lpvflow.synth.levels import lowest_certified_level
 from lpvflow.synth.rate_bounded import FINE_PER_SEGMENT, Schedule, segment_grid
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 from lpvflow.validate.stability import scaled_margin
@@ -118,8 +119,8 @@ class RateBoundedGain:
 
     def margin_at(self, image: Loop, p: float, q: float, gamma: float) -> float:
         """:func:`lpvflow.validate.stability.scaled_margin` of minus the dissipation matrix from p to p⁺ = q
-        at level γ, ``image`` the Cayley image (:func:`lpvflow.synth.hinf.cayley`) of the closed loop at p,
-        formed in the coordinates of the breakpoint nearest p (T = S_j⁻¹): > 0 certifies the pair."""
+        at level γ, ``image`` the Cayley image (:func:`lpvflow.synth.bilinear.cayley`) of the closed loop at
+        p, formed in the coordinates of the breakpoint nearest p (T = S_j⁻¹): > 0 certifies the pair."""
         T = self.inverse_scalings[int(np.argmin(np.abs(self.schedule.breakpoints - p)))]
         M, E = _dissipation(image, self._storage(p, T), self._storage(q, T), gamma, T)
         return scaled_margin(-M, E)
@@ -190,8 +191,8 @@ def _riccati_scaling(loop: Loop, p: float) -> tuple[np.ndarray, float]:
 def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], breakpoints: Sequence[float],
                       rate_bound: float | None, *, points: Sequence[float] = (),
                       design_per_segment: int = DESIGN_PER_SEGMENT, per_segment: int = FINE_PER_SEGMENT,
-                      refinements: int = 3, suboptimality: float = 1e-2, solver: str = "CLARABEL"
-                      ) -> RateBoundedGain:
+                      refinements: int = 3, suboptimality: float = 1e-2, solver: str = "CLARABEL",
+                      gamma_max: float | None = None) -> RateBoundedGain:
     """Certified gain of the discrete closed loop ``loop_at(p)`` — (𝒜, ℬ, 𝒞, 𝒟) or a ``control.StateSpace``,
     e.g. ``plant(p).lft(controller(p))`` — for scheduling signals with |p(k+1) − p(k)| ≤ ``rate_bound`` in
     [b_0, b_M] (module docstring; ``None``: any jump).
@@ -199,7 +200,8 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
     The LMIs are imposed at p on ``design_per_segment`` points per breakpoint interval, the breakpoints ± ν
     and ``points``; the certificate is re-checked on ``per_segment`` points per interval. When no level
     passes, the point where the highest level tried failed joins the LMI grid and the search is repeated,
-    at most ``refinements`` times.
+    at most ``refinements`` times. Levels are tried up to ``gamma_max`` (default: 100 × the largest frozen
+    norm, above which a certificate says little about the loop).
 
     Raises:
         ModelError: bad breakpoints, rate bound or suboptimality; a frozen loop at a breakpoint that is
@@ -223,6 +225,7 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
             f"ν = {'any' if rate_bound is None else f'{rate_bound:g}'} per sample)")
     fine = segment_grid(b, per_segment)
     design = np.concatenate([segment_grid(b, design_per_segment), np.asarray(points, dtype=float)])
+    top_level = 100.0 * max(norms) if gamma_max is None else gamma_max
     images: dict[float, Loop] = {}  # the Cayley image of the loop at every p of the LMIs and the check
     attempts: list = []
     for _ in range(refinements + 1):
@@ -245,7 +248,7 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
             failed.append((gamma, result.where))
             return result if result.margin > 0 else None
 
-        best = lowest_certified_level(certified, max(norms), suboptimality, None)
+        best = lowest_certified_level(certified, max(norms), suboptimality, top_level, lower=max(norms))
         if best is not None:
             best.report = SolveReport(best.report.solver, best.report.status, time.perf_counter() - start,
                                       attempts)

@@ -1,6 +1,6 @@
 """Independent re-check of a synthesized controller, trusting neither the solver nor the change of variables.
 
-1. **Vertex certificates in closed-loop coordinates** (:func:`lpvflow.synth.hinf.certificate_margin`):
+1. **Vertex certificates in closed-loop coordinates** (:func:`lpvflow.synth.bilinear.certificate_margin`):
    every vertex closed loop is rebuilt from the returned plant and controller numbers and its
    bounded-real matrix with the returned Lyapunov factor must be negative definite with a margin above
    round-off (Jacobi-scaled, in the bilinear image where small Ts does not hide it).
@@ -31,8 +31,9 @@ import numpy as np
 
 from lpvflow.basis import Basis
 from lpvflow.models import LPVSS
+from lpvflow.synth.bilinear import certificate_margin, closed_loop
 from lpvflow.synth.controller import mix
-from lpvflow.synth.hinf import HinfResult, certificate_margin, closed_loop
+from lpvflow.synth.hinf import HinfResult
 from lpvflow.synth.plant import VertexPlant, augment, interpolate
 from lpvflow.synth.polytope import Polytope, hat_coordinates
 from lpvflow.synth.rate_bounded import ScheduledResult, fine_check
@@ -41,7 +42,7 @@ from lpvflow.validate.stability import quadratic_stability
 
 
 def vertex_margins(result: HinfResult) -> list[float]:
-    """:func:`lpvflow.synth.hinf.certificate_margin` at every vertex, recomputed from the result's
+    """:func:`lpvflow.synth.bilinear.certificate_margin` at every vertex, recomputed from the result's
     numbers."""
     return [certificate_margin(v, K, result.lyapunov_factor, result.gamma)
             for v, K in zip(result.vertices, result.K_vertices, strict=True)]

@@ -74,7 +74,7 @@ def synthesize_design(model: LPVSS, settings: dict, box: list | None = None) -> 
         result, controller = synthesize_rate_bounded(plant, settings["rate_bound"], settings["solver"])
         certificate = certify_rate_bounded(result, frozen_model, weights, structure)
         controller.trim = trim(settings, controller)
-        return Design(controller, result.gamma, result.gamma_min, certificate, plant, result.report.seconds)
+        return Design(controller, result.gamma, result.gamma_lower, certificate, plant, result.report.seconds)
     if settings["method"] == "observer" and not point:
         start = time.perf_counter()
         filt = settings.get("reference_filter") or {}

@@ -43,15 +43,16 @@ to the range) and at the breakpoints between (:meth:`Schedule.pairs`). With ν =
 breakpoint. Nothing is gridded, so nothing is missed between grid points; :func:`fine_check` re-checks
 Φ on a grid ten times finer anyway, and against the true plant when it is not linear between breakpoints.
 
-**Numerics.** The LMIs are posed in the coordinates of :func:`lpvflow.synth.hinf.balanced_coordinates`
+**Numerics.** The LMIs are posed in the coordinates of :func:`lpvflow.synth.eliminated.preconditioned`
 for the plant at the breakpoint nearest the centre (a state transform that balances the interior
 Lyapunov matrices of a frozen design, and u/y scalings; the state transform commutes with the Cayley
 map, so it is the discrete one too); strictness is Φ ⪰ t·I with the margin t maximised at each γ level
-(t ≤ 1), the level search is :func:`lpvflow.synth.hinf.lowest_certified_level` from the largest frozen
-γ lower bound over the breakpoints (a bound no controller beats; minimising γ over these LMIs directly
-is ill-posed — the slack and P̂ grow without bound near the optimum, and Clarabel stops with a numerical
-error on the ADIP), and a level passes only when the reconstructed controller's Φ, rebuilt from the
-returned discrete numbers, is positive definite at every (p, p⁺) with a Jacobi-scaled margin above
+(t ≤ 1), the level search is :func:`lpvflow.synth.levels.lowest_certified_level` from the largest frozen
+estimate over the breakpoints (a bound no controller beats when its solves were accurate; minimising γ
+over these LMIs directly is ill-posed — the slack and P̂ grow without bound near the optimum, and
+Clarabel stops with a numerical error on the ADIP), and a level passes only when the reconstructed
+controller's Φ, rebuilt from the returned discrete numbers, is positive definite at every (p, p⁺) with a
+Jacobi-scaled margin above
 round-off (:class:`Slack`).
 """
 
@@ -68,15 +69,10 @@ import cvxpy as cp
 import numpy as np
 
 from lpvflow.errors import ModelError
+from lpvflow.synth.bilinear import Coordinates, cayley_vertex, closed_loop
 from lpvflow.synth.controller import LPVController, mix, series_input_filter
-from lpvflow.synth.hinf import (
-    LEVEL_STEPS,
-    _cayley_vertex,
-    _Coordinates,
-    balanced_coordinates,
-    closed_loop,
-    lowest_certified_level,
-)
+from lpvflow.synth.eliminated import preconditioned
+from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3, interpolate
 from lpvflow.synth.polytope import hat_coordinates
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
@@ -190,8 +186,9 @@ class ScheduledResult:
     """Certified rate-bounded design.
 
     Attributes:
-        gamma: the certified level; gamma_min: the largest frozen γ lower bound over the breakpoints
-            (:func:`lpvflow.synth.hinf.balanced_coordinates`): no controller of any kind does better.
+        gamma: the certified level; gamma_lower: the largest frozen γ lower bound over the breakpoints
+            (:func:`lpvflow.synth.eliminated.preconditioned`; None unless every one of those solves was
+            accurate): no controller of any kind does better.
         K_vertices: discrete vertex controllers (A_K, B_K, C_K, D_K) from y to u at the breakpoints.
         schedule: breakpoints and rate bound; vertices: the generalized plant at the breakpoints.
         lyapunov: P̂ = 𝒯ᵀ𝒫𝒯 at the breakpoints (:class:`Slack`); slack: the slack and coordinates.
@@ -199,7 +196,7 @@ class ScheduledResult:
     """
 
     gamma: float
-    gamma_min: float
+    gamma_lower: float | None
     K_vertices: list[tuple[np.ndarray, ...]]
     schedule: Schedule
     vertices: list[VertexPlant]
@@ -238,13 +235,6 @@ class ScheduledResult:
         """:meth:`Slack.certificate` of ``plant`` with the controller at p, from p to p⁺ = q."""
         return self.slack.certificate(plant, self.controller_at(p), self.lyapunov_at(p), self.lyapunov_at(q),
                                       self.gamma)
-
-
-# ---------------------------------------------------------------------------------- coordinates
-def discrete_coordinates(coords: _Coordinates) -> _Coordinates:
-    """The state and u/y scaling of ``coords`` without its frequency scale (ω₀ = 1): the rate-bounded LMIs
-    are posed on the discrete vertices, not on their Cayley images."""
-    return _Coordinates(coords.T, 1.0, coords.du, coords.dy)
 
 
 # ------------------------------------------------------------------------------------------ LMIs
@@ -294,8 +284,8 @@ class _Levels:
         return 0.5 * (Phi + Phi.T)
 
 
-def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: _Coordinates, schedule: Schedule,
-                 gamma: float, gamma_min: float, Ts: float) -> ScheduledResult:
+def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: Coordinates, schedule: Schedule,
+                 gamma: float, gamma_lower: float, Ts: float) -> ScheduledResult:
     """Controller of the module docstring at every breakpoint, 𝒫 and 𝒢 in the scaled state, and the
     certificate margins rebuilt from the returned discrete numbers."""
     X, Y, S = (np.asarray(V.value, dtype=float) for V in (levels.X, levels.Y, levels.S))
@@ -311,7 +301,7 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: _Coordina
         Ak = np.linalg.solve(V, np.linalg.solve(U.T, core.T).T)
         K_vertices.append(coords.controller((Ak, Bk, Ck, Dk)))
     lyapunov = [0.5 * (P.value + P.value.T) for P in levels.P]
-    result = ScheduledResult(gamma, gamma_min, K_vertices, schedule, vertices, Ts, lyapunov,
+    result = ScheduledResult(gamma, gamma_lower, K_vertices, schedule, vertices, Ts, lyapunov,
                              Slack(X, Y, U, V, np.asarray(coords.T)))
     result.margins = [result.margin(result.plant_at(p), p, q) for p, nexts in levels.pairs for q in nexts]
     return result
@@ -319,7 +309,7 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: _Coordina
 
 def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[float], Ts: float, *,
                          rate_bound: float | None, suboptimality: float = 1e-2, solver: str = "CLARABEL",
-                         points: Sequence[float] = ()) -> ScheduledResult:
+                         points: Sequence[float] = (), gamma_max: float = GAMMA_MAX) -> ScheduledResult:
     """Rate-bounded parameter-dependent-Lyapunov H∞ design (module docstring) on vertex plants at the
     breakpoints; ``points`` adds scheduling values at which Φ is also imposed.
 
@@ -336,11 +326,13 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
     start = time.perf_counter()
     # per breakpoint: the frozen γ lower bound (no controller does better there, so none does over the
     # range) and the balanced coordinates; the LMIs are posed in those of the breakpoint nearest the centre
-    frozen = [balanced_coordinates([_cayley_vertex(v)], None, solver) for v in vertices]
+    frozen = [preconditioned([cayley_vertex(v)], gamma_max, solver) for v in vertices]
     centre = int(np.argmin(np.abs(schedule.breakpoints - schedule.breakpoints.mean())))
-    coords = discrete_coordinates(frozen[centre][0])
-    gamma_lower = max(f[2] for f in frozen)
-    attempts = [a for f in frozen for a in f[3]]
+    coords = frozen[centre].coordinates.discrete()
+    lowers = [f.gamma_lower for f in frozen]
+    gamma_lower = None if None in lowers else max(lowers)
+    estimate = max(f.estimate.gamma for f in frozen)
+    attempts = [a for f in frozen for a in f.attempts]
     verts = [coords.apply(v) for v in vertices]
     levels = _Levels(verts, schedule, schedule.pairs(points))
     what = (f"the rate-bounded H∞ LMIs ({len(verts)} breakpoints, "
@@ -350,22 +342,24 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
         levels.gamma.value = gamma
         try:
             level_report = solve(levels.margin_problem, solver, f"{what} at γ = {gamma:.6g}")
-        except SynthesisError:
+        except SynthesisError as exc:
+            attempts.append((solver.upper(), exc.category, 0.0))
             return None
         attempts.extend(level_report.attempts)
         try:
             result = _reconstruct(levels, vertices, coords, schedule, gamma, gamma_lower, Ts)
         except np.linalg.LinAlgError:
             return None
+        result.report = level_report
         return result if min(result.margins) > 0 else None
 
-    best = lowest_certified_level(certified, gamma_lower, suboptimality, None)
+    best = lowest_certified_level(certified, estimate, suboptimality, gamma_max, gamma_lower)
     if best is None:
-        top = gamma_lower * (1 + suboptimality * 2 ** (LEVEL_STEPS - 1))
-        raise SynthesisError(f"{what}: no level from the frozen lower bound {gamma_lower:.4g} up to "
-                             f"{top:.4g} gave a controller that passes the certificate: lower the rate "
-                             "bound, shrink the range, add breakpoints or loosen the weights")
-    best.report = SolveReport(solver, "optimal", time.perf_counter() - start, attempts)
+        raise SynthesisError(f"{what}: no level from the largest frozen estimate {estimate:.4g} up to "
+                             f"{gamma_max:.4g} gave a controller that passes the certificate: lower the rate "
+                             "bound, shrink the range, add breakpoints or loosen the weights",
+                             category="accuracy")
+    best.report = SolveReport(best.report.solver, best.report.status, time.perf_counter() - start, attempts)
     return best
 
 
@@ -442,7 +436,7 @@ def synthesize_rate_bounded(plant: GeneralizedPlant, rate_bound: float | None, s
     if plant.input_filter is not None:
         K = [series_input_filter(k, plant.input_filter) for k in K]
     info = {"method": "rate-bounded", "rate_bound": rate_bound, "gamma": result.gamma,
-            "gamma_lower": result.gamma_min, "solver": solver, "solve_seconds": result.report.seconds,
+            "gamma_lower": result.gamma_lower, "solver": solver, "solve_seconds": result.report.seconds,
             "polytope": poly.kind, "breakpoints": [float(b) for b in breakpoints]}
     stacks = [np.array([k[m] for k in K]) for m in range(4)]
     return result, LPVController(*stacks, poly, plant.basis, plant.Ts, info=info, structure=plant.structure)

@@ -1,9 +1,10 @@
-"""Solving the synthesis SDPs: Clarabel through cvxpy first, SCS as fallback, honest status.
+"""Solving the synthesis SDPs with one solver, reporting exactly what it said.
 
-``optimal`` is accepted. ``optimal_inaccurate`` is returned as such (never silently): the caller must
-re-check the numbers independently (:func:`lpvflow.synth.hinf.certificate_margin`) and refuse
-when the re-check fails. ``infeasible``/``unbounded`` and solver errors (after the fallback) raise
-:class:`SynthesisError` with the solver's word and what it means for the design.
+Every SDP is solved once, by the solver asked for (Clarabel through cvxpy by default, SCS on request);
+there is no fallback to another solver. The status is kept as the solver returned it: ``optimal`` is an
+accurate point; ``optimal_inaccurate`` is a point the caller may use only through an independent numpy
+re-check (:func:`lpvflow.synth.bilinear.certificate_margin`), and never as a bound; ``infeasible`` (and
+``unbounded``) and solver errors raise :class:`SynthesisError` naming the LMIs, the solver and its word.
 """
 
 from __future__ import annotations
@@ -16,27 +17,36 @@ import numpy as np
 
 from lpvflow.errors import ModelError, SynthesisError
 
-__all__ = ["ACCEPTED", "SOLVERS", "SolveReport", "SynthesisError", "psd", "solve"]
-
 SOLVERS = ("CLARABEL", "SCS")
-ACCEPTED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
+#: Statuses that come with a point.
+WITH_POINT = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
 # Clarabel's own accuracy (1e-8); the "reduced" tolerances decide when a stalled solve is reported as
-# optimal_inaccurate (then re-checked).
-# One thread: on a loaded 2-core machine Clarabel's threaded factorisation was 3-5x slower (measured).
-_CLARABEL_SETTINGS = {"tol_gap_abs": 1e-8, "tol_gap_rel": 1e-8, "tol_feas": 1e-8, "max_iter": 200,
-                      "reduced_tol_gap_abs": 1e-5, "reduced_tol_gap_rel": 1e-4, "reduced_tol_feas": 1e-6,
-                      "max_threads": 1, "chordal_decomposition_enable": False}
-_SCS_SETTINGS = {"max_iters": 20000, "eps_abs": 1e-6, "eps_rel": 1e-6}
+# optimal_inaccurate (then re-checked). One thread: on a loaded 2-core machine Clarabel's threaded
+# factorisation was 3-5x slower (measured).
+_SETTINGS = {
+    "CLARABEL": {"tol_gap_abs": 1e-8, "tol_gap_rel": 1e-8, "tol_feas": 1e-8, "max_iter": 200,
+                 "reduced_tol_gap_abs": 1e-5, "reduced_tol_gap_rel": 1e-4, "reduced_tol_feas": 1e-6,
+                 "max_threads": 1, "chordal_decomposition_enable": False},
+    "SCS": {"max_iters": 20000, "eps_abs": 1e-6, "eps_rel": 1e-6},
+}
+
+__all__ = ["SOLVERS", "SolveReport", "SynthesisError", "psd", "solve"]
 
 
 @dataclass
 class SolveReport:
-    """What the SDP solver did: solver used, status, wall time, attempts (solver, status, seconds)."""
+    """What the SDP solver did: solver used, status, wall time, and every solve (solver, status, seconds)
+    that led to the result."""
 
     solver: str
     status: str
     seconds: float
     attempts: list[tuple[str, str, float]] = field(default_factory=list)
+
+    @property
+    def accurate(self) -> bool:
+        """The solver reached its full accuracy (status ``optimal``)."""
+        return self.status == cp.OPTIMAL
 
 
 def psd(M: cp.Expression, margin: float | cp.Expression) -> cp.Constraint:
@@ -46,33 +56,26 @@ def psd(M: cp.Expression, margin: float | cp.Expression) -> cp.Constraint:
 
 
 def solve(problem: cp.Problem, solver: str = "CLARABEL", what: str = "the LMIs") -> SolveReport:
-    """Solve with ``solver``, then with the other one if it fails (status not in :data:`ACCEPTED`).
+    """Solve ``problem`` once with ``solver`` and report its status (module docstring).
 
     Raises:
-        SynthesisError: infeasible (naming ``what``), or no solver returned a solution.
+        ModelError: an unknown solver name.
+        SynthesisError: the solver found ``what`` infeasible (category ``"infeasible"`` when it says so
+            accurately) or returned no point (category ``"accuracy"``), with its status.
     """
-    solver = solver.upper()
-    if solver not in SOLVERS:
+    name = solver.upper()
+    if name not in SOLVERS:
         raise ModelError(f"unknown SDP solver {solver!r}; use one of {', '.join(SOLVERS)}")
-    order = [solver] + [s for s in SOLVERS if s != solver]
-    attempts: list[tuple[str, str, float]] = []
-    total = 0.0
-    for name in order:
-        start = time.perf_counter()
-        try:
-            kwargs = _SCS_SETTINGS if name == "SCS" else _CLARABEL_SETTINGS
-            problem.solve(solver=name, **kwargs)
-            status = str(problem.status)
-        except (cp.error.SolverError, ValueError) as exc:  # SCS raises ValueError when its KKT setup fails
-            status = f"solver error ({str(exc).splitlines()[0][:80]})"
-        elapsed = time.perf_counter() - start
-        total += elapsed
-        attempts.append((name, status, elapsed))
-        if status in ACCEPTED:
-            return SolveReport(name, status, total, attempts)
-        if status in (cp.INFEASIBLE, cp.UNBOUNDED, cp.INFEASIBLE_INACCURATE):
-            break
-    tried = "; ".join(f"{n}: {s}" for n, s, _ in attempts)
-    if attempts[-1][1] == cp.INFEASIBLE:
-        raise SynthesisError(f"{what} are infeasible ({tried})", category="infeasible")
-    raise SynthesisError(f"no solver returned a solution of {what} ({tried})", category="accuracy")
+    start = time.perf_counter()
+    try:
+        problem.solve(solver=name, **_SETTINGS[name])
+        status = str(problem.status)
+    except (cp.error.SolverError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        first = str(exc).split(".")[0].strip() or type(exc).__name__
+        status = f"solver error ({first[:80]})"
+    elapsed = time.perf_counter() - start
+    if status in WITH_POINT:
+        return SolveReport(name, status, elapsed, [(name, status, elapsed)])
+    if status == cp.INFEASIBLE:
+        raise SynthesisError(f"{what} are infeasible ({name}: {status})", category="infeasible")
+    raise SynthesisError(f"{name} returned no solution of {what} (status: {status})", category="accuracy")

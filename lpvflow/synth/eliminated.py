@@ -1,0 +1,190 @@
+"""The eliminated H∞ conditions: an estimate of the optimal level, and coordinates balanced on it.
+
+Steps 2–4 of :mod:`lpvflow.synth.hinf` (the method is stated there), shared with the rate-bounded design
+(:mod:`lpvflow.synth.rate_bounded`), which balances its coordinates on the breakpoint nearest the centre
+and bounds its level from below by the largest frozen estimate. The eliminated conditions of Gahinet &
+Apkarian (1994, Thm. 4.3) are posed on the Cayley image of every vertex (:mod:`lpvflow.synth.bilinear`).
+Every preconditioning step is validated before it is used: a failed check leaves the coordinates plain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cvxpy as cp
+import numpy as np
+import scipy.linalg
+
+from lpvflow.errors import SynthesisError
+from lpvflow.synth.bilinear import Coordinates, plain_coordinates
+from lpvflow.synth.plant import VertexPlant
+from lpvflow.synth.sdp import SolveReport, solve
+
+#: Level of the interior point whose R, S balance the coordinates, relative to the estimate γ̂. Measured
+#: (tests/hinf_cases.py seed 2026, 14 plants within 1 % of SB10DD; the ADIP at 75.5° against SB10DD):
+#: two rounds at 2.0 then 1.15 → 11, 1.0047; 3.0 → 13, 1.0109; 2.0 → 13, 1.0074.
+BALANCING_FACTOR = 2.0
+#: Largest condition number of the balancing state transform T that is used.
+MAX_BALANCING_CONDITION = 1e8
+
+
+def sym(M: cp.Expression) -> cp.Expression:
+    return 0.5 * (M + M.T)
+
+
+def _eliminated(verts: list[VertexPlant], gamma: cp.Expression | float, R: cp.Variable, S: cp.Variable
+                ) -> list[cp.Expression]:
+    """The matrices of step 3: [R I; I S] (must be ⪰ 0), then per vertex the two projected LMIs (⪯ 0)."""
+    n = R.shape[0]
+    out = [cp.bmat([[R, np.eye(n)], [np.eye(n), S]])]
+    for v in verts:
+        nw, nz = v.dims[1], v.dims[3]
+        NR = scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.B2.T, v.D12.T])), np.eye(nw))
+        NS = scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.C2, v.D21])), np.eye(nz))
+        MR = cp.bmat([[v.A @ R + R @ v.A.T, R @ v.C1.T, v.B1],
+                      [v.C1 @ R, -gamma * np.eye(nz), v.D11],
+                      [v.B1.T, v.D11.T, -gamma * np.eye(nw)]])
+        MS = cp.bmat([[v.A.T @ S + S @ v.A, S @ v.B1, v.C1.T],
+                      [v.B1.T @ S, -gamma * np.eye(nw), v.D11.T],
+                      [v.C1, v.D11, -gamma * np.eye(nz)]])
+        out += [sym(NR.T @ MR @ NR), sym(NS.T @ MS @ NS)]
+    return out
+
+
+def _strict(matrices: list[cp.Expression], t: cp.Expression | float, scales: list[np.ndarray] | None
+            ) -> list[cp.Constraint]:
+    """matrices[0] ⪰ t·D_0, matrices[k] ⪯ −t·D_k (k ≥ 1), D_k = diag(scales[k]) (identity if None)."""
+    D = [np.diag(d) for d in scales] if scales is not None else [np.eye(M.shape[0]) for M in matrices]
+    return [matrices[0] >> t * D[0]] + [M << -t * Dk for M, Dk in zip(matrices[1:], D[1:], strict=True)]
+
+
+def _jacobi_scales(matrices: list[cp.Expression]) -> list[np.ndarray]:
+    """|diag M| of each matrix at the variables' current values, floored at 1e-9 of its largest entry:
+    the scale a margin is measured against (step 4)."""
+    out = []
+    for M in matrices:
+        d = np.abs(np.diag(np.asarray(M.value, dtype=float)))
+        out.append(np.maximum(d, 1e-9 * max(d.max(), 1e-300)))
+    return out
+
+
+@dataclass
+class Estimate:
+    """Step 3's minimiser: γ̂, whether the solve was accurate, and the Jacobi scales of its matrices."""
+
+    gamma: float
+    accurate: bool
+    scales: list[np.ndarray]
+    report: SolveReport
+
+
+def estimate(verts: list[VertexPlant], gamma_max: float, solver: str) -> Estimate:
+    """Step 3. A solve without a usable point leaves γ̂ = 1 (or gamma_max if smaller), not accurate; an
+    inaccurate γ̂ above gamma_max is kept (it still sets the balancing level).
+
+    Raises:
+        SynthesisError: the solver proves the LMIs infeasible at every γ, or their accurate optimum
+            exceeds ``gamma_max`` (category ``"infeasible"``).
+    """
+    n = verts[0].dims[0]
+    g = cp.Variable()
+    R, S = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True)
+    matrices = _eliminated(verts, g, R, S)
+    what = f"the eliminated H∞ LMIs at {len(verts)} vertices"
+    try:
+        report = solve(cp.Problem(cp.Minimize(g), _strict(matrices, 0.0, None)), solver, what)
+    except SynthesisError as exc:
+        if exc.category == "infeasible":
+            raise
+        status = str(exc).rsplit("status: ", 1)[-1].rstrip(")")
+        return Estimate(min(1.0, gamma_max), False, [], SolveReport(solver.upper(), status, 0.0,
+                                                                     [(solver.upper(), status, 0.0)]))
+    gamma = float(g.value)
+    if not (np.isfinite(gamma) and gamma > 0):
+        return Estimate(min(1.0, gamma_max), False, [], report)
+    if report.accurate and gamma > gamma_max:
+        raise SynthesisError(f"{what} are infeasible at γ ≤ {gamma_max:g} (their optimum is γ = {gamma:.6g})",
+                             category="infeasible")
+    return Estimate(gamma, report.accurate, _jacobi_scales(matrices), report)
+
+
+def balancing(verts: list[VertexPlant], estimate: Estimate, solver: str
+              ) -> tuple[np.ndarray | None, SolveReport | None]:
+    """Step 4: the state transform T from the interior point at BALANCING_FACTOR·γ̂ — the projected LMIs
+    ⪯ −t·D_k (D_k their Jacobi diagonals at the estimate), [R I; I S] ⪰ t·I, t maximised — or None when
+    the solve was not accurate or :func:`balancing_transform` refuses R, S."""
+    n = verts[0].dims[0]
+    R, S, t = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True), cp.Variable()
+    gamma = BALANCING_FACTOR * estimate.gamma
+    scales = [np.ones_like(estimate.scales[0]), *estimate.scales[1:]]  # [R I; I S] ⪰ t·I: R, S ≻ 0
+    constraints = [*_strict(_eliminated(verts, gamma, R, S), t, scales), t <= 1]
+    try:
+        report = solve(cp.Problem(cp.Maximize(t), constraints), solver,
+                       f"the eliminated H∞ LMIs at γ = {gamma:.6g}")
+    except SynthesisError:
+        return None, None
+    if not report.accurate:
+        return None, report
+    return balancing_transform(R.value, S.value), report
+
+
+def infeasible_at(verts: list[VertexPlant], gamma: float, solver: str) -> bool:
+    """Whether the solver proves the LMIs of step 3 infeasible at the level γ: the largest t with the
+    projected LMIs ⪯ −t·I and [R I; I S] ⪰ t·I (t ≤ 1) is negative in an accurate solve, or the solver
+    says infeasible. No controller of the class then reaches γ."""
+    n = verts[0].dims[0]
+    R, S, t = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True), cp.Variable()
+    try:
+        constraints = [*_strict(_eliminated(verts, gamma, R, S), t, None), t <= 1]
+        report = solve(cp.Problem(cp.Maximize(t), constraints), solver,
+                       f"the eliminated H∞ LMIs at γ = {gamma:.6g}")
+    except SynthesisError as exc:
+        return exc.category == "infeasible"
+    return report.accurate and float(t.value) < 0
+
+
+def balancing_transform(R: np.ndarray, S: np.ndarray) -> np.ndarray | None:
+    """T with T⁻¹RT⁻ᵀ = TᵀST = Σ (R = LLᵀ, LᵀSL = VΣ²Vᵀ, T = LVΣ^(−1/2)), or None unless R and S are
+    positive definite and T is finite with cond(T) ≤ :data:`MAX_BALANCING_CONDITION`."""
+    R, S = 0.5 * (R + R.T), 0.5 * (S + S.T)
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(S))):
+        return None
+    r, U = np.linalg.eigh(R)
+    if r[0] <= 0 or np.linalg.eigvalsh(S)[0] <= 0:
+        return None
+    L = U * np.sqrt(r)[None, :]
+    w, V = np.linalg.eigh(L.T @ S @ L)
+    if w[0] <= 0:
+        return None
+    T = L @ V / w[None, :] ** 0.25
+    return T if np.all(np.isfinite(T)) and np.linalg.cond(T) <= MAX_BALANCING_CONDITION else None
+
+
+@dataclass
+class Preconditioned:
+    """Steps 2–4: the coordinates, the vertices in them, the estimate, ``gamma_lower`` (the estimate when
+    its solve was accurate, else None) and every SDP solved (solver, status, seconds)."""
+
+    coordinates: Coordinates
+    vertices: list[VertexPlant]
+    estimate: Estimate
+    gamma_lower: float | None
+    attempts: list[tuple[str, str, float]]
+
+
+def preconditioned(cayleys: list[VertexPlant], gamma_max: float, solver: str) -> Preconditioned:
+    """Steps 2–4 on the Cayley images of the vertices (raises SynthesisError when the eliminated LMIs are
+    infeasible with γ ≤ gamma_max)."""
+    coords = plain_coordinates(cayleys)
+    verts = [coords.apply(vc) for vc in cayleys]
+    current = estimate(verts, gamma_max, solver)
+    attempts = list(current.report.attempts)
+    T, report = balancing(verts, current, solver) if current.scales else (None, None)
+    attempts += report.attempts if report else []
+    if T is not None:
+        coords = coords.transformed(T)
+        verts = [coords.apply(vc) for vc in cayleys]
+        if not current.accurate:  # the balanced coordinates may give the accurate bound the plain did not
+            current = estimate(verts, gamma_max, solver)
+            attempts += current.report.attempts
+    return Preconditioned(coords, verts, current, current.gamma if current.accurate else None, attempts)

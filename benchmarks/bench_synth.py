@@ -1,30 +1,26 @@
-"""H∞ synthesis (lpvflow.synth.hinf.hinfsyn): time as a ratio to one solve of its well-posed SDP, and γ
-against an LMI-free reference (issue 22).
+"""H∞ synthesis (lpvflow.synth.hinf.hinfsyn): γ against an LMI-free reference and time as a ratio to one SDP
+solve of the same plant.
 
 Cases (all discrete generalized plants, inputs [w, u], outputs [z, y]):
 
 * ``adip_0``, ``adip_75``: the exact ADIP linearization (Ts = 5 ms) at 0° and 75.5° with the bundled
-  weights, one vertex; reference γ: SLICOT SB10DD bisected (``certify.riccati_gamma``).
+  weights, one vertex; reference γ: SLICOT SB10DD bisected (``riccati.riccati_gamma``).
 * ``adip_0_45``: the two vertices 0° and 45.6° (a 2-vertex pendulum family).
 * ``issue``: ``random_lpv(7, nx=4, n_p=2, nu=2, ny=2)`` on [−0.25, 0.25]² with 8th-order weights → four
-  vertices, generalized plant of order 12 (issue 6's case).
+  vertices, generalized plant of order 12.
 * ``maglev``: the three vertices (parabola triangle) of the bundled maglev design: the identified model
-  ``build/design/maglev/model.json`` written by ``lpvflow design --example maglev`` (run it first) with the
-  weights and box of lpvflow/pipeline/examples/maglev.toml.
+  ``build/design/maglev/model.json`` written by ``lpvflow design --example maglev`` (skipped when absent).
+* ``readme``: the README's augw example.
+* ``random_<i>``: the 14 weighted plants of tests/hinf_cases.py, seed 2026 (two of each kind).
 
-(``examples.maglev_like`` is not a case: its W_B = 0.99(z + 1)/(z(z + 0.98)) puts a zero of the control
-channel on the unit circle at z = −1, a singular H∞ problem whose LMI solutions grow without bound; no
-level up to 1.6 γ_lower is certified there.)
-
-``ratio`` = hinfsyn's wall time / the wall time of one Clarabel solve of the γ-minimisation SDP it
-poses (step 2 of the module docstring, in the same run and coordinates): the floor any LMI synthesis of
-this γ needs. One thread (OPENBLAS_NUM_THREADS=1 is set below), best of three runs each.
+``ratio`` = hinfsyn's wall time (compilation included) / the longest single SDP solve of the same run (the
+controller LMIs at one level, as reported in ``res.report.attempts``): how many solves of its largest SDP
+a synthesis costs. One thread (OPENBLAS_NUM_THREADS=1 is set below), one run each.
 
 ``maglev_ceiling``: what any LPV controller of the maglev design can reach at best relative to the LTI
-point design (issue 22 asks LPV γ ≤ 1.15 × LTI γ): an LPV controller frozen at y2 is an LTI controller
-for the plant frozen there, so its γ is at least the frozen SB10DD optimum at every y2 of the box; the
-ceiling is the largest of these over a grid of the box divided by the LTI point design's γ at
-``baseline_at``.
+point design: an LPV controller frozen at y2 is an LTI controller for the plant frozen there, so its γ is
+at least the frozen SB10DD optimum at every y2 of the box; the ceiling is the largest of these over a grid
+of the box divided by the LTI point design's γ at ``baseline_at``.
 
 Run:  .venv/bin/python benchmarks/bench_synth.py   → benchmarks/results/synth.json + a table
 """
@@ -41,17 +37,21 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import control
 import numpy as np
 
+from lpvflow.errors import SynthesisError
 from lpvflow.models import load
 from lpvflow.pipeline.config import bundled_config
 from lpvflow.synth import hinf
 from lpvflow.synth.examples import random_lpv
-from lpvflow.synth.plant import generalized_plant
+from lpvflow.synth.plant import VertexPlant, generalized_plant
 from lpvflow.synth.riccati import riccati_gamma
 from tests.adip_cases import TS, adip_vertex
+from tests.hinf_cases import weighted_cases
 
 OUT = Path(__file__).parent / "results" / "synth.json"
+MAGLEV_MODEL = Path(__file__).resolve().parents[1] / "build" / "design" / "maglev" / "model.json"
 ISSUE_WEIGHTS = {
     "S": {"num": [0.1, 0.0, 0.0], "den": [1.0, -1.5, 0.5]},
     "K": {"num": [0.05, -0.04], "den": [1.0, -0.2]},
@@ -62,23 +62,30 @@ ISSUE_WEIGHTS = {
 def cases() -> dict:
     """name → (vertex plants, Ts)."""
     issue = generalized_plant(random_lpv(7, nx=4, n_p=2, nu=2, ny=2), ISSUE_WEIGHTS, [[-0.25, 0.25]] * 2)
-    synth = tomllib.loads(bundled_config("maglev").read_text())["synth"]
-    model_path = Path(__file__).resolve().parents[1] / "build" / "design" / "maglev" / "model.json"
-    maglev = generalized_plant(load(model_path), synth["weights"], synth["box"])
-    return {
+    G = control.c2d(control.tf([4.0], [1.0, 0.4, 4.0]), 0.01)
+    readme = control.augw(G, control.c2d(control.tf([0.5, 1.0], [1.0, 0.01]), 0.01), control.tf(0.1, 1, 0.01))
+    out = {
         "adip_0": ([adip_vertex(0.0)], TS),
         "adip_75": ([adip_vertex(75.5)], TS),
         "adip_0_45": ([adip_vertex(0.0), adip_vertex(45.6)], TS),
         "issue": (issue.vertices, issue.Ts),
-        "maglev": (maglev.vertices, maglev.Ts),
+        "readme": ([VertexPlant.from_ss(readme, 1, 2)], 0.01),
     }
+    if MAGLEV_MODEL.is_file():
+        synth = tomllib.loads(bundled_config("maglev").read_text())["synth"]
+        maglev = generalized_plant(load(MAGLEV_MODEL), synth["weights"], synth["box"])
+        out["maglev"] = (maglev.vertices, maglev.Ts)
+    for i, case in enumerate(weighted_cases(14, 2026)):
+        v = VertexPlant.from_ss(case.P, case.P.ninputs - case.ncon, case.P.noutputs - case.nmeas)
+        out[f"random_{i}"] = ([v], case.P.dt)
+    return out
 
 
 def maglev_ceiling(points: int = 23) -> dict:
     """The frozen SB10DD optimum on a grid of the maglev box, the LTI point design (hinfsyn at
     ``baseline_at``) and their ratio (module docstring)."""
     synth = tomllib.loads(bundled_config("maglev").read_text())["synth"]
-    model = load(Path(__file__).resolve().parents[1] / "build" / "design" / "maglev" / "model.json")
+    model = load(MAGLEV_MODEL)
     (lo, hi), = synth["box"]
     grid = np.linspace(lo, hi, points)
     frozen = [riccati_gamma(generalized_plant(model, synth["weights"], [[p, p]]).vertices[0], model.Ts)
@@ -92,38 +99,17 @@ def maglev_ceiling(points: int = 23) -> dict:
             "ceiling_ratio": frozen[worst] / lti}
 
 
-def one_sdp_seconds(vertices: list, Ts: float) -> float:
-    """Wall time of one γ-minimisation solve, as hinfsyn poses it (timed around the solver call)."""
-    timings = []
-    inner = hinf._gamma_lower
-
-    def timed(*args, **kwargs):
-        start = time.perf_counter()
-        out = inner(*args, **kwargs)
-        timings.append(time.perf_counter() - start)
-        return out
-
-    hinf._gamma_lower = timed
-    try:
-        hinf.synthesize_vertices(vertices, Ts)
-    finally:
-        hinf._gamma_lower = inner
-    return timings[-1]
-
-
 def measure(name: str, vertices: list, Ts: float) -> dict:
     row = {"case": name, "vertices": len(vertices), "order": vertices[0].dims[0]}
-    seconds = []
-    for _ in range(3):
-        start = time.perf_counter()
-        try:
-            result = hinf.synthesize_vertices(vertices, Ts)
-        except hinf.SynthesisError as exc:
-            return row | {"error": str(exc)[:200]}
-        seconds.append(time.perf_counter() - start)
-    row |= {"gamma": result.gamma, "gamma_lower": result.gamma_lower, "seconds": min(seconds),
-            "one_sdp_seconds": min(one_sdp_seconds(vertices, Ts) for _ in range(3))}
-    row["ratio"] = row["seconds"] / row["one_sdp_seconds"]
+    start = time.perf_counter()
+    try:
+        result = hinf.synthesize_vertices(vertices, Ts)
+    except SynthesisError as exc:
+        return row | {"error": f"{exc.category}: {str(exc)[:200]}"}
+    seconds = time.perf_counter() - start
+    one = max(a[2] for a in result.report.attempts)
+    row |= {"gamma": result.gamma, "gamma_lower": result.gamma_lower, "seconds": seconds,
+            "sdps": len(result.report.attempts), "one_sdp_seconds": one, "ratio": seconds / one}
     if len(vertices) == 1:
         row["riccati_gamma"] = riccati_gamma(vertices[0], Ts)
         row["gamma_over_riccati"] = result.gamma / row["riccati_gamma"]
@@ -132,16 +118,25 @@ def measure(name: str, vertices: list, Ts: float) -> dict:
 
 def main() -> None:
     rows = [measure(name, *case) for name, case in cases().items()]
-    ceiling = maglev_ceiling()
-    OUT.write_text(json.dumps({"rows": rows, "maglev_ceiling": ceiling}, indent=1, default=float) + "\n")
-    print(f"{'case':12} {'N':>2} {'n':>3} {'γ':>9} {'γ/SB10DD':>9} {'s':>7} {'one SDP s':>9} {'ratio':>6}")
+    ceiling = maglev_ceiling() if MAGLEV_MODEL.is_file() else None
+    ratios = np.array([r["ratio"] for r in rows if "ratio" in r])
+    summary = {"median_ratio": float(np.median(ratios)), "worst_ratio": float(ratios.max()),
+               "answered": len(ratios), "cases": len(rows)}
+    OUT.write_text(json.dumps({"rows": rows, "summary": summary, "maglev_ceiling": ceiling}, indent=1,
+                              default=float) + "\n")
+    print(f"{'case':12} {'N':>2} {'n':>3} {'γ':>9} {'γ/SB10DD':>9} {'s':>7} {'SDPs':>4} {'one SDP s':>9} "
+          f"{'ratio':>6}")
     for r in rows:
         if "error" in r:
             print(f"{r['case']:12} {r['vertices']:>2} {r['order']:>3}  {r['error']}")
             continue
         ric = f"{r['gamma_over_riccati']:.4f}" if "gamma_over_riccati" in r else "–"
         print(f"{r['case']:12} {r['vertices']:>2} {r['order']:>3} {r['gamma']:9.5g} {ric:>9} "
-              f"{r['seconds']:7.3f} {r['one_sdp_seconds']:9.3f} {r['ratio']:6.1f}")
+              f"{r['seconds']:7.3f} {r['sdps']:>4} {r['one_sdp_seconds']:9.3f} {r['ratio']:6.1f}")
+    print(f"ratio: median {summary['median_ratio']:.1f}, worst {summary['worst_ratio']:.1f} "
+          f"({summary['answered']} of {summary['cases']} answered)")
+    if ceiling is None:
+        return
     c = ceiling
     print(f"maglev: worst frozen SB10DD optimum {c['frozen_optimum_worst']:.5f} at y2 = {c['y2_worst']:.4f}; "
           f"LTI point design at {c['baseline_at']:g}: {c['lti_gamma']:.5f} (SB10DD {c['lti_riccati']:.5f}); "

@@ -181,10 +181,11 @@ def preconditioned(cayleys: list[VertexPlant], gamma_max: float, solver: str) ->
     attempts = list(current.report.attempts)
     T, report = balancing(verts, current, solver) if current.scales else (None, None)
     attempts += report.attempts if report else []
-    if T is not None:
+    if T is not None:  # step 3 again where it is better conditioned: a bound the plain solve missed
         coords = coords.transformed(T)
         verts = [coords.apply(vc) for vc in cayleys]
-        if not current.accurate:  # the balanced coordinates may give the accurate bound the plain did not
-            current = estimate(verts, gamma_max, solver)
-            attempts += current.report.attempts
+        balanced = estimate(verts, gamma_max, solver)
+        attempts += balanced.report.attempts
+        if balanced.accurate or not current.accurate:
+            current = balanced if not current.accurate else min(current, balanced, key=lambda e: e.gamma)
     return Preconditioned(coords, verts, current, current.gamma if current.accurate else None, attempts)

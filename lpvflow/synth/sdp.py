@@ -10,6 +10,7 @@ re-check (:func:`lpvflow.synth.bilinear.certificate_margin`), and never as a bou
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import cvxpy as cp
@@ -68,7 +69,9 @@ def solve(problem: cp.Problem, solver: str = "CLARABEL", what: str = "the LMIs")
         raise ModelError(f"unknown SDP solver {solver!r}; use one of {', '.join(SOLVERS)}")
     start = time.perf_counter()
     try:
-        problem.solve(solver=name, **_SETTINGS[name])
+        with warnings.catch_warnings():  # cvxpy's "Solution may be inaccurate": the status says it
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=name, **_SETTINGS[name])
         status = str(problem.status)
     except (cp.error.SolverError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         first = str(exc).split(".")[0].strip() or type(exc).__name__

@@ -128,7 +128,8 @@ def polytopic_case(rng: np.random.Generator) -> tuple[list[control.StateSpace], 
     the nominal one at every vertex, so B2, C2, D12, D21 stay constant and D22 = 0, as the polytopic
     design needs."""
     while True:
-        case = weighted_case(rng, str(rng.choice(("stable", "unstable", "nonminimum_phase", "near_integrator"))))
+        kind = str(rng.choice(("stable", "unstable", "nonminimum_phase", "near_integrator")))
+        case = weighted_case(rng, kind)
         if case.P.dt >= 0.01 and np.allclose(np.asarray(case.P.D)[-case.nmeas:, -case.ncon:], 0):
             break
     count, size = int(rng.integers(2, 5)), float(rng.uniform(0.02, 0.15))

@@ -139,7 +139,7 @@ def polytopic_case(rng: np.random.Generator) -> tuple[list[control.StateSpace], 
     for _ in range(count):
         delta = rng.standard_normal((nG, nG))
         Ai = A.copy()
-        Ai[-nG:, -nG:] = scipy.linalg.expm((Ac + size * np.linalg.norm(Ac, 2) * delta / np.linalg.norm(delta, 2))
-                                           * Ts)
+        moved = Ac + size * np.linalg.norm(Ac, 2) * delta / np.linalg.norm(delta, 2)
+        Ai[-nG:, -nG:] = scipy.linalg.expm(moved * Ts)
         vertices.append(control.ss(Ai, case.P.B, case.P.C, case.P.D, Ts))
     return vertices, case.nmeas, case.ncon, f"{count} vertices ±{100 * size:.0f} %, {case.label}"

@@ -79,7 +79,7 @@ def test_the_experiment_runs_the_verify_loop_with_setpoints_as_references(adip, 
     np.testing.assert_allclose(run.outputs, np.column_stack([c["arm_angle"], c["pendulum_angle"]]), atol=1e-9)
     np.testing.assert_allclose(run.control[:, 0] + c["voltage_excitation"], c["voltage"], atol=1e-9)
     saturated = np.isclose(np.abs(c["voltage"] - c["voltage_excitation"]), VOLTS)
-    assert 0.01 < saturated.mean() < 0.1  # the anti-windup range is reached at the set-point jumps
+    assert saturated.any() and saturated.mean() < 0.1  # the actuator range is reached, at the jumps only
     assert np.abs(c["pendulum_angle"]).max() < 0.2 and np.ptp(c["arm_angle_setpoint"]) > 0.3
 
 

@@ -17,6 +17,9 @@ closed loop and ‖T‖∞, module docstring of robust_stability).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import control
 import numpy as np
 
@@ -53,3 +56,105 @@ def _inverse_bilinear(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray
     """
     M = np.linalg.inv(np.eye(A.shape[0]) - A)
     return (np.eye(A.shape[0]) + A) @ M, np.sqrt(2.0) * M @ B, np.sqrt(2.0) * C @ M, D + C @ M @ B
+
+
+# ------------------------------------------------------------------------------------ LMI form
+@dataclass
+class LoopShapingDesign:
+    """An H∞ loop-shaping design by :func:`lpvflow.synth.hinf.hinfsyn`.
+
+    Attributes:
+        gamma: the certified ‖[I; K∞](I − GsK∞)⁻¹[I  Gs]‖∞ bound (1/γ is the guaranteed b(Gs, K∞)).
+        shaped: the shaped plant(s) Gs = W2·G·W1 (one per breakpoint for a scheduled design).
+        K_inf: the controller(s) K∞ of the shaped plant(s) (u_s = K∞ y_s), at the breakpoints.
+        feedback: the feedback(s) K = W1·K∞·W2 for the plant itself (u = K y), at the breakpoints.
+        result: what hinfsyn returned (its ``certificate``, ``gamma_lower``, …).
+    """
+
+    gamma: float
+    shaped: list[control.StateSpace]
+    K_inf: list[control.StateSpace]
+    feedback: list[control.StateSpace]
+    result: object
+
+
+def shaped_plant(G: object, W1: object, W2: object) -> control.StateSpace:
+    """Gs = W2·G·W1 with state [x_W1; x_G; x_W2] (the same order at every breakpoint); with subscripts 1, 2
+    for W1, W2 and g for G:
+
+        A = [A1  0  0;  Bg C1  Ag  0;  B2 Dg C1  B2 Cg  A2],   B = [B1;  Bg D1;  B2 Dg D1],
+        C = [D2 Dg C1,  D2 Cg,  C2],                          D = D2 Dg D1.
+    """
+    G, W1, W2 = (as_statespace(M, name) for M, name in ((G, "G"), (W1, "W1"), (W2, "W2")))
+    if (W1.noutputs, W2.ninputs) != (G.ninputs, G.noutputs) or W1.ninputs != W1.noutputs \
+            or W2.ninputs != W2.noutputs:
+        raise ModelError(f"W1 must be square with {G.ninputs} outputs (the plant's inputs) and W2 square "
+                         f"with {G.noutputs} inputs (its outputs); got W1 {W1.noutputs}x{W1.ninputs}, "
+                         f"W2 {W2.noutputs}x{W2.ninputs}")
+    A1, B1, C1, D1 = (np.asarray(M, dtype=float) for M in (W1.A, W1.B, W1.C, W1.D))
+    Ag, Bg, Cg, Dg = (np.asarray(M, dtype=float) for M in (G.A, G.B, G.C, G.D))
+    A2, B2, C2, D2 = (np.asarray(M, dtype=float) for M in (W2.A, W2.B, W2.C, W2.D))
+    n1, ng, n2 = A1.shape[0], Ag.shape[0], A2.shape[0]
+    A = np.block([[A1, np.zeros((n1, ng)), np.zeros((n1, n2))],
+                  [Bg @ C1, Ag, np.zeros((ng, n2))],
+                  [B2 @ Dg @ C1, B2 @ Cg, A2]])
+    B = np.vstack([B1, Bg @ D1, B2 @ Dg @ D1])
+    C = np.hstack([D2 @ Dg @ C1, D2 @ Cg, C2])
+    return control.ss(A, B, C, D2 @ Dg @ D1, G.dt)
+
+
+def ncf_generalized_plant(Gs: control.StateSpace) -> control.StateSpace:
+    """The four-block generalized plant whose closed loop under u = K y is T_zw = [I; K](I − GsK)⁻¹[I  Gs].
+
+    Inputs [w1; w2; u], outputs [z1; z2; y]; w1 at the plant output, w2 at its input:
+
+        x⁺ = A x + [0  B] w + B u,
+        z1 = y = C x + [I  0] w,     z2 = u,     (Gs strictly proper: D = 0)
+        y  = C x + [I  0] w,
+
+    so B1 = [0 B], B2 = B, C1 = [C; 0], C2 = C, D11 = [I 0; 0 0], D12 = [0; I], D21 = [I 0], D22 = 0.
+    ``hinfsyn`` needs B2, C2, D12, D21 the same at every breakpoint and D22 = 0: that holds when Gs is
+    strictly proper with B and C constant — a strictly proper W1 whose B is the same at every breakpoint
+    (its A, C may vary), a constant W2, and a plant with constant C and D = 0 (observable form), since
+    then B_s = [B_W1; 0; 0] and C_s = [0, D_W2 C_G, C_W2] (:func:`shaped_plant`).
+    """
+    if np.max(np.abs(Gs.D), initial=0.0) > 0.0:
+        raise ModelError("the shaped plant W2·G·W1 has a feed-through; make W1 strictly proper (D = 0) or "
+                         "identify the plant with an input delay nk >= 1")
+    A, B, C = (np.asarray(M, dtype=float) for M in (Gs.A, Gs.B, Gs.C))
+    n, m, p = A.shape[0], B.shape[1], C.shape[0]
+    Bw = np.hstack([np.zeros((n, p)), B, B])
+    Cz = np.vstack([C, np.zeros((m, n)), C])
+    D = np.block([[np.eye(p), np.zeros((p, m)), np.zeros((p, m))],
+                  [np.zeros((m, p + m)), np.eye(m)],
+                  [np.eye(p), np.zeros((p, 2 * m))]])
+    return control.ss(A, Bw, Cz, D, Gs.dt)
+
+
+def loop_shaping(plants: Sequence[object], W1: Sequence[object], W2: object, *,
+                 breakpoints: Sequence[float] | None = None, rate_bound: float | None = None,
+                 **hinfsyn_options: object) -> LoopShapingDesign:
+    """H∞ loop shaping by LMIs: K∞ from ``hinfsyn`` on the four-block plants of Gs_i = W2·G_i·W1_i.
+
+    One plant: an LTI design (γ → γ_opt = 1/b_opt(Gs) as the suboptimality shrinks). Several plants at
+    ``breakpoints`` (ascending values of one scheduling signal): hinfsyn's rate-bounded design with
+    ``rate_bound`` (per sample; None: any rate); several plants without breakpoints: one common Lyapunov
+    matrix over their polytope. The feedback for the plant itself is K = W1·K∞·W2 (u = K y) at each
+    breakpoint (interpolating K∞ and W1 between breakpoints is the scheduled controller).
+    """
+    from lpvflow.synth.hinf import hinfsyn
+
+    if len(plants) != len(W1) or not plants:
+        raise ModelError(f"give one W1 per plant: {len(plants)} plants, {len(W1)} weights W1")
+    shaped = [shaped_plant(G, W, W2) for G, W in zip(plants, W1, strict=True)]
+    generalized = [ncf_generalized_plant(Gs) for Gs in shaped]
+    p, m = shaped[0].noutputs, shaped[0].ninputs
+    if len(generalized) == 1 and breakpoints is None:
+        result = hinfsyn(generalized[0], p, m, **hinfsyn_options)
+    else:
+        result = hinfsyn(generalized, p, m, breakpoints=breakpoints, rate_bound=rate_bound, **hinfsyn_options)
+    Ts = shaped[0].dt
+    K_inf = [control.ss(*K, Ts) for K in result.K_vertices]
+    W2 = as_statespace(W2, "W2")
+    feedback = [as_statespace(W, "W1") * K * W2 for W, K in zip(W1, K_inf, strict=True)]
+    return LoopShapingDesign(float(result.gamma), shaped, K_inf, feedback, result)

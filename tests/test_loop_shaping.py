@@ -7,7 +7,13 @@ import pytest
 import slycot
 
 from lpvflow.errors import ModelError
-from lpvflow.synth.loop_shaping import loop_shaping, ncf_generalized_plant, shaped_plant
+from lpvflow.synth.loop_shaping import (
+    crossover_normalized,
+    integrator_lead_weight,
+    loop_shaping,
+    ncf_generalized_plant,
+    shaped_plant,
+)
 from lpvflow.validate.robust_stability import generalized_margin, optimal_margin
 from tests.lti_helpers import random_ss
 
@@ -141,3 +147,34 @@ def test_feedthrough_in_the_shaped_plant_is_refused():
         loop_shaping([G], [proper], identity(1, Ts))
     with pytest.raises(ModelError, match="one W1 per plant"):
         loop_shaping([G, G], [proper], identity(1, Ts))
+
+
+def test_integrator_lead_weight_is_the_sampled_continuous_weight():
+    """D = 0, one pole at z = 1, |W1| within 2 % of the continuous W1(jω) up to the crossover (ZOH), the
+    lead's phase at ω_c within 3° of arcsin((α − 1)/(α + 1)) + the integrator/roll-off phases."""
+    Ts, wc = 0.005, 15.0
+    W1 = integrator_lead_weight(Ts, wc)
+    assert np.max(np.abs(W1.D)) == 0.0
+    assert np.min(np.abs(W1.poles() - 1.0)) < 1e-12
+    s = ct.tf("s")
+    Wc = (s + wc / 10) / s * (s + wc / 2) / (s + 2 * wc) * 10 * wc / (s + 10 * wc)
+    for w in np.logspace(-1, np.log10(wc), 20):
+        discrete, continuous = W1(np.exp(1j * w * Ts)), Wc(1j * w)
+        assert abs(discrete) == pytest.approx(abs(continuous), rel=2e-2)
+    lead, integrator = np.arcsin(3 / 5), np.arctan(10) - np.pi / 2
+    rolloff, hold = -np.arctan(0.1), -wc * Ts / 2
+    expected = np.degrees(lead + integrator + rolloff + hold)
+    assert np.degrees(np.angle(W1(np.exp(1j * wc * Ts)))) == pytest.approx(expected, abs=3.0)
+    with pytest.raises(ModelError, match="Nyquist"):
+        integrator_lead_weight(Ts, 100.0)
+
+
+def test_crossover_normalized_weight_crosses_one_at_the_crossover():
+    for rng, G in random_plants(seed=9, count=6):
+        wc = float(rng.uniform(0.5, 5.0))
+        W1 = integrator_lead_weight(G.dt, wc, inputs=G.ninputs)
+        W1n = crossover_normalized(G, W1, wc)
+        z = np.exp(1j * wc * G.dt)
+        assert np.linalg.norm(G(z, squeeze=False) @ W1n(z, squeeze=False), 2) == pytest.approx(1.0, rel=1e-9)
+        np.testing.assert_array_equal(W1n.A, W1.A)
+        np.testing.assert_array_equal(W1n.B, W1.B)

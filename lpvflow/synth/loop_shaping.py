@@ -158,3 +158,37 @@ def loop_shaping(plants: Sequence[object], W1: Sequence[object], W2: object, *,
     W2 = as_statespace(W2, "W2")
     feedback = [as_statespace(W, "W1") * K * W2 for W, K in zip(W1, K_inf, strict=True)]
     return LoopShapingDesign(float(result.gamma), shaped, K_inf, feedback, result)
+
+
+# ------------------------------------------------------------------------------------ weights
+def integrator_lead_weight(Ts: float, crossover: float, inputs: int = 1, *, integral_ratio: float = 10.0,
+                           lead_ratio: float = 4.0, rolloff_ratio: float = 10.0) -> control.StateSpace:
+    """Strictly proper W1 with integral action, a phase lead at the crossover and a roll-off, per input:
+
+        W1(s) = (s + ω_c/r_i)/s · (s + ω_c/√α)/(s + ω_c√α) · r_r ω_c/(s + r_r ω_c),
+
+    ω_c = ``crossover`` (rad/s), r_i = ``integral_ratio``, α = ``lead_ratio`` (phase lead
+    arcsin((α − 1)/(α + 1)) at ω_c: 37° for α = 4), r_r = ``rolloff_ratio``; sampled with a zero-order hold,
+    which keeps D = 0 (the strictly proper W1 that :func:`ncf_generalized_plant` needs). Scale it per
+    breakpoint with :func:`crossover_normalized` (its C changes, its B does not).
+    """
+    if not 0.0 < crossover * Ts < np.pi / rolloff_ratio:
+        raise ModelError(f"crossover {crossover} rad/s with roll-off at {rolloff_ratio}x lies above the "
+                         f"Nyquist frequency {np.pi / Ts:.4g} rad/s; lower crossover or rolloff_ratio")
+    s = control.tf("s")
+    wc, alpha = crossover, lead_ratio
+    channel = ((s + wc / integral_ratio) / s * (s + wc / np.sqrt(alpha)) / (s + wc * np.sqrt(alpha))
+               * rolloff_ratio * wc / (s + rolloff_ratio * wc))
+    sampled = control.sample_system(control.ss(channel), Ts, "zoh")
+    return control.append(*[sampled] * inputs) if inputs > 1 else sampled
+
+
+def crossover_normalized(G: object, W1: control.StateSpace, crossover: float) -> control.StateSpace:
+    """W1/σ_max(G(e^{jω_c Ts}) W1(e^{jω_c Ts})): the shaped loop G·W1 crosses 1 at ω_c = ``crossover``.
+
+    Only C and D of W1 are scaled, so weights normalized at different breakpoints share A and B.
+    """
+    G = as_statespace(G, "G")
+    z = np.exp(1j * crossover * float(G.dt))
+    gain = np.linalg.norm(G(z, squeeze=False) @ W1(z, squeeze=False), 2)
+    return control.ss(W1.A, W1.B, W1.C / gain, W1.D / gain, W1.dt)

@@ -13,6 +13,13 @@ with D ≠ 0 after Cor. 13.29; McFarlane & Glover 1990, §3.3):
 
 and b(G_c, K_c) ≥ 1/γ; the discrete controller is the inverse bilinear image of K_c (the map keeps the
 closed loop and ‖T‖∞, module docstring of robust_stability).
+
+**LMI form** (:func:`loop_shaping`). The same robust-stabilization problem of the shaped plant
+Gs = W2·G·W1 is the H∞ problem ‖T_zw‖∞ < γ of the four-block generalized plant of
+:func:`ncf_generalized_plant`, solved by :func:`lpvflow.synth.hinf.hinfsyn` — for one plant, for the
+vertices of a polytope (one Lyapunov matrix) or at breakpoints with a rate bound (the LPV form of
+LPVTools' ``lpvncfsyn``). The feedback for the plant is K = W1·K∞·W2. At a frozen point the LMI γ must
+equal the Riccati γ_opt (tests).
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import control
 import numpy as np
 
 from lpvflow.errors import ModelError
+from lpvflow.synth.hinf import hinfsyn
 from lpvflow.validate.lti_eval import as_statespace
 from lpvflow.validate.robust_stability import ncf_riccati
 
@@ -142,8 +150,6 @@ def loop_shaping(plants: Sequence[object], W1: Sequence[object], W2: object, *,
     matrix over their polytope. The feedback for the plant itself is K = W1·K∞·W2 (u = K y) at each
     breakpoint (interpolating K∞ and W1 between breakpoints is the scheduled controller).
     """
-    from lpvflow.synth.hinf import hinfsyn
-
     if len(plants) != len(W1) or not plants:
         raise ModelError(f"give one W1 per plant: {len(plants)} plants, {len(W1)} weights W1")
     shaped = [shaped_plant(G, W, W2) for G, W in zip(plants, W1, strict=True)]

@@ -84,9 +84,9 @@ class RobustStability:
 def hinf_norm(system: control.StateSpace) -> float:
     """‖system‖∞ of a stable discrete system.
 
-    ``control.norm(·, 'inf')`` (SLICOT AB13DD through slycot); that function returns inf whenever a
-    pole is within ``numpy.isclose`` (≈ 1e-5) of the unit circle, which at 1 ms sampling includes
-    stable loops with slow modes, so for a stable system it answers inf for, AB13DD is called directly.
+    ``control.norm(·, 'inf')`` (SLICOT AB13DD through slycot). That function answers inf whenever a
+    pole lies within ``numpy.isclose`` (≈ 1e-5) of the unit circle, which at 1 ms sampling includes
+    stable loops with slow modes; for those, AB13DD is called directly (it computes the finite norm).
     """
     value = float(control.norm(system, "inf", tol=1e-10, print_warning=False))
     if np.isfinite(value):

@@ -147,6 +147,17 @@ def test_siso_input_disk_margin_from_the_balanced_sensitivity():
     assert report.b <= report.b_opt and report.delay_margin_samples >= 0
 
 
+def test_a_hidden_mode_on_the_unit_circle_is_refused():
+    """A rank-1 2×2 plant behind an integrator in each input: one integrator is unobservable (no controller
+    stabilizes it), which a Riccati solution that is not stabilizing would hide behind a huge 1/b_opt."""
+    Ts = 0.01
+    G = ct.ss([[0.9]], [[1.0, 0.5]], [[1.0], [2.0]], np.zeros((2, 2)), Ts)
+    integrator = ct.ss([[1.0]], [[Ts]], [[1.0]], [[0.0]], Ts)
+    with pytest.raises(ModelError, match="no stabilizing solution"):
+        optimal_margin(G * ct.append(integrator, integrator))
+    assert optimal_margin(G[0, 0] * integrator) > 0.1  # the same plant, SISO: minimal, b_opt exists
+
+
 def test_continuous_plant_is_refused():
     with pytest.raises(ModelError, match="discrete"):
         optimal_margin(ct.tf([1], [1, 1]))

@@ -48,6 +48,8 @@ from lpvflow.errors import ModelError
 from lpvflow.validate.lti_eval import as_statespace, bilinear_to_continuous, is_discrete
 from lpvflow.validate.margins import closed_loop, is_internally_stable
 
+#: The Riccati closed loops must have every eigenvalue below −STABILIZING_TOL·max(1, ‖A‖) (continuous image).
+STABILIZING_TOL = 1e-9
 #: Largest extra input delay (samples) :func:`delay_margin_samples` tries by default.
 MAX_DELAY_SAMPLES = 50
 
@@ -125,7 +127,15 @@ def ncf_riccati(G: object) -> NcfRiccati:
     except (np.linalg.LinAlgError, ValueError) as error:
         raise ModelError(f"the plant's normalized coprime factor Riccati equations have no stabilizing "
                          f"solution ({error}); pass a stabilizable and detectable plant") from error
-    return NcfRiccati(A, B, C, D, (X + X.T) / 2, (Z + Z.T) / 2)
+    X, Z = (X + X.T) / 2, (Z + Z.T) / 2
+    control_loop = A - B @ np.linalg.solve(R, B.T @ X + D.T @ C)
+    filter_loop = A - np.linalg.solve(S.T, (Z @ C.T + B @ D.T).T).T @ C
+    worst = max(np.max(np.linalg.eigvals(M).real, initial=-np.inf) for M in (control_loop, filter_loop))
+    if worst >= -STABILIZING_TOL * max(1.0, np.linalg.norm(A, 2)):
+        raise ModelError("the plant's normalized coprime factor Riccati equations have no stabilizing "
+                         "solution (a mode on the unit circle is uncontrollable or unobservable, so no "
+                         "controller stabilizes it: b_opt = 0); pass a minimal plant")
+    return NcfRiccati(A, B, C, D, X, Z)
 
 
 def optimal_margin(G: object) -> float:

@@ -294,6 +294,18 @@ def simulate_loop(
     controller: Baseline, plant_fmu: str | Path, scenario: Scenario, loop: Loop, label: str = "controller"
 ) -> ClosedLoopRun:
     """Co-simulate ``controller`` and the plant FMU over ``scenario`` (module docstring of scenarios)."""
+    plant = open_plant(plant_fmu, plant_parameters(plant_fmu, loop, scenario))
+    try:
+        return simulate_loop_on(controller, plant, scenario, loop, label)
+    finally:
+        plant.close()
+
+
+def simulate_loop_on(
+    controller: Baseline, plant: Plant, scenario: Scenario, loop: Loop, label: str = "controller"
+) -> ClosedLoopRun:
+    """:func:`simulate_loop` on an open ``plant`` (an FMU, or any object with the experiment's
+    :class:`~lpvflow.experiment.plant.Plant` protocol, e.g. a model); the caller closes it."""
     law = _law(controller, loop)
     inputs = len(loop.measured) * (2 if law.structure == "2dof" else 1)
     if law.n_in != inputs or law.n_out != len(loop.actuated):
@@ -308,13 +320,7 @@ def simulate_loop(
             f"{label} is scheduled on {n_p} signal(s); the loop gives "
             f"{len(loop.scheduling)} scheduling expression(s)"
         )
-    Ts = law.Ts
-    n = step_count(Ts, scenario.duration)
-    plant = open_plant(plant_fmu, plant_parameters(plant_fmu, loop, scenario))
-    try:
-        return _run(law, plant, scenario, loop, n, label)
-    finally:
-        plant.close()
+    return _run(law, plant, scenario, loop, step_count(law.Ts, scenario.duration), label)
 
 
 def plant_parameters(plant_fmu: str | Path, loop: Loop, scenario: Scenario) -> dict[str, float]:

@@ -1,0 +1,75 @@
+"""Model-in-the-loop against plant-in-the-loop (lpvflow.validate.trajectory) on first-order plant FMUs whose
+closed loops are known in closed form."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lpvflow.errors import ModelError
+from lpvflow.models import LPVSS
+from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
+from lpvflow.validate.trajectory import ModelPlant, trajectory_agreement
+from tests.test_verify import BASIS, TS, B, _constant, _gain
+
+LOOP = Loop(("y",), ("u",), ("y",))
+
+
+@pytest.fixture(scope="module")
+def plant_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """y(k+1) = y(k) + B u(k) (an integrator) as an FMU, built as tests/test_verify.py builds its plants."""
+    from lpvflow.pipeline.export import export_fmu
+
+    folder = tmp_path_factory.mktemp("trajectory")
+    names = {"measured": ["u"], "scheduling": ["q"], "actuated": ["y"]}
+    return export_fmu(_constant(1.0, -B, 1.0, 0.0), folder / "integrator.fmu", names)
+
+
+def first_order_model(a0: float, a1: float = 0.0, b: float = B, d: float = 0.0) -> LPVSS:
+    """x(k+1) = (a0 + a1 p) x + b u, y = x + d u, affine in one scheduling signal p."""
+    return LPVSS(A=[[[a0]], [[a1]]], B=[[[b]], [[0.0]]], C=[[[1.0]], [[0.0]]], D=[[[d]], [[0.0]]],
+                 basis=BASIS, Ts=TS, u_names=["u"], y_names=["y"], p_names=["q"])
+
+
+def closed_loop(a: float, kp: float, r: np.ndarray) -> np.ndarray:
+    """y(k+1) = a y(k) + B kp (r(k) − y(k)) from y(0) = 0."""
+    y = np.zeros(len(r))
+    for k in range(len(r) - 1):
+        y[k + 1] = a * y[k] + B * kp * (r[k] - y[k])
+    return y
+
+
+def test_an_exact_model_agrees_and_a_wrong_one_differs_as_the_closed_forms_do(plant_fmu: Path) -> None:
+    kp = 3.0
+    step = Scenario("step", 1.0, reference={"y": Signal(steps=((0.1, 1.0),))})
+    r = step.reference["y"].sample(np.arange(round(1.0 / TS)) * TS)
+    differences = {}
+    for a_model in (1.0, 0.8, 0.95):
+        [result] = trajectory_agreement(_gain(kp), plant_fmu, lambda a=a_model: ModelPlant(
+            first_order_model(a), ["y"]), [step], LOOP)
+        expected = np.max(np.abs(closed_loop(1.0, kp, r) - closed_loop(a_model, kp, r)))
+        assert result.largest_difference["y"] == pytest.approx(expected, abs=1e-9)
+        assert result.plant_failure is None and result.model_failure is None
+        differences[a_model] = result.largest_difference["y"]
+    assert differences[1.0] < 1e-9 and differences[0.95] > 0.05 and differences[0.8] > differences[0.95]
+
+
+def test_model_plant_schedules_on_its_own_output_and_removes_the_trim() -> None:
+    """x(k+1) = (0.5 + 0.4 p) x + B (u − 0.3 p) with p = y: the quasi-LPV recursion, step by step."""
+    plant = ModelPlant(first_order_model(0.5, 0.4), ["y"], trim=lambda p: 0.3 * p)
+    rng = np.random.default_rng(0)
+    x = 0.0
+    for u in rng.uniform(-0.5, 0.5, 50):
+        assert plant.outputs()[0] == pytest.approx(x, abs=1e-12)
+        plant.step(np.array([u]), 0.0, TS)
+        x = (0.5 + 0.4 * x) * x + B * (u - 0.3 * x)
+    assert plant.input_names == ["u"] and plant.output_names == ["y"]
+
+
+def test_model_plant_refuses_feedthrough_and_a_wrong_number_of_expressions() -> None:
+    with pytest.raises(ModelError, match="feed-through"):
+        ModelPlant(first_order_model(0.5, d=1.0), ["y"])
+    with pytest.raises(ModelError, match="one scheduling expression each"):
+        ModelPlant(first_order_model(0.5), ["y", "y"])

@@ -36,7 +36,7 @@ from lpvflow.validate.lti_eval import as_statespace
 from lpvflow.validate.robust_stability import ncf_riccati
 
 
-def riccati_controller(G: object, gamma_factor: float = 1.01) -> tuple[control.StateSpace, float]:
+def central_ncf_controller(G: object, gamma_factor: float = 1.01) -> tuple[control.StateSpace, float]:
     """The central loop-shaping controller of the discrete plant G at γ = gamma_factor·γ_opt, and that γ.
 
     The returned K (u = K y, dt = G.dt) has b(G, K) ≥ 1/γ (module docstring). gamma_factor must be > 1:

@@ -42,11 +42,11 @@ from dataclasses import dataclass
 import control
 import numpy as np
 import scipy.linalg
-import slycot
 
 from lpvflow.errors import ModelError
 from lpvflow.validate.lti_eval import as_statespace, bilinear_to_continuous, is_discrete
 from lpvflow.validate.margins import closed_loop, is_internally_stable
+from lpvflow.validate.norms import hinf_norm
 
 #: The Riccati closed loops must have every eigenvalue below −STABILIZING_TOL·max(1, ‖A‖) (continuous image).
 STABILIZING_TOL = 1e-9
@@ -81,22 +81,6 @@ class RobustStability:
     input_disk_margin: float
     input_disk_gain_margin_db: float
     input_disk_phase_margin_deg: float
-
-
-def hinf_norm(system: control.StateSpace) -> float:
-    """‖system‖∞ of a stable discrete system.
-
-    ``control.norm(·, 'inf')`` (SLICOT AB13DD through slycot). That function answers inf whenever a
-    pole lies within ``numpy.isclose`` (≈ 1e-5) of the unit circle, which at 1 ms sampling includes
-    stable loops with slow modes; for those, AB13DD is called directly (it computes the finite norm).
-    """
-    value = float(control.norm(system, "inf", tol=1e-10, print_warning=False))
-    if np.isfinite(value):
-        return value
-    A, B, C, D = (np.asarray(M, dtype=float) for M in (system.A, system.B, system.C, system.D))
-    peak, _ = slycot.ab13dd("D", "I", "N", "D", A.shape[0], B.shape[1], C.shape[0], A, np.eye(A.shape[0]),
-                            B, C, D, tol=1e-10)
-    return float(peak)
 
 
 def generalized_margin(G: object, K: object) -> float:

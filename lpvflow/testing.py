@@ -18,7 +18,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from lpvflow.errors import DataError
-from lpvflow.pipeline.scenarios import Loop, Scenario, load_scenarios
+from lpvflow.pipeline.config import load_scenarios
+from lpvflow.pipeline.scenarios import Loop, Scenario
 from lpvflow.pipeline.verify import (
     Baseline,
     FmuController,

@@ -16,7 +16,8 @@ from fmpy.fmi2 import FMU2Slave
 
 from lpvflow.basis import Basis
 from lpvflow.models import load
-from lpvflow.pipeline.export import describe_signals, export_fmu, export_json, export_mat
+from lpvflow.pipeline.export import export_fmu, export_json, export_mat
+from lpvflow.pipeline.ports import describe_signals
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
 from lpvflow.pipeline.verify import FmuController, simulate_loop
 from lpvflow.synth.controller import AntiWindup, LPVController, Trim, observer_gains

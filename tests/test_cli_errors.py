@@ -388,7 +388,8 @@ def _umask() -> int:
 
 def test_a_design_without_ts_runs_its_experiment_at_the_fmu_step(design_file):
     from lpvflow.pipeline.config import load_config
-    from lpvflow.pipeline.stages import StageContext, experiment
+    from lpvflow.pipeline.context import StageContext
+    from lpvflow.pipeline.stages import experiment
 
     design_file.write_text(design_file.read_text().replace("Ts = 1.0\nduration = 100.0", "duration = 2.0"))
     config = load_config(design_file)

@@ -12,7 +12,8 @@ from lpvflow.errors import DataError
 from lpvflow.models import LPVIO, LPVSS
 from lpvflow.pipeline.cli_identify import METHODS
 from lpvflow.pipeline.config import check_table
-from lpvflow.pipeline.stages import StageContext, identify
+from lpvflow.pipeline.context import StageContext
+from lpvflow.pipeline.stages import identify
 from lpvflow.validate.metrics import fit_report
 
 N = 1500

@@ -19,8 +19,9 @@ from lpvflow.basis import Basis
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.pipeline.cli import main
+from lpvflow.pipeline.config import load_scenarios
 from lpvflow.pipeline.export import export_fmu
-from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal, load_scenarios
+from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal
 from lpvflow.pipeline.verify import (
     ClosedLoopRun,
     after_settling_peaks,

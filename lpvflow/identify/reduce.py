@@ -51,25 +51,16 @@ from pathlib import Path
 import numpy as np
 
 from lpvflow.errors import ModelError
+from lpvflow.identify.order_selection import ENERGY, numerical_rank, select_order
 from lpvflow.models import LPVSS
 
 #: Largest change of σ_k/σ_1 between two depths for the singular values to count as settled.
 SETTLE = 1e-3
-#: Default share of Σσ² an automatically selected order keeps.
-ENERGY = 0.999
-SELECTION_RULE = (
-    "order = max(n_gap, n_energy); n_gap = largest drop of log10(sigma) (values below tol*sigma_1 "
-    "count as tol*sigma_1), n_energy = least n keeping the energy share of sum(sigma^2)"
-)
 
 
 def _qr_r(X: np.ndarray) -> np.ndarray:
     """Upper-triangular R of X = QR, with min(rows, cols) rows (so RᵀR = XᵀX)."""
     return np.linalg.qr(X, mode="r")
-
-
-def _numerical_rank(s: np.ndarray, tol: float) -> int:
-    return int(np.sum(s > tol * s[0])) if s.size and s[0] > 0 else 0
 
 
 class _SquareRootGram:
@@ -127,21 +118,6 @@ def reachability_matrix(ss: LPVSS, j: int) -> np.ndarray:
     return np.hstack(blocks)
 
 
-def select_order(singular_values: np.ndarray, tol: float, energy: float = ENERGY) -> dict:
-    """n_G, n_gap, n_energy and the chosen order from Hankel singular values (module docstring)."""
-    s = np.asarray(singular_values, dtype=float)
-    n_g = _numerical_rank(s, tol)
-    if n_g == 0:
-        raise ModelError("every Hankel singular value is zero: the model has no input-to-output path")
-    logs = np.log10(np.maximum(s, tol * s[0]))
-    drops = logs[:-1] - logs[1:]
-    n_gap = int(np.argmax(drops[:n_g])) + 1 if n_g < len(s) or n_g > 1 else 1
-    share = np.cumsum(s[:n_g] ** 2) / np.sum(s[:n_g] ** 2)
-    n_energy = int(np.searchsorted(share, energy - 1e-15)) + 1
-    return {"rank": n_g, "gap": n_gap, "energy": min(n_energy, n_g), "energy_threshold": energy,
-            "tol": tol, "order": max(n_gap, min(n_energy, n_g)), "rule": SELECTION_RULE}
-
-
 def _hankel_factors(ss: LPVSS, depth: tuple[int, int] | None, tol: float, scaling: str
                     ) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """R_O, R_R (square-root Gram factors of O_i, R_jᵀ) and the depth [i, j] used."""
@@ -153,7 +129,7 @@ def _hankel_factors(ss: LPVSS, depth: tuple[int, int] | None, tol: float, scalin
     prev_ranks, prev_profile = None, None
     for k in range(1, max(2 * ss.nx, 3) + 1):
         R_O, R_R = obs.advance_to(k), reach.advance_to(k)
-        ranks = tuple(_numerical_rank(np.linalg.svd(F, compute_uv=False), tol) for F in (R_O, R_R))
+        ranks = tuple(numerical_rank(np.linalg.svd(F, compute_uv=False), tol) for F in (R_O, R_R))
         s = np.linalg.svd(R_O @ R_R.T, compute_uv=False)
         profile = np.zeros(ss.nx)
         if s[0] > 0:
@@ -226,8 +202,8 @@ def reduce(
         "order": n,
         "original_order": ss.nx,
         "depth": [int(d) for d in used_depth],
-        "ranks": {"observability": _numerical_rank(np.linalg.svd(R_O, compute_uv=False), tol),
-                  "reachability": _numerical_rank(np.linalg.svd(R_R, compute_uv=False), tol),
+        "ranks": {"observability": numerical_rank(np.linalg.svd(R_O, compute_uv=False), tol),
+                  "reachability": numerical_rank(np.linalg.svd(R_R, compute_uv=False), tol),
                   "hankel": selection["rank"]},
         "scaling": scaling,
         "selection": {k: v for k, v in selection.items() if k != "order"},

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from lpvflow.models import atomic_write_json
 from lpvflow.pipeline.cli_paths import declare
-from lpvflow.pipeline.scenarios import load_scenarios
+from lpvflow.pipeline.config import load_scenarios
 from lpvflow.pipeline.verify import coverage_note, load_controller_file, plot_runs, run_verification
 
 

@@ -21,7 +21,13 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from lpvflow.basis import Basis
 from lpvflow.errors import DataError, LpvflowError
+from lpvflow.experiment.specs import parse_spec
+from lpvflow.identify.methods import STATE_SPACE_METHODS
+from lpvflow.identify.prefilter import parse_prefilter
+from lpvflow.pipeline.scenarios import Loop, Scenario, ScenarioFile, parse_loop, parse_scenario
+from lpvflow.synth.methods import SYNTHESIS_METHODS
 
 #: Marks a key without a default.
 REQUIRED = object()
@@ -133,8 +139,6 @@ def box(value: Any, where: str) -> list[list[float]]:
 
 def basis(value: Any, where: str) -> str:
     """A scheduling basis spec (``affine``, ``poly:D``, ``poly:D:nocross``, ``spline:K1,K2,…``)."""
-    from lpvflow.basis import Basis
-
     spec = string()(value, where)
     try:
         Basis.from_spec(spec, 1)
@@ -145,16 +149,11 @@ def basis(value: Any, where: str) -> str:
 
 def method(value: Any, where: str) -> str:
     """An estimator of ``lpvflow identify`` with a state-space result (static-arx has none)."""
-    from lpvflow.pipeline.cli_identify import METHODS
-
-    usable = tuple(m for m in METHODS if m != "static-arx")
-    return string(usable)(value, where)
+    return string(STATE_SPACE_METHODS)(value, where)
 
 
 def prefilter(value: Any, where: str) -> str:
     """``none``, ``lowpass:F`` or ``bandpass:F1,F2`` (Hz)."""
-    from lpvflow.pipeline.stages import parse_prefilter
-
     spec = string()(value, where)
     if spec != "none":
         try:
@@ -279,24 +278,34 @@ def trim(value: Any, where: str) -> dict[str, list]:
     return {"p": p, "u": [[number()(v, f"{where}.u") for v in row] for row in u]}
 
 
-def loop(value: Any, where: str) -> dict[str, Any]:
-    from lpvflow.pipeline.scenarios import parse_loop
+def signal_spec(value: Any, where: str) -> str:
+    """An experiment signal ``KIND:key=value,…`` (:func:`lpvflow.experiment.specs.parse_spec`): the kind
+    known and every key it needs given, so an incomplete spec is refused before the experiment runs."""
+    text = string()(value, where)
+    try:
+        parse_spec(text)
+    except DataError as exc:
+        raise DataError(f"{where}: {exc}") from None
+    return text
 
+
+def loop(value: Any, where: str) -> Loop:
+    """The ``[verify.loop]`` table, parsed once into a :class:`~lpvflow.pipeline.scenarios.Loop`."""
     if not isinstance(value, dict):
         raise _fail(where, value, "a table (write it as [verify.loop])")
-    parse_loop(value)
-    return value
+    return parse_loop(value)
 
 
-def scenarios(value: Any, where: str) -> list[dict[str, Any]]:
-    from lpvflow.pipeline.scenarios import parse_scenario
-
+def scenarios(value: Any, where: str) -> list[Scenario]:
+    """The ``[[verify.scenario]]`` tables, parsed once into :class:`~lpvflow.pipeline.scenarios.Scenario`
+    objects with distinct names."""
     if not isinstance(value, list) or not value or not all(isinstance(s, dict) for s in value):
         raise DataError(f"{where}: give at least one [[verify.scenario]] table")
-    names_seen = [parse_scenario(doc, i).name for i, doc in enumerate(value)]
+    parsed = [parse_scenario(doc, i) for i, doc in enumerate(value)]
+    names_seen = [scenario.name for scenario in parsed]
     if len(set(names_seen)) != len(names_seen):
         raise DataError(f"{where}: scenario names must be distinct, got {names_seen}")
-    return value
+    return parsed
 
 
 # -------------------------------------------------------------------------------------------- schema
@@ -312,9 +321,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "duration": Key(REQUIRED, number(0.0, open_low=True), "experiment length in s, > 0"),
         "controller": Key(None, string(), "stabilizing controller JSON (lpvflow/lti-controller, "
                           "lpvflow/gridded-controller or lpvflow/lpv-controller): closed-loop experiment"),
-        "inputs": Key({}, mapping(string(), '"SPEC"'), "signal per plant input driven directly (open loop)"),
-        "excitation": Key({}, mapping(string(), '"SPEC"'), "signal added to the controller output per input"),
-        "setpoint": Key({}, mapping(string(), '"SPEC"'), "set-point per plant output read by the controller"),
+        "inputs": Key({}, mapping(signal_spec, '"SPEC"'),
+                      "signal per plant input driven directly (open loop)"),
+        "excitation": Key({}, mapping(signal_spec, '"SPEC"'),
+                          "signal added to the controller output per input"),
+        "setpoint": Key({}, mapping(signal_spec, '"SPEC"'),
+                        "set-point per plant output read by the controller"),
         "parameters": Key({}, mapping(number(), "number"), "FMU parameters set before initialisation"),
         "scheduling": Key({}, mapping(string(), '"EXPR"'), "extra columns computed from plant signals"),
         "seed": Key(0, integer(0), "seed of the random excitation signals"),
@@ -367,9 +379,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gate": Key(True, boolean, "stop the design after validate when the model fails the ν-gap test"),
     },
     "synth": {
-        "method": Key("common", string(("common", "rate-bounded", "observer")),
-                      "common: one Lyapunov matrix; rate-bounded: parameter-dependent, |Δp| ≤ rate_bound; "
-                      "observer: frozen LQG designs at the breakpoints, interpolated (2dof)"),
+        "method": Key("common", string(tuple(SYNTHESIS_METHODS)),
+                      "; ".join(f"{name}: {m.summary}" for name, m in SYNTHESIS_METHODS.items())),
         "rate_bound": Key(None, number(0.0, open_low=True),
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
         "breakpoints": Key(None, breakpoints, "piecewise polytope: ascending values (or rows) end to end"),
@@ -500,3 +511,10 @@ def load_config(path: str | Path, root: Path | None = None) -> Config:
     except LpvflowError as exc:
         raise DataError(f"{source}: [design] plant: {exc}") from None
     return config
+
+
+def load_scenarios(path: str | Path) -> ScenarioFile:
+    """The ``[verify]`` table of a design file (:mod:`lpvflow.pipeline.scenarios`), as
+    ``lpvflow verify --scenario`` reads it; every defect is a one-line DataError."""
+    verify = load_tables(path, need=("verify",))["verify"]
+    return ScenarioFile(verify["loop"], verify["scenario"])

@@ -112,3 +112,17 @@ def largest_held_step(
         else:
             hi = mid
     return lo
+
+
+def largest_steps(spec: dict, scenarios: list[Scenario], plant: str, loop: Loop, controllers: dict) -> dict:
+    """``[verify] largest_step``: for each controller, the largest step of the named scenario it holds
+    (:func:`largest_held_step`, bisection to its default resolution)."""
+    template = next((s for s in scenarios if s.name == spec["scenario"]), None)
+    if template is None:
+        raise DataError(f"[verify] largest_step.scenario = {spec['scenario']!r} names no scenario; "
+                        f"known: {[s.name for s in scenarios]}")
+    output = step_output(template, None)[0]
+    record = {"output": output, "criterion": spec["criterion"], "resolution": DEFAULT_RESOLUTION}
+    for key, law in controllers.items():
+        record[key] = largest_held_step(law, plant, loop, template, criterion=spec["criterion"])
+    return record

@@ -9,6 +9,7 @@ point, so the file runs in a few seconds.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import tempfile
@@ -259,8 +260,7 @@ def stand_in(name: str, write: dict[str, str], outputs: dict | None = None, read
 
 def patch_stages(monkeypatch: pytest.MonkeyPatch, runs: dict) -> None:
     """Replace the runners of the named stages; the others become no-ops writing nothing."""
-    stages = tuple(design.Stage(s.name, runs.get(s.name, stand_in(s.name, {})), s.tables, s.upstream,
-                                s.file_keys) for s in design.STAGES)
+    stages = tuple(dataclasses.replace(s, run=runs.get(s.name, stand_in(s.name, {}))) for s in design.STAGES)
     monkeypatch.setattr(design, "STAGES", stages)
 
 

@@ -24,9 +24,11 @@ from typing import Any
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, LpvflowError
 from lpvflow.experiment.specs import parse_spec
+from lpvflow.fmu import check_fmu
 from lpvflow.identify.methods import STATE_SPACE_METHODS
 from lpvflow.identify.prefilter import parse_prefilter
 from lpvflow.pipeline.scenarios import Loop, Scenario, ScenarioFile, parse_loop, parse_scenario
+from lpvflow.pipeline.signal_check import check_signals
 from lpvflow.synth.methods import SYNTHESIS_METHODS
 
 #: Marks a key without a default.
@@ -482,7 +484,23 @@ def load_tables(path: str | Path, need: tuple[str, ...]) -> Config:
     if missing:
         raise DataError(f"{source} lacks the table(s) {['[' + t + ']' for t in missing]} "
                         "(layout: docs/design_file.md)")
+    with_loop_scheduling(raw)
     return {table: check_table(table, raw[table], source) if table in raw else None for table in SCHEMA}
+
+
+def with_loop_scheduling(raw: dict[str, Any]) -> None:
+    """The scheduling map is declared once: a ``[verify.loop]`` without ``scheduling`` takes, per
+    ``[identify] p`` column, its ``[experiment] scheduling`` expression (the column itself when it is a
+    plant signal). A file that gives both has them compared (:mod:`lpvflow.pipeline.signal_check`)."""
+    loop = raw.get("verify", {}).get("loop") if isinstance(raw.get("verify"), dict) else None
+    identify, experiment = raw.get("identify"), raw.get("experiment")
+    if not (isinstance(loop, dict) and "scheduling" not in loop and isinstance(identify, dict)):
+        return
+    p = identify.get("p")
+    definitions = experiment.get("scheduling") if isinstance(experiment, dict) else None
+    definitions = definitions if isinstance(definitions, dict) else {}
+    if isinstance(p, list) and all(isinstance(name, str) for name in p):
+        loop["scheduling"] = [definitions.get(name, name) for name in p]
 
 
 def load_config(path: str | Path, root: Path | None = None) -> Config:
@@ -490,8 +508,6 @@ def load_config(path: str | Path, root: Path | None = None) -> Config:
     absent). Relative input files are resolved against ``root`` (default: the working directory)
     and must be usable: the plant a readable FMU with a linux64 binary, the controller an existing file.
     """
-    from lpvflow.fmu import check_fmu
-
     source = Path(path).name
     config = load_tables(path, tuple(t for t in SCHEMA if t not in OPTIONAL))
     if config["synth"] is None and (config["verify"] or config["export"]):
@@ -507,9 +523,13 @@ def load_config(path: str | Path, root: Path | None = None) -> Config:
                             f"relative to {where}; run `make fmus` to build the plants)")
         config[table][key] = str(resolved)
     try:
-        check_fmu(config["design"]["plant"])
+        description = check_fmu(config["design"]["plant"])
     except LpvflowError as exc:
         raise DataError(f"{source}: [design] plant: {exc}") from None
+    try:
+        check_signals(config, description)
+    except DataError as exc:
+        raise DataError(f"{source}: {exc}") from None
     return config
 
 

@@ -21,7 +21,7 @@ def read_data(ctx: StageContext, model_signals: bool = False) -> tuple[Dataset, 
     identified in (:func:`model_coordinates`); with ``remove_offsets`` both have the estimation part's mean
     inputs and outputs subtracted (the model then works in deviations from that operating point)."""
     cfg = ctx.config["identify"]
-    data = Dataset.read(ctx.path("data.csv"), cfg["u"], cfg["y"], cfg["p"])
+    data = ctx.dataset(cfg["u"], cfg["y"], cfg["p"])
     est, val = (model_coordinates(ctx, data) if model_signals else data).split(cfg["split"])
     if not cfg["remove_offsets"]:
         return est, val

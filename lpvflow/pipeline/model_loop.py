@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -43,7 +44,8 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     check_wiring(K, data.u_names, data.y_names, "[validate] closed-loop fit")
     u_index = [data.u_names.index(n) for n in K.outputs]
     y_index = [data.y_names.index(n) for n in K.inputs]
-    expressions = [compile_expression(cfg["scheduling"][name], data.y_names) for name in data.p_names]
+    expressions = [scheduling_expression(name, cfg["scheduling"], data.y_names) for name in data.p_names]
+    expressions = [compile_expression(expression, data.y_names) for expression in expressions]
     gridded = isinstance(K, GriddedController)
     with_trim = not ctx.config["identify"]["remove_trim"]
     if gridded:
@@ -99,3 +101,16 @@ def check_wiring(K, u_names: list[str], y_names: list[str], where: str) -> None:
     if unknown:
         raise DataError(f"{where}: the experiment controller reads {list(K.inputs)} and drives "
                         f"{list(K.outputs)}; {unknown[0]!r} is not a model signal {u_names + y_names}")
+
+
+def scheduling_expression(name: str, definitions: Mapping[str, str], outputs: list[str]) -> str:
+    """How the model-in-the-loop simulation computes the scheduling column ``name`` from the simulated
+    outputs: its ``[experiment] scheduling`` expression, or the output itself when p is a model output;
+    anything else is one DataError line."""
+    if name in definitions:
+        return definitions[name]
+    if name in outputs:
+        return name
+    raise DataError(f"[identify] p column {name!r} is neither an [experiment] scheduling column nor a model "
+                    f"output {outputs}: the closed-loop fit recomputes p from the simulated outputs; define "
+                    f"it in [experiment] scheduling (e.g. {name} = \"…\") or add it to [identify] y")

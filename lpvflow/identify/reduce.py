@@ -243,3 +243,31 @@ def plot_singular_values(record: dict, path: str | os.PathLike) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     return path
+
+
+#: How much a reduced model's frozen spectral radius may exceed the full model's.
+RADIUS_TOLERANCE = 1e-3
+
+
+def max_frozen_radius(model: LPVSS, points: int = 9) -> float:
+    """Largest spectral radius of A(θ) on a grid of ``points`` values along the diagonal of the recorded
+    scheduling box."""
+    lo, hi = np.asarray(model.basis.p_min), np.asarray(model.basis.p_max)
+    grid = lo + np.linspace(0, 1, points)[:, None] * (hi - lo)
+    return float(max(np.max(np.abs(np.linalg.eigvals(model.matrices(p)[0]))) for p in grid))
+
+
+def reduce_keeping_radius(ss: LPVSS, order: int | None) -> tuple[LPVSS, str]:
+    """:func:`reduce` to ``order``, or (None) to the singular-value order raised until the reduced
+    model's largest frozen spectral radius exceeds the full model's by at most :data:`RADIUS_TOLERANCE`
+    (the reduction does not preserve stability: no spurious unstable mode); the reduced model and the
+    rule that chose its order."""
+    reduced = reduce(ss, order=order)
+    if order is not None:
+        return reduced, "given"
+    rule = "singular values"
+    limit = max_frozen_radius(ss) + RADIUS_TOLERANCE
+    while reduced.nx < ss.nx and max_frozen_radius(reduced) > limit:
+        reduced = reduce(ss, order=reduced.nx + 1)
+        rule = "raised until the frozen spectral radius matches the full model's"
+    return reduced, rule

@@ -1,10 +1,15 @@
-"""The identify stage's residual figure: time series and autocorrelation with the whiteness band."""
+"""The identify stage's residual check: one-step-ahead residuals of an IO model on validation data, their
+BFR, whiteness (Ljung–Box) and figure (time series and autocorrelation with the 99 % band)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+
+from lpvflow.data import Dataset
+from lpvflow.identify.arx import prediction_residuals
+from lpvflow.models import LPVIO
 
 
 def plot_residuals(
@@ -34,3 +39,14 @@ def plot_residuals(
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return p_values
+
+
+def one_step_residuals(io: LPVIO, val: Dataset, figure: Path) -> dict[str, list[float]]:
+    """The one-step-ahead equation-error residuals ε(k) of ``io`` on ``val``: per output the BFR
+    100 (1 − ‖ε‖/‖y − ȳ‖) and the Ljung–Box p-value, with their figure written to ``figure``
+    (:func:`plot_residuals`)."""
+    residuals = prediction_residuals(io, val)
+    y = val.y[io.max_lag:]
+    one_step = 100 * (1 - np.linalg.norm(residuals, axis=0) / np.linalg.norm(y - y.mean(axis=0), axis=0))
+    return {"one_step_bfr_validation": one_step.tolist(),
+            "ljung_box_p_value": plot_residuals(figure, residuals, val.Ts, val.y_names)}

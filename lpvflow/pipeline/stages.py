@@ -1,8 +1,10 @@
-"""The design stages: each reads its config table and upstream artifacts, writes its own artifacts.
+"""The design stages: each reads the settings it declares (:mod:`lpvflow.pipeline.settings`) and the
+artifacts of the stages before it, and writes its own artifacts.
 
 Every stage returns ``(outputs, artifacts)``: a JSON-ready dict of the numbers it produced and the
 file names (relative to the design folder) it wrote. :mod:`lpvflow.pipeline.design` wires them,
-caches them (:mod:`lpvflow.pipeline.cache`) and reports them.
+caches them (:mod:`lpvflow.pipeline.cache`) and reports them; the adoption stage is
+:func:`lpvflow.pipeline.adoption.adoption`.
 """
 
 from __future__ import annotations
@@ -17,13 +19,12 @@ from lpvflow.errors import DataError, LpvflowError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.fmu_experiment import run_fmu_experiment
 from lpvflow.experiment.loader import load_experiment_controller
-from lpvflow.identify.arx import prediction_residuals
 from lpvflow.identify.methods import IO_METHODS, estimate
 from lpvflow.identify.prefilter import prefiltered
 from lpvflow.identify.realize import integrate_outputs
-from lpvflow.identify.reduce import plot_singular_values, reduce
+from lpvflow.identify.reduce import max_frozen_radius, plot_singular_values, reduce_keeping_radius
 from lpvflow.lfr import LPVLFR, require_affine
-from lpvflow.models import LPVSS, load
+from lpvflow.models import load
 from lpvflow.pipeline.adoption import adoption_refusal
 from lpvflow.pipeline.antiwindup import antiwindup
 from lpvflow.pipeline.cli_identify import plot_fit
@@ -39,7 +40,7 @@ from lpvflow.pipeline.frozen_references import (
 )
 from lpvflow.pipeline.gate import gate_verdict
 from lpvflow.pipeline.model_loop import closed_loop_simulation
-from lpvflow.pipeline.residual_plot import plot_residuals
+from lpvflow.pipeline.residual_plot import one_step_residuals
 from lpvflow.pipeline.step_sweep import largest_steps
 from lpvflow.pipeline.verify import plot_runs, run_verification
 from lpvflow.synth.design import synthesize_design
@@ -68,7 +69,7 @@ def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
 
 
 def identify(ctx: StageContext) -> tuple[dict, list[str]]:
-    """The ``[identify] method`` estimator (:func:`lpvflow.pipeline.cli_identify.estimate`, any method of
+    """The ``[identify] method`` estimator (:func:`lpvflow.identify.methods.estimate`, any method of
     ``lpvflow identify``) on the estimation part, as a state-space model: IO models realized exactly
     (``LPVIO.to_ss``), pbsid and cva as estimated, an LFR converted when its dependence is affine
     (kcca-lfr-affine). IO models get the one-step-ahead equation-error residuals on the validation part
@@ -78,10 +79,7 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     :func:`model_coordinates` (the residuals are theirs: an output in ``increments`` has its increments'
     residuals); outputs in ``increments`` are integrated back into the saved model."""
     cfg = ctx.config["identify"]
-    method = cfg["method"]
-    if method == "static-arx":
-        raise DataError("[identify] method = \"static-arx\" has no state-space realization (static "
-                        "dependence); use \"lpr-arx\" or another shifted-form method")
+    method = cfg["method"]  # the schema refuses static-arx: no state-space realization
     est, val = read_data(ctx, model_signals=True)
     excitation = None
     if method == "two-step":
@@ -100,13 +98,8 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     outputs: dict[str, Any] = {"method": method}
     artifacts = ["model_full.json"]
     if method in IO_METHODS:
-        io, ss = model, model.to_ss()
-        residuals = prediction_residuals(io, val)
-        one_step = 100 * (1 - np.linalg.norm(residuals, axis=0)
-                          / np.linalg.norm(val.y[io.max_lag:] - val.y[io.max_lag:].mean(axis=0), axis=0))
-        outputs |= {"one_step_bfr_validation": one_step.tolist(),
-                    "ljung_box_p_value": plot_residuals(ctx.path("residuals.png"), residuals, val.Ts,
-                                                        val.y_names)}
+        ss = model.to_ss()
+        outputs |= one_step_residuals(model, val, ctx.path("residuals.png"))
         artifacts.append("residuals.png")
     else:
         try:
@@ -124,7 +117,7 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
 
 
 def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
-    """Diagnosis of the identify structure on the experiment data (issue 8); with ``adopt`` the
+    """Diagnosis of the identify structure on the experiment data; with ``adopt`` the
     extended model replaces the identified one for the rest of the design.
 
     Only extensions that keep the model's inputs and outputs can be adopted (a dead time, orders, a
@@ -177,39 +170,17 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
 
 
 def reduce_model(ctx: StageContext) -> tuple[dict, list[str]]:
-    """LPV Ho-Kalman-like reduction (Schulz et al. Lemma 1); order from the config or automatic.
-
-    The reduction does not preserve stability. With an automatic order, the order is raised from the
-    singular-value choice until the reduced model's largest frozen spectral radius over the scheduling
-    range exceeds the full model's by at most ``RADIUS_TOLERANCE`` (so no spurious unstable mode).
-    """
+    """LPV Ho-Kalman-like reduction (Schulz et al. Lemma 1) of the identified (or adopted) model; order
+    from ``[reduce] order`` or automatic, raised until no spurious unstable mode appears
+    (:func:`lpvflow.identify.reduce.reduce_keeping_radius`)."""
     ss = load(ctx.path(ctx.outputs.get("diagnose", {}).get("model", "model_full.json")))
-    order = ctx.config["reduce"]["order"]
-    reduced = reduce(ss, order=order)
-    rule = "given" if order is not None else "singular values"
-    if order is None:
-        limit = _max_frozen_radius(ss) + RADIUS_TOLERANCE
-        while reduced.nx < ss.nx and _max_frozen_radius(reduced) > limit:
-            reduced = reduce(ss, order=reduced.nx + 1)
-            rule = "raised until the frozen spectral radius matches the full model's"
+    reduced, rule = reduce_keeping_radius(ss, ctx.config["reduce"]["order"])
     reduced.save(ctx.path("model.json"))
     plot_singular_values(reduced.reduction, ctx.path("singular_values.png"))
     return ({"order": reduced.nx, "full_order": ss.nx, "order_rule": rule,
-             "max_frozen_radius": _max_frozen_radius(reduced),
-             "full_max_frozen_radius": _max_frozen_radius(ss),
+             "max_frozen_radius": max_frozen_radius(reduced), "full_max_frozen_radius": max_frozen_radius(ss),
              "singular_values": reduced.reduction["singular_values"]},
             ["model.json", "singular_values.png"])
-
-
-#: How much a reduced model's frozen spectral radius may exceed the full model's.
-RADIUS_TOLERANCE = 1e-3
-
-
-def _max_frozen_radius(model: LPVSS, points: int = 9) -> float:
-    """Largest spectral radius of A(θ) on a grid over the recorded scheduling box."""
-    lo, hi = np.asarray(model.basis.p_min), np.asarray(model.basis.p_max)
-    grid = lo + np.linspace(0, 1, points)[:, None] * (hi - lo)
-    return float(max(np.max(np.abs(np.linalg.eigvals(model.matrices(p)[0]))) for p in grid))
 
 
 def validate(ctx: StageContext) -> tuple[dict, list[str]]:
@@ -217,8 +188,8 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
     of frozen scheduling values, the generalized stability margin b(Ĝ(θ), K_id) and — with
     ``reference = "linearization"`` or ``"local"`` — the ν-gap δν(G_FMU(θ), Ĝ(θ)) to the plant FMU at
     its equilibrium with that scheduling value, and the gate's margin b − δν at each point (thesis
-    Fig. 6.11, notes_002 §6.4: δν < b over the range means K_id stabilizes every frozen plant the model is
-    that close to)."""
+    Fig. 6.11; Vinnicombe, *Uncertainty and Feedback*, 2001: δν < b over the range means K_id stabilizes
+    every frozen plant the model is that close to)."""
     cfg = ctx.config["validate"]
     model = load(ctx.path("model.json"))
     est, val = read_data(ctx)

@@ -9,7 +9,8 @@ import pytest
 import lpvflow
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError
-from lpvflow.models import LPVIO, LPVSS
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import LPVSS
 from lpvflow.pipeline.cli_identify import METHODS
 from lpvflow.pipeline.config import check_table
 from lpvflow.pipeline.context import StageContext

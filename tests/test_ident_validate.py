@@ -14,7 +14,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.prefilter import prefiltered
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.pipeline.config import bundled_config, check_table, repository_root
 from lpvflow.pipeline.design import run_design
 from lpvflow.pipeline.frozen_references import signal_scaling

@@ -21,7 +21,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.arx import RegressorColumn, fill_regressor
 from lpvflow.identify.iv import Structure, least_squares_thetas, solve_instrumental
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.simulate import io_recursion
 
 

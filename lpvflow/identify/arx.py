@@ -27,7 +27,7 @@ import scipy.linalg
 from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 #: Rows of regressor built at a time.
 CHUNK_ROWS = 65536

@@ -41,7 +41,8 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.arx import RegressorColumn, fill_regressor, order_matrix, row_columns
-from lpvflow.models import LPVIO, lagged_sum
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import lagged_sum
 from lpvflow.simulate import io_recursion
 
 Scheduling = Callable[[np.ndarray], np.ndarray]

@@ -16,7 +16,8 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.lfr import LPVLFR
-from lpvflow.models import LPVIO, LPVSS
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import LPVSS
 
 #: IO methods: name → (estimator kind, form). The state-space and LFR methods are handled apart.
 IO_METHODS = {

@@ -44,7 +44,7 @@ from lpvflow.identify.iv import (
     parameter_vector,
 )
 from lpvflow.identify.oe import identify_oe
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 Trial = Callable[[np.random.Generator], dict[str, np.ndarray]]
 #: BLAS thread variables pinned to 1 in pool workers: many small solves in parallel processes are

@@ -21,7 +21,7 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import ModelError
 from lpvflow.identify.iv import Structure, identify_iv_oe, simulate_psi
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.simulate import io_recursion
 
 #: Residual value used where a trial model's simulation diverges (steers the search back).

@@ -22,11 +22,16 @@ multiplied by q^{n_r}, gives the coefficient of q^m (m = 0 … n_r−1) as the l
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from lpvflow.basis import Basis
 from lpvflow.errors import ModelError
-from lpvflow.models import LPVIO, LPVSS
+from lpvflow.models import LPVSS
+
+if TYPE_CHECKING:  # realize_io is LPVIO.to_ss; the LPVIO module imports this one
+    from lpvflow.lpvio import LPVIO
 
 
 def observable_form(

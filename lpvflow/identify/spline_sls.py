@@ -49,7 +49,7 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import RegressorColumn, fill_regressor, identify_arx, order_matrix, row_columns
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 #: Levenberg–Marquardt schedule (thesis §3.3.1): initial damping and its growth/shrink factor.
 MU0, GAMMA = 0.01, 10.0

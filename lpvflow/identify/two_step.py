@@ -40,7 +40,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.spline_sls import free_knot_count, identify_spline_sls
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 
 def laguerre_bank(r: np.ndarray, pole: float, n_filters: int) -> np.ndarray:

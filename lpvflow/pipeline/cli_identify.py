@@ -15,7 +15,8 @@ from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.fit_check import UselessFitWarning, useless_fit_message
 from lpvflow.identify.methods import IO_METHODS, METHODS, SS_METHODS, estimate
 from lpvflow.lfr import LPVLFR
-from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load, report_header
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import LPVSS, atomic_write_json, load, report_header
 from lpvflow.pipeline.cli_paths import declare
 from lpvflow.validate.metrics import fit_report
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from lpvflow.data import Dataset
 from lpvflow.identify.arx import prediction_residuals
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 
 def plot_residuals(

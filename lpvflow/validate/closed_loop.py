@@ -25,7 +25,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.scheduling import compile_expression
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 #: A simulated state beyond this magnitude means the model's closed loop diverged.
 DIVERGED = 1e12

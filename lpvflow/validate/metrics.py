@@ -58,7 +58,7 @@ def fit_report(y: np.ndarray, y_hat: np.ndarray, names: list[str] | None = None)
 def frozen_response_error(model, reference, points=(-0.3, 0.0, 0.3), band_hz=(0.1, 5.0)) -> float:
     """Mean over frozen scheduling points p of ‖G(e^{jωTs}) − G_ref(e^{jωTs})‖_F / ‖G_ref(e^{jωTs})‖_F,
     the responses stacked over 30 log-spaced frequencies in ``band_hz``; ``model`` and ``reference``
-    are realizable LPV models (anything with ``to_ss()``, e.g. :class:`lpvflow.models.LPVIO`)."""
+    are realizable LPV models (anything with ``to_ss()``, e.g. :class:`lpvflow.lpvio.LPVIO`)."""
     z = np.exp(2j * np.pi * np.logspace(np.log10(band_hz[0]), np.log10(band_hz[1]), 30) * model.Ts)
     errors = []
     for p in points:

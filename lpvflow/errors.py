@@ -15,3 +15,7 @@ class DataError(LpvflowError, ValueError):
 
 class ModelError(LpvflowError, ValueError):
     """A model that cannot be used as asked: wrong shapes, unknown file format or version, ill-posed."""
+
+
+class SynthesisError(ModelError):
+    """No (reliable) solution: infeasible LMIs, a failed solve or a failed re-check."""

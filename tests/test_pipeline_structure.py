@@ -256,3 +256,11 @@ def test_verify_loop_is_parsed_once_when_the_file_is_read(tmp_path, monkeypatch)
     loop = config["verify"]["loop"]
     assert loop.actuator_limits == {"voltage": (-10.0, 10.0)}
     assert StageSettings(config, design_module.SYNTH.reads)["verify"]["loop"] is loop  # handed on as parsed
+
+
+def test_synthesis_error_is_one_of_lpvflows_error_types():
+    """``lpvflow.errors.SynthesisError`` is the class the solvers raise (``lpvflow.synth.sdp`` re-exports it)."""
+    from lpvflow.errors import ModelError, SynthesisError
+    from lpvflow.synth.sdp import SynthesisError as raised
+
+    assert raised is SynthesisError and issubclass(SynthesisError, ModelError)

@@ -259,7 +259,7 @@ def test_verify_loop_is_parsed_once_when_the_file_is_read(tmp_path, monkeypatch)
 
 
 def test_synthesis_error_is_one_of_lpvflows_error_types():
-    """``lpvflow.errors.SynthesisError`` is the class the solvers raise (``lpvflow.synth.sdp`` re-exports it)."""
+    """The class the solvers raise is lpvflow.errors.SynthesisError (lpvflow.synth.sdp re-exports it)."""
     from lpvflow.errors import ModelError, SynthesisError
     from lpvflow.synth.sdp import SynthesisError as raised
 

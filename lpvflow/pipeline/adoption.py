@@ -7,7 +7,8 @@ from collections.abc import Callable
 from lpvflow.errors import LpvflowError
 from lpvflow.models import load
 from lpvflow.pipeline.context import StageContext
-from lpvflow.pipeline.verify import plot_runs, run_metrics, simulate_loop
+from lpvflow.pipeline.loop_metrics import run_metrics
+from lpvflow.pipeline.verify import plot_runs, simulate_loop
 
 #: A design stage: the context in, (outputs, artifacts) out.
 StageFunction = Callable[[StageContext], tuple[dict, list[str]]]

@@ -153,7 +153,7 @@ class Requirements:
 
 
 def run_passed(metrics: Mapping) -> bool:
-    """A run's verdict from its metrics (:func:`lpvflow.pipeline.verify.run_metrics`): stable and no
+    """A run's verdict from its metrics (:func:`lpvflow.pipeline.loop_metrics.run_metrics`): stable and no
     requirement missed (``requirements_failed`` empty or absent)."""
     return bool(metrics["stable"]) and not metrics.get("requirements_failed")
 

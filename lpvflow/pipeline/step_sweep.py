@@ -6,7 +6,7 @@ unchanged (duration, disturbances, plant parameters, bounds, requirements). A ru
 *held* when it meets the criterion:
 
 * ``"passes"``: the run is stable and meets the scenario's requirements
-  (:func:`lpvflow.pipeline.verify.run_metrics`: ``stable`` and no ``requirements_failed``);
+  (:func:`lpvflow.pipeline.loop_metrics.run_metrics`: ``stable`` and no ``requirements_failed``);
 * ``"bounded"``: the run finishes with finite signals inside the scenario's ``output_bounds`` (e.g. the
   pendulum is not lost), settled or not.
 
@@ -24,8 +24,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from lpvflow.errors import DataError
+from lpvflow.pipeline.loop_metrics import run_metrics
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal, run_passed
-from lpvflow.pipeline.verify import Baseline, run_metrics, simulate_loop
+from lpvflow.pipeline.verify import Baseline, simulate_loop
 
 #: Criteria a run can be judged by (module docstring).
 CRITERIA = ("passes", "bounded")

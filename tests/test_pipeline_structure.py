@@ -264,3 +264,92 @@ def test_synthesis_error_is_one_of_lpvflows_error_types():
     from lpvflow.synth.sdp import SynthesisError as raised
 
     assert raised is SynthesisError and issubclass(SynthesisError, ModelError)
+
+
+TANKS = ROOT / "fmu_plants" / "build" / "tanks.fmu"
+
+TANKS_DESIGN = """
+[design]
+name = "tanks"
+plant = "{plant}"
+output_dir = "{out}"
+
+[experiment]
+Ts = 1.0
+duration = 1500.0
+inputs = {{ pump_voltage = "levels:lo=4,hi=11,min_hold=5,max_hold=40" }}
+scheduling = {{ level = "lower_level" }}
+seed = 3
+
+[identify]
+u = ["pump_voltage"]
+y = ["lower_level"]
+p = ["level"]
+basis = "poly:2"
+split = 0.6
+remove_offsets = true
+
+[reduce]
+order = 2
+
+[validate]
+grid = 3
+
+[synth]
+box = [[0.05, 0.18]]
+weights.S = {{ bandwidth = 0.2, hf_gain = 0.5 }}
+weights.K = {{ num = [0.01], den = [1] }}
+weights.B = {{ num = [0, 0.5], den = [1, -0.5] }}
+weights.integrator_shift = 1e-4
+
+[verify.loop]
+measured = ["lower_level"]
+actuated = ["pump_voltage"]
+u_operating_point = [6.76]
+actuator_limits = {{ pump_voltage = [0.0, 13.0] }}
+
+[[verify.scenario]]
+name = "level 8 -> 12 cm"
+duration = 300.0
+reference = {{ lower_level = {{ initial = 0.08, steps = [[50.0, 0.04]] }} }}
+"""
+
+
+def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, monkeypatch):
+    """A whole run (experiment → … → verify on the tanks FMU): the stages read data.csv once, and
+    [verify.loop] is parsed once, when the design file is read; the stages get the parsed loop."""
+    import lpvflow.data
+    import lpvflow.pipeline.config as config_module
+    import lpvflow.pipeline.context as context_module
+    import lpvflow.pipeline.report as report_module
+    from lpvflow.pipeline.design import run_design
+
+    reads, parses, in_report = [], [], [False]
+    original_read, original_parse = lpvflow.data.read_columns, config_module.parse_loop
+    original_report = report_module.write_report
+
+    def read(path, columns=None):
+        if Path(path).name == "data.csv" and not in_report[0]:
+            reads.append(columns)
+        return original_read(path, columns)
+
+    def report(*args, **kwargs):  # the report's own figure of the record is not a stage's read
+        in_report[0] = True
+        try:
+            return original_report(*args, **kwargs)
+        finally:
+            in_report[0] = False
+
+    monkeypatch.setattr(lpvflow.data, "read_columns", read)
+    monkeypatch.setattr(context_module, "read_columns", read)
+    monkeypatch.setattr(config_module, "parse_loop", lambda doc: parses.append(doc) or original_parse(doc))
+    monkeypatch.setattr(report_module, "write_report", report)
+    path = tmp_path / "design.toml"
+    path.write_text(TANKS_DESIGN.format(plant=TANKS, out=tmp_path / "out"))
+    summary = run_design(path, log=lambda _: None)
+    ran = {name for name, stage in summary["stages"].items() if stage["status"] == "ran"}
+    assert {"identify", "validate", "synth", "verify"} <= ran, summary["failed"]
+    assert len(reads) == 1 and reads[0] is None  # every column, once, for every stage after the experiment
+    assert len(parses) == 1
+    controller = lpvflow.load(tmp_path / "out" / "tanks" / "controller.json")
+    assert controller.antiwindup is not None  # the parsed loop's limits reached the synth stage

@@ -1,7 +1,7 @@
-"""LPV model objects: input-output (LPVIO) and state-space (LPVSS), with JSON save/load.
+"""LPV model objects and their JSON files: LPVSS here, LPVIO in :mod:`lpvflow.lpvio`; save and load.
 
-LPVIO, shifted (left polynomial, LPR) form — thesis (5.35)/(5.37) in the time domain (notes_002
-§1.4), Schulz et al. eq. (1)/(3):
+LPVIO (:mod:`lpvflow.lpvio`), shifted (left polynomial, LPR) form — thesis (5.35)/(5.37) in the time
+domain, Schulz et al. eq. (1)/(3):
 
     y(k) + Σ_i A_i(ψ(p(k−i))) y(k−i) = Σ_j B_j(ψ(p(k−j))) u(k−j) + e(k) + Σ_m C_m(ψ(p(k−m))) e(k−m)
 

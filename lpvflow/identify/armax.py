@@ -1,4 +1,4 @@
-"""LPV-ARMAX by iterative pseudo-linear regression (Schulz et al., seed 000 §2.1, eq. (8)).
+"""LPV-ARMAX by iterative pseudo-linear regression (Schulz et al., §2.1, eq. (8)).
 
 Model (shifted form; static form evaluates every coefficient at ψ(p(k))):
 

@@ -1,7 +1,7 @@
 """LPV Ho–Kalman-like order reduction by a square-root Gram recursion (Schulz et al., Sec. IV, Lemma 1).
 
 For an affine LPVSS x(k+1) = Σ_l ψ_l (A_l x + B_l u + K_l e), y = Σ_l ψ_l (C_l x + D_l u) + e
-(seed 000, eqs. (10)–(14), notes_000 §3.2–3.4):
+(Schulz et al., eqs. (10)–(14)):
 
     M_1 = [B_1 … B_nψ  K_1 … K_nψ],  M_k = [A_1 M_{k−1} … A_nψ M_{k−1}],    R_j = [M_1 … M_j]
     N_1 = [C_1; …; C_nψ],             N_k = [N_{k−1} A_1; …; N_{k−1} A_nψ],  O_i = [N_1; …; N_i]
@@ -14,12 +14,12 @@ O_i has n_y nψ (nψ^i − 1)/(nψ − 1) rows, so it is never formed. Its Gram 
 (dually R_jR_jᵀ with A_lᵀ, M_1ᵀ), and it is propagated in square-root form so that the condition
 number is never squared: F_1 = qr_R(N_1), F_k = qr_R([F_{k−1}A_1; …; F_{k−1}A_nψ]) (so F_kᵀF_k = P_k),
 S_i = qr_R([S_{i−1}; F_i]). S_i is the R_O of Lemma 1 up to an orthogonal left factor, to which
-Lemma 1 is invariant (notes_000 §3.6). Cost O((i + j) nψ n_x³), memory O(nψ n_x²). Then (15)–(18):
+Lemma 1 is invariant. Cost O((i + j) nψ n_x³), memory O(nψ n_x²). Then (15)–(18):
 
     R_O R_Rᵀ = U Σ Vᵀ,   T = R_Rᵀ V_n Σ_n^{−1/2},   T† = Σ_n^{−1/2} U_nᵀ R_O,   T†T = I_n,
     Â_l = T† A_l T,   B̂_l = T† B_l,   K̂_l = T† K_l,   Ĉ_l = C_l T,   D̂_l = D_l.
 
-Corrections and choices (notes_000 §3.3, §3.6, §8.2):
+Corrections and choices:
 
 * N_1 stacks every C_l (the remark after Lemma 1), so C may depend on ψ; O_i then has
   n_y Σ_{k=1}^{i} nψ^k rows (the row counts printed in (13)/(14) are wrong).

@@ -22,7 +22,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     """Simulate the model in the experiment's loop: the identification controller and its excitation.
 
     An unstable plant's model cannot be simulated open loop; the thesis validates the ADIP model by
-    the closed loop T(Ĝ, K_id) (notes_002 §6.4). The scheduling p(k) is recomputed from the simulated
+    the closed loop T(Ĝ, K_id). The scheduling p(k) is recomputed from the simulated
     outputs with the experiment's scheduling expressions (quasi-LPV, as on the plant); y(k) uses C at
     p(k−1), which is exact for the observable-form realizations (C independent of p). A gridded
     (gain-scheduled) controller runs its own law on the simulated outputs and the recorded set-points

@@ -1,4 +1,4 @@
-"""Simulation of an LPV input-output model in the loop of a closed-loop experiment (issue 8).
+"""Simulation of an LPV input-output model in the loop of a closed-loop experiment.
 
 Data recorded under a known LTI controller K (:class:`~lpvflow.experiment.controller.LtiController`,
 law xc⁺ = A xc + B (y − y_op), u = u_op + C xc + D (y − y_op) + r) cannot be scored by the model's

@@ -1,4 +1,4 @@
-"""Fit metrics per output channel, exactly as thesis Sec. 3.5 (3.31)–(3.33) (notes_002 §0).
+"""Fit metrics per output channel, exactly as thesis Sec. 3.5 (3.31)–(3.33).
 
     MSE = 1/(2N) Σ_k (y(k) − ŷ(k))²                       (note the factor 1/2)
     BFR = 100 % · max(1 − ‖y − ŷ‖₂ / ‖y − ȳ‖₂, 0)          (MATLAB's "fit", thesis "BFT")

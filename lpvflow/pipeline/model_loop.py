@@ -10,10 +10,10 @@ import numpy as np
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
-from lpvflow.experiment.controller import GriddedController
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.experiment.scheduling import compile_expression
-from lpvflow.experiment.synthesized import SynthesizedController
+from lpvflow.loop.engine import ModelPlant, close_loop
+from lpvflow.loop.protocol import as_loop_controller
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.context import StageContext
 
@@ -29,68 +29,46 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     (``<output>_setpoint``) and excitation (``<input>_excitation``); so does an LPV controller
     (:class:`~lpvflow.experiment.synthesized.SynthesizedController`: references from the recorded set-points,
     else its operating points, scheduling from the simulated outputs). With ``[identify] remove_trim`` the
-    model's input is the controller's output without its trim u_op (:func:`model_coordinates`).
+    model's input is the controller's output without its trim u_op (:func:`model_coordinates`). The
+    loop is :func:`lpvflow.loop.engine.close_loop` with the model as the plant
+    (:class:`lpvflow.loop.engine.ModelPlant`) and the controller's protocol object
+    (:func:`lpvflow.loop.protocol.as_loop_controller`); an LTI controller tracks the recorded set-points as
+    in the experiment.
     """
     cfg = ctx.config["experiment"]
     if not cfg["controller"]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SchedulingRangeWarning)
             return model.simulate(data.u, data.p)
-    K = load_experiment_controller(cfg["controller"])
+    experiment_controller = load_experiment_controller(cfg["controller"])
+    check_wiring(experiment_controller, data.u_names, data.y_names, "[validate] closed-loop fit")
+    K = as_loop_controller(experiment_controller)
     table = ctx.columns()
     start = len(table["time"]) - data.N
-    zero = np.zeros(len(table["time"]))
-    excitation = np.column_stack([table.get(f"{n}_excitation", zero)[start:] for n in K.outputs])
-    check_wiring(K, data.u_names, data.y_names, "[validate] closed-loop fit")
-    u_index = [data.u_names.index(n) for n in K.outputs]
-    y_index = [data.y_names.index(n) for n in K.inputs]
+
+    def recorded(column: str, default: float) -> np.ndarray:
+        return table[column][start:] if column in table else np.full(data.N, default)
+
+    excitation = np.column_stack([recorded(f"{name}_excitation", 0.0) for name in K.outputs])
+    references = np.column_stack([recorded(f"{name}_setpoint", np.nan) for name in K.inputs])
     expressions = [scheduling_expression(name, cfg["scheduling"], data.y_names) for name in data.p_names]
     expressions = [compile_expression(expression, data.y_names) for expression in expressions]
-    gridded = isinstance(K, GriddedController)
+    plant = ModelPlant(model, lambda y: np.array([value_of(y) for value_of in expressions]), data.p[0])
+    u_index = [data.u_names.index(name) for name in K.outputs]
     with_trim = not ctx.config["identify"]["remove_trim"]
-    if gridded:
-        given = [j for j, n in enumerate(K.inputs) if f"{n}_setpoint" in table]
-        setpoints = np.zeros((data.N, len(K.inputs)))
-        for j in given:
-            setpoints[:, j] = table[f"{K.inputs[j]}_setpoint"][start:]
-        theta_of = K.scheduling_function()
-    synthesized = isinstance(K, SynthesizedController)
-    if synthesized:
-        references = np.column_stack([table[f"{n}_setpoint"][start:] if f"{n}_setpoint" in table
-                                      else np.full(data.N, y0)
-                                      for n, y0 in zip(K.inputs, K.y_op, strict=True)])
-        schedule = K.scheduling_function(data.y_names)
-        K.reset()
-    x, xc = np.zeros(model.nx), np.zeros(0 if synthesized else K.A.shape[-2])
     y_sim = np.zeros_like(data.y)
+
+    def actuate(k: int, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
+        u = np.zeros(model.nu)
+        u[u_index] = u_c + excitation[k] - (0.0 if with_trim else K.trim(p))
+        return u
+
+    def record(k: int, y: np.ndarray, p: np.ndarray, u_c: np.ndarray, u: np.ndarray) -> None:
+        y_sim[k] = y
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        C = model.matrices(data.p[0])[2]
-        for k in range(data.N):
-            y = C @ x  # C at p(k−1): one matrix evaluation per sample
-            y_sim[k] = y
-            p = np.array([scheduling_of(y) for scheduling_of in expressions])
-            A, B, C, _ = model.matrices(p)
-            u = np.zeros(model.nu)
-            if gridded:
-                Ak, Bk, Ck, Dk, y_bar, u_op = K.at(theta_of(np.concatenate([y[y_index], setpoints[k]])))
-                y_bar[given] = setpoints[k, given]
-                dy = y[y_index] - y_bar
-                u[u_index] = with_trim * u_op + Ck @ xc + Dk @ dy + excitation[k]
-                xc = Ak @ xc + Bk @ dy
-            elif synthesized:
-                p_K = schedule(y)
-                u[u_index] = K.command(references[k], y[y_index], p_K) + excitation[k]
-                if not with_trim:
-                    u[u_index] -= K.trim(p_K)
-            else:
-                dy = y[y_index] - K.y_op
-                u[u_index] = with_trim * K.u_op + K.C @ xc + K.D @ dy + excitation[k]
-                xc = K.A @ xc + K.B @ dy
-            x = A @ x + B @ u
-            if not np.all(np.abs(x) < 1e12):
-                raise DataError(f"the identified model's closed loop diverges at sample {k}: it does not "
-                                "describe the plant under the identification controller")
+        close_loop(K, plant, data.N, references, actuate=actuate, record=record)
     return y_sim
 
 

@@ -16,7 +16,7 @@ from typing import Protocol
 
 import numpy as np
 
-from lpvflow.errors import DataError
+from lpvflow.errors import DataError, LpvflowError
 from lpvflow.loop.protocol import LoopController
 from lpvflow.models import LPVSS
 
@@ -68,7 +68,8 @@ def close_loop(
     signals: Callable[[int, np.ndarray], np.ndarray] | None = None,
     actuate: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
     stop: Callable[[int, np.ndarray], str | None] | None = None,
-    record: Callable[[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray], None] | None = None,
+    record: Callable[[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], None] | None = None,
+    plant_failure: Callable[[int, LpvflowError], str] | None = None,
 ) -> str | None:
     """Run K and ``plant`` for ``n`` samples; returns why the run stopped early, or None.
 
@@ -76,9 +77,10 @@ def close_loop(
     ``plant.output_names`` order); ``stop(k, y)`` may end the run with a reason; p = K's schedule of
     ``signals(k, y)`` (default y; named ``scheduling_names``, default the plant's outputs) and
     ``references[k]`` (ny, NaN: hold the operating point); u_c = K.step(references[k], y of K's inputs,
-    p); the plant input vector ``actuate(k, u_c, p)`` (default: u_c on K's outputs, the other inputs at
-    their start values; needs ``plant.start_value``); ``record(k, y, p, u_c, u)``; the plant steps by Ts.
-    A plant that fails raises; ``stop`` and ``record`` see every sample the run reached."""
+    p) — a non-finite u_c ends the run ("diverged: controller output non-finite at t = …"); the plant
+    input vector u = ``actuate(k, u_c, p)`` (default: u_c on K's outputs, the other inputs at their start
+    values, ``plant.start_value``); ``record(k, y, p, u_c, u)`` (u None when u_c ended the run); the plant
+    steps by Ts. A plant step that fails raises, or with ``plant_failure`` ends the run with its reason."""
     names = list(plant.output_names if scheduling_names is None else scheduling_names)
     schedule = K.scheduling(names)
     y_index = [plant.output_names.index(name) for name in K.inputs]
@@ -93,6 +95,7 @@ def close_loop(
 
     K.reset()
     for k in range(n):
+        t = k * K.Ts
         y = np.asarray(plant.outputs(), dtype=float)
         if measure is not None:
             y = measure(k, y)
@@ -100,8 +103,17 @@ def close_loop(
             return reason
         p = schedule(y if signals is None else signals(k, y), references[k])
         u_c = K.step(references[k], y[y_index], p)
+        if not np.all(np.isfinite(u_c)):
+            if record is not None:
+                record(k, y, p, u_c, None)
+            return f"diverged: controller output non-finite at t = {t:g} s"
         u = actuate(k, u_c, p)
         if record is not None:
             record(k, y, p, u_c, u)
-        plant.step(u, k * K.Ts, K.Ts)
+        try:
+            plant.step(u, t, K.Ts)
+        except LpvflowError as exc:
+            if plant_failure is None:
+                raise
+            return plant_failure(k, exc)
     return None

@@ -68,7 +68,10 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        close_loop(K, plant, data.N, references, actuate=actuate, record=record)
+        failure = close_loop(K, plant, data.N, references, actuate=actuate, record=record)
+    if failure:
+        raise DataError(f"the identified model's closed loop {failure}: it does not describe the plant "
+                        "under the identification controller")
     return y_sim
 
 

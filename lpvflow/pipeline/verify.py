@@ -34,13 +34,14 @@ import numpy as np
 from fmpy import extract
 from fmpy.fmi2 import FMU2Slave
 
-from lpvflow.errors import DataError, LpvflowError, ModelError
+from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment import scheduling as expressions
 from lpvflow.experiment.controller import FORMAT as LTI_FORMAT
 from lpvflow.experiment.controller import LtiController, load_controller
 from lpvflow.experiment.plant import Plant, open_plant
 from lpvflow.experiment.run import step_count
 from lpvflow.fmu import check_fmu
+from lpvflow.loop.engine import close_loop
 from lpvflow.models import report_header, user_mode
 from lpvflow.pipeline.export import load_lpv_controller
 from lpvflow.pipeline.loop_metrics import ClosedLoopRun, run_metrics, tracked_outputs
@@ -297,9 +298,29 @@ def plant_parameters(plant_fmu: str | Path, loop: Loop, scenario: Scenario) -> d
     return values
 
 
-def _input(law: LPVController | _FixedLaw | FmuController, r: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The controller input w(k): [r; y] for a 2-DOF input, the tracking error r − y otherwise."""
-    return np.concatenate([r, y]) if law.structure == "2dof" else r - y
+class _LoopLaw:
+    """A verified controller in the loop protocol (:mod:`lpvflow.loop.protocol`): it reads the loop's
+    ``measured`` outputs, drives its ``actuated`` inputs, is scheduled by the loop's expressions of the
+    plant signals and commands u = u_op + law(w, p), w = [r; y] for a 2-DOF input, r − y otherwise."""
+
+    def __init__(self, law: LPVController | _FixedLaw | FmuController, loop: Loop, u_op: np.ndarray) -> None:
+        self.law, self.Ts, self.u_op = law, law.Ts, u_op
+        self.inputs, self.outputs = tuple(loop.measured), tuple(loop.actuated)
+        self._schedule = _scheduling_function(loop)
+
+    def scheduling(self, names: Sequence[str]) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        names = list(names)
+        return lambda sample, r: self._schedule(dict(zip(names, sample, strict=True)))
+
+    def reset(self) -> None:
+        self.law.reset()
+
+    def step(self, r: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray:
+        w = np.concatenate([r, y]) if self.law.structure == "2dof" else r - y
+        return self.u_op + self.law.step(w, p)
+
+    def trim(self, p: np.ndarray) -> np.ndarray:
+        return self.u_op + (self.law.feedforward(p) if isinstance(self.law, LPVController) else 0.0)
 
 
 def _run(
@@ -310,6 +331,9 @@ def _run(
     n: int,
     label: str,
 ) -> ClosedLoopRun:
+    """One scenario through the closed-loop engine (:func:`lpvflow.loop.engine.close_loop`): output
+    disturbances on the measurement, output bounds as the stopping rule, exogenous inputs among the
+    scheduling signals, actuator limits and input disturbances on the command."""
     Ts = law.Ts
     _check_subset("measured plant output", loop.measured, plant.output_names, "loop")
     _check_subset("actuated plant input", loop.actuated, plant.input_names, "loop")
@@ -331,39 +355,37 @@ def _run(
     u_index = [plant.input_names.index(name) for name in loop.actuated]
     exogenous = [j for j, name in enumerate(plant.input_names) if name not in loop.actuated]
     bounds = [(loop.measured.index(name), b) for name, b in scenario.output_bounds.items()]
-    schedule = _scheduling_function(loop)
 
     y = np.full((n, len(loop.measured)), np.nan)
     u_c, u = np.full((n, len(loop.actuated)), np.nan), np.full((n, len(loop.actuated)), np.nan)
     p_log: list[np.ndarray] = []
-    failure = None
-    law.reset()
-    for k in range(n):
-        y_all = np.array(plant.outputs(), dtype=float)
+
+    def measure(k: int, y_all: np.ndarray) -> np.ndarray:
         y_all[y_index] += d_out[k]
         y[k] = y_all[y_index]
+        return y_all
+
+    def stop(k: int, y_all: np.ndarray) -> str | None:
         if not np.all(np.isfinite(y_all)):
-            failure = f"diverged: plant output non-finite at t = {t[k]:g} s"
-            break
+            return f"diverged: plant output non-finite at t = {t[k]:g} s"
         outside = [loop.measured[i] for i, (b_lo, b_hi) in bounds if not b_lo <= y[k, i] <= b_hi]
-        if outside:
-            failure = f"unbounded: {outside[0]} left its output_bounds at t = {t[k]:g} s"
-            break
-        signals = dict(zip(plant.output_names, y_all, strict=True))
-        signals |= {plant.input_names[j]: inputs[k, j] for j in exogenous}
-        p = schedule(signals)
-        p_log.append(p)
-        u_c[k] = u_op + law.step(_input(law, r[k], y[k]), p)
-        if not np.all(np.isfinite(u_c[k])):
-            failure = f"diverged: controller output non-finite at t = {t[k]:g} s"
-            break
-        u[k] = np.clip(u_c[k], lo, hi)
+        return f"unbounded: {outside[0]} left its output_bounds at t = {t[k]:g} s" if outside else None
+
+    def actuate(k: int, command: np.ndarray, p: np.ndarray) -> np.ndarray:
+        u[k] = np.clip(command, lo, hi)
         inputs[k, u_index] = u[k] + d_in[k]
-        try:
-            plant.step(inputs[k], t[k], Ts)
-        except LpvflowError as exc:
-            failure = f"diverged: the plant FMU failed at t = {t[k]:g} s ({exc})"
-            break
+        return inputs[k]
+
+    def record(k: int, y_all: np.ndarray, p: np.ndarray, command: np.ndarray, _: np.ndarray | None) -> None:
+        p_log.append(p)
+        u_c[k] = command
+
+    names = [*plant.output_names, *(plant.input_names[j] for j in exogenous)]
+    failure = close_loop(
+        _LoopLaw(law, loop, u_op), plant, n, r, scheduling_names=names, measure=measure,
+        signals=lambda k, y_all: np.concatenate([y_all, inputs[k, exogenous]]),
+        actuate=actuate, stop=stop, record=record,
+        plant_failure=lambda k, exc: f"diverged: the plant FMU failed at t = {t[k]:g} s ({exc})")
     n_p = len(p_log[0]) if p_log else 0
     p_arr = np.full((n, n_p), np.nan)
     p_arr[: len(p_log)] = p_log

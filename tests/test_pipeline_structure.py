@@ -353,3 +353,41 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
     assert len(parses) == 1
     controller = lpvflow.load(tmp_path / "out" / "tanks" / "controller.json")
     assert controller.antiwindup is not None  # the parsed loop's limits reached the synth stage
+
+
+# ------------------------------------------------------------------------------ one loop engine
+@pytest.mark.parametrize("seed", [2, 5])
+def test_the_model_in_the_loop_reproduces_an_lti_experiment_with_set_points(tmp_path, seed):
+    """On an exact model the validate stage's closed-loop simulation (the loop engine with the model as
+    plant) reproduces an LTI experiment with random set-points and excitation: the set-points' effect is
+    in the recorded excitation (lpvflow.experiment.run), so it is counted once."""
+
+    from lpvflow.data import Dataset
+    from lpvflow.experiment import LtiController, run_experiment
+    from lpvflow.experiment.record import write_record
+    from lpvflow.pipeline.model_loop import closed_loop_simulation
+    from tests.test_experiment_run import StateSpacePlant, stabilising_controller, unstable_plant
+
+    G = unstable_plant()
+    rng = np.random.default_rng(seed)
+    y_op, u_op = rng.uniform(-0.5, 0.5, 1), rng.uniform(-0.5, 0.5, 1)
+    path = tmp_path / "K.json"
+    path.write_text(json.dumps(LtiController.from_statespace(stabilising_controller(), y_op=y_op,
+                                                             u_op=u_op).to_dict()))
+    record = run_experiment(StateSpacePlant(G, u0=[0.0, 0.0]), G.dt, 3.0,
+                            controller=LtiController.from_statespace(stabilising_controller(), y_op=y_op,
+                                                                     u_op=u_op),
+                            setpoint={"y0": "levels:lo=-0.5,hi=0.5,min_hold=0.3,max_hold=0.6"},
+                            excitation={"u0": "multisine:f_lo=1,f_hi=10,rms=0.1"},
+                            scheduling_columns={"p": "y0"}, seed=seed, progress=False)
+    write_record(record, tmp_path / "data.csv")
+    zero = np.zeros((G.nstates, G.nstates))
+    model = LPVSS(np.stack([G.A, zero]), np.stack([G.B, 0 * G.B]), np.stack([G.C, 0 * G.C]),
+                  np.zeros((2, 1, 2)), Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,)), G.dt,
+                  u_names=["u0", "u1"], y_names=["y0"], p_names=["p"])
+    data = Dataset.read(tmp_path / "data.csv", ["u0", "u1"], ["y0"], ["p"])
+    config = {"experiment": {"controller": str(path), "scheduling": {"p": "y0"}},
+              "identify": {"remove_trim": False}}
+    y_sim = closed_loop_simulation(model, data, StageContext(tmp_path, config))
+    assert np.ptp(data.y) > 0.3
+    np.testing.assert_allclose(y_sim, data.y, atol=1e-9)

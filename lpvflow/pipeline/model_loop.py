@@ -10,6 +10,7 @@ import numpy as np
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
+from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.experiment.scheduling import compile_expression
 from lpvflow.loop.engine import ModelPlant, close_loop
@@ -32,8 +33,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     model's input is the controller's output without its trim u_op (:func:`model_coordinates`). The
     loop is :func:`lpvflow.loop.engine.close_loop` with the model as the plant
     (:class:`lpvflow.loop.engine.ModelPlant`) and the controller's protocol object
-    (:func:`lpvflow.loop.protocol.as_loop_controller`); an LTI controller tracks the recorded set-points as
-    in the experiment.
+    (:func:`lpvflow.loop.protocol.as_loop_controller`).
     """
     cfg = ctx.config["experiment"]
     if not cfg["controller"]:
@@ -50,7 +50,10 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
         return table[column][start:] if column in table else np.full(data.N, default)
 
     excitation = np.column_stack([recorded(f"{name}_excitation", 0.0) for name in K.outputs])
-    references = np.column_stack([recorded(f"{name}_setpoint", np.nan) for name in K.inputs])
+    # an LTI controller's set-points are in its recorded excitation (lpvflow.experiment.run): it holds y_op
+    tracked = not isinstance(experiment_controller, LtiController)
+    references = np.column_stack([recorded(f"{name}_setpoint", np.nan) if tracked else np.full(data.N, np.nan)
+                                  for name in K.inputs])
     expressions = [scheduling_expression(name, cfg["scheduling"], data.y_names) for name in data.p_names]
     expressions = [compile_expression(expression, data.y_names) for expression in expressions]
     plant = ModelPlant(model, lambda y: np.array([value_of(y) for value_of in expressions]), data.p[0])

@@ -70,6 +70,7 @@ def close_loop(
     stop: Callable[[int, np.ndarray], str | None] | None = None,
     record: Callable[[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], None] | None = None,
     plant_failure: Callable[[int, LpvflowError], str] | None = None,
+    Ts: float | None = None,
 ) -> str | None:
     """Run K and ``plant`` for ``n`` samples; returns why the run stopped early, or None.
 
@@ -80,7 +81,8 @@ def close_loop(
     p) — a non-finite u_c ends the run ("diverged: controller output non-finite at t = …"); the plant
     input vector u = ``actuate(k, u_c, p)`` (default: u_c on K's outputs, the other inputs at their start
     values, ``plant.start_value``); ``record(k, y, p, u_c, u)`` (u None when u_c ended the run); the plant
-    steps by Ts. A plant step that fails raises, or with ``plant_failure`` ends the run with its reason."""
+    steps by Ts (default the controller's). A plant step that fails raises, or with ``plant_failure``
+    ends the run with its reason."""
     names = list(plant.output_names if scheduling_names is None else scheduling_names)
     schedule = K.scheduling(names)
     y_index = [plant.output_names.index(name) for name in K.inputs]
@@ -93,9 +95,10 @@ def close_loop(
             u[u_index] = u_c
             return u
 
+    Ts = K.Ts if Ts is None else Ts
     K.reset()
     for k in range(n):
-        t = k * K.Ts
+        t = k * Ts
         y = np.asarray(plant.outputs(), dtype=float)
         if measure is not None:
             y = measure(k, y)
@@ -111,7 +114,7 @@ def close_loop(
         if record is not None:
             record(k, y, p, u_c, u)
         try:
-            plant.step(u, t, K.Ts)
+            plant.step(u, t, Ts)
         except LpvflowError as exc:
             if plant_failure is None:
                 raise

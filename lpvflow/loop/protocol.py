@@ -135,6 +135,26 @@ class SynthesizedLaw:
         return self.K.trim(p)
 
 
+class OpenLoop:
+    """No controller (an open-loop experiment): it reads and drives no plant signal."""
+
+    Ts = None
+    inputs: tuple[str, ...] = ()
+    outputs: tuple[str, ...] = ()
+
+    def scheduling(self, names: Sequence[str]) -> Schedule:
+        return lambda sample, r: np.zeros(0)
+
+    def reset(self) -> None:
+        pass
+
+    def step(self, r: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.zeros(0)
+
+    def trim(self, p: np.ndarray) -> np.ndarray:
+        return np.zeros(0)
+
+
 def as_loop_controller(K: LtiController | GriddedController | SynthesizedController) -> LoopController:
     """The protocol object of an experiment controller."""
     if isinstance(K, LtiController):

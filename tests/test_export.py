@@ -15,13 +15,14 @@ from fmpy.validation import validate_fmu
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import load_controller
+from lpvflow.loop.fmu_controller import FmuController
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.config import bundled_config, load_config
 from lpvflow.pipeline.export import export_fmu, export_json, export_mat
 from lpvflow.pipeline.ports import controller_signals, describe_signals, design_signals
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
-from lpvflow.pipeline.verify import FmuController, simulate_loop
+from lpvflow.pipeline.verify import simulate_loop
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.polytope import Polytope, _corners
 

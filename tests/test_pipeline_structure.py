@@ -33,7 +33,8 @@ def _module_name(path: Path) -> str:
 
 def import_graph() -> dict[str, set[str]]:
     """lpvflow module → the lpvflow modules its file imports anywhere (module level or inside a
-    function; ``if TYPE_CHECKING`` blocks excluded: they never run)."""
+    function; ``if TYPE_CHECKING`` blocks excluded: they never run), and the packages whose
+    ``__init__`` such an import runs (lpvflow's own ``__init__`` imports lazily and is left out)."""
     files = {_module_name(p): p for p in PACKAGE.rglob("*.py")}
     graph = {}
     for name, path in files.items():
@@ -48,9 +49,10 @@ def import_graph() -> dict[str, set[str]]:
                 targets |= {a.name for a in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
                 targets |= {f"{node.module}.{a.name}" for a in node.names} | {node.module}
-        graph[name] = {t for t in targets if t in files and t != name and not name.startswith(t + ".")
-                       and not (files[t].name == "__init__.py" and t != "lpvflow" and False)}
-        graph[name] -= {"lpvflow"}
+        # importing a.b.c runs the package a.b's __init__ first: an edge to it as well
+        parents = {".".join(t.split(".")[:i]) for t in targets for i in range(2, t.count(".") + 1)}
+        graph[name] = {t for t in targets | parents
+                       if t in files and t != name and not name.startswith(t + ".") and t != "lpvflow"}
     return graph
 
 

@@ -64,8 +64,9 @@ import numpy as np
 import scipy.io
 from fmpy.validation import validate_fmu
 
-from lpvflow.errors import DataError, LpvflowError, ModelError
-from lpvflow.models import load, user_mode
+from lpvflow.errors import DataError, ModelError
+from lpvflow.loop.loader import load_controller_file
+from lpvflow.models import user_mode
 from lpvflow.pipeline.ports import ControllerSignals, Port, controller_signals
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.polytope import Polytope
@@ -127,13 +128,9 @@ def box_words(box: np.ndarray, names: Sequence[str]) -> str:
 
 
 def load_lpv_controller(path: str | Path) -> LPVController:
-    """Read an ``lpvflow/lpv-controller`` JSON file; any defect is one ModelError line."""
-    try:
-        controller = load(path)
-    except LpvflowError:
-        raise
-    except (ValueError, TypeError, IndexError) as exc:
-        raise ModelError(f"controller file {path} has malformed matrices ({exc})") from None
+    """The ``lpvflow/lpv-controller`` of a JSON file (:func:`lpvflow.loop.loader.load_controller_file`);
+    any other file is one ModelError line."""
+    controller = load_controller_file(path)
     if not isinstance(controller, LPVController):
         raise ModelError(f"{path} is a {type(controller).__name__}, not an lpvflow/lpv-controller file")
     return controller

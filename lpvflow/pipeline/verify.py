@@ -10,7 +10,7 @@ for ``structure = "1dof"``, w = [r; y] for ``"2dof"``, u_eq the controller's tri
 ``control.StateSpace`` (1-DOF, no scheduling); an ``lpvflow/lti-controller`` file
 (:class:`~lpvflow.experiment.controller.LtiController`, 1-DOF), run with its own operating input u_op and
 its y_op replaced by the reference: u = u_op + C xc + D (y − r), xc⁺ = A xc + B (y − r); or an exported
-controller FMU (:class:`FmuController`), handed r and y on its separate ports.
+controller FMU (:class:`~lpvflow.loop.fmu_controller.FmuController`), handed r and y on its separate ports.
 
 Plant parameters of a run (:func:`plant_parameters`): ``[verify.loop] plant_parameters``, overridden by
 the scenario's, then every scenario ``parameter_factors`` entry f multiplies its parameter's value
@@ -21,9 +21,7 @@ Metrics and verdicts of a run: :mod:`lpvflow.pipeline.loop_metrics`.
 
 from __future__ import annotations
 
-import json
 import os
-import shutil
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -31,19 +29,16 @@ from pathlib import Path
 
 import control
 import numpy as np
-from fmpy import extract
-from fmpy.fmi2 import FMU2Slave
 
 from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment import scheduling as expressions
-from lpvflow.experiment.controller import FORMAT as LTI_FORMAT
-from lpvflow.experiment.controller import LtiController, load_controller
+from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.plant import Plant, open_plant
 from lpvflow.experiment.run import step_count
 from lpvflow.fmu import check_fmu
 from lpvflow.loop.engine import close_loop
+from lpvflow.loop.fmu_controller import FmuController
 from lpvflow.models import report_header, user_mode
-from lpvflow.pipeline.export import load_lpv_controller
 from lpvflow.pipeline.loop_metrics import ClosedLoopRun, run_metrics, tracked_outputs
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal, run_passed
 from lpvflow.synth.controller import LPVController
@@ -82,71 +77,6 @@ class _FixedLaw:
         return u
 
 
-class FmuController:
-    """A controller FMU written by :func:`lpvflow.pipeline.export.export_fmu`, stepped through fmpy.
-
-    Inputs are told apart by their description: ``scheduling …`` are p, ``measured …`` the outputs y and
-    the others (``reference …``) the references r, in modelDescription order. The FMU reads r and y on
-    separate ports whatever the structure of the controller inside (a 1-DOF one forms r − y itself), so
-    the loop hands it w = [r; y] (``structure = "2dof"``): per sample r(k), y(k) and p(k) are set, u(k)
-    read, then ``fmi2DoStep(t_k, Ts)``. An FMU without measured ports (written before they existed) reads
-    e = r − y on its reference ports (``structure = "1dof"``). The FMU's outputs include its operating
-    point and trim feed-forward, so ``u_offset`` is zero and the loop adds no operating point of its own.
-    """
-
-    def __init__(self, path: str | Path) -> None:
-        path = Path(path)
-        description = check_fmu(path)  # a readable FMI 2.0 Co-Simulation FMU with a binary here
-        if description.defaultExperiment is None or description.defaultExperiment.stepSize is None:
-            raise ModelError(f"{path} is not a controller FMU written by `lpvflow export --format fmu`")
-        variables = description.modelVariables
-        inputs = [v for v in variables if v.causality == "input"]
-        role = {v.valueReference: (v.description or "").split(" ")[0] for v in inputs}
-        self._p_vr = [vr for vr, kind in role.items() if kind == "scheduling"]
-        self._y_vr = [vr for vr, kind in role.items() if kind == "measured"]
-        self._e_vr = [vr for vr, kind in role.items() if kind not in ("scheduling", "measured")]
-        self._u_vr = [v.valueReference for v in variables if v.causality == "output"]
-        self.structure = "2dof" if self._y_vr else "1dof"
-        self.n_in, self.n_out = len(self._e_vr) + len(self._y_vr), len(self._u_vr)
-        self.u_offset = np.zeros(self.n_out) if self._y_vr else None  # FMUs before named ports: no trim
-        self.Ts = float(description.defaultExperiment.stepSize)
-        self.n_p = len(self._p_vr)
-        self._unzipdir = extract(str(path))
-        identifier = description.coSimulation.modelIdentifier
-        self._slave = FMU2Slave(
-            guid=description.guid,
-            unzipDirectory=self._unzipdir,
-            modelIdentifier=identifier,
-            instanceName=identifier,
-        )
-        self._slave.instantiate()
-        self._time = 0.0
-
-    def reset(self) -> None:
-        if self._time > 0.0:
-            self._slave.reset()
-        self._slave.setupExperiment(startTime=0.0)
-        self._slave.enterInitializationMode()
-        self._slave.exitInitializationMode()
-        self._time = 0.0
-
-    def step(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """u(k) for the input w(k) ([r; y], or e for an FMU without measured ports) at p(k); then one step."""
-        self._slave.setReal(self._e_vr + self._y_vr + self._p_vr,
-                            [*np.asarray(w, float), *np.asarray(p, float)])
-        u = np.array(self._slave.getReal(self._u_vr))
-        self._slave.doStep(self._time, self.Ts)
-        self._time += self.Ts
-        return u
-
-    def close(self) -> None:
-        if self._slave is not None:
-            self._slave.terminate()
-            self._slave.freeInstance()
-            self._slave = None
-            shutil.rmtree(self._unzipdir, ignore_errors=True)
-
-
 #: Controllers the loop can run.
 Baseline = LPVController | control.StateSpace | LtiController | FmuController
 
@@ -173,23 +103,6 @@ def _law(controller: Baseline, loop: Loop) -> LPVController | _FixedLaw | FmuCon
         f"cannot run a {type(controller).__name__} in the loop; give an LPVController, a "
         "discrete control.StateSpace or an lpvflow/lti-controller file"
     )
-
-
-def load_controller_file(path: str | Path) -> Baseline:
-    """An ``lpvflow/lpv-controller`` or ``lpvflow/lti-controller`` JSON file, or a controller FMU."""
-    path = Path(path)
-    if path.suffix.lower() == ".fmu":
-        return FmuController(path)
-    if path.is_file():
-        try:
-            kind = json.loads(path.read_text()).get("format")
-        except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-            kind = None
-        if kind == LTI_FORMAT:
-            return load_controller(path)
-    return load_lpv_controller(path)
-
-
 
 
 def _sampled(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -111,6 +112,7 @@ def test_the_verify_stage_records_the_largest_step_each_controller_holds(tmp_pat
     summary = {"name": "t", "stages": {"verify": {"status": "ran", "outputs": outputs}}}
     assert f"{math.degrees(record['baseline']):.1f}" in summary_card(summary, {"arm_angle": "rad"})
 
-    config["verify"]["largest_step"] = {"scenario": "arm to +80 deg", "criterion": "bounded"}
+    config["verify"] = dataclasses.replace(verify, largest_step={"scenario": "arm to +80 deg",
+                                                                 "criterion": "bounded"})
     with pytest.raises(DataError, match="names no scenario; known: \\['arm to \\+75 deg'\\]"):
         stages.verify(stages.StageContext(tmp_path, config))

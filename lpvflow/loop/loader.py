@@ -44,5 +44,5 @@ def load_controller_file(path: str | Path) -> ControllerFile:
             raise ModelError(f"{source}: {str(exc).splitlines()[0]}") from None
     if kind == FORMAT:
         return LtiController.from_dict(doc, source)
-    raise ModelError(f"{source} has format {kind!r}; lpvflow runs {FORMAT!r}, {GRIDDED_FORMAT!r} or "
-                     f"{LPV_FORMAT!r} controllers (JSON) and controller FMUs")
+    raise ModelError(f"{source} has format {kind!r}; an experiment runs {FORMAT!r}, {GRIDDED_FORMAT!r} or "
+                     f"{LPV_FORMAT!r} controllers, verify also exported controller FMUs")

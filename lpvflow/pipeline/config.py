@@ -13,9 +13,10 @@ repository root, so the examples run from any working directory.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -416,8 +417,6 @@ BUNDLED = ("adip", "maglev", "airpath")
 #: Table -> keys holding input files, resolved and checked on load.
 INPUT_FILES = (("design", "plant"), ("experiment", "controller"))
 
-Config = dict[str, dict[str, Any] | None]
-
 
 def repository_root() -> Path:
     """The folder holding ``lpvflow/`` and ``fmu_plants/`` (a source checkout)."""
@@ -442,8 +441,36 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise DataError(f"{path.name} is not valid TOML: {exc}") from None
 
 
-def check_table(table: str, given: Any, source: str) -> dict[str, Any]:
-    """One table with its defaults filled in; unknown or missing keys and bad values raise DataError."""
+class Table(Mapping[str, Any]):
+    """Base of the typed tables: a frozen dataclass whose fields are the table's keys, read as attributes
+    (``config["identify"].na``) or as a mapping (``config["identify"]["na"]``)."""
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in self.__dataclass_fields__:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.__dataclass_fields__)
+
+    def __len__(self) -> int:
+        return len(self.__dataclass_fields__)
+
+
+#: One frozen dataclass per table of :data:`SCHEMA` (``TABLES["identify"]`` has the fields u, y, p, na, …).
+TABLES: dict[str, type[Table]] = {
+    table: dataclasses.make_dataclass(f"{table.capitalize()}Table", list(keys), bases=(Table,), frozen=True,
+                                      eq=True)
+    for table, keys in SCHEMA.items()
+}
+
+#: A checked design file: table → its typed table (None: an optional table the file leaves out).
+Config = dict[str, Table | None]
+
+
+def check_table(table: str, given: Any, source: str) -> Table:
+    """One table, typed (:data:`TABLES`), with its defaults filled in; unknown or missing keys and bad
+    values raise DataError."""
     keys = SCHEMA[table]
     if not isinstance(given, dict):
         raise DataError(f"{source}: [{table}] must be a table")
@@ -462,7 +489,7 @@ def check_table(table: str, given: Any, source: str) -> dict[str, Any]:
                 raise DataError(f"{source}: {exc}") from None
         else:
             checked[name] = key.default
-    return checked
+    return TABLES[table](**checked)
 
 
 def load_tables(path: str | Path, need: tuple[str, ...]) -> Config:
@@ -521,7 +548,7 @@ def load_config(path: str | Path, root: Path | None = None) -> Config:
             where = "the repository root" if root else "the working directory"
             raise DataError(f"{source}: [{table}] {key} {value!r} does not exist (relative paths are "
                             f"relative to {where}; run `make fmus` to build the plants)")
-        config[table][key] = str(resolved)
+        config[table] = dataclasses.replace(config[table], **{key: str(resolved)})
     try:
         description = check_fmu(config["design"]["plant"])
     except LpvflowError as exc:

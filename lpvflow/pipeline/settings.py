@@ -1,7 +1,8 @@
 """What one design stage receives from the design file: exactly the keys it declares.
 
-The design file is read and checked once (:func:`lpvflow.pipeline.config.load_config`): every value is
-typed by its checker (``[verify] loop`` a :class:`~lpvflow.pipeline.scenarios.Loop`, ``[verify] scenario``
+The design file is read and checked once (:func:`lpvflow.pipeline.config.load_config`): every table
+becomes a frozen dataclass of its keys (:data:`lpvflow.pipeline.config.TABLES`) and every value is typed
+by its checker (``[verify] loop`` a :class:`~lpvflow.pipeline.scenarios.Loop`, ``[verify] scenario``
 a list of :class:`~lpvflow.pipeline.scenarios.Scenario`, the rest numbers, strings, lists and tables).
 Each stage of :mod:`lpvflow.pipeline.design` declares the ``(table, keys)`` it reads; it gets a
 :class:`StageSettings` holding those keys only, and its cache key is computed from

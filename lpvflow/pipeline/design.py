@@ -9,10 +9,10 @@ file's tables, keys, types and ranges, missing or unusable plant or controller f
 output folder) is refused before anything is written (exit 2). Ctrl-C removes the files the
 interrupted stage had written so far (exit 130).
 Without a [synth] table the run ends after validation; so does a run whose identified model fails
-the ν-gap/b(P, K) gate of the validate stage ([validate] gate, :func:`lpvflow.pipeline.stages.gate_verdict`),
+the ν-gap/b(P, K) gate of the validate stage ([validate] gate, :func:`lpvflow.pipeline.gate.gate_verdict`),
 with the reason as the failure. With [diagnose] adopt = true and an adopted
 extension, the adoption stage designs and verifies the identified model too and compares the two
-controllers in closed loop (:func:`lpvflow.pipeline.stages.adoption`). With [experiment] iterate = N the
+controllers in closed loop (:func:`lpvflow.pipeline.adoption.adoption`). With [experiment] iterate = N the
 experiment → synth stages first run N rounds, each under the controller the round before designed
 (identification for control, :func:`_run_stages`).
 """

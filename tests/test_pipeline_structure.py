@@ -18,7 +18,7 @@ from lpvflow.pipeline import design as design_module
 from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.config import INPUT_FILES, SCHEMA, load_config
 from lpvflow.pipeline.context import StageContext
-from lpvflow.pipeline.settings import ALL, StageSettings, UndeclaredSetting
+from lpvflow.pipeline.settings import ALL, StageSettings, TableView, UndeclaredSetting
 
 PACKAGE = Path(lpvflow.__file__).resolve().parent
 ROOT = PACKAGE.parent
@@ -120,6 +120,12 @@ def _downstream(names: set[str]) -> set[str]:
         if not more:
             return out
         out |= more
+
+
+def _readers_keys(stage) -> set[tuple[str, str]]:
+    """The (table, key) pairs a stage declares."""
+    return {(table, key) for table, keys in stage.reads.items()
+            for key in (SCHEMA[table] if keys == ALL else keys)}
 
 
 def _readers(table: str, key: str) -> set[str]:
@@ -342,6 +348,24 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
         finally:
             in_report[0] = False
 
+    current, accessed = [None], {}  # the stage running; stage → {(table, key)} it read
+    original_item = TableView.__getitem__
+
+    def item(view, key):
+        accessed.setdefault(current[0], set()).add((view._table, key))
+        return original_item(view, key)
+
+    def watched(stage):
+        def run(ctx):
+            current[0] = stage.name
+            try:
+                return stage.run(ctx)
+            finally:
+                current[0] = None  # the cache key's reads between stages are the pipeline's
+        return dataclasses.replace(stage, run=run)
+
+    monkeypatch.setattr(TableView, "__getitem__", item)
+    monkeypatch.setattr(design_module, "STAGES", tuple(watched(stage) for stage in design_module.STAGES))
     monkeypatch.setattr(lpvflow.data, "read_columns", read)
     monkeypatch.setattr(context_module, "read_columns", read)
     monkeypatch.setattr(config_module, "parse_loop", lambda doc: parses.append(doc) or original_parse(doc))
@@ -355,6 +379,11 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
     assert len(parses) == 1
     controller = lpvflow.load(tmp_path / "out" / "tanks" / "controller.json")
     assert controller.antiwindup is not None  # the parsed loop's limits reached the synth stage
+    # every stage that ran read its own table, and only keys it declares (the settings it received)
+    for stage in design_module.STAGES:
+        if stage.name in ran:
+            assert stage.name in {table for table, _ in accessed[stage.name]}, stage.name
+            assert accessed[stage.name] <= _readers_keys(stage), stage.name
 
 
 # ------------------------------------------------------------------------------ one loop engine

@@ -83,3 +83,50 @@ def test_the_loop_scheduling_is_taken_from_the_experiment_when_left_out(tmp_path
     config = load_config(_design(tmp_path, ADIP))
     assert config["verify"]["loop"].scheduling == (
         "sin(arm_angle)", "1/(1 - 0.3785*cos(arm_angle)**2)", "cos(arm_angle)/(1 - 0.3785*cos(arm_angle)**2)")
+
+
+# ------------------------------------------------------------------ scheduling values of one plant signal
+KAPPA = 0.3785  # the bundled ADIP's κ (its [experiment] scheduling)
+
+
+def _adip_images(angle: np.ndarray) -> np.ndarray:
+    det = 1 - KAPPA * np.cos(angle) ** 2
+    return np.column_stack([np.sin(angle), 1 / det, np.cos(angle) / det])
+
+
+def test_points_given_as_arm_angles_are_the_scheduling_images(tmp_path):
+    """[validate] points, [synth] breakpoints, baseline_at and box given as random arm angles (degrees)
+    become the rows (sin φ, 1/(1 − κ cos² φ), cos φ/(1 − κ cos² φ)) of the experiment's expressions."""
+    rng = np.random.default_rng(11)
+    angles = np.sort(rng.uniform(-80, 80, 7))
+    lo, hi = np.sort(rng.uniform(-85, 85, 2))
+    text = re.sub(r"^points = .*$", f'points = {{ signal = "arm_angle", range = [{lo}, {hi}], count = 5, '
+                  'unit = "deg" }', ADIP, flags=re.M)
+    text = re.sub(r"^breakpoints = .*$", 'breakpoints = { signal = "arm_angle", unit = "deg", values = '
+                  f'[{", ".join(map(str, angles))}] }}', text, flags=re.M)
+    text = re.sub(r"^baseline_at = .*$", f'baseline_at = {{ signal = "arm_angle", values = [{angles[3]}], '
+                  'unit = "deg" }', text, flags=re.M)
+    text = re.sub(r"^box = .*$", f'box = {{ signal = "arm_angle", range = [{lo}, {hi}], unit = "deg" }}',
+                  text, flags=re.M)
+    config = load_config(_design(tmp_path, text))
+    np.testing.assert_allclose(config["validate"]["points"],
+                               _adip_images(np.radians(np.linspace(lo, hi, 5))), rtol=1e-12)
+    np.testing.assert_allclose(config["synth"]["breakpoints"], _adip_images(np.radians(angles)), rtol=1e-12)
+    np.testing.assert_allclose(config["synth"]["baseline_at"], _adip_images(np.radians(angles[3:4]))[0])
+    dense = _adip_images(np.radians(np.linspace(lo, hi, 100_001)))
+    np.testing.assert_allclose(config["synth"]["box"], np.column_stack([dense.min(0), dense.max(0)]),
+                               atol=1e-6)
+
+
+@pytest.mark.parametrize(("value", "words"), [
+    ('{ signal = "arm_angle", range = [-75, 75], unit = "grad" }', 'unit = \'grad\' must be "rad" or "deg"'),
+    ('{ signal = "arm_angle", range = [-75, 75] }', "a range needs count = N ≥ 2"),
+    ('{ signal = "arm_angle", range = [75, -75], count = 3 }', "must be [lo, hi] with lo < hi"),
+    ('{ signal = "pendulum_angle", values = [0.1] }', "is not a function of pendulum_angle alone"),
+])
+def test_a_bad_scheduling_value_table_is_one_line(tmp_path, capsys, value, words):
+    path = _design(tmp_path, re.sub(r"^points = .*$", f"points = {value}", ADIP, flags=re.M))
+    assert main(["design", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and words in err and "[validate] points" in err
+    assert not (tmp_path / "out").exists()

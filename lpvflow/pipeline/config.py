@@ -29,6 +29,7 @@ from lpvflow.fmu import check_fmu
 from lpvflow.identify.methods import STATE_SPACE_METHODS
 from lpvflow.identify.prefilter import parse_prefilter
 from lpvflow.pipeline.scenarios import Loop, Scenario, ScenarioFile, parse_loop, parse_scenario
+from lpvflow.pipeline.scheduling_values import SignalValues, signal_values, with_images
 from lpvflow.pipeline.signal_check import check_signals
 from lpvflow.synth.methods import SYNTHESIS_METHODS
 
@@ -130,8 +131,19 @@ def numbers(value: Any, where: str) -> list[float]:
     return [number()(v, where) for v in value]
 
 
-def box(value: Any, where: str) -> list[list[float]]:
-    """``[[lo, hi], ...]``, one interval with lo < hi per scheduling signal."""
+def point(value: Any, where: str) -> list[float] | SignalValues:
+    """One scheduling point (a number per scheduling signal), or one value of a plant signal
+    (:mod:`lpvflow.pipeline.scheduling_values`)."""
+    if isinstance(value, dict):
+        return signal_values(value, where)
+    return numbers(value, where)
+
+
+def box(value: Any, where: str) -> list[list[float]] | SignalValues:
+    """``[[lo, hi], ...]``, one interval with lo < hi per scheduling signal, or a range of one plant
+    signal (:mod:`lpvflow.pipeline.scheduling_values`)."""
+    if isinstance(value, dict):
+        return signal_values(value, where, box=True)
     if not (isinstance(value, list) and value and all(isinstance(r, list) and len(r) == 2 for r in value)):
         raise _fail(where, value, "a list of [lo, hi] intervals, one per scheduling signal, e.g. [[-1, 1]]")
     rows = [[number()(v, where) for v in row] for row in value]
@@ -174,8 +186,11 @@ def scaling(value: Any, where: str) -> str | dict[str, float]:
     return string(("data", "none"))(value, where)
 
 
-def points(value: Any, where: str) -> list[list[float]]:
-    """A list of scheduling points, each a list of numbers."""
+def points(value: Any, where: str) -> list[list[float]] | SignalValues:
+    """A list of scheduling points, each a list of numbers, or values of one plant signal
+    (:mod:`lpvflow.pipeline.scheduling_values`)."""
+    if isinstance(value, dict):
+        return signal_values(value, where)
     if not (isinstance(value, list) and all(isinstance(v, list) and v for v in value)):
         raise _fail(where, value, "a list of scheduling points, e.g. [[-0.966, 0.259], [0.0, 1.0]]")
     return [[number()(v, where) for v in point] for point in value]
@@ -215,8 +230,11 @@ def weights(value: Any, where: str) -> dict[str, Any]:
     return value
 
 
-def breakpoints(value: Any, where: str) -> list:
-    """Values of the one scheduling signal, or rows of scheduling points (one value per signal)."""
+def breakpoints(value: Any, where: str) -> list | SignalValues:
+    """Values of the one scheduling signal, rows of scheduling points (one value per signal), or values of
+    one plant signal (:mod:`lpvflow.pipeline.scheduling_values`)."""
+    if isinstance(value, dict):
+        return signal_values(value, where)
     if isinstance(value, list) and value and all(isinstance(v, list) for v in value):
         return [numbers(row, f"{where}[{i}]") for i, row in enumerate(value)]
     return numbers(value, where)
@@ -392,7 +410,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "vertex_weights": Key(None, vertex_weights, "scheduled weights: per vertex, replacing entries"),
         "box": Key(None, box, "scheduling box [[lo, hi], …] (default: the model's recorded range)"),
         "solver": Key("CLARABEL", string(("CLARABEL", "SCS"), upper=True), "SDP solver"),
-        "baseline_at": Key(None, numbers, "scheduling point of the LTI baseline (default: box centre)"),
+        "baseline_at": Key(None, point, "scheduling point of the LTI baseline (default: box centre)"),
         "trim": Key(None, trim, "trim feed-forward u_eq(p): { p = [...], u = [[...], ...] }, interpolated"),
         "observer": Key({}, observer, "observer: Kalman noise { input, state, disturbance, noise }"),
         "reference_filter": Key(None, reference_filter, "observer: { bandwidth = rad/s, damping } on r"),
@@ -492,7 +510,7 @@ def check_table(table: str, given: Any, source: str) -> Table:
     return TABLES[table](**checked)
 
 
-def load_tables(path: str | Path, need: tuple[str, ...]) -> Config:
+def load_tables(path: str | Path, need: tuple[str, ...], images: bool = True) -> Config:
     """Every table of a design file, checked; ``need`` lists the tables the caller requires.
 
     Tables absent from the file are None. Used by ``synth --config`` (need ``synth``) and
@@ -512,7 +530,17 @@ def load_tables(path: str | Path, need: tuple[str, ...]) -> Config:
         raise DataError(f"{source} lacks the table(s) {['[' + t + ']' for t in missing]} "
                         "(layout: docs/design_file.md)")
     with_loop_scheduling(raw)
-    return {table: check_table(table, raw[table], source) if table in raw else None for table in SCHEMA}
+    config = {table: check_table(table, raw[table], source) if table in raw else None for table in SCHEMA}
+    return scheduling_images(config, source) if images else config
+
+
+def scheduling_images(config: Config, source: str) -> Config:
+    """``config`` with scheduling points given as values of one plant signal replaced by their images
+    (:mod:`lpvflow.pipeline.scheduling_values`)."""
+    try:
+        return with_images(config, dataclasses.replace)
+    except DataError as exc:
+        raise DataError(f"{source}: {exc}") from None
 
 
 def with_loop_scheduling(raw: dict[str, Any]) -> None:
@@ -536,7 +564,7 @@ def load_config(path: str | Path, root: Path | None = None) -> Config:
     and must be usable: the plant a readable FMU with a linux64 binary, the controller an existing file.
     """
     source = Path(path).name
-    config = load_tables(path, tuple(t for t in SCHEMA if t not in OPTIONAL))
+    config = load_tables(path, tuple(t for t in SCHEMA if t not in OPTIONAL), images=False)
     if config["synth"] is None and (config["verify"] or config["export"]):
         raise DataError(f"{source}: [verify] and [export] need a [synth] table (a controller to use)")
     for table, key in INPUT_FILES:
@@ -557,7 +585,7 @@ def load_config(path: str | Path, root: Path | None = None) -> Config:
         check_signals(config, description)
     except DataError as exc:
         raise DataError(f"{source}: {exc}") from None
-    return config
+    return scheduling_images(config, source)
 
 
 def load_scenarios(path: str | Path) -> ScenarioFile:

@@ -20,6 +20,7 @@ import numpy as np
 from lpvflow.errors import DataError
 from lpvflow.experiment.run import DIAGNOSTIC_PREFIX, default_scheduling
 from lpvflow.experiment.scheduling import evaluate
+from lpvflow.pipeline.scheduling_values import SignalValues
 
 
 def _unknown(where: str, given: Iterable[str], known: Iterable[str], what: str) -> None:
@@ -92,17 +93,18 @@ def _check_validate(validate: Mapping[str, Any], identify: Mapping[str, Any], va
         _unknown("[validate] scaling", validate["scaling"], signals, "a model input or output")
         _unknown("[validate] scaling lacks a scale for", signals, validate["scaling"], "given")
     n_p = len(identify["p"])
-    if any(len(point) != n_p for point in validate["points"]):
+    given = validate["points"]
+    if not isinstance(given, SignalValues) and any(len(point) != n_p for point in given):
         raise DataError(f"[validate] points: each point needs {n_p} value(s), one per [identify] p "
                         f"{identify['p']}")
 
 
 def _check_synth(synth: Mapping[str, Any], identify: Mapping[str, Any]) -> None:
     n_p, n_u = len(identify["p"]), len(identify["u"])
-    if synth["box"] is not None and len(synth["box"]) != n_p:
+    if isinstance(synth["box"], list) and len(synth["box"]) != n_p:
         raise DataError(f"[synth] box has {len(synth['box'])} interval(s); give one per [identify] p "
                         f"{identify['p']}")
-    if synth["baseline_at"] is not None and len(synth["baseline_at"]) != n_p:
+    if isinstance(synth["baseline_at"], list) and len(synth["baseline_at"]) != n_p:
         raise DataError(f"[synth] baseline_at has {len(synth['baseline_at'])} value(s); give one per "
                         f"[identify] p {identify['p']}")
     if synth["trim"] is not None and len(synth["trim"]["u"][0]) != n_u:

@@ -40,7 +40,7 @@ from lpvflow.experiment import load_controller, run_fmu_experiment
 from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.spline_sls import identify_spline_sls
 from lpvflow.identify.two_step import identify_two_step, reconstruct_dataset
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.validate.metrics import bfr, frozen_response_error, mse, vaf
 
 ROOT = Path(__file__).resolve().parents[1]

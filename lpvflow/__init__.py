@@ -6,7 +6,7 @@ from lpvflow.errors import DataError, LpvflowError, ModelError
 
 #: Public names imported on first use, so that ``lpvflow --help`` does not load numba and SciPy.
 _LAZY = {"Basis": "lpvflow.basis", "Dataset": "lpvflow.data", "identify_arx": "lpvflow.identify.arx",
-         "LPVLFR": "lpvflow.lfr", "LPVIO": "lpvflow.models", "LPVSS": "lpvflow.models",
+         "LPVLFR": "lpvflow.lfr", "LPVIO": "lpvflow.lpvio", "LPVSS": "lpvflow.models",
          "load": "lpvflow.models"}
 
 __all__ = ["DataError", "LpvflowError", "ModelError", *_LAZY]

@@ -18,14 +18,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from lpvflow.errors import DataError
-from lpvflow.pipeline.scenarios import Loop, Scenario, load_scenarios
-from lpvflow.pipeline.verify import (
-    Baseline,
-    FmuController,
-    Verification,
-    load_controller_file,
-    run_verification,
-)
+from lpvflow.loop.fmu_controller import FmuController
+from lpvflow.loop.loader import load_controller_file
+from lpvflow.pipeline.config import load_scenarios
+from lpvflow.pipeline.scenarios import Loop, Scenario
+from lpvflow.pipeline.verify import Baseline, Verification, run_verification
 
 
 def assert_closed_loop(

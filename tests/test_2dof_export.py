@@ -15,10 +15,12 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from lpvflow.basis import Basis
+from lpvflow.loop.fmu_controller import FmuController
 from lpvflow.models import load
-from lpvflow.pipeline.export import describe_signals, export_fmu, export_json, export_mat
+from lpvflow.pipeline.export import export_fmu, export_json, export_mat
+from lpvflow.pipeline.ports import describe_signals
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
-from lpvflow.pipeline.verify import FmuController, simulate_loop
+from lpvflow.pipeline.verify import simulate_loop
 from lpvflow.synth.controller import AntiWindup, LPVController, Trim, observer_gains
 from lpvflow.synth.polytope import Polytope
 from tests.adip_cases import TS

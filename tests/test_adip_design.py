@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from lpvflow.models import load
-from lpvflow.pipeline.config import bundled_config, repository_root
+from lpvflow.pipeline.config import bundled_config, load_scenarios, repository_root
 from lpvflow.pipeline.design import run_design
-from lpvflow.pipeline.scenarios import load_scenarios
 from lpvflow.pipeline.verify import simulate_loop
 from tests.test_2dof_export import fmpy_closed_loop
 from tests.test_export import ADIP

@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 from lpvflow.basis import Basis
+from lpvflow.loop.fmu_controller import FmuController
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.export import export_fmu
+from lpvflow.pipeline.loop_metrics import run_metrics
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
-from lpvflow.pipeline.verify import FmuController, run_metrics, simulate_loop
+from lpvflow.pipeline.verify import simulate_loop
 from lpvflow.synth.controller import AntiWindup, LPVController, observer_gains
 from lpvflow.synth.hinf import synthesize
 from lpvflow.synth.plant import generalized_plant

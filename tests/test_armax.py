@@ -7,7 +7,7 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.armax import identify_armax
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 
 def innovation_model(form: str) -> LPVIO:

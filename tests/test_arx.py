@@ -8,7 +8,7 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import identify_arx
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.validate.metrics import bfr
 
 # Fresh validation data may reach slightly past the identified range; that warning is tested elsewhere.

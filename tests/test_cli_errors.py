@@ -9,6 +9,7 @@ point, so the file runs in a few seconds.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import tempfile
@@ -259,8 +260,7 @@ def stand_in(name: str, write: dict[str, str], outputs: dict | None = None, read
 
 def patch_stages(monkeypatch: pytest.MonkeyPatch, runs: dict) -> None:
     """Replace the runners of the named stages; the others become no-ops writing nothing."""
-    stages = tuple(design.Stage(s.name, runs.get(s.name, stand_in(s.name, {})), s.tables, s.upstream,
-                                s.file_keys) for s in design.STAGES)
+    stages = tuple(dataclasses.replace(s, run=runs.get(s.name, stand_in(s.name, {}))) for s in design.STAGES)
     monkeypatch.setattr(design, "STAGES", stages)
 
 
@@ -388,7 +388,8 @@ def _umask() -> int:
 
 def test_a_design_without_ts_runs_its_experiment_at_the_fmu_step(design_file):
     from lpvflow.pipeline.config import load_config
-    from lpvflow.pipeline.stages import StageContext, experiment
+    from lpvflow.pipeline.context import StageContext
+    from lpvflow.pipeline.stages import experiment
 
     design_file.write_text(design_file.read_text().replace("Ts = 1.0\nduration = 100.0", "duration = 2.0"))
     config = load_config(design_file)

@@ -7,7 +7,7 @@ import pytest
 
 import lpvflow
 from lpvflow.basis import Basis
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.pipeline.cli import main
 
 

@@ -12,7 +12,7 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.experiment import run_fmu_experiment
 from lpvflow.experiment.controller import LtiController
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.pipeline.cli import main
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.polytope import polytope_of

@@ -391,7 +391,7 @@ def test_only_extensions_on_the_unmapped_signals_are_adopted(cause, parameters, 
     adopting their model as the design model would be wrong, so the design reports them only."""
     from types import SimpleNamespace
 
-    from lpvflow.pipeline.stages import adoption_refusal
+    from lpvflow.pipeline.adoption import adoption_refusal
 
     model = SimpleNamespace(form="shifted")
     winner = SimpleNamespace(inputs_added=inputs_added, fit=SimpleNamespace(model=model))

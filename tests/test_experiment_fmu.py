@@ -242,7 +242,8 @@ def test_python_control_controller_gives_the_same_run_as_its_file(adip):
 def test_design_experiment_stage_takes_a_setpoint_table(adip, tmp_path):
     """A design's `[experiment] setpoint = { arm_angle = "..." }` reaches the experiment (data.csv)."""
     from lpvflow.pipeline.config import bundled_config, load_config
-    from lpvflow.pipeline.stages import StageContext, experiment
+    from lpvflow.pipeline.context import StageContext
+    from lpvflow.pipeline.stages import experiment
 
     text = bundled_config("adip").read_text().replace("duration = 240.0", "duration = 4.0")
     text = re.sub(r"^setpoint = .*$", 'setpoint = { arm_angle = "levels:lo=-0.2,hi=0.2,min_hold=1,'

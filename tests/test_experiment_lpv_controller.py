@@ -15,12 +15,14 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment import run_experiment, run_fmu_experiment
-from lpvflow.experiment.controller import load_experiment_controller
+from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.experiment.record import write_record
 from lpvflow.experiment.synthesized import SynthesizedController
 from lpvflow.models import LPVSS
-from lpvflow.pipeline import stages
+from lpvflow.pipeline.context import StageContext
+from lpvflow.pipeline.coordinates import controller_trim
 from lpvflow.pipeline.design import run_design
+from lpvflow.pipeline.model_loop import closed_loop_simulation
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
 from lpvflow.pipeline.verify import simulate_loop
 from lpvflow.synth.controller import AntiWindup, LPVController, observer_gains
@@ -207,12 +209,12 @@ def test_validate_simulates_the_experiment_loop_exactly_on_an_exact_model(tmp_pa
     write_record(record, tmp_path / "data.csv")
     config = {"experiment": {"controller": str(controller), "scheduling": {"sin_arm": "sin(arm_angle)"}},
               "identify": {"remove_trim": remove_trim}}
-    ctx = stages.StageContext(tmp_path, config)
+    ctx = StageContext(tmp_path, config)
     data = Dataset.read(tmp_path / "data.csv", ["voltage"], ["arm_angle", "pendulum_angle"], ["sin_arm"])
-    y_sim = stages.closed_loop_simulation(linear_adip(), data, ctx)
+    y_sim = closed_loop_simulation(linear_adip(), data, ctx)
     assert np.ptp(data.y[:, 0]) > 0.3
     np.testing.assert_allclose(y_sim, data.y, atol=1e-9)
-    trim = stages.controller_trim(ctx, data)[:, 0]
+    trim = controller_trim(ctx, data)[:, 0]
     np.testing.assert_allclose(trim, np.interp(np.sin(data.y[:, 0]), TRIM.p, TRIM.u[:, 0]), atol=1e-12)
 
 

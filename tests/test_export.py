@@ -15,13 +15,14 @@ from fmpy.validation import validate_fmu
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import load_controller
+from lpvflow.loop.fmu_controller import FmuController
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.config import bundled_config, load_config
-from lpvflow.pipeline.export import controller_signals, describe_signals, export_fmu, export_json, export_mat
+from lpvflow.pipeline.export import export_fmu, export_json, export_mat
+from lpvflow.pipeline.ports import controller_signals, describe_signals, design_signals
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
-from lpvflow.pipeline.stages import StageContext, design_signals
-from lpvflow.pipeline.verify import FmuController, simulate_loop
+from lpvflow.pipeline.verify import simulate_loop
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.polytope import Polytope, _corners
 
@@ -320,9 +321,10 @@ def test_the_bundled_adip_design_names_its_controller_ports(
 ) -> None:
     """The synth stage's record: model names, [experiment] scheduling expression, FMU units/descriptions."""
     monkeypatch.chdir(ROOT)  # the bundled design's plant path is relative to the repository root
-    context = StageContext(tmp_path, load_config(bundled_config("adip")))
+    config = load_config(bundled_config("adip"))
     controller = _adip_lpv_controller()
-    controller.info["signals"] = design_signals(context, _adip_model())
+    controller.info["signals"] = design_signals(_adip_model(), config["experiment"]["scheduling"],
+                                                config["design"]["plant"], config["verify"]["loop"])
     signals = controller_signals(controller)
     assert [(p.name, p.unit) for p in signals.measured] == [("arm_angle", "rad"), ("pendulum_angle", "rad")]
     assert (signals.scheduling[0].name, signals.scheduling[0].expression) == ("sin_arm", "sin(arm_angle)")

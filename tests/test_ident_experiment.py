@@ -12,10 +12,11 @@ import pytest
 
 from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment import run_fmu_experiment
-from lpvflow.experiment.controller import GriddedController, load_experiment_controller
+from lpvflow.experiment.controller import GriddedController
+from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.pipeline.config import check_table
 from lpvflow.pipeline.design import run_design
-from lpvflow.pipeline.stages import gate_verdict
+from lpvflow.pipeline.gate import gate_verdict
 from tests.design_files import adip_identification
 from tests.fmu_builds import built_fmu
 

@@ -9,10 +9,12 @@ import pytest
 import lpvflow
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError
-from lpvflow.models import LPVIO, LPVSS
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import LPVSS
 from lpvflow.pipeline.cli_identify import METHODS
 from lpvflow.pipeline.config import check_table
-from lpvflow.pipeline.stages import StageContext, identify
+from lpvflow.pipeline.context import StageContext
+from lpvflow.pipeline.stages import identify
 from lpvflow.validate.metrics import fit_report
 
 N = 1500

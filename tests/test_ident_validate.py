@@ -13,10 +13,11 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import identify_arx
-from lpvflow.models import LPVIO
+from lpvflow.identify.prefilter import prefiltered
+from lpvflow.lpvio import LPVIO
 from lpvflow.pipeline.config import bundled_config, check_table, repository_root
 from lpvflow.pipeline.design import run_design
-from lpvflow.pipeline.stages import _scaling, prefiltered
+from lpvflow.pipeline.frozen_references import signal_scaling
 from lpvflow.validate.metrics import fit_report
 
 
@@ -69,10 +70,10 @@ def test_fixed_scaling_table_must_name_every_signal():
 
     est = Dataset(u=np.ones((5, 1)), y=np.ones((5, 2)), p=np.zeros((5, 1)), Ts=0.1, u_names=["voltage"],
                   y_names=["arm_angle", "pendulum_angle"], p_names=["s"])
-    scale = _scaling({"voltage": 3.0, "arm_angle": 0.3, "pendulum_angle": 0.025}, est, Model())
+    scale = signal_scaling({"voltage": 3.0, "arm_angle": 0.3, "pendulum_angle": 0.025}, est, Model())
     np.testing.assert_array_equal(np.diag(scale.Dy), [0.3, 0.025])
     with pytest.raises(DataError, match=r"missing \['pendulum_angle'\]; unknown \['speed'\]"):
-        _scaling({"voltage": 3.0, "arm_angle": 0.3, "speed": 1.0}, est, Model())
+        signal_scaling({"voltage": 3.0, "arm_angle": 0.3, "speed": 1.0}, est, Model())
     with pytest.raises(DataError, match=r"\[validate\] scaling.voltage = -1 must be a number in \(0"):
         check_table("validate", {"scaling": {"voltage": -1}}, "design.toml")
     with pytest.raises(DataError, match=r"\[validate\] points = \[1, 2\] must be a list of scheduling"):

@@ -16,12 +16,9 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.realize import integrate_outputs
 from lpvflow.models import LPVSS
-from lpvflow.pipeline.stages import (
-    StageContext,
-    _frozen_experiment_controller,
-    _trim_closed,
-    model_coordinates,
-)
+from lpvflow.pipeline.context import StageContext
+from lpvflow.pipeline.coordinates import model_coordinates
+from lpvflow.pipeline.frozen_references import frozen_experiment_controller, trim_closed
 
 NAMES = {"u_names": ["voltage"], "y_names": ["arm_angle", "pendulum_angle"], "p_names": ["p"]}
 
@@ -112,12 +109,12 @@ def test_gate_moves_the_trims_feedback_from_the_controller_to_the_plant(tmp_path
     def poles(plant, K):
         return np.sort_complex(np.linalg.eigvals(control.feedback(plant, K, sign=-1).A))
 
-    K_trim, _, none = _frozen_experiment_controller(_context(tmp_path, False, [], "arm_angle"), model,
+    K_trim, _, none = frozen_experiment_controller(_context(tmp_path, False, [], "arm_angle"), model,
                                                     reference)
     assert none is None
-    K_bare, _, T = _frozen_experiment_controller(_context(tmp_path, True, [], "arm_angle"), model, reference)
+    K_bare, _, T = frozen_experiment_controller(_context(tmp_path, True, [], "arm_angle"), model, reference)
     for p in (np.array([-0.7]), np.array([1.3])):
         np.testing.assert_allclose(T(p), [[2.0, 0.0]], atol=1e-8)
-        np.testing.assert_allclose(poles(_trim_closed(lambda _: G, T)(p), K_bare(p)), poles(G, K_trim(p)),
+        np.testing.assert_allclose(poles(trim_closed(lambda _: G, T)(p), K_bare(p)), poles(G, K_trim(p)),
                                    atol=1e-9)
         assert not np.allclose(K_bare(p).D, K_trim(p).D)

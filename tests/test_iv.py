@@ -12,7 +12,7 @@ from lpvflow.errors import DataError
 from lpvflow.identify import montecarlo as mc
 from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.iv import identify_iv_arx, identify_iv_oe, identify_riv, parameter_vector
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 
 def mimo_model(form: str) -> LPVIO:

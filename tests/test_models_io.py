@@ -9,7 +9,8 @@ import pytest
 import lpvflow
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, ModelError
-from lpvflow.models import LPVIO, LPVSS, load
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import LPVSS, load
 
 
 def small_io():

@@ -8,7 +8,7 @@ from lpvflow.identify import montecarlo as mc
 from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.iv import Structure, parameter_vector, simulate_psi
 from lpvflow.identify.oe import identify_oe, sensitivities
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from tests.test_iv import mimo_model
 
 

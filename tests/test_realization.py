@@ -12,7 +12,7 @@ import pytest
 from lpvflow.basis import Basis
 from lpvflow.errors import ModelError
 from lpvflow.identify.realize import observable_form
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 CASES = list(itertools.product([(1, 1), (2, 2)], [1, 2, 3], [1, 2], [0, 1, 2], [False, True]))
 

@@ -18,7 +18,8 @@ from lpvflow.identify.reduce import (
     reduce,
     select_order,
 )
-from lpvflow.models import LPVIO, LPVSS, load
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import LPVSS, load
 from lpvflow.validate.metrics import bfr
 
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from lpvflow.errors import DataError
+from lpvflow.pipeline.config import load_scenarios
 from lpvflow.pipeline.export import export_fmu
-from lpvflow.pipeline.scenarios import load_scenarios
 from lpvflow.testing import assert_closed_loop
 from tests.test_export import _adip_lpv_controller
 

@@ -17,10 +17,10 @@ from lpvflow.pipeline.config import (
     bundled_config,
     check_table,
     load_config,
+    load_scenarios,
     load_tables,
     repository_root,
 )
-from lpvflow.pipeline.scenarios import load_scenarios
 
 DOC = repository_root() / "docs" / "design_file.md"
 

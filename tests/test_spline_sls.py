@@ -10,7 +10,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.spline_sls import SeparableProblem, fit_spline_knots, identify_spline_sls
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.validate.metrics import bfr
 
 pytestmark = pytest.mark.filterwarnings("ignore::lpvflow.basis.SchedulingRangeWarning")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -89,6 +90,7 @@ def test_the_verify_stage_records_the_largest_step_each_controller_holds(tmp_pat
     """[verify] largest_step: the stage runs the sweep for the LPV controller and the baseline, and the
     summary card states it."""
     from lpvflow.pipeline import stages
+    from lpvflow.pipeline.config import check_table
     from lpvflow.pipeline.report import summary_card
 
     lti_controller.save(tmp_path / "controller.json")
@@ -97,9 +99,9 @@ def test_the_verify_stage_records_the_largest_step_each_controller_holds(tmp_pat
             "scheduling": ["sin(arm_angle)"], "actuator_limits": {"voltage": [-10.0, 10.0]}}
     step = {"name": "arm to +75 deg", "duration": 4.0, "reference": {"arm_angle": {"steps": [[0.5, 1.309]]}},
             "settling_band": {"arm_angle": 0.0175}, "output_bounds": {"pendulum_angle": [-0.5, 0.5]}}
-    config = {"design": {"plant": str(ADIP)},
-              "verify": {"loop": loop, "scenario": [step],
-                         "largest_step": {"scenario": "arm to +75 deg", "criterion": "bounded"}}}
+    verify = check_table("verify", {"loop": loop, "scenario": [step], "largest_step": {
+        "scenario": "arm to +75 deg", "criterion": "bounded"}}, "design.toml")  # parsed as a design file's
+    config = {"design": {"plant": str(ADIP)}, "verify": verify}
     outputs, _ = stages.verify(stages.StageContext(tmp_path, config))
     record = outputs["largest_held_step"]
     assert record["output"] == "arm_angle" and record["criterion"] == "bounded"
@@ -110,6 +112,7 @@ def test_the_verify_stage_records_the_largest_step_each_controller_holds(tmp_pat
     summary = {"name": "t", "stages": {"verify": {"status": "ran", "outputs": outputs}}}
     assert f"{math.degrees(record['baseline']):.1f}" in summary_card(summary, {"arm_angle": "rad"})
 
-    config["verify"]["largest_step"] = {"scenario": "arm to +80 deg", "criterion": "bounded"}
+    config["verify"] = dataclasses.replace(verify, largest_step={"scenario": "arm to +80 deg",
+                                                                 "criterion": "bounded"})
     with pytest.raises(DataError, match="names no scenario; known: \\['arm to \\+75 deg'\\]"):
         stages.verify(stages.StageContext(tmp_path, config))

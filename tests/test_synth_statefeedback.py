@@ -15,6 +15,7 @@ column rank the u-block condition follows). γ_ric is found by bisection on this
 """
 
 import dataclasses
+import textwrap
 
 import control
 import numpy as np
@@ -22,15 +23,16 @@ import pytest
 import scipy.linalg
 
 import lpvflow.synth.lmi_statefeedback as sfmod
+import lpvflow.synth.statefeedback_certificate as certificate_module
 from lpvflow.synth.examples import maglev_like, random_lpv
 from lpvflow.synth.lmi_statefeedback import (
     as_vertices,
-    certify_state_feedback,
     synthesize_state_feedback,
     vertex_lmi_max_eig,
 )
 from lpvflow.synth.plant import augment, generalized_plant, weight_systems
 from lpvflow.synth.sdp import SynthesisError
+from lpvflow.synth.statefeedback_certificate import certify_state_feedback
 from tests.synth_cases import two_state_plant
 
 WEIGHTS = {"S": {"num": [0.1, 0.1], "den": [1, -1]}, "K": {"num": [0.01], "den": [1]},
@@ -265,10 +267,17 @@ def test_gamma_spec_below_the_optimum_is_refused_with_the_reason(toy):
 
 def test_quadratic_stability_falls_back_to_the_designs_own_lyapunov_matrix(toy, monkeypatch):
     model, _, designs = toy
-    failed = sfmod.quadratic_stability([np.array([[2.0]])])  # a real refusal (unstable vertex)
-    monkeypatch.setattr(sfmod, "quadratic_stability", lambda A: failed)
+    failed = certificate_module.quadratic_stability([np.array([[2.0]])])  # a real refusal (unstable vertex)
+    monkeypatch.setattr(certificate_module, "quadratic_stability", lambda A: failed)
     good = designs["quadratic", None]
     cert = certify_state_feedback(good, model, WEIGHTS, per_axis=5)
     assert cert.quadratically_stable and "the design's P" in cert.stability_note and cert.ok
     bad = dataclasses.replace(good, K_vertices=[3.0 * K for K in good.K_vertices])
     assert not certify_state_feedback(bad, model, WEIGHTS, per_axis=5).quadratically_stable
+
+
+def test_the_module_docstring_example_runs():
+    """The library-API example at the top of lpvflow.synth.lmi_statefeedback designs and certifies."""
+    doc = sfmod.__doc__
+    block = doc[doc.index("::\n") + 3:doc.index("\n\n", doc.index("::\n") + 4)]
+    exec(textwrap.dedent(block), {})

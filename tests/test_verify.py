@@ -19,17 +19,11 @@ from lpvflow.basis import Basis
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.pipeline.cli import main
+from lpvflow.pipeline.config import load_scenarios
 from lpvflow.pipeline.export import export_fmu
-from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal, load_scenarios
-from lpvflow.pipeline.verify import (
-    ClosedLoopRun,
-    after_settling_peaks,
-    coverage_note,
-    plot_runs,
-    requirement_failures,
-    run_verification,
-    verify,
-)
+from lpvflow.pipeline.loop_metrics import ClosedLoopRun, after_settling_peaks, requirement_failures
+from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal
+from lpvflow.pipeline.verify import coverage_note, plot_runs, run_verification, verify
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.polytope import Polytope
 from tests.test_export import _adip_lpv_controller

@@ -1,19 +1,25 @@
-"""Identification experiments on FMU plants: excitation signals, open/closed-loop runs, CSV records."""
+"""Identification experiments on FMU plants: excitation signals, open/closed-loop runs, CSV records.
 
-from lpvflow.experiment.controller import LtiController, load_controller
-from lpvflow.experiment.fmu_experiment import run_fmu_experiment
-from lpvflow.experiment.run import ExperimentRecord, run_experiment
-from lpvflow.experiment.specs import SignalSpec, generate, parse_spec
-from lpvflow.experiment.synthesized import SynthesizedController
+The public names are imported on first use, so that importing one module of the package (e.g. the
+controller classes, which the loop engine needs) does not import the experiment runner and its
+dependencies first."""
 
-__all__ = [
-    "ExperimentRecord",
-    "LtiController",
-    "SignalSpec",
-    "SynthesizedController",
-    "generate",
-    "load_controller",
-    "parse_spec",
-    "run_experiment",
-    "run_fmu_experiment",
-]
+import importlib
+
+_LAZY = {"ExperimentRecord": "lpvflow.experiment.run", "LtiController": "lpvflow.experiment.controller",
+         "SignalSpec": "lpvflow.experiment.specs", "SynthesizedController": "lpvflow.experiment.synthesized",
+         "generate": "lpvflow.experiment.specs", "load_controller": "lpvflow.experiment.controller",
+         "parse_spec": "lpvflow.experiment.specs", "run_experiment": "lpvflow.experiment.run",
+         "run_fmu_experiment": "lpvflow.experiment.fmu_experiment"}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str) -> object:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'lpvflow.experiment' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

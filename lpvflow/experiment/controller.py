@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lpvflow.errors import DataError, ModelError
-from lpvflow.experiment.synthesized import SynthesizedController
 
 if TYPE_CHECKING:  # python-control takes ~1 s to import; the controller law needs only numpy
     import control
@@ -157,7 +156,7 @@ def _matrix(doc: dict, key: str, rows: int, cols: int) -> np.ndarray:
         raise ModelError(f"controller {key} is not a numeric matrix") from None
 
 
-def _read_controller_json(path: Path) -> object:
+def read_controller_json(path: Path) -> object:
     """The parsed JSON of a controller file; ModelError when it is missing or not JSON."""
     if not path.is_file():
         raise ModelError(f"controller file {path} does not exist")
@@ -170,7 +169,7 @@ def _read_controller_json(path: Path) -> object:
 def load_controller(path: str | Path) -> LtiController:
     """Read a ``lpvflow/lti-controller`` JSON file; refuse other formats and versions."""
     path = Path(path)
-    return LtiController.from_dict(_read_controller_json(path), f"controller file {path}")
+    return LtiController.from_dict(read_controller_json(path), f"controller file {path}")
 
 
 # ------------------------------------------------------------------------------ gridded (scheduled)
@@ -345,30 +344,3 @@ class GriddedController:
                 "grid": self.grid.tolist(), "points": points, "description": self.description}
 
 
-#: Controllers an experiment can run.
-ExperimentController = LtiController | GriddedController | SynthesizedController
-
-#: Format of the synthesized LPV controllers (:class:`lpvflow.synth.controller.LPVController`).
-LPV_FORMAT = "lpvflow/lpv-controller"
-
-
-def load_experiment_controller(path: str | Path) -> ExperimentController:
-    """Read an ``lpvflow/lti-controller``, ``lpvflow/gridded-controller`` or ``lpvflow/lpv-controller`` JSON
-    file (the last wired by its ``info["signals"]``, :mod:`lpvflow.experiment.synthesized`)."""
-    path = Path(path)
-    doc = _read_controller_json(path)
-    kind = doc.get("format") if isinstance(doc, dict) else None
-    if kind == GRIDDED_FORMAT:
-        return GriddedController.from_dict(doc, f"controller file {path}")
-    if kind == LPV_FORMAT:
-        from lpvflow.synth.controller import LPVController
-
-        try:
-            law = LPVController.from_dict(doc)
-        except (TypeError, ValueError, IndexError) as exc:  # ModelError is a ValueError: one line either way
-            raise ModelError(f"controller file {path}: {str(exc).splitlines()[0]}") from None
-        return SynthesizedController.from_controller(law, f"controller file {path}")
-    if kind not in (FORMAT, None):
-        raise ModelError(f"controller file {path} has format {kind!r}; an experiment runs "
-                         f"{FORMAT!r}, {GRIDDED_FORMAT!r} or {LPV_FORMAT!r} controllers")
-    return LtiController.from_dict(doc, f"controller file {path}")

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import control
 
-from lpvflow.experiment.controller import GriddedController, LtiController, load_experiment_controller
+from lpvflow.experiment.controller import GriddedController, LtiController
+from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.experiment.plant import open_plant, sha256_of
 from lpvflow.experiment.record import check_output_path, write_record
 from lpvflow.experiment.run import ExperimentRecord, run_experiment

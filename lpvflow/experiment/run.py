@@ -36,6 +36,10 @@ on them), w = r − y (1-DOF) or [r; y] (2-DOF), the scheduling p(k) its express
 outputs, and u_K(k) = u_op + u_eq(p) + C(p) xc + D(p) w (clipped to its anti-windup range) + r_e(k)
 with the excitation r_e recorded as ``<input>_excitation``, the set-points as ``<output>_setpoint``.
 
+Every kind runs through the closed-loop engine (:func:`lpvflow.loop.engine.close_loop`) as a
+controller of the loop protocol (:mod:`lpvflow.loop.protocol`); an open-loop run is the engine with
+:class:`~lpvflow.loop.protocol.OpenLoop`.
+
 Sensors (``quantization``, ``noise``, per plant output): what the controller reads and the record holds
 is y_m(k) = q·round((y(k) + v(k))/q) with v white Gaussian of the given standard deviation (seeded per
 output) and q the quantization step (an encoder of 4096 counts per revolution: q = 2π/4096 rad); either
@@ -58,6 +62,8 @@ from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.experiment.plant import Plant
 from lpvflow.experiment.specs import SignalSpec, generate, parse_spec
 from lpvflow.experiment.synthesized import SynthesizedController
+from lpvflow.loop.engine import close_loop
+from lpvflow.loop.protocol import OpenLoop, as_loop_controller
 
 #: Tolerance on the controller Ts matching the experiment Ts.
 _STEP_TOLERANCE = 1e-9
@@ -204,58 +210,44 @@ def run_experiment(
     y = np.empty((n, len(plant.output_names)))
     u = u_open.copy()
     measure = sensors(n, seed)
-    gridded = isinstance(controller, GriddedController)
+    K = OpenLoop() if controller is None else as_loop_controller(controller)
+    # the references of the outputs K reads: their set-points (NaN: K's operating point); an LTI
+    # controller's set-points are already in r (above)
+    references = np.full((n, len(K.inputs)), np.nan)
+    if not isinstance(controller, LtiController):
+        for j, name in enumerate(K.inputs):
+            references[:, j] = s.get(name, references[:, j])
+    u_index = [plant.input_names.index(name) for name in K.outputs]
+    r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in K.outputs]) if K.outputs else None
     synthesized = isinstance(controller, SynthesizedController)
-    if controller is not None:  # the plant signals the controller reads and drives, its output signal r
-        y_index = [plant.output_names.index(name) for name in controller.inputs]
-        u_index = [plant.input_names.index(name) for name in controller.outputs]
-        r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in controller.outputs])
-    if synthesized:
-        references = np.column_stack([s.get(name, np.full(n, y0))
-                                      for name, y0 in zip(controller.inputs, controller.y_op, strict=True)])
-        schedule = controller.scheduling_function(plant.output_names)
-        controller.reset()
-    elif gridded:
-        s_index = [controller.inputs.index(name) for name in s]
-        s_matrix = np.column_stack([s[name] for name in s]) if s else np.zeros((n, 0))
-        theta_of = controller.scheduling_function()
-        setpoints = np.zeros(len(controller.inputs))
-        xc = np.zeros(controller.order)
-    elif controller is not None:
-        nx = controller.A.shape[0]
-        # one product per step: [xc(k+1); u_K(k) - u_op - r(k)] = [[A, B], [C, D]] [xc(k); y_K(k) - y_op]
-        law = np.block([[controller.A, controller.B], [controller.C, controller.D]])
-        u_offset = controller.u_op + r_matrix
-        w = np.zeros(nx + len(y_index))
     show = None if progress is None else not progress
     bar = tqdm(total=n, unit="step", desc=f"experiment {model}", disable=show)
+
+    def measured(k: int, y_plant: np.ndarray) -> np.ndarray:
+        y[k] = measure(k, y_plant)
+        return y[k]
+
+    def stop(k: int, y_k: np.ndarray) -> None:  # the LPV controller's scheduling needs finite outputs
+        if synthesized and not np.all(np.isfinite(y_k)):
+            _check_finite(y, k, k + 1, plant.output_names, Ts)
+
+    def actuate(k: int, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
+        if r_matrix is not None:
+            u[k, u_index] = u_c + r_matrix[k]
+        return u[k]
+
+    def record(k: int, y_k: np.ndarray, p: np.ndarray, u_c: np.ndarray, u_k: np.ndarray | None) -> None:
+        if k % 1000 == 999 or k == n - 1:
+            _check_finite(y, k - k % 1000, k + 1, plant.output_names, Ts)
+            bar.update(k + 1 - bar.n)
+
     try:
-        for k in range(n):
-            y[k] = measure(k, plant.outputs())
-            if gridded:
-                y_k = y[k, y_index]
-                setpoints[s_index] = s_matrix[k]
-                A, B, C, D, y_bar, u_op = controller.at(theta_of(np.concatenate([y_k, setpoints])))
-                y_bar[s_index] = s_matrix[k]
-                dy = y_k - y_bar
-                u[k, u_index] = u_op + C @ xc + D @ dy + r_matrix[k]
-                xc = A @ xc + B @ dy
-            elif synthesized:
-                if not np.all(np.isfinite(y[k])):
-                    _check_finite(y, k, k + 1, plant.output_names, Ts)
-                p = schedule(y[k])
-                u[k, u_index] = controller.command(references[k], y[k, y_index], p) + r_matrix[k]
-            elif controller is not None:
-                np.subtract(y[k, y_index], controller.y_op, out=w[nx:])
-                z = law @ w
-                u[k, u_index] = z[nx:] + u_offset[k]
-                w[:nx] = z[:nx]
-            plant.step(u[k], k * Ts, Ts)
-            if k % 1000 == 999 or k == n - 1:
-                _check_finite(y, k - k % 1000, k + 1, plant.output_names, Ts)
-                bar.update(k + 1 - bar.n)
+        failure = close_loop(K, plant, n, references, measure=measured, stop=stop, actuate=actuate,
+                             record=record, Ts=Ts)
     finally:
         bar.close()
+    if failure:
+        raise ModelError(f"the experiment's closed loop {failure}; the run diverged")
 
     signals = dict(zip(plant.input_names, u.T, strict=True)) | dict(zip(plant.output_names, y.T, strict=True))
     outputs = [name for name in plant.output_names

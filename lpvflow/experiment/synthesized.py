@@ -3,7 +3,7 @@
 the controller of an identification experiment.
 
 Its wiring comes from the port record ``info["signals"]``
-(:func:`lpvflow.pipeline.export.controller_signals`): the plant outputs it reads (``measured``, with
+(:func:`lpvflow.pipeline.ports.controller_signals`): the plant outputs it reads (``measured``, with
 operating points y_op), the plant inputs it drives (``actuated``, with operating points u_op) and its
 scheduling signals (``scheduling``, each an expression of plant outputs, e.g. ``sin(arm_angle)``). The
 law is the one :mod:`lpvflow.pipeline.verify` runs:
@@ -28,10 +28,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lpvflow.errors import DataError
+from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.scheduling import compile_expression, evaluate
 
 if TYPE_CHECKING:  # python-control (imported by lpvflow.synth) takes ~1 s; loaded only with a controller
-    from lpvflow.experiment.controller import LtiController
     from lpvflow.synth.controller import LPVController
 
 #: Step of the central differences of the trim's feedback (in the units of the outputs read).
@@ -61,7 +61,7 @@ class SynthesizedController:
     def from_controller(cls, law: LPVController, source: str = "controller") -> SynthesizedController:
         """Wire ``law`` by its ``info["signals"]``; one DataError line when it has no such record (an
         experiment needs the plant signals it reads, drives and schedules on)."""
-        from lpvflow.pipeline.export import controller_signals
+        from lpvflow.pipeline.ports import controller_signals
 
         if not law.info.get("signals"):
             raise DataError(f"{source} has no info['signals'] record (the plant outputs it reads, the inputs "
@@ -132,8 +132,6 @@ class SynthesizedController:
         """The law frozen at p as a map from the measurements, without the trim and without what constant
         references add: x⁺ = A x + B_y (y − y_op), v = C x + D_y (y − y_op), B_y, D_y the measurement
         columns (−B, −D of w = r − y for a 1-DOF controller; the y half of [r; y] for a 2-DOF one)."""
-        from lpvflow.experiment.controller import LtiController  # it imports this module
-
         A, B, C, D = self.law.matrices(np.asarray(p, dtype=float))
         ny = len(self.inputs)
         B_y, D_y = (B[:, ny:], D[:, ny:]) if self.law.structure == "2dof" else (-B, -D)

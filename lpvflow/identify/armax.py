@@ -1,4 +1,4 @@
-"""LPV-ARMAX by iterative pseudo-linear regression (Schulz et al., seed 000 §2.1, eq. (8)).
+"""LPV-ARMAX by iterative pseudo-linear regression (Schulz et al., §2.1, eq. (8)).
 
 Model (shifted form; static form evaluates every coefficient at ψ(p(k))):
 
@@ -21,7 +21,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.arx import RegressorColumn, fill_regressor
 from lpvflow.identify.iv import Structure, least_squares_thetas, solve_instrumental
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.simulate import io_recursion
 
 

@@ -1,6 +1,6 @@
 """LPV-ARX identification by least squares: shifted (LPR) form and static (Bamieh–Giarré) form.
 
-Shifted form (thesis (5.35)/(5.37), regressor of notes_002 §1.4; Schulz et al. §2.2): equation r is
+Shifted form (thesis (5.35)/(5.37); Schulz et al. §2.2): equation r is
 
     y_r(k) = Σ_c Σ_{i=1}^{na[r,c]} −y_c(k−i) ψ(p(k−i))ᵀ a_{r,c,i}
              + Σ_j Σ_{lag=nk[r,j]}^{nk[r,j]+nb[r,j]−1} u_j(k−lag) ψ(p(k−lag))ᵀ b_{r,j,lag} + e_r(k),
@@ -27,7 +27,7 @@ import scipy.linalg
 from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 #: Rows of regressor built at a time.
 CHUNK_ROWS = 65536

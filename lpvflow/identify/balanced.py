@@ -32,7 +32,7 @@ import numpy as np
 import scipy.linalg
 
 from lpvflow.errors import ModelError
-from lpvflow.identify.reduce import ENERGY, select_order
+from lpvflow.identify.order_selection import ENERGY, select_order
 from lpvflow.models import LPVSS
 
 #: Relative positive-definiteness floor added to each Gramian (keeps unreachable/unobservable states).
@@ -130,7 +130,7 @@ def balanced_truncation(
         ss: a quadratically stable affine LPVSS (its K, if any, is projected like B but does not
             enter the Gramians or the bound).
         order: the reduced order; None selects it from σ by
-            :func:`lpvflow.identify.reduce.select_order`.
+            :func:`lpvflow.identify.order_selection.select_order`.
         tol, energy: as in :func:`lpvflow.identify.reduce.reduce`.
         box, psi_box: the scheduling region (see :func:`scheduling_vertices`).
 

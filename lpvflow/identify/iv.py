@@ -8,12 +8,12 @@ lags, each multiplied by ψ. Least squares is biased when v is not white equatio
     θ̂_r = [Σ_k ζ_r(k) φ_r(k)ᵀ]⁻¹ Σ_k ζ_r(k) y_r(k)
 
 is consistent when the instrument ζ_r is uncorrelated with v_r; ζ_r is the same regressor with y
-replaced by the noise-free simulated output ŷ of an auxiliary model (notes_002 §3.2):
+replaced by the noise-free simulated output ŷ of an auxiliary model:
 
 * :func:`identify_iv_arx` — auxiliary model from LS LPV-ARX (Butcher et al. 2008). MIMO.
 * :func:`identify_iv_oe` — Algorithm 4.1: auxiliary LPV-OE model from the recursive output-error
-  parameter adaptation algorithm (PAA, thesis (4.21)–(4.25) in the corrected Landau form of
-  notes_002 §3.1, :func:`oe_paa`), or ``auxiliary="batch"``: batch pseudo-linear OE regression
+  parameter adaptation algorithm (PAA, thesis (4.21)–(4.25) in the corrected Landau form,
+  :func:`oe_paa`), or ``auxiliary="batch"``: batch pseudo-linear OE regression
   (:func:`oe_pseudolinear`), whose fixed point satisfies the same normal equations Φ̃ᵀ(y − ŷ) = 0.
   One IV solve, no iteration. MIMO.
 * :func:`identify_riv` — refined IV of Laurain et al. (2010), quoted in thesis Table 4.4: the LPV
@@ -24,8 +24,7 @@ replaced by the noise-free simulated output ŷ of an auxiliary model (notes_002 
 
 Quasi-LPV scheduling (thesis §4.6): pass ``scheduling`` = a function mapping an output trajectory
 (N, ny) to the scheduling signals (N, n_p); the IV step then evaluates ψ at the scheduling
-recomputed from the auxiliary model's noise-free output (notes_002 §3.3, "everywhere θ would be
-computed from y").
+recomputed from the auxiliary model's noise-free output.
 """
 
 from __future__ import annotations
@@ -41,7 +40,8 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.arx import RegressorColumn, fill_regressor, order_matrix, row_columns
-from lpvflow.models import LPVIO, lagged_sum
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import lagged_sum
 from lpvflow.simulate import io_recursion
 
 Scheduling = Callable[[np.ndarray], np.ndarray]
@@ -281,7 +281,7 @@ def _paa_pass(y: np.ndarray, u: np.ndarray, psi: np.ndarray, table: np.ndarray, 
               theta: np.ndarray, F: np.ndarray, lam1: float, lam2: float, shifted: bool) -> np.ndarray:
     """One pass of the output-error PAA over the data; updates theta, F in place, returns a posteriori ŷ.
 
-    For each k and output r (notes_002 §3.1, Landau form):
+    For each k and output r (Landau form):
       φ̃(k) from −ŷ(k−i), u(k−j) times ψ;  ε°(k) = y(k) − φ̃ᵀθ̂(k−1);
       ε(k) = ε°(k)/(1 + φ̃ᵀFφ̃);  θ̂(k) = θ̂(k−1) + F φ̃ ε(k);
       F ← (F − Fφ̃φ̃ᵀF/(λ₁/λ₂ + φ̃ᵀFφ̃))/λ₁;  ŷ(k) = φ̃ᵀθ̂(k) (a posteriori, fed back).
@@ -327,7 +327,7 @@ def _paa_pass(y: np.ndarray, u: np.ndarray, psi: np.ndarray, table: np.ndarray, 
 
 def oe_paa(struct: Structure, data: Dataset, psi: np.ndarray, passes: int = 3, f0: float = 100.0,
            lam1: float = 1.0, lam2: float = 1.0, init: list[np.ndarray] | None = None) -> LPVIO:
-    """LPV-OE by the recursive output-error PAA (thesis (4.21)–(4.25), corrected; notes_002 §3.1).
+    """LPV-OE by the recursive output-error PAA (thesis (4.21)–(4.25), corrected).
 
     Decreasing gain by default (λ₁ = λ₂ = 1, F(0) = f0·I). The thesis gives no tuning values and
     no number of passes; each pass restarts ŷ from zero past and carries θ̂ and F over, so later

@@ -10,7 +10,7 @@ serially, on a local process pool (default), or on a Dask distributed cluster (`
 The thesis Chapter 4 benchmark (systems (4.31)–(4.35), SNR (4.33)) is provided as a ready trial,
 :func:`ch4_trial`, used by benchmarks/bench_chapter4.py and the tests.
 
-Statistics over the R estimates p̂ (thesis (4.19)–(4.20), notes_002 §0):
+Statistics over the R estimates p̂ (thesis (4.19)–(4.20)):
 
     Bias     = ‖p₀ − E{p̂}‖₂
     Variance = ‖E{(p̂ − E{p̂})²}‖₂   (2-norm of the vector of per-parameter variances)
@@ -44,7 +44,7 @@ from lpvflow.identify.iv import (
     parameter_vector,
 )
 from lpvflow.identify.oe import identify_oe
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 Trial = Callable[[np.random.Generator], dict[str, np.ndarray]]
 #: BLAS thread variables pinned to 1 in pool workers: many small solves in parallel processes are
@@ -165,14 +165,14 @@ def write_json(path: str | os.PathLike, payload: dict) -> None:
     path.write_text(json.dumps(payload, indent=1) + "\n")
 
 
-# ============================================= thesis Chapter 4 benchmark (notes_002 §5.2–5.4)
+# ============================================= thesis Chapter 4 benchmark
 #: True parameters [a_{1,0..2}, a_{2,0..2}, b_{0,0..2}, b_{1,0..2}] of (4.31)–(4.32), ψ = [1, θ, θ²].
 CH4_P0 = np.array([1.0, -0.5, 0.2, 0.5, -0.7, -0.1, 0.5, -0.4, 0.01, 0.2, -0.3, -0.02])
 #: Quasi-LPV system (4.34)–(4.35): a₂ has leading coefficient 1.
 CH4_QUASI_P0 = np.array([1.0, -0.5, 0.2, 1.0, -0.7, -0.1, 0.5, -0.4, 0.01, 0.2, -0.3, -0.02])
 #: Scheduling frequency: θ(k) = 0.5 sin(0.35π t) + 0.5 sampled at t = 0.1 k (see bench_chapter4.py).
 CH4_OMEGA = 0.035 * np.pi
-#: Coloured-noise filter H = 1/(1 − q⁻¹ + 0.2 q⁻²) (corrected misprint, notes_002 §5.3).
+#: Coloured-noise filter H = 1/(1 − q⁻¹ + 0.2 q⁻²) (corrected misprint).
 CH4_NOISE_DEN = np.array([1.0, -1.0, 0.2])
 
 

@@ -3,7 +3,7 @@
 Minimises V(θ) = Σ_k ‖y(k) − ŷ(k, θ)‖² over the A/B parameters, ŷ the noise-free simulation of
 the model (shifted or static form, SISO or MIMO, zero initial past) with
 scipy.optimize.least_squares. The Jacobian is analytic: differentiating the simulation
-ŷ(k) = φ̃(k)ᵀθ where φ̃ is built from −ŷ lags and u lags (notes_002 §1.3, OE predictor) gives
+ŷ(k) = φ̃(k)ᵀθ where φ̃ is built from −ŷ lags and u lags (the OE predictor) gives
 
     ∂ŷ(k)/∂θ_m + Σ_i A_i(ψ) ∂ŷ(k−i)/∂θ_m = φ̃_m(k) e_r      (θ_m a parameter of output r),
 
@@ -21,7 +21,7 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import ModelError
 from lpvflow.identify.iv import Structure, identify_iv_oe, simulate_psi
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.simulate import io_recursion
 
 #: Residual value used where a trial model's simulation diverges (steers the search back).

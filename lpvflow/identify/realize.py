@@ -1,12 +1,12 @@
 """Exact realization of LPR (shifted-form) input-output models as observable-form LPVSS.
 
-Thesis Sec. 5.4 (notes_002 §4.6): for the left matrix fraction H = Ã⁻¹(q,θ) B̃(q,θ) in LPR with
+Thesis Sec. 5.4: for the left matrix fraction H = Ã⁻¹(q,θ) B̃(q,θ) in LPR with
 row degrees n_i and 𝒜_h = I,
 
     Ã(q,θ) = Λ̃(q) + S̆(q) 𝒜_l(θ(k)),        B̃(q,θ) = Λ̃(q) D + S̆(q) ℬ_l(θ(k)),
 
 the realization (5.24)–(5.26), extended with a constant feed-through D and an innovation input e
-with lag-0 coefficient I (Schulz et al. eq. (4), notes_000 §1.2), is
+with lag-0 coefficient I (Schulz et al. eq. (4)), is
 
     A(θ) = Ā_o − 𝒜_l(θ) C̄_o,    B(θ) = ℬ_l(θ) − 𝒜_l(θ) D,    K(θ) = 𝒞_l(θ) − 𝒜_l(θ),
     C = C̄_o,                     D,
@@ -17,16 +17,21 @@ For a SISO model this is thesis (5.17)/(5.36).
 
 The identified shifted-form equation r, y_r(k) + Σ_i A_i(ψ(k−i))[r,:] y(k−i) = Σ_j B_j(ψ(k−j))[r,:] u(k−j),
 multiplied by q^{n_r}, gives the coefficient of q^m (m = 0 … n_r−1) as the lag-(n_r − m) coefficient:
-𝒜_l[r-block, m] = A_{n_r−m}[r, :], ℬ_l[r-block, m] = B_{n_r−m}[r, :]  (notes_002 §4.3, "lag ↔ coefficient").
+𝒜_l[r-block, m] = A_{n_r−m}[r, :], ℬ_l[r-block, m] = B_{n_r−m}[r, :].
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lpvflow.basis import Basis
 from lpvflow.errors import ModelError
-from lpvflow.models import LPVIO, LPVSS
+from lpvflow.models import LPVSS
+
+if TYPE_CHECKING:  # realize_io is LPVIO.to_ss; the LPVIO module imports this one
+    from lpvflow.lpvio import LPVIO
 
 
 def observable_form(

@@ -1,7 +1,7 @@
 """LPV Ho–Kalman-like order reduction by a square-root Gram recursion (Schulz et al., Sec. IV, Lemma 1).
 
 For an affine LPVSS x(k+1) = Σ_l ψ_l (A_l x + B_l u + K_l e), y = Σ_l ψ_l (C_l x + D_l u) + e
-(seed 000, eqs. (10)–(14), notes_000 §3.2–3.4):
+(Schulz et al., eqs. (10)–(14)):
 
     M_1 = [B_1 … B_nψ  K_1 … K_nψ],  M_k = [A_1 M_{k−1} … A_nψ M_{k−1}],    R_j = [M_1 … M_j]
     N_1 = [C_1; …; C_nψ],             N_k = [N_{k−1} A_1; …; N_{k−1} A_nψ],  O_i = [N_1; …; N_i]
@@ -14,12 +14,12 @@ O_i has n_y nψ (nψ^i − 1)/(nψ − 1) rows, so it is never formed. Its Gram 
 (dually R_jR_jᵀ with A_lᵀ, M_1ᵀ), and it is propagated in square-root form so that the condition
 number is never squared: F_1 = qr_R(N_1), F_k = qr_R([F_{k−1}A_1; …; F_{k−1}A_nψ]) (so F_kᵀF_k = P_k),
 S_i = qr_R([S_{i−1}; F_i]). S_i is the R_O of Lemma 1 up to an orthogonal left factor, to which
-Lemma 1 is invariant (notes_000 §3.6). Cost O((i + j) nψ n_x³), memory O(nψ n_x²). Then (15)–(18):
+Lemma 1 is invariant. Cost O((i + j) nψ n_x³), memory O(nψ n_x²). Then (15)–(18):
 
     R_O R_Rᵀ = U Σ Vᵀ,   T = R_Rᵀ V_n Σ_n^{−1/2},   T† = Σ_n^{−1/2} U_nᵀ R_O,   T†T = I_n,
     Â_l = T† A_l T,   B̂_l = T† B_l,   K̂_l = T† K_l,   Ĉ_l = C_l T,   D̂_l = D_l.
 
-Corrections and choices (notes_000 §3.3, §3.6, §8.2):
+Corrections and choices:
 
 * N_1 stacks every C_l (the remark after Lemma 1), so C may depend on ψ; O_i then has
   n_y Σ_{k=1}^{i} nψ^k rows (the row counts printed in (13)/(14) are wrong).
@@ -51,25 +51,16 @@ from pathlib import Path
 import numpy as np
 
 from lpvflow.errors import ModelError
+from lpvflow.identify.order_selection import ENERGY, numerical_rank, select_order
 from lpvflow.models import LPVSS
 
 #: Largest change of σ_k/σ_1 between two depths for the singular values to count as settled.
 SETTLE = 1e-3
-#: Default share of Σσ² an automatically selected order keeps.
-ENERGY = 0.999
-SELECTION_RULE = (
-    "order = max(n_gap, n_energy); n_gap = largest drop of log10(sigma) (values below tol*sigma_1 "
-    "count as tol*sigma_1), n_energy = least n keeping the energy share of sum(sigma^2)"
-)
 
 
 def _qr_r(X: np.ndarray) -> np.ndarray:
     """Upper-triangular R of X = QR, with min(rows, cols) rows (so RᵀR = XᵀX)."""
     return np.linalg.qr(X, mode="r")
-
-
-def _numerical_rank(s: np.ndarray, tol: float) -> int:
-    return int(np.sum(s > tol * s[0])) if s.size and s[0] > 0 else 0
 
 
 class _SquareRootGram:
@@ -127,21 +118,6 @@ def reachability_matrix(ss: LPVSS, j: int) -> np.ndarray:
     return np.hstack(blocks)
 
 
-def select_order(singular_values: np.ndarray, tol: float, energy: float = ENERGY) -> dict:
-    """n_G, n_gap, n_energy and the chosen order from Hankel singular values (module docstring)."""
-    s = np.asarray(singular_values, dtype=float)
-    n_g = _numerical_rank(s, tol)
-    if n_g == 0:
-        raise ModelError("every Hankel singular value is zero: the model has no input-to-output path")
-    logs = np.log10(np.maximum(s, tol * s[0]))
-    drops = logs[:-1] - logs[1:]
-    n_gap = int(np.argmax(drops[:n_g])) + 1 if n_g < len(s) or n_g > 1 else 1
-    share = np.cumsum(s[:n_g] ** 2) / np.sum(s[:n_g] ** 2)
-    n_energy = int(np.searchsorted(share, energy - 1e-15)) + 1
-    return {"rank": n_g, "gap": n_gap, "energy": min(n_energy, n_g), "energy_threshold": energy,
-            "tol": tol, "order": max(n_gap, min(n_energy, n_g)), "rule": SELECTION_RULE}
-
-
 def _hankel_factors(ss: LPVSS, depth: tuple[int, int] | None, tol: float, scaling: str
                     ) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """R_O, R_R (square-root Gram factors of O_i, R_jᵀ) and the depth [i, j] used."""
@@ -153,7 +129,7 @@ def _hankel_factors(ss: LPVSS, depth: tuple[int, int] | None, tol: float, scalin
     prev_ranks, prev_profile = None, None
     for k in range(1, max(2 * ss.nx, 3) + 1):
         R_O, R_R = obs.advance_to(k), reach.advance_to(k)
-        ranks = tuple(_numerical_rank(np.linalg.svd(F, compute_uv=False), tol) for F in (R_O, R_R))
+        ranks = tuple(numerical_rank(np.linalg.svd(F, compute_uv=False), tol) for F in (R_O, R_R))
         s = np.linalg.svd(R_O @ R_R.T, compute_uv=False)
         profile = np.zeros(ss.nx)
         if s[0] > 0:
@@ -226,8 +202,8 @@ def reduce(
         "order": n,
         "original_order": ss.nx,
         "depth": [int(d) for d in used_depth],
-        "ranks": {"observability": _numerical_rank(np.linalg.svd(R_O, compute_uv=False), tol),
-                  "reachability": _numerical_rank(np.linalg.svd(R_R, compute_uv=False), tol),
+        "ranks": {"observability": numerical_rank(np.linalg.svd(R_O, compute_uv=False), tol),
+                  "reachability": numerical_rank(np.linalg.svd(R_R, compute_uv=False), tol),
                   "hankel": selection["rank"]},
         "scaling": scaling,
         "selection": {k: v for k, v in selection.items() if k != "order"},
@@ -267,3 +243,31 @@ def plot_singular_values(record: dict, path: str | os.PathLike) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     return path
+
+
+#: How much a reduced model's frozen spectral radius may exceed the full model's.
+RADIUS_TOLERANCE = 1e-3
+
+
+def max_frozen_radius(model: LPVSS, points: int = 9) -> float:
+    """Largest spectral radius of A(θ) on a grid of ``points`` values along the diagonal of the recorded
+    scheduling box."""
+    lo, hi = np.asarray(model.basis.p_min), np.asarray(model.basis.p_max)
+    grid = lo + np.linspace(0, 1, points)[:, None] * (hi - lo)
+    return float(max(np.max(np.abs(np.linalg.eigvals(model.matrices(p)[0]))) for p in grid))
+
+
+def reduce_keeping_radius(ss: LPVSS, order: int | None) -> tuple[LPVSS, str]:
+    """:func:`reduce` to ``order``, or (None) to the singular-value order raised until the reduced
+    model's largest frozen spectral radius exceeds the full model's by at most :data:`RADIUS_TOLERANCE`
+    (the reduction does not preserve stability: no spurious unstable mode); the reduced model and the
+    rule that chose its order."""
+    reduced = reduce(ss, order=order)
+    if order is not None:
+        return reduced, "given"
+    rule = "singular values"
+    limit = max_frozen_radius(ss) + RADIUS_TOLERANCE
+    while reduced.nx < ss.nx and max_frozen_radius(reduced) > limit:
+        reduced = reduce(ss, order=reduced.nx + 1)
+        rule = "raised until the frozen spectral radius matches the full model's"
+    return reduced, rule

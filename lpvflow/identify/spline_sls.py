@@ -3,7 +3,7 @@
 Every coefficient is a cubic spline in the truncated-power form (thesis (3.13)–(3.14))
 
     ψ(p) = [1, p, |p − η_1|³, …, |p − η_K|³]      (per scheduling signal; knots shared by all
-                                                    coefficients, notes_002 §2.1)
+                                                    coefficients)
 
 so the model is linear in the coefficients 𝔓 and nonlinear in the knots η. Separable least
 squares (Golub–Pereyra; thesis Theorem 3.1) eliminates 𝔓: for fixed η, 𝔓̂(η) = Φ(η)⁺Y (3.17) and
@@ -17,14 +17,14 @@ Batch variant (:func:`fit_spline_knots`, thesis (3.19)–(3.23)): Levenberg–Ma
 
 with E the stacked residuals, Ξ = QQᵀ the projector onto range Φ (from the QR of Φ, never formed
 as an N×N matrix) and J_NL = ∂E/∂η at fixed 𝔓, computed analytically from
-∂|p − η|³/∂η = −3(p − η)|p − η| (notes_002 §2.2 [INF]). μ follows the thesis schedule (μ₀ = 0.01,
+∂|p − η|³/∂η = −3(p − η)|p − η|. μ follows the thesis schedule (μ₀ = 0.01,
 γ = 10: divide on success, multiply and retry on failure); s = mean diag(J_SᵀJ_S) makes μ
 dimensionless [our choice]. Knots are handled in units of the scheduling range, kept inside the
 data range and strictly ordered after every step (a rejected or clipped step is simply a trial
 point). Several starts (data quantiles, then uniform random draws); the lowest cost wins.
 
-Recursive variant (``recursive=True``, thesis §3.3.2, Algorithm 3.1), with the corrections of
-notes_002 §2.3: the update (3.29a) takes the descent sign, η ← η − R⁻¹ J̃ᵀ ε with J̃ = ∂ε/∂η. The
+Recursive variant (``recursive=True``, thesis §3.3.2, Algorithm 3.1), with two corrections:
+the update (3.29a) takes the descent sign, η ← η − R⁻¹ J̃ᵀ ε with J̃ = ∂ε/∂η. The
 per-sample projection (3.30) is degenerate (I − Ξ̃ = 0 once n_y < n_𝔓), so the projection is
 applied to the *accumulated* information instead: with M(k) = λ M(k−1) + G(k)ᵀG(k), where G(k) is
 the Jacobian of ŷ(k) with respect to [𝔓; η], the Kaufman Hessian J_Sᵀ J_S of the λ-weighted batch
@@ -49,7 +49,7 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import RegressorColumn, fill_regressor, identify_arx, order_matrix, row_columns
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 #: Levenberg–Marquardt schedule (thesis §3.3.1): initial damping and its growth/shrink factor.
 MU0, GAMMA = 0.01, 10.0

@@ -1,4 +1,4 @@
-"""Closed-loop two-step LPV identification (thesis §3.4, Algorithm 3.2; notes_002 §2.4).
+"""Closed-loop two-step LPV identification (thesis §3.4, Algorithm 3.2).
 
 In closed loop (thesis Fig. 3.2) the measured input ũ and the scheduling θ̃ = f(ỹ) carry the
 measurement noise fed back by the controller, so least squares on them is biased. Every signal of
@@ -16,7 +16,7 @@ model, a Laguerre filter bank on r followed by a small neural network (scikit-le
     x_1 = √(1−a²)/(1 − a q⁻¹) r,   x_{i+1} = (q⁻¹ − a)/(1 − a q⁻¹) x_i,   ŝ(k) = MLP(x(k)).
 
 It works in *simulation mode* by construction: ŝ depends on past excitation only, never on
-measured (noisy) samples, which is what removes the noise (notes_002 §2.4 [INF]: one-step NNARX
+measured (noisy) samples, which is what removes the noise (one-step NNARX
 predictions still contain past noisy values). Training it is a static regression, so no
 recurrent training is needed; fading-memory operators are uniformly approximated by such filter
 banks followed by a static nonlinearity (Boyd & Chua 1985). The output y is reconstructed too:
@@ -40,7 +40,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.spline_sls import free_knot_count, identify_spline_sls
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 
 def laguerre_bank(r: np.ndarray, pole: float, n_filters: int) -> np.ndarray:

@@ -13,6 +13,7 @@ downstream keys contain upstream keys, a config change reruns exactly the stages
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import hashlib
 import json
@@ -41,10 +42,20 @@ def code_digest() -> str:
 
 
 def stage_key(section: Any, upstream: list[str], files: list[str | Path]) -> str:
-    """The cache key of a stage: its config, its upstream keys and the bytes of the files it reads."""
+    """The cache key of a stage: its settings, its upstream keys and the bytes of the files it reads.
+    Parsed settings (dataclasses such as :class:`~lpvflow.pipeline.scenarios.Loop`) enter with every
+    field."""
     payload = json.dumps({"config": section, "upstream": upstream,
-                          "files": [sha256_of(f) for f in files]}, sort_keys=True, default=str)
+                          "files": [sha256_of(f) for f in files]}, sort_keys=True, default=_plain)
     return hashlib.sha256(payload.encode()).hexdigest()
+
+
+def _plain(value: Any) -> Any:
+    """A JSON-ready stand-in for a value ``json`` cannot write: a dataclass's fields, else its text."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        fields = {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+        return {"type": type(value).__name__, **fields}
+    return str(value)
 
 
 def load_record(folder: Path, stage: str, key: str) -> dict | None:

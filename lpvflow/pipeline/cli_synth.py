@@ -1,7 +1,10 @@
 """`lpvflow synth MODEL.json --config DESIGN.toml -o CONTROLLER.json`: gain-scheduled H∞ synthesis.
 
 DESIGN.toml is a design file (docs/design_file.md); synth reads its ``[synth]`` table, the same one
-``lpvflow design`` uses, so a whole design file works too::
+``lpvflow design`` uses, and writes the controller the design's synth stage writes
+(:func:`lpvflow.pipeline.controller_design.design_controller`): with a whole design file, its ports carry
+the ``[experiment] scheduling`` expressions, the units of the ``[design] plant`` and the operating points
+and anti-windup of ``[verify.loop]``::
 
     [synth]
     solver = "CLARABEL"          # or "SCS"
@@ -20,11 +23,14 @@ Prints γ, the independent certificate checks and the solve time; exit 1 when a 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-from lpvflow.errors import ModelError
+from lpvflow.errors import DataError, ModelError
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli_paths import declare
 from lpvflow.pipeline.config import load_tables
+from lpvflow.pipeline.controller_design import design_controller
+from lpvflow.synth.methods import SYNTHESIS_METHODS
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -36,29 +42,28 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lpvflow.pipeline.export import describe_signals
-    from lpvflow.synth.design import synthesize_design
-
-    settings = load_tables(args.config, need=("synth",))["synth"]
+    tables = load_tables(args.config, need=("synth",))
+    settings = tables["synth"]
     model = load(args.model)
     if not isinstance(model, LPVSS):
         raise ModelError(f"{args.model} holds a {type(model).__name__}; synth needs an LPVSS")
-    design = synthesize_design(model, settings)
+    plant = tables["design"]["plant"] if tables["design"] else None
+    if plant is not None and not Path(plant).is_file():
+        raise DataError(f"{Path(args.config).name}: [design] plant {plant!r} does not exist (relative paths "
+                        "are relative to the working directory); the controller's units come from it")
+    loop = tables["verify"]["loop"] if tables["verify"] else None
+    scheduling = tables["experiment"]["scheduling"] if tables["experiment"] else None
+    design = design_controller(model, settings, loop=loop, scheduling=scheduling, plant_fmu=plant)
     poly = design.plant.polytope
-    method = {"common": "one common Lyapunov matrix",
-              "rate-bounded": "rate-bounded parameter-dependent Lyapunov function "
-                              f"(ν = {settings['rate_bound']})",
-              "observer": "observer-based: frozen LQG designs at the breakpoints, interpolated"}
-    print(f"{method[settings['method']]}, polytope {poly.kind} with {poly.n_vertices} vertices, "
+    method = SYNTHESIS_METHODS[settings["method"]]
+    keys = "".join(f" ({key} = {settings[key]})" for key in method.keys if settings[key] is not None)
+    print(f"{method.summary}{keys}, polytope {poly.kind} with {poly.n_vertices} vertices, "
           f"{settings['structure']}")
     bound = ("largest frozen closed-loop norm" if design.gamma_lower is None
              else f"lower bound {design.gamma_lower:.6g}")
     print(f"gamma = {design.gamma:.6g}  ({bound}, {design.seconds:.2f} s)")
     for line in design.certificate.lines():
         print(line)
-    cert = design.certificate
-    design.controller.info["certificate"] = cert.__dict__ | {"ok": cert.ok}
-    design.controller.info["signals"] = describe_signals(model)  # ports named after the model's signals
     design.controller.save(args.output)
     print(f"controller of order {design.controller.order} written to {args.output}")
-    return 0 if cert.ok else 1
+    return 0 if design.certificate.ok else 1

@@ -29,7 +29,8 @@ from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment.controller import FORMAT as LTI_CONTROLLER_FORMAT
 from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.scheduling import parse_assignment
-from lpvflow.models import LPVIO, LPVSS, atomic_write_json, load, report_header
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import LPVSS, atomic_write_json, load, report_header
 from lpvflow.pipeline.cli_identify import add_data_arguments, simulate_any
 from lpvflow.pipeline.cli_paths import check_paths, declare
 from lpvflow.synth.controller import LPVController

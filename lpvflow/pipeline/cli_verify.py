@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lpvflow.loop.loader import load_controller_file
 from lpvflow.models import atomic_write_json
 from lpvflow.pipeline.cli_paths import declare
-from lpvflow.pipeline.scenarios import load_scenarios
-from lpvflow.pipeline.verify import coverage_note, load_controller_file, plot_runs, run_verification
+from lpvflow.pipeline.config import load_scenarios
+from lpvflow.pipeline.verify import coverage_note, plot_runs, run_verification
 
 
 def _summary(name: str, metrics: dict) -> str:

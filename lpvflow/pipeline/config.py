@@ -13,15 +13,25 @@ repository root, so the examples run from any working directory.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from lpvflow.basis import Basis
 from lpvflow.errors import DataError, LpvflowError
+from lpvflow.experiment.specs import parse_spec
+from lpvflow.fmu import check_fmu
+from lpvflow.identify.methods import STATE_SPACE_METHODS
+from lpvflow.identify.prefilter import parse_prefilter
+from lpvflow.pipeline.scenarios import Loop, Scenario, ScenarioFile, parse_loop, parse_scenario
+from lpvflow.pipeline.scheduling_values import SignalValues, signal_values, with_images
+from lpvflow.pipeline.signal_check import check_signals
+from lpvflow.synth.methods import SYNTHESIS_METHODS
 
 #: Marks a key without a default.
 REQUIRED = object()
@@ -121,8 +131,19 @@ def numbers(value: Any, where: str) -> list[float]:
     return [number()(v, where) for v in value]
 
 
-def box(value: Any, where: str) -> list[list[float]]:
-    """``[[lo, hi], ...]``, one interval with lo < hi per scheduling signal."""
+def point(value: Any, where: str) -> list[float] | SignalValues:
+    """One scheduling point (a number per scheduling signal), or one value of a plant signal
+    (:mod:`lpvflow.pipeline.scheduling_values`)."""
+    if isinstance(value, dict):
+        return signal_values(value, where)
+    return numbers(value, where)
+
+
+def box(value: Any, where: str) -> list[list[float]] | SignalValues:
+    """``[[lo, hi], ...]``, one interval with lo < hi per scheduling signal, or a range of one plant
+    signal (:mod:`lpvflow.pipeline.scheduling_values`)."""
+    if isinstance(value, dict):
+        return signal_values(value, where, box=True)
     if not (isinstance(value, list) and value and all(isinstance(r, list) and len(r) == 2 for r in value)):
         raise _fail(where, value, "a list of [lo, hi] intervals, one per scheduling signal, e.g. [[-1, 1]]")
     rows = [[number()(v, where) for v in row] for row in value]
@@ -133,8 +154,6 @@ def box(value: Any, where: str) -> list[list[float]]:
 
 def basis(value: Any, where: str) -> str:
     """A scheduling basis spec (``affine``, ``poly:D``, ``poly:D:nocross``, ``spline:K1,K2,…``)."""
-    from lpvflow.basis import Basis
-
     spec = string()(value, where)
     try:
         Basis.from_spec(spec, 1)
@@ -145,16 +164,11 @@ def basis(value: Any, where: str) -> str:
 
 def method(value: Any, where: str) -> str:
     """An estimator of ``lpvflow identify`` with a state-space result (static-arx has none)."""
-    from lpvflow.pipeline.cli_identify import METHODS
-
-    usable = tuple(m for m in METHODS if m != "static-arx")
-    return string(usable)(value, where)
+    return string(STATE_SPACE_METHODS)(value, where)
 
 
 def prefilter(value: Any, where: str) -> str:
     """``none``, ``lowpass:F`` or ``bandpass:F1,F2`` (Hz)."""
-    from lpvflow.pipeline.stages import parse_prefilter
-
     spec = string()(value, where)
     if spec != "none":
         try:
@@ -172,8 +186,11 @@ def scaling(value: Any, where: str) -> str | dict[str, float]:
     return string(("data", "none"))(value, where)
 
 
-def points(value: Any, where: str) -> list[list[float]]:
-    """A list of scheduling points, each a list of numbers."""
+def points(value: Any, where: str) -> list[list[float]] | SignalValues:
+    """A list of scheduling points, each a list of numbers, or values of one plant signal
+    (:mod:`lpvflow.pipeline.scheduling_values`)."""
+    if isinstance(value, dict):
+        return signal_values(value, where)
     if not (isinstance(value, list) and all(isinstance(v, list) and v for v in value)):
         raise _fail(where, value, "a list of scheduling points, e.g. [[-0.966, 0.259], [0.0, 1.0]]")
     return [[number()(v, where) for v in point] for point in value]
@@ -213,8 +230,11 @@ def weights(value: Any, where: str) -> dict[str, Any]:
     return value
 
 
-def breakpoints(value: Any, where: str) -> list:
-    """Values of the one scheduling signal, or rows of scheduling points (one value per signal)."""
+def breakpoints(value: Any, where: str) -> list | SignalValues:
+    """Values of the one scheduling signal, rows of scheduling points (one value per signal), or values of
+    one plant signal (:mod:`lpvflow.pipeline.scheduling_values`)."""
+    if isinstance(value, dict):
+        return signal_values(value, where)
     if isinstance(value, list) and value and all(isinstance(v, list) for v in value):
         return [numbers(row, f"{where}[{i}]") for i, row in enumerate(value)]
     return numbers(value, where)
@@ -279,24 +299,34 @@ def trim(value: Any, where: str) -> dict[str, list]:
     return {"p": p, "u": [[number()(v, f"{where}.u") for v in row] for row in u]}
 
 
-def loop(value: Any, where: str) -> dict[str, Any]:
-    from lpvflow.pipeline.scenarios import parse_loop
+def signal_spec(value: Any, where: str) -> str:
+    """An experiment signal ``KIND:key=value,…`` (:func:`lpvflow.experiment.specs.parse_spec`): the kind
+    known and every key it needs given, so an incomplete spec is refused before the experiment runs."""
+    text = string()(value, where)
+    try:
+        parse_spec(text)
+    except DataError as exc:
+        raise DataError(f"{where}: {exc}") from None
+    return text
 
+
+def loop(value: Any, where: str) -> Loop:
+    """The ``[verify.loop]`` table, parsed once into a :class:`~lpvflow.pipeline.scenarios.Loop`."""
     if not isinstance(value, dict):
         raise _fail(where, value, "a table (write it as [verify.loop])")
-    parse_loop(value)
-    return value
+    return parse_loop(value)
 
 
-def scenarios(value: Any, where: str) -> list[dict[str, Any]]:
-    from lpvflow.pipeline.scenarios import parse_scenario
-
+def scenarios(value: Any, where: str) -> list[Scenario]:
+    """The ``[[verify.scenario]]`` tables, parsed once into :class:`~lpvflow.pipeline.scenarios.Scenario`
+    objects with distinct names."""
     if not isinstance(value, list) or not value or not all(isinstance(s, dict) for s in value):
         raise DataError(f"{where}: give at least one [[verify.scenario]] table")
-    names_seen = [parse_scenario(doc, i).name for i, doc in enumerate(value)]
+    parsed = [parse_scenario(doc, i) for i, doc in enumerate(value)]
+    names_seen = [scenario.name for scenario in parsed]
     if len(set(names_seen)) != len(names_seen):
         raise DataError(f"{where}: scenario names must be distinct, got {names_seen}")
-    return value
+    return parsed
 
 
 # -------------------------------------------------------------------------------------------- schema
@@ -312,9 +342,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "duration": Key(REQUIRED, number(0.0, open_low=True), "experiment length in s, > 0"),
         "controller": Key(None, string(), "stabilizing controller JSON (lpvflow/lti-controller, "
                           "lpvflow/gridded-controller or lpvflow/lpv-controller): closed-loop experiment"),
-        "inputs": Key({}, mapping(string(), '"SPEC"'), "signal per plant input driven directly (open loop)"),
-        "excitation": Key({}, mapping(string(), '"SPEC"'), "signal added to the controller output per input"),
-        "setpoint": Key({}, mapping(string(), '"SPEC"'), "set-point per plant output read by the controller"),
+        "inputs": Key({}, mapping(signal_spec, '"SPEC"'),
+                      "signal per plant input driven directly (open loop)"),
+        "excitation": Key({}, mapping(signal_spec, '"SPEC"'),
+                          "signal added to the controller output per input"),
+        "setpoint": Key({}, mapping(signal_spec, '"SPEC"'),
+                        "set-point per plant output read by the controller"),
         "parameters": Key({}, mapping(number(), "number"), "FMU parameters set before initialisation"),
         "scheduling": Key({}, mapping(string(), '"EXPR"'), "extra columns computed from plant signals"),
         "seed": Key(0, integer(0), "seed of the random excitation signals"),
@@ -367,9 +400,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gate": Key(True, boolean, "stop the design after validate when the model fails the ν-gap test"),
     },
     "synth": {
-        "method": Key("common", string(("common", "rate-bounded", "observer")),
-                      "common: one Lyapunov matrix; rate-bounded: parameter-dependent, |Δp| ≤ rate_bound; "
-                      "observer: frozen LQG designs at the breakpoints, interpolated (2dof)"),
+        "method": Key("common", string(tuple(SYNTHESIS_METHODS)),
+                      "; ".join(f"{name}: {m.summary}" for name, m in SYNTHESIS_METHODS.items())),
         "rate_bound": Key(None, number(0.0, open_low=True),
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
         "breakpoints": Key(None, breakpoints, "piecewise polytope: ascending values (or rows) end to end"),
@@ -378,7 +410,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "vertex_weights": Key(None, vertex_weights, "scheduled weights: per vertex, replacing entries"),
         "box": Key(None, box, "scheduling box [[lo, hi], …] (default: the model's recorded range)"),
         "solver": Key("CLARABEL", string(("CLARABEL", "SCS"), upper=True), "SDP solver"),
-        "baseline_at": Key(None, numbers, "scheduling point of the LTI baseline (default: box centre)"),
+        "baseline_at": Key(None, point, "scheduling point of the LTI baseline (default: box centre)"),
         "trim": Key(None, trim, "trim feed-forward u_eq(p): { p = [...], u = [[...], ...] }, interpolated"),
         "observer": Key({}, observer, "observer: Kalman noise { input, state, disturbance, noise }"),
         "reference_filter": Key(None, reference_filter, "observer: { bandwidth = rad/s, damping } on r"),
@@ -402,8 +434,6 @@ BUNDLED = ("adip", "maglev", "airpath")
 
 #: Table -> keys holding input files, resolved and checked on load.
 INPUT_FILES = (("design", "plant"), ("experiment", "controller"))
-
-Config = dict[str, dict[str, Any] | None]
 
 
 def repository_root() -> Path:
@@ -429,8 +459,36 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise DataError(f"{path.name} is not valid TOML: {exc}") from None
 
 
-def check_table(table: str, given: Any, source: str) -> dict[str, Any]:
-    """One table with its defaults filled in; unknown or missing keys and bad values raise DataError."""
+class Table(Mapping[str, Any]):
+    """Base of the typed tables: a frozen dataclass whose fields are the table's keys, read as attributes
+    (``config["identify"].na``) or as a mapping (``config["identify"]["na"]``)."""
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in self.__dataclass_fields__:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.__dataclass_fields__)
+
+    def __len__(self) -> int:
+        return len(self.__dataclass_fields__)
+
+
+#: One frozen dataclass per table of :data:`SCHEMA` (``TABLES["identify"]`` has the fields u, y, p, na, …).
+TABLES: dict[str, type[Table]] = {
+    table: dataclasses.make_dataclass(f"{table.capitalize()}Table", list(keys), bases=(Table,), frozen=True,
+                                      eq=True)
+    for table, keys in SCHEMA.items()
+}
+
+#: A checked design file: table → its typed table (None: an optional table the file leaves out).
+Config = dict[str, Table | None]
+
+
+def check_table(table: str, given: Any, source: str) -> Table:
+    """One table, typed (:data:`TABLES`), with its defaults filled in; unknown or missing keys and bad
+    values raise DataError."""
     keys = SCHEMA[table]
     if not isinstance(given, dict):
         raise DataError(f"{source}: [{table}] must be a table")
@@ -449,10 +507,10 @@ def check_table(table: str, given: Any, source: str) -> dict[str, Any]:
                 raise DataError(f"{source}: {exc}") from None
         else:
             checked[name] = key.default
-    return checked
+    return TABLES[table](**checked)
 
 
-def load_tables(path: str | Path, need: tuple[str, ...]) -> Config:
+def load_tables(path: str | Path, need: tuple[str, ...], images: bool = True) -> Config:
     """Every table of a design file, checked; ``need`` lists the tables the caller requires.
 
     Tables absent from the file are None. Used by ``synth --config`` (need ``synth``) and
@@ -471,7 +529,33 @@ def load_tables(path: str | Path, need: tuple[str, ...]) -> Config:
     if missing:
         raise DataError(f"{source} lacks the table(s) {['[' + t + ']' for t in missing]} "
                         "(layout: docs/design_file.md)")
-    return {table: check_table(table, raw[table], source) if table in raw else None for table in SCHEMA}
+    with_loop_scheduling(raw)
+    config = {table: check_table(table, raw[table], source) if table in raw else None for table in SCHEMA}
+    return scheduling_images(config, source) if images else config
+
+
+def scheduling_images(config: Config, source: str) -> Config:
+    """``config`` with scheduling points given as values of one plant signal replaced by their images
+    (:mod:`lpvflow.pipeline.scheduling_values`)."""
+    try:
+        return with_images(config, dataclasses.replace)
+    except DataError as exc:
+        raise DataError(f"{source}: {exc}") from None
+
+
+def with_loop_scheduling(raw: dict[str, Any]) -> None:
+    """The scheduling map is declared once: a ``[verify.loop]`` without ``scheduling`` takes, per
+    ``[identify] p`` column, its ``[experiment] scheduling`` expression (the column itself when it is a
+    plant signal). A file that gives both has them compared (:mod:`lpvflow.pipeline.signal_check`)."""
+    loop = raw.get("verify", {}).get("loop") if isinstance(raw.get("verify"), dict) else None
+    identify, experiment = raw.get("identify"), raw.get("experiment")
+    if not (isinstance(loop, dict) and "scheduling" not in loop and isinstance(identify, dict)):
+        return
+    p = identify.get("p")
+    definitions = experiment.get("scheduling") if isinstance(experiment, dict) else None
+    definitions = definitions if isinstance(definitions, dict) else {}
+    if isinstance(p, list) and all(isinstance(name, str) for name in p):
+        loop["scheduling"] = [definitions.get(name, name) for name in p]
 
 
 def load_config(path: str | Path, root: Path | None = None) -> Config:
@@ -479,10 +563,8 @@ def load_config(path: str | Path, root: Path | None = None) -> Config:
     absent). Relative input files are resolved against ``root`` (default: the working directory)
     and must be usable: the plant a readable FMU with a linux64 binary, the controller an existing file.
     """
-    from lpvflow.fmu import check_fmu
-
     source = Path(path).name
-    config = load_tables(path, tuple(t for t in SCHEMA if t not in OPTIONAL))
+    config = load_tables(path, tuple(t for t in SCHEMA if t not in OPTIONAL), images=False)
     if config["synth"] is None and (config["verify"] or config["export"]):
         raise DataError(f"{source}: [verify] and [export] need a [synth] table (a controller to use)")
     for table, key in INPUT_FILES:
@@ -494,9 +576,20 @@ def load_config(path: str | Path, root: Path | None = None) -> Config:
             where = "the repository root" if root else "the working directory"
             raise DataError(f"{source}: [{table}] {key} {value!r} does not exist (relative paths are "
                             f"relative to {where}; run `make fmus` to build the plants)")
-        config[table][key] = str(resolved)
+        config[table] = dataclasses.replace(config[table], **{key: str(resolved)})
     try:
-        check_fmu(config["design"]["plant"])
+        description = check_fmu(config["design"]["plant"])
     except LpvflowError as exc:
         raise DataError(f"{source}: [design] plant: {exc}") from None
-    return config
+    try:
+        check_signals(config, description)
+    except DataError as exc:
+        raise DataError(f"{source}: {exc}") from None
+    return scheduling_images(config, source)
+
+
+def load_scenarios(path: str | Path) -> ScenarioFile:
+    """The ``[verify]`` table of a design file (:mod:`lpvflow.pipeline.scenarios`), as
+    ``lpvflow verify --scenario`` reads it; every defect is a one-line DataError."""
+    verify = load_tables(path, need=("verify",))["verify"]
+    return ScenarioFile(verify["loop"], verify["scenario"])

@@ -9,16 +9,17 @@ file's tables, keys, types and ranges, missing or unusable plant or controller f
 output folder) is refused before anything is written (exit 2). Ctrl-C removes the files the
 interrupted stage had written so far (exit 130).
 Without a [synth] table the run ends after validation; so does a run whose identified model fails
-the ν-gap/b(P, K) gate of the validate stage ([validate] gate, :func:`lpvflow.pipeline.stages.gate_verdict`),
+the ν-gap/b(P, K) gate of the validate stage ([validate] gate, :func:`lpvflow.pipeline.gate.gate_verdict`),
 with the reason as the failure. With [diagnose] adopt = true and an adopted
 extension, the adoption stage designs and verifies the identified model too and compares the two
-controllers in closed loop (:func:`lpvflow.pipeline.stages.adoption`). With [experiment] iterate = N the
+controllers in closed loop (:func:`lpvflow.pipeline.adoption.adoption`). With [experiment] iterate = N the
 experiment → synth stages first run N rounds, each under the controller the round before designed
 (identification for control, :func:`_run_stages`).
 """
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from collections.abc import Callable
@@ -28,33 +29,60 @@ from pathlib import Path
 from lpvflow.errors import DataError, LpvflowError
 from lpvflow.models import atomic_write_json, report_header
 from lpvflow.pipeline import cache, stages
+from lpvflow.pipeline.adoption import StageFunction, adoption
 from lpvflow.pipeline.cli_paths import writable_folder
 from lpvflow.pipeline.config import INPUT_FILES, Config, load_config
+from lpvflow.pipeline.context import StageContext
+from lpvflow.pipeline.settings import ALL, Reads, StageSettings, union
 
 
 @dataclass(frozen=True)
 class Stage:
+    """A design stage: ``run`` gets a :class:`~lpvflow.pipeline.context.StageContext` holding exactly the
+    keys of ``reads`` (table → keys, :data:`~lpvflow.pipeline.settings.ALL` for a whole table) and its cache
+    key hashes those values; it runs only when every table of ``requires`` is in the design file."""
+
     name: str
-    run: object  # Callable[[StageContext], tuple[dict, list[str]]]
-    tables: tuple[str, ...]  # config tables the stage reads
+    run: StageFunction
+    requires: tuple[str, ...]  # tables that must be present for the stage to run
+    reads: Reads  # the design-file keys it reads
     upstream: tuple[str, ...]  # stages whose artifacts it reads
     file_keys: tuple[tuple[str, str], ...] = ()  # (table, key) of files whose bytes it reads
 
 
-STAGES = (
-    Stage("experiment", stages.experiment, ("design", "experiment"), (),
-          (("design", "plant"), ("experiment", "controller"))),
-    Stage("identify", stages.identify, ("identify",), ("experiment",)),
-    Stage("diagnose", stages.diagnose, ("diagnose", "identify"), ("identify",)),
-    Stage("reduce", stages.reduce_model, ("reduce",), ("identify", "diagnose")),
-    Stage("validate", stages.validate, ("validate", "identify", "experiment"), ("reduce",),
-          (("experiment", "controller"),)),
-    Stage("synth", stages.synth, ("synth",), ("reduce",)),
-    Stage("verify", stages.verify, ("design", "verify"), ("synth",), (("design", "plant"),)),
-    Stage("adoption", stages.adoption, ("design", "diagnose", "reduce", "synth", "verify"),
-          ("identify", "diagnose", "synth"), (("design", "plant"),)),
-    Stage("export", stages.export, ("export",), ("synth",)),
-)
+#: The [identify] keys that say which columns are the model's signals and which part estimates.
+_SIGNALS = ("u", "y", "p", "split", "remove_offsets", "remove_trim")
+
+_PLANT = (("design", "plant"),)
+_CONTROLLER = (("experiment", "controller"),)
+EXPERIMENT = Stage(
+    "experiment", stages.experiment, ("design", "experiment"),
+    {"design": ("plant",), "experiment": ("Ts", "duration", "controller", "inputs", "excitation", "setpoint",
+                                          "parameters", "scheduling", "seed", "quantization", "noise")},
+    (), _PLANT + _CONTROLLER)
+IDENTIFY = Stage("identify", stages.identify, ("identify",), {"identify": ALL, "experiment": ("controller",)},
+                 ("experiment",), _CONTROLLER)
+DIAGNOSE = Stage("diagnose", stages.diagnose, ("diagnose", "identify"),
+                 {"diagnose": ALL, "identify": (*_SIGNALS, "increments", "na", "nb", "nk", "basis"),
+                  "experiment": ("controller", "scheduling")}, ("identify",), _CONTROLLER)
+REDUCE = Stage("reduce", stages.reduce_model, ("reduce",), {"reduce": ALL}, ("identify", "diagnose"))
+VALIDATE = Stage("validate", stages.validate, ("validate", "identify", "experiment"),
+                 {"validate": ALL, "identify": _SIGNALS,
+                  "experiment": ("controller", "scheduling", "parameters"), "design": ("plant",)},
+                 ("reduce",), _PLANT + _CONTROLLER)
+SYNTH = Stage("synth", stages.synth, ("synth",),
+              {"synth": ALL, "verify": ("loop",), "experiment": ("scheduling",), "design": ("plant",)},
+              ("reduce",), _PLANT)
+VERIFY = Stage("verify", stages.verify, ("design", "verify"), {"design": ("plant",), "verify": ALL},
+               ("synth",), _PLANT)
+ADOPTION = Stage("adoption",
+                 functools.partial(adoption, reduce_stage=stages.reduce_model, synth_stage=stages.synth),
+                 ("design", "diagnose", "reduce", "synth", "verify"),
+                 union({"verify": ("loop", "scenario"), "design": ("plant",)}, REDUCE.reads, SYNTH.reads),
+                 ("identify", "diagnose", "synth"), _PLANT)
+EXPORT = Stage("export", stages.export, ("export",), {"export": ALL}, ("synth",))
+
+STAGES = (EXPERIMENT, IDENTIFY, DIAGNOSE, REDUCE, VALIDATE, SYNTH, VERIFY, ADOPTION, EXPORT)
 
 
 def run_design(config_path: str | Path, log: Callable[[str], None] = print, root: Path | None = None) -> dict:
@@ -177,19 +205,21 @@ def _run_pass(
 ) -> dict | None:
     """Run (or reuse) ``pass_stages`` in ``folder`` with ``config``, recording each stage's status, outputs
     and artifacts in ``outcome``; returns the failure ``{"stage", "error"}`` that ended the pass, or None."""
-    ctx = stages.StageContext(folder, config)
+    ctx = StageContext(folder, config)  # data.csv is read once per pass (StageContext.columns)
     keys: dict[str, str] = {}
     artifacts_of: dict[str, list[str]] = {}
     code = cache.code_digest()  # any change to lpvflow's code reruns every stage
     count = len(pass_stages)
     for i, stage in enumerate(pass_stages, 1):
-        if any(config[t] is None for t in stage.tables):
+        if any(config[t] is None for t in stage.requires):
             outcome[stage.name] = {"status": "not configured"}
             continue
-        files = [config[t][k] for t, k in stage.file_keys if config[t][k]]
+        settings = StageSettings(config, stage.reads)
+        ctx.config = settings
+        files = [config[t][k] for t, k in stage.file_keys if config[t] and config[t][k]]
         files += [folder / a for u in stage.upstream for a in artifacts_of.get(u, [])]
         upstream = [keys.get(u, "not configured") for u in stage.upstream]
-        key = cache.stage_key({"code": code, **{t: config[t] for t in stage.tables}}, upstream, files)
+        key = cache.stage_key({"code": code, **settings.payload()}, upstream, files)
         keys[stage.name] = key
         record = cache.load_record(folder, stage.name, key)
         if record is not None:

@@ -1,10 +1,11 @@
 """Export an LPVController as an FMI 2.0 Co-Simulation FMU, a MATLAB .mat file or its JSON file.
 
-Ports are named after the plant signals (:class:`ControllerSignals`, stored in the controller's
-``info["signals"]`` by the synth stage, :func:`describe_signals`): for every measured output ``y`` the
-inputs ``y_ref`` (its reference) and ``y`` (its measurement), the scheduling signals by name (each
-with the expression that computes it from plant signals, e.g. ``sin_arm = sin(arm_angle)``), the
-actuated plant inputs by name as outputs; each with its unit, description and operating point.
+Ports are named after the plant signals (:class:`~lpvflow.pipeline.ports.ControllerSignals`, stored in
+the controller's ``info["signals"]`` by the synth stage, :func:`lpvflow.pipeline.ports.describe_signals`):
+for every measured output ``y`` the inputs ``y_ref`` (its reference) and ``y`` (its measurement), the
+scheduling signals by name (each with the expression that computes it from plant signals, e.g.
+``sin_arm = sin(arm_angle)``), the actuated plant inputs by name as outputs; each with its unit,
+description and operating point.
 Controllers without that record get ``y1``, ``p1``, ``u1``….
 
 FMU (:func:`export_fmu`): fixed communication step = the controller's Ts. The ports are the same for
@@ -53,7 +54,7 @@ import tempfile
 import uuid
 import zipfile
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from string import Template
 from xml.sax.saxutils import escape, quoteattr
@@ -63,8 +64,10 @@ import numpy as np
 import scipy.io
 from fmpy.validation import validate_fmu
 
-from lpvflow.errors import DataError, LpvflowError, ModelError
-from lpvflow.models import LPVSS, load, user_mode
+from lpvflow.errors import DataError, ModelError
+from lpvflow.loop.loader import load_controller_file
+from lpvflow.models import user_mode
+from lpvflow.pipeline.ports import ControllerSignals, Port, controller_signals
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.polytope import Polytope
 
@@ -81,131 +84,6 @@ _POLYTOPE_CODES = {
     "piecewise": "POLYTOPE_PIECEWISE",
     "point": "POLYTOPE_POINT",
 }
-_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
-
-
-#: Controller port roles in ``info["signals"]``: measured outputs (read with their references),
-#: scheduling signals, actuated plant inputs.
-ROLES = ("measured", "scheduling", "actuated")
-_DEFAULT_PREFIX = {"measured": "y", "scheduling": "p", "actuated": "u"}
-
-
-@dataclass(frozen=True)
-class Port:
-    """One named controller signal. ``operating_point``: for a measured output its value at the design's
-    operating point (start value of the ``y`` and ``y_ref`` ports), for an actuated input the trim the
-    controller adds to its output, for a scheduling signal its start value. ``expression``: how a
-    scheduling signal is computed from plant signals (its own name when it is one)."""
-
-    name: str
-    unit: str = ""
-    description: str = ""
-    operating_point: float = 0.0
-    expression: str = ""
-
-    def to_dict(self) -> dict:
-        return {"name": self.name, "unit": self.unit, "description": self.description,
-                "operating_point": self.operating_point, "expression": self.expression}
-
-
-@dataclass(frozen=True)
-class ControllerSignals:
-    """The ports of a controller: measured outputs, scheduling signals, actuated inputs (module docstring)."""
-
-    measured: tuple[Port, ...]
-    scheduling: tuple[Port, ...]
-    actuated: tuple[Port, ...]
-
-    def to_dict(self) -> dict:
-        """The ``info["signals"]`` layout: role → list of port dictionaries."""
-        return {role: [port.to_dict() for port in getattr(self, role)] for role in ROLES}
-
-
-def controller_signals(
-    controller: LPVController, names: Mapping[str, Sequence[str]] | None = None
-) -> ControllerSignals:
-    """The ports recorded in ``controller.info["signals"]`` (default names ``y1``, ``p1``, ``u1``…), with
-    the names of ``names`` (role → names) replacing the recorded ones; one DataError line for a wrong
-    count, a name that is not an identifier or a name used twice."""
-    recorded = controller.info.get("signals") or {}
-    sizes = {"measured": controller.n_measured, "scheduling": controller.basis.n_p,
-             "actuated": controller.n_out}
-    unknown = sorted(set(names or {}) - set(ROLES))
-    if unknown:
-        raise DataError(f"unknown signal role(s) {unknown}; use {', '.join(ROLES)}")
-    ports = {}
-    for role, n in sizes.items():
-        entries = recorded.get(role) or [{"name": f"{_DEFAULT_PREFIX[role]}{i + 1}"} for i in range(n)]
-        if names and role in names:
-            given = list(names[role])
-            if len(given) != len(entries):
-                raise DataError(f"{role} names list {len(given)} names for {n} signals: {given}")
-            entries = [{**entry, "name": name} for entry, name in zip(entries, given, strict=True)]
-        if len(entries) != n:
-            raise DataError(f"the controller has {n} {role} signals but its record names {len(entries)}")
-        try:
-            ports[role] = tuple(Port(**entry) for entry in entries)
-        except TypeError as exc:
-            raise ModelError(f"controller info['signals'][{role!r}] has a malformed entry ({exc})") from None
-        bad = [port.name for port in ports[role]
-               if not isinstance(port.name, str) or not _NAME.match(port.name)]
-        if bad:
-            raise DataError(f"{role}: {bad[0]!r} is not a valid signal name (letters, digits, _)")
-    every = [*(f"{port.name}_ref" for port in ports["measured"]),
-             *(port.name for role in ROLES for port in ports[role])]
-    if len(set(every)) != len(every):
-        raise DataError(f"controller port names must be distinct, got {every}")
-    return ControllerSignals(ports["measured"], ports["scheduling"], ports["actuated"])
-
-
-def describe_signals(
-    model: LPVSS,
-    expressions: Mapping[str, str] | None = None,
-    plant_fmu: str | Path | None = None,
-    operating_point: Mapping[str, float] | None = None,
-) -> dict:
-    """``info["signals"]`` of a controller synthesized for ``model`` (measured outputs and their references
-    the model's outputs, whatever the controller's structure; outputs the model's inputs, scheduling its
-    p): names from the model, scheduling expressions from ``expressions`` (name → expression; the name
-    itself otherwise), units and descriptions from the plant FMU's variables of the same name (a name that
-    is not an identifier, e.g. a data column ``level (m)``, becomes ``level__m_``), operating points
-    (signal name → value) from ``operating_point``, else the FMU's start values for the actuated inputs
-    (as :mod:`lpvflow.pipeline.verify` does) and zero for the outputs."""
-    variables = {}
-    if plant_fmu is not None:
-        variables = {v.name: v for v in fmpy.read_model_description(str(plant_fmu)).modelVariables}
-    expressions = dict(expressions or {})
-
-    def port(name: str, operating_point: float, expression: str = "") -> Port:
-        variable = variables.get(expression or name)
-        declared = getattr(variable, "declaredType", None)
-        unit = (getattr(variable, "unit", None) or getattr(declared, "unit", None) or "") if variable else ""
-        description = (variable.description or "") if variable is not None else ""
-        port_name = re.sub(r"\W", "_", name)
-        if not _NAME.match(port_name):
-            port_name = f"s_{port_name}"
-        if port_name != name:  # a data column such as "level (m)": the port keeps the column in its text
-            description = f"column {name!r}" + (f"; {description}" if description else "")
-        return Port(port_name, unit, description, float(operating_point), expression)
-
-    given = dict(operating_point or {})
-    start = {n: float(v.start) for n, v in variables.items()
-             if v.causality == "input" and v.start is not None}
-    centre = scheduling_centre(model)
-    signals = ControllerSignals(
-        tuple(port(n, given.get(n, 0.0)) for n in model.y_names),
-        tuple(port(n, c, expressions.get(n, n)) for n, c in zip(model.p_names, centre, strict=True)),
-        tuple(port(n, given.get(n, start.get(n, 0.0))) for n in model.u_names),
-    )
-    return signals.to_dict()
-
-
-def scheduling_centre(model: LPVSS) -> list[float]:
-    """Middle of the model's recorded scheduling range (zero where it records none)."""
-    basis = model.basis
-    if basis.p_min is None:
-        return [0.0] * basis.n_p
-    return [0.5 * (lo + hi) for lo, hi in zip(basis.p_min, basis.p_max, strict=True)]
 
 
 def interpolation_rule(controller: LPVController, signals: ControllerSignals) -> str:
@@ -250,13 +128,9 @@ def box_words(box: np.ndarray, names: Sequence[str]) -> str:
 
 
 def load_lpv_controller(path: str | Path) -> LPVController:
-    """Read an ``lpvflow/lpv-controller`` JSON file; any defect is one ModelError line."""
-    try:
-        controller = load(path)
-    except LpvflowError:
-        raise
-    except (ValueError, TypeError, IndexError) as exc:
-        raise ModelError(f"controller file {path} has malformed matrices ({exc})") from None
+    """The ``lpvflow/lpv-controller`` of a JSON file (:func:`lpvflow.loop.loader.load_controller_file`);
+    any other file is one ModelError line."""
+    controller = load_controller_file(path)
     if not isinstance(controller, LPVController):
         raise ModelError(f"{path} is a {type(controller).__name__}, not an lpvflow/lpv-controller file")
     return controller

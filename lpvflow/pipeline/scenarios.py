@@ -57,7 +57,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -154,7 +153,7 @@ class Requirements:
 
 
 def run_passed(metrics: Mapping) -> bool:
-    """A run's verdict from its metrics (:func:`lpvflow.pipeline.verify.run_metrics`): stable and no
+    """A run's verdict from its metrics (:func:`lpvflow.pipeline.loop_metrics.run_metrics`): stable and no
     requirement missed (``requirements_failed`` empty or absent)."""
     return bool(metrics["stable"]) and not metrics.get("requirements_failed")
 
@@ -367,12 +366,3 @@ def parse_scenario(doc: dict, index: int) -> Scenario:
         requirements=(parse_requirements(doc["requirements"], f"{where}.requirements")
                       if "requirements" in doc else None),
     )
-
-
-def load_scenarios(path: str | Path) -> ScenarioFile:
-    """The ``[verify]`` table of a design file (module docstring); every defect is a one-line DataError."""
-    from lpvflow.pipeline.config import load_tables
-
-    verify = load_tables(path, need=("verify",))["verify"]
-    return ScenarioFile(parse_loop(verify["loop"]),
-                        [parse_scenario(doc, i) for i, doc in enumerate(verify["scenario"])])

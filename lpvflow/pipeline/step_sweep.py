@@ -6,7 +6,7 @@ unchanged (duration, disturbances, plant parameters, bounds, requirements). A ru
 *held* when it meets the criterion:
 
 * ``"passes"``: the run is stable and meets the scenario's requirements
-  (:func:`lpvflow.pipeline.verify.run_metrics`: ``stable`` and no ``requirements_failed``);
+  (:func:`lpvflow.pipeline.loop_metrics.run_metrics`: ``stable`` and no ``requirements_failed``);
 * ``"bounded"``: the run finishes with finite signals inside the scenario's ``output_bounds`` (e.g. the
   pendulum is not lost), settled or not.
 
@@ -24,8 +24,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from lpvflow.errors import DataError
+from lpvflow.pipeline.loop_metrics import run_metrics
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal, run_passed
-from lpvflow.pipeline.verify import Baseline, run_metrics, simulate_loop
+from lpvflow.pipeline.verify import Baseline, simulate_loop
 
 #: Criteria a run can be judged by (module docstring).
 CRITERIA = ("passes", "bounded")
@@ -112,3 +113,17 @@ def largest_held_step(
         else:
             hi = mid
     return lo
+
+
+def largest_steps(spec: dict, scenarios: list[Scenario], plant: str, loop: Loop, controllers: dict) -> dict:
+    """``[verify] largest_step``: for each controller, the largest step of the named scenario it holds
+    (:func:`largest_held_step`, bisection to its default resolution)."""
+    template = next((s for s in scenarios if s.name == spec["scenario"]), None)
+    if template is None:
+        raise DataError(f"[verify] largest_step.scenario = {spec['scenario']!r} names no scenario; "
+                        f"known: {[s.name for s in scenarios]}")
+    output = step_output(template, None)[0]
+    record = {"output": output, "criterion": spec["criterion"], "resolution": DEFAULT_RESOLUTION}
+    for key, law in controllers.items():
+        record[key] = largest_held_step(law, plant, loop, template, criterion=spec["criterion"])
+    return record

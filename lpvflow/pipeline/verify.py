@@ -10,43 +10,18 @@ for ``structure = "1dof"``, w = [r; y] for ``"2dof"``, u_eq the controller's tri
 ``control.StateSpace`` (1-DOF, no scheduling); an ``lpvflow/lti-controller`` file
 (:class:`~lpvflow.experiment.controller.LtiController`, 1-DOF), run with its own operating input u_op and
 its y_op replaced by the reference: u = u_op + C xc + D (y − r), xc⁺ = A xc + B (y − r); or an exported
-controller FMU (:class:`FmuController`), handed r and y on its separate ports.
+controller FMU (:class:`~lpvflow.loop.fmu_controller.FmuController`), handed r and y on its separate ports.
 
 Plant parameters of a run (:func:`plant_parameters`): ``[verify.loop] plant_parameters``, overridden by
 the scenario's, then every scenario ``parameter_factors`` entry f multiplies its parameter's value
 (the FMU's start value when neither table sets it): a perturbed plant, e.g. ``pendulum_mass = 1.1``.
 
-Metrics per tracked output (after t_c, the start of the last reference change; Δ its size, r_f the
-final reference; the final window is the last 10 % of the run, at least one sample):
-
-    settling_time       time from t_c after which |y − r_f| ≤ band for the rest of the run
-                        (band = settling_band if given, else 0.02·|Δ|); None if outside at the end
-    overshoot           max(0, max sign(Δ)·(y − r_f)) in output units, and 100·overshoot/|Δ| in %
-    peak_deviation      max |y − r_f|
-    steady_state_error  |mean(r_f − y)| over the final window
-    settled             the output stays inside the band over the whole final window
-    iae, ise            integrated tracking error from t_c to the end of the run, Ts·Σ|r_f − y| (output
-                        units·s) and Ts·Σ(r_f − y)² (units²·s): one number for speed, overshoot and
-                        oscillation together, comparable between controllers on the same scenario
-
-per measured output that is not tracked: after_settling = max |y − r| from the instant the last tracked
-output settled to the end of the run (None if one never settles) — e.g. the pendulum while the arm holds;
-per actuated input: peak_control max |u| (after the limits) and saturation_time = Ts·#{k: u_c(k) outside
-the limits}; per run, the scheduling the loop visited: ``range`` [min p_i, max p_i] per signal and, for a
-scheduled LPV controller, its design ``box`` (the scheduling box of its polytope, inside which the
-synthesis certificate holds; outside it the convex coordinates are clipped to the nearest face),
-``time_outside_box`` = Ts·#{k: p(k) ∉ box} and ``first_outside_box`` (s, or None).
-Verdict: stable ⇔ the run finished with finite signals inside ``output_bounds`` and every
-tracked output settled. A scenario's ``requirements`` (settling time, overshoot, after-settling bounds)
-are checked besides: ``requirements_failed`` lists what the run misses; ``passed`` ⇔ stable and none.
+Metrics and verdicts of a run: :mod:`lpvflow.pipeline.loop_metrics`.
 """
 
 from __future__ import annotations
 
-import json
-import math
 import os
-import shutil
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -54,25 +29,20 @@ from pathlib import Path
 
 import control
 import numpy as np
-from fmpy import extract
-from fmpy.fmi2 import FMU2Slave
 
-from lpvflow.errors import DataError, LpvflowError, ModelError
+from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment import scheduling as expressions
-from lpvflow.experiment.controller import FORMAT as LTI_FORMAT
-from lpvflow.experiment.controller import LtiController, load_controller
+from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.plant import Plant, open_plant
 from lpvflow.experiment.run import step_count
 from lpvflow.fmu import check_fmu
+from lpvflow.loop.engine import close_loop
+from lpvflow.loop.fmu_controller import FmuController
 from lpvflow.models import report_header, user_mode
-from lpvflow.pipeline.export import load_lpv_controller
-from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal, run_passed
+from lpvflow.pipeline.loop_metrics import ClosedLoopRun, run_metrics, tracked_outputs
+from lpvflow.pipeline.scenarios import Loop, Scenario, Signal, run_passed
 from lpvflow.synth.controller import LPVController
 
-#: Fraction of the run forming the final window of the steady-state checks.
-FINAL_WINDOW = 0.1
-#: Default settling band, relative to the size of the last reference change.
-RELATIVE_BAND = 0.02
 _TS_TOLERANCE = 1e-9
 
 
@@ -107,71 +77,6 @@ class _FixedLaw:
         return u
 
 
-class FmuController:
-    """A controller FMU written by :func:`lpvflow.pipeline.export.export_fmu`, stepped through fmpy.
-
-    Inputs are told apart by their description: ``scheduling …`` are p, ``measured …`` the outputs y and
-    the others (``reference …``) the references r, in modelDescription order. The FMU reads r and y on
-    separate ports whatever the structure of the controller inside (a 1-DOF one forms r − y itself), so
-    the loop hands it w = [r; y] (``structure = "2dof"``): per sample r(k), y(k) and p(k) are set, u(k)
-    read, then ``fmi2DoStep(t_k, Ts)``. An FMU without measured ports (written before they existed) reads
-    e = r − y on its reference ports (``structure = "1dof"``). The FMU's outputs include its operating
-    point and trim feed-forward, so ``u_offset`` is zero and the loop adds no operating point of its own.
-    """
-
-    def __init__(self, path: str | Path) -> None:
-        path = Path(path)
-        description = check_fmu(path)  # a readable FMI 2.0 Co-Simulation FMU with a binary here
-        if description.defaultExperiment is None or description.defaultExperiment.stepSize is None:
-            raise ModelError(f"{path} is not a controller FMU written by `lpvflow export --format fmu`")
-        variables = description.modelVariables
-        inputs = [v for v in variables if v.causality == "input"]
-        role = {v.valueReference: (v.description or "").split(" ")[0] for v in inputs}
-        self._p_vr = [vr for vr, kind in role.items() if kind == "scheduling"]
-        self._y_vr = [vr for vr, kind in role.items() if kind == "measured"]
-        self._e_vr = [vr for vr, kind in role.items() if kind not in ("scheduling", "measured")]
-        self._u_vr = [v.valueReference for v in variables if v.causality == "output"]
-        self.structure = "2dof" if self._y_vr else "1dof"
-        self.n_in, self.n_out = len(self._e_vr) + len(self._y_vr), len(self._u_vr)
-        self.u_offset = np.zeros(self.n_out) if self._y_vr else None  # FMUs before named ports: no trim
-        self.Ts = float(description.defaultExperiment.stepSize)
-        self.n_p = len(self._p_vr)
-        self._unzipdir = extract(str(path))
-        identifier = description.coSimulation.modelIdentifier
-        self._slave = FMU2Slave(
-            guid=description.guid,
-            unzipDirectory=self._unzipdir,
-            modelIdentifier=identifier,
-            instanceName=identifier,
-        )
-        self._slave.instantiate()
-        self._time = 0.0
-
-    def reset(self) -> None:
-        if self._time > 0.0:
-            self._slave.reset()
-        self._slave.setupExperiment(startTime=0.0)
-        self._slave.enterInitializationMode()
-        self._slave.exitInitializationMode()
-        self._time = 0.0
-
-    def step(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """u(k) for the input w(k) ([r; y], or e for an FMU without measured ports) at p(k); then one step."""
-        self._slave.setReal(self._e_vr + self._y_vr + self._p_vr,
-                            [*np.asarray(w, float), *np.asarray(p, float)])
-        u = np.array(self._slave.getReal(self._u_vr))
-        self._slave.doStep(self._time, self.Ts)
-        self._time += self.Ts
-        return u
-
-    def close(self) -> None:
-        if self._slave is not None:
-            self._slave.terminate()
-            self._slave.freeInstance()
-            self._slave = None
-            shutil.rmtree(self._unzipdir, ignore_errors=True)
-
-
 #: Controllers the loop can run.
 Baseline = LPVController | control.StateSpace | LtiController | FmuController
 
@@ -198,40 +103,6 @@ def _law(controller: Baseline, loop: Loop) -> LPVController | _FixedLaw | FmuCon
         f"cannot run a {type(controller).__name__} in the loop; give an LPVController, a "
         "discrete control.StateSpace or an lpvflow/lti-controller file"
     )
-
-
-def load_controller_file(path: str | Path) -> Baseline:
-    """An ``lpvflow/lpv-controller`` or ``lpvflow/lti-controller`` JSON file, or a controller FMU."""
-    path = Path(path)
-    if path.suffix.lower() == ".fmu":
-        return FmuController(path)
-    if path.is_file():
-        try:
-            kind = json.loads(path.read_text()).get("format")
-        except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-            kind = None
-        if kind == LTI_FORMAT:
-            return load_controller(path)
-    return load_lpv_controller(path)
-
-
-# ------------------------------------------------------------------------------------------ runs
-@dataclass
-class ClosedLoopRun:
-    """Signals of one closed-loop run, sample k at time[k]; ``failure`` says why it stopped early."""
-
-    label: str
-    time: np.ndarray
-    reference: np.ndarray
-    outputs: np.ndarray
-    commanded: np.ndarray
-    control: np.ndarray
-    scheduling: np.ndarray
-    measured: tuple[str, ...]
-    actuated: tuple[str, ...]
-    failure: str | None = None
-    #: (n_p, 2) design box of a scheduled LPV controller (None for LTI laws and controller FMUs).
-    scheduling_box: np.ndarray | None = None
 
 
 def _sampled(
@@ -264,7 +135,7 @@ def _check_scenario(scenario: Scenario, loop: Loop, plant_inputs: Sequence[str])
     ):
         _check_subset(what, list(names), loop.measured, where)
     if scenario.requirements is not None:
-        tracked = set(_tracked(scenario, loop))
+        tracked = set(tracked_outputs(scenario, loop))
         both = [name for name in scenario.requirements.after_settling if name in tracked]
         if both:
             raise DataError(f"{where}: requirements.after_settling names the tracked output {both[0]!r}; "
@@ -346,9 +217,29 @@ def plant_parameters(plant_fmu: str | Path, loop: Loop, scenario: Scenario) -> d
     return values
 
 
-def _input(law: LPVController | _FixedLaw | FmuController, r: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The controller input w(k): [r; y] for a 2-DOF input, the tracking error r − y otherwise."""
-    return np.concatenate([r, y]) if law.structure == "2dof" else r - y
+class _LoopLaw:
+    """A verified controller in the loop protocol (:mod:`lpvflow.loop.protocol`): it reads the loop's
+    ``measured`` outputs, drives its ``actuated`` inputs, is scheduled by the loop's expressions of the
+    plant signals and commands u = u_op + law(w, p), w = [r; y] for a 2-DOF input, r − y otherwise."""
+
+    def __init__(self, law: LPVController | _FixedLaw | FmuController, loop: Loop, u_op: np.ndarray) -> None:
+        self.law, self.Ts, self.u_op = law, law.Ts, u_op
+        self.inputs, self.outputs = tuple(loop.measured), tuple(loop.actuated)
+        self._schedule = _scheduling_function(loop)
+
+    def scheduling(self, names: Sequence[str]) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        names = list(names)
+        return lambda sample, r: self._schedule(dict(zip(names, sample, strict=True)))
+
+    def reset(self) -> None:
+        self.law.reset()
+
+    def step(self, r: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray:
+        w = np.concatenate([r, y]) if self.law.structure == "2dof" else r - y
+        return self.u_op + self.law.step(w, p)
+
+    def trim(self, p: np.ndarray) -> np.ndarray:
+        return self.u_op + (self.law.feedforward(p) if isinstance(self.law, LPVController) else 0.0)
 
 
 def _run(
@@ -359,6 +250,9 @@ def _run(
     n: int,
     label: str,
 ) -> ClosedLoopRun:
+    """One scenario through the closed-loop engine (:func:`lpvflow.loop.engine.close_loop`): output
+    disturbances on the measurement, output bounds as the stopping rule, exogenous inputs among the
+    scheduling signals, actuator limits and input disturbances on the command."""
     Ts = law.Ts
     _check_subset("measured plant output", loop.measured, plant.output_names, "loop")
     _check_subset("actuated plant input", loop.actuated, plant.input_names, "loop")
@@ -380,39 +274,37 @@ def _run(
     u_index = [plant.input_names.index(name) for name in loop.actuated]
     exogenous = [j for j, name in enumerate(plant.input_names) if name not in loop.actuated]
     bounds = [(loop.measured.index(name), b) for name, b in scenario.output_bounds.items()]
-    schedule = _scheduling_function(loop)
 
     y = np.full((n, len(loop.measured)), np.nan)
     u_c, u = np.full((n, len(loop.actuated)), np.nan), np.full((n, len(loop.actuated)), np.nan)
     p_log: list[np.ndarray] = []
-    failure = None
-    law.reset()
-    for k in range(n):
-        y_all = np.array(plant.outputs(), dtype=float)
+
+    def measure(k: int, y_all: np.ndarray) -> np.ndarray:
         y_all[y_index] += d_out[k]
         y[k] = y_all[y_index]
+        return y_all
+
+    def stop(k: int, y_all: np.ndarray) -> str | None:
         if not np.all(np.isfinite(y_all)):
-            failure = f"diverged: plant output non-finite at t = {t[k]:g} s"
-            break
+            return f"diverged: plant output non-finite at t = {t[k]:g} s"
         outside = [loop.measured[i] for i, (b_lo, b_hi) in bounds if not b_lo <= y[k, i] <= b_hi]
-        if outside:
-            failure = f"unbounded: {outside[0]} left its output_bounds at t = {t[k]:g} s"
-            break
-        signals = dict(zip(plant.output_names, y_all, strict=True))
-        signals |= {plant.input_names[j]: inputs[k, j] for j in exogenous}
-        p = schedule(signals)
-        p_log.append(p)
-        u_c[k] = u_op + law.step(_input(law, r[k], y[k]), p)
-        if not np.all(np.isfinite(u_c[k])):
-            failure = f"diverged: controller output non-finite at t = {t[k]:g} s"
-            break
-        u[k] = np.clip(u_c[k], lo, hi)
+        return f"unbounded: {outside[0]} left its output_bounds at t = {t[k]:g} s" if outside else None
+
+    def actuate(k: int, command: np.ndarray, p: np.ndarray) -> np.ndarray:
+        u[k] = np.clip(command, lo, hi)
         inputs[k, u_index] = u[k] + d_in[k]
-        try:
-            plant.step(inputs[k], t[k], Ts)
-        except LpvflowError as exc:
-            failure = f"diverged: the plant FMU failed at t = {t[k]:g} s ({exc})"
-            break
+        return inputs[k]
+
+    def record(k: int, y_all: np.ndarray, p: np.ndarray, command: np.ndarray, _: np.ndarray | None) -> None:
+        p_log.append(p)
+        u_c[k] = command
+
+    names = [*plant.output_names, *(plant.input_names[j] for j in exogenous)]
+    failure = close_loop(
+        _LoopLaw(law, loop, u_op), plant, n, r, scheduling_names=names, measure=measure,
+        signals=lambda k, y_all: np.concatenate([y_all, inputs[k, exogenous]]),
+        actuate=actuate, stop=stop, record=record,
+        plant_failure=lambda k, exc: f"diverged: the plant FMU failed at t = {t[k]:g} s ({exc})")
     n_p = len(p_log[0]) if p_log else 0
     p_arr = np.full((n, n_p), np.nan)
     p_arr[: len(p_log)] = p_log
@@ -425,25 +317,6 @@ def _design_box(law: LPVController | _FixedLaw | FmuController) -> np.ndarray | 
     if isinstance(law, LPVController) and law.polytope.kind != "point":
         return np.asarray(law.polytope.box, dtype=float)
     return None
-
-
-def scheduling_coverage(run: ClosedLoopRun) -> dict | None:
-    """Visited scheduling range, and the time spent outside the controller's design box (module docstring);
-    None when the loop has no scheduling signal."""
-    p = run.scheduling[np.isfinite(run.scheduling).all(axis=1)]  # the samples before a failure
-    if p.size == 0:
-        return None
-    coverage: dict = {"range": np.column_stack([p.min(axis=0), p.max(axis=0)]).tolist(), "box": None,
-                      "time_outside_box": None, "first_outside_box": None}
-    if run.scheduling_box is None:
-        return coverage
-    lo, hi = run.scheduling_box[:, 0], run.scheduling_box[:, 1]
-    slack = 1e-9 * np.maximum(1.0, np.abs(run.scheduling_box)).max(axis=1)
-    outside = np.any((p < lo - slack) | (p > hi + slack), axis=1)
-    Ts = float(run.time[1] - run.time[0])
-    coverage.update(box=run.scheduling_box.tolist(), time_outside_box=float(Ts * outside.sum()),
-                    first_outside_box=float(run.time[np.argmax(outside)]) if outside.any() else None)
-    return coverage
 
 
 def box_text(rows: Sequence[Sequence[float]]) -> str:
@@ -459,148 +332,6 @@ def coverage_note(metrics: Mapping) -> str:
     return (f"scheduling left the design box {box_text(coverage['box'])} at t = "
             f"{coverage['first_outside_box']:.3g} s and spanned {box_text(coverage['range'])} "
             f"({coverage['time_outside_box']:.3g} s outside)")
-
-
-# --------------------------------------------------------------------------------------- metrics
-def _last_change(signal: Signal | None) -> float | None:
-    times = signal.change_times if signal is not None else []
-    return max(times) if times else None
-
-
-def tracking_metrics(
-    time: np.ndarray, y: np.ndarray, reference: Signal | None, r_default: float, band: float | None, what: str
-) -> dict:
-    """Metrics of one output y (module docstring); ``reference`` None means constant r_default."""
-    t_c = _last_change(reference)
-    r_f = reference.sample(time[-1:])[0] if reference is not None else r_default
-    if t_c is None:
-        t_c, delta = float(time[0]), 0.0
-    else:
-        delta = r_f - reference.sample(np.array([t_c - 1e-6]))[0]
-    if band is None:
-        band = RELATIVE_BAND * abs(delta)
-        if band == 0.0:
-            raise DataError(f"{what}: the reference does not change; give settling_band for it")
-    k_c = int(np.searchsorted(time, t_c - 1e-9))
-    err = y[k_c:] - r_f
-    Ts = float(time[1] - time[0]) if len(time) > 1 else 0.0
-    outside = np.flatnonzero(~(np.abs(err) <= band))
-    settle = k_c if outside.size == 0 else k_c + int(outside[-1]) + 1
-    window = len(time) - max(1, math.ceil(FINAL_WINDOW * len(time)))
-    overshoot = max(0.0, float(np.max(np.sign(delta) * err))) if delta != 0 else None
-    return {
-        "settling_time": float(time[settle] - t_c) if settle < len(time) else None,
-        "settled": bool(settle <= window),
-        "band": float(band),
-        "reference_change": float(delta),
-        "change_time": float(t_c),
-        "overshoot": overshoot,
-        "overshoot_percent": None if overshoot is None else 100.0 * overshoot / abs(delta),
-        "peak_deviation": float(np.max(np.abs(err))),
-        "steady_state_error": float(abs(np.mean(r_f - y[window:]))),
-        "iae": float(Ts * np.sum(np.abs(err))),
-        "ise": float(Ts * np.sum(err**2)),
-    }
-
-
-def _tracked(scenario: Scenario, loop: Loop) -> list[str]:
-    if scenario.tracked is not None:
-        return list(scenario.tracked)
-    changing = [n for n in loop.measured if n in scenario.reference and scenario.reference[n].change_times]
-    names = changing + [n for n in loop.measured if n in scenario.settling_band and n not in changing]
-    if not names:
-        raise DataError(
-            f"scenario {scenario.name!r}: nothing to check; give a reference step or a "
-            "settling_band for an output"
-        )
-    return names
-
-
-def run_metrics(run: ClosedLoopRun, scenario: Scenario, loop: Loop) -> dict:
-    """Metrics and stability verdict of one run (module docstring)."""
-    Ts = float(run.time[1] - run.time[0])
-    y_op = loop.y_operating_point or (0.0,) * len(loop.measured)
-    clipped = np.isfinite(run.commanded) & (run.commanded != run.control)
-    applied = np.where(np.isfinite(run.control), np.abs(run.control), -np.inf)
-    controls = {
-        name: {
-            "peak_control": float(applied[:, j].max()) if np.isfinite(applied[:, j].max()) else None,
-            "saturation_time": float(Ts * np.sum(clipped[:, j])),
-        }
-        for j, name in enumerate(run.actuated)
-    }
-    result = {
-        "controller": run.label,
-        "stable": False,
-        "reason": run.failure,
-        "outputs": {},
-        "controls": controls,
-        "scheduling": scheduling_coverage(run),
-    }
-    if run.failure is not None:
-        if scenario.requirements is not None:
-            result["requirements_failed"] = ["the run failed (see reason)"]
-        return result
-    for name in _tracked(scenario, loop):
-        i = loop.measured.index(name)
-        result["outputs"][name] = tracking_metrics(
-            run.time,
-            run.outputs[:, i],
-            scenario.reference.get(name),
-            y_op[i],
-            scenario.settling_band.get(name),
-            f"scenario {scenario.name!r}, output {name}",
-        )
-    unsettled = [name for name, m in result["outputs"].items() if not m["settled"]]
-    result["stable"] = not unsettled
-    result["reason"] = f"not settled: {', '.join(unsettled)}" if unsettled else "bounded and settled"
-    result["after_settling"] = after_settling_peaks(run, scenario, loop, result["outputs"])
-    if scenario.requirements is not None:
-        result["requirements_failed"] = requirement_failures(
-            scenario.requirements, result["outputs"], result["after_settling"])
-    return result
-
-
-def after_settling_peaks(run: ClosedLoopRun, scenario: Scenario, loop: Loop, tracked: Mapping[str, dict]
-                         ) -> dict[str, float | None]:
-    """max |y − r| of every measured output that is not tracked, from the instant the last tracked output
-    settled (t_c + settling_time) to the end of the run; None for all when a tracked output never settled."""
-    settled_at = [m["change_time"] + m["settling_time"] for m in tracked.values()
-                  if m["settling_time"] is not None]
-    others = [name for name in loop.measured if name not in tracked]
-    if len(settled_at) < len(tracked):
-        return dict.fromkeys(others)
-    k = int(np.searchsorted(run.time, max(settled_at, default=run.time[0]) - 1e-9))
-    y_op = loop.y_operating_point or (0.0,) * len(loop.measured)
-    peaks = {}
-    for name in others:
-        i = loop.measured.index(name)
-        signal = scenario.reference.get(name)
-        r = signal.sample(run.time[k:]) if signal is not None else y_op[i]
-        peaks[name] = float(np.max(np.abs(run.outputs[k:, i] - r)))
-    return peaks
-
-
-def requirement_failures(requirements: Requirements, tracked: Mapping[str, dict],
-                         after_settling: Mapping[str, float | None]) -> list[str]:
-    """The requirements a finished run misses, one phrase each (empty: all met)."""
-    failures = []
-    for name, m in tracked.items():
-        limit = requirements.settling_time
-        if limit is not None and (m["settling_time"] is None or m["settling_time"] > limit):
-            settling = m["settling_time"]
-            took = "does not settle" if settling is None else f"settles in {settling:.3g} s"
-            failures.append(f"{name} {took} (limit {limit:g} s)")
-        limit = requirements.overshoot
-        if limit is not None and m["overshoot"] is not None and m["overshoot"] > limit:
-            failures.append(f"{name} overshoot {m['overshoot']:.3g} (limit {limit:g})")
-    for name, limit in requirements.after_settling.items():
-        peak = after_settling.get(name)
-        if peak is None:
-            failures.append(f"{name} after settling: not measured, the tracked outputs do not settle")
-        elif peak > limit:
-            failures.append(f"{name} after settling {peak:.3g} (limit {limit:g})")
-    return failures
 
 
 # ---------------------------------------------------------------------------------- verification

@@ -1,23 +1,21 @@
 """One ``[synth]`` table to one certified controller: the step shared by ``lpvflow synth`` and the design
 pipeline's synth stage.
 
-``method = "common"``: :func:`lpvflow.synth.hinf.synthesize` (one Lyapunov matrix, any polytope);
-``method = "rate-bounded"``: :func:`lpvflow.synth.rate_bounded.synthesize_rate_bounded` (parameter-
-dependent Lyapunov function, |p(k+1) − p(k)| ≤ ``rate_bound``); ``method = "observer"``:
-:func:`lpvflow.synth.observer.observer_design` (frozen LQG designs at the breakpoints, interpolated; checked
-at frozen points only, :class:`lpvflow.synth.observer.FrozenCheck`); all on the generalized plant of
-:func:`lpvflow.synth.plant.generalized_plant` with the table's weights, box, breakpoints, scheduled
-weights and structure, and re-checked by :mod:`lpvflow.synth.certify`. The table's ``trim`` (feed-forward
-u_eq(p), :class:`lpvflow.synth.controller.Trim`) is part of the controller it returns: a model identified
-with the trim removed (``[identify] remove_trim``) describes the plant with that trim in the loop, so a
-controller without it would not be the one designed.
+The table's ``method`` picks a design function from the registry :mod:`lpvflow.synth.methods`
+(:func:`design_common`, :func:`design_rate_bounded`, :func:`design_observer` here); each works on the
+generalized plant of :func:`lpvflow.synth.plant.generalized_plant` with the table's weights, box,
+breakpoints, scheduled weights and structure, and returns its controller with its check. The table's
+``trim`` (feed-forward u_eq(p), :class:`lpvflow.synth.controller.Trim`) is part of the controller it
+returns: a model identified with the trim removed (``[identify] remove_trim``) describes the plant with
+that trim in the loop, so a controller without it would not be the one designed.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -26,6 +24,7 @@ from lpvflow.models import LPVSS
 from lpvflow.synth.certify import certify, certify_rate_bounded
 from lpvflow.synth.controller import LPVController, Trim
 from lpvflow.synth.hinf import synthesize
+from lpvflow.synth.methods import SYNTHESIS_METHODS
 from lpvflow.synth.observer import ObserverSettings, observer_design
 from lpvflow.synth.plant import GeneralizedPlant, generalized_plant
 from lpvflow.synth.rate_bounded import synthesize_rate_bounded
@@ -58,9 +57,10 @@ class Design:
     antiwindup_gains: np.ndarray | None = None
 
 
-def synthesize_design(model: LPVSS, settings: dict, box: list | None = None) -> Design:
-    """The controller of a ``[synth]`` table (module docstring); ``box`` overrides the table's box (the
-    LTI baseline's degenerate box)."""
+def synthesize_design(model: LPVSS, settings: Mapping[str, Any], box: list | None = None) -> Design:
+    """The controller of a ``[synth]`` table: the design function its ``method`` names in
+    :data:`lpvflow.synth.methods.SYNTHESIS_METHODS`, with the table's trim; ``box`` overrides the table's
+    box (the LTI baseline's degenerate box, always designed by :func:`design_common`)."""
     weights, structure = settings["weights"], settings["structure"]
     point = box is not None
     plant = generalized_plant(model, weights, settings["box"] if box is None else box, structure,
@@ -70,27 +70,50 @@ def synthesize_design(model: LPVSS, settings: dict, box: list | None = None) -> 
     # design's own plant (the model's box corners lie off the curve the signals follow)
     tied = settings["breakpoints"] is not None and model.basis.n_p > 1
     frozen_model = None if not point and (settings["vertex_weights"] or tied) else model
-    if settings["method"] == "rate-bounded" and not point:
-        result, controller = synthesize_rate_bounded(plant, settings["rate_bound"], settings["solver"])
-        certificate = certify_rate_bounded(result, frozen_model, weights, structure)
-        controller.trim = trim(settings, controller)
-        return Design(controller, result.gamma, result.gamma_lower, certificate, plant, result.report.seconds)
-    if settings["method"] == "observer" and not point:
-        start = time.perf_counter()
-        filt = settings.get("reference_filter") or {}
-        observer = observer_design(plant, model, weights, ObserverSettings(
-            **(settings.get("observer") or {}), filter_bandwidth=filt.get("bandwidth"),
-            filter_damping=filt.get("damping", 1.0)))
-        observer.controller.trim = trim(settings, observer.controller)
-        return Design(observer.controller, observer.check.hinf_max, None, observer.check, plant,
-                      time.perf_counter() - start, observer.antiwindup_gains)
+    if point:
+        design = design_common(model, plant, settings, frozen_model)
+    else:
+        if settings["method"] not in SYNTHESIS_METHODS:
+            raise DataError(f"[synth] method = {settings['method']!r} is unknown; use one of "
+                            f"{', '.join(SYNTHESIS_METHODS)}")
+        design = SYNTHESIS_METHODS[settings["method"]].design_function()(model, plant, settings, frozen_model)
+    design.controller.trim = trim(settings, design.controller)
+    return design
+
+
+def design_common(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
+                  frozen_model: LPVSS | None) -> Design:
+    """``method = "common"``: :func:`lpvflow.synth.hinf.synthesize` (one Lyapunov matrix, any polytope),
+    certified by :func:`lpvflow.synth.certify.certify`."""
     result = synthesize(plant, settings["solver"])
-    result.controller.trim = trim(settings, result.controller)
-    return Design(result.controller, result.gamma, result.gamma_lower, certify(result, frozen_model, weights),
-                  plant, result.report.seconds)
+    return Design(result.controller, result.gamma, result.gamma_lower,
+                  certify(result, frozen_model, settings["weights"]), plant, result.report.seconds)
 
 
-def trim(settings: dict, controller: LPVController) -> Trim | None:
+def design_rate_bounded(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
+                        frozen_model: LPVSS | None) -> Design:
+    """``method = "rate-bounded"``: :func:`lpvflow.synth.rate_bounded.synthesize_rate_bounded`
+    (parameter-dependent Lyapunov function, |p(k+1) − p(k)| ≤ ``rate_bound``), certified by
+    :func:`lpvflow.synth.certify.certify_rate_bounded`."""
+    result, controller = synthesize_rate_bounded(plant, settings["rate_bound"], settings["solver"])
+    certificate = certify_rate_bounded(result, frozen_model, settings["weights"], settings["structure"])
+    return Design(controller, result.gamma, result.gamma_lower, certificate, plant, result.report.seconds)
+
+
+def design_observer(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
+                    frozen_model: LPVSS | None) -> Design:
+    """``method = "observer"``: :func:`lpvflow.synth.observer.observer_design` (frozen LQG designs at the
+    breakpoints, interpolated; checked at frozen points only, :class:`lpvflow.synth.observer.FrozenCheck`)."""
+    start = time.perf_counter()
+    filt = settings.get("reference_filter") or {}
+    observer = observer_design(plant, model, settings["weights"], ObserverSettings(
+        **(settings.get("observer") or {}), filter_bandwidth=filt.get("bandwidth"),
+        filter_damping=filt.get("damping", 1.0)))
+    return Design(observer.controller, observer.check.hinf_max, None, observer.check, plant,
+                  time.perf_counter() - start, observer.antiwindup_gains)
+
+
+def trim(settings: Mapping[str, Any], controller: LPVController) -> Trim | None:
     """The trim feed-forward u_eq(p) of the table's ``trim`` (None without the key); a table whose rows do
     not have one value per controller output is one DataError line."""
     table = settings.get("trim")  # tables built in code may leave the key out

@@ -1,4 +1,4 @@
-"""Simulation of an LPV input-output model in the loop of a closed-loop experiment (issue 8).
+"""Simulation of an LPV input-output model in the loop of a closed-loop experiment.
 
 Data recorded under a known LTI controller K (:class:`~lpvflow.experiment.controller.LtiController`,
 law xc⁺ = A xc + B (y − y_op), u = u_op + C xc + D (y − y_op) + r) cannot be scored by the model's
@@ -25,7 +25,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.scheduling import compile_expression
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 #: A simulated state beyond this magnitude means the model's closed loop diverged.
 DIVERGED = 1e12

@@ -76,7 +76,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError, LpvflowError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.identify.arx import identify_arx, prediction_residuals
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.validate import residuals
 from lpvflow.validate.closed_loop import Loop, simulate_in_loop
 from lpvflow.validate.extensions import (

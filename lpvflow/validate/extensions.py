@@ -44,7 +44,7 @@ from lpvflow.basis import Basis, SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import LpvflowError
 from lpvflow.identify.arx import identify_arx
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 from lpvflow.validate.closed_loop import Loop, simulate_in_loop, velocity_sign
 
 CAUSES = (

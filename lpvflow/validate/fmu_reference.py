@@ -43,7 +43,7 @@ from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment import scheduling
 from lpvflow.experiment.fmu_experiment import run_fmu_experiment
 from lpvflow.fmu import FmuPlant, open_fmu
-from lpvflow.models import LPVIO
+from lpvflow.lpvio import LPVIO
 
 #: Equilibrium acceptance: ‖f‖∞·Ts ≤ TOL (1 + ‖x‖∞) and |s − p| ≤ TOL (1 + |p|).
 EQUILIBRIUM_TOL = 1e-9

@@ -1,4 +1,4 @@
-"""Fit metrics per output channel, exactly as thesis Sec. 3.5 (3.31)–(3.33) (notes_002 §0).
+"""Fit metrics per output channel, exactly as thesis Sec. 3.5 (3.31)–(3.33).
 
     MSE = 1/(2N) Σ_k (y(k) − ŷ(k))²                       (note the factor 1/2)
     BFR = 100 % · max(1 − ‖y − ŷ‖₂ / ‖y − ȳ‖₂, 0)          (MATLAB's "fit", thesis "BFT")
@@ -58,7 +58,7 @@ def fit_report(y: np.ndarray, y_hat: np.ndarray, names: list[str] | None = None)
 def frozen_response_error(model, reference, points=(-0.3, 0.0, 0.3), band_hz=(0.1, 5.0)) -> float:
     """Mean over frozen scheduling points p of ‖G(e^{jωTs}) − G_ref(e^{jωTs})‖_F / ‖G_ref(e^{jωTs})‖_F,
     the responses stacked over 30 log-spaced frequencies in ``band_hz``; ``model`` and ``reference``
-    are realizable LPV models (anything with ``to_ss()``, e.g. :class:`lpvflow.models.LPVIO`)."""
+    are realizable LPV models (anything with ``to_ss()``, e.g. :class:`lpvflow.lpvio.LPVIO`)."""
     z = np.exp(2j * np.pi * np.logspace(np.log10(band_hz[0]), np.log10(band_hz[1]), 30) * model.Ts)
     errors = []
     for p in points:

@@ -1,0 +1,122 @@
+"""The one closed-loop engine: a controller of the protocol (:mod:`lpvflow.loop.protocol`) and a plant
+(an FMU, :class:`lpvflow.experiment.plant.Plant`, or an identified model, :class:`ModelPlant`) stepped
+together at the controller's Ts. The experiment, the model-in-the-loop validation and verification all
+close their loops here; what differs between them (sensor models and disturbances on the measurement,
+excitation, limits and disturbances on the command, stopping rules, what is recorded) enters through
+the hooks of :func:`close_loop`.
+
+Sampling convention: at t_k = k Ts read the plant outputs y(k), compute the scheduling p(k) and the
+command u(k) = K.step(r(k), y_K(k), p(k)), hold the plant inputs from t_k to t_k + Ts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Protocol
+
+import numpy as np
+
+from lpvflow.errors import DataError, LpvflowError
+from lpvflow.loop.protocol import LoopController
+from lpvflow.models import LPVSS
+
+
+class LoopPlant(Protocol):
+    """What the engine needs of a plant: its signal names, outputs() at the current time and step()."""
+
+    input_names: list[str]
+    output_names: list[str]
+
+    def outputs(self) -> np.ndarray: ...
+
+    def step(self, u: np.ndarray, t: float, dt: float) -> None: ...
+
+
+class ModelPlant:
+    """An identified LPVSS as a plant: y(k) = C x(k) (C at p(k−1): exact for the observable-form
+    realizations, whose C does not depend on p), p(k) from ``schedule`` of y(k), x(k+1) = A(p(k)) x(k) +
+    B(p(k)) u(k); a state beyond 1e12 is one DataError line (the model's loop diverges)."""
+
+    def __init__(self, model: LPVSS, schedule: Callable[[np.ndarray], np.ndarray], p0: np.ndarray) -> None:
+        self.model, self.schedule = model, schedule
+        self.input_names, self.output_names = list(model.u_names), list(model.y_names)
+        self.x = np.zeros(model.nx)
+        self._C = model.matrices(p0)[2]
+        self._k = 0
+
+    def outputs(self) -> np.ndarray:
+        return self._C @ self.x
+
+    def step(self, u: np.ndarray, t: float, dt: float) -> None:
+        p = self.schedule(self.outputs())
+        A, B, self._C, _ = self.model.matrices(p)
+        self.x = A @ self.x + B @ u
+        if not np.all(np.abs(self.x) < 1e12):
+            raise DataError(f"the identified model's closed loop diverges at sample {self._k}: it does not "
+                            "describe the plant under the identification controller")
+        self._k += 1
+
+
+def close_loop(
+    K: LoopController,
+    plant: LoopPlant,
+    n: int,
+    references: np.ndarray,
+    *,
+    scheduling_names: Sequence[str] | None = None,
+    measure: Callable[[int, np.ndarray], np.ndarray] | None = None,
+    signals: Callable[[int, np.ndarray], np.ndarray] | None = None,
+    actuate: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
+    stop: Callable[[int, np.ndarray], str | None] | None = None,
+    record: Callable[[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], None] | None = None,
+    plant_failure: Callable[[int, LpvflowError], str] | None = None,
+    Ts: float | None = None,
+) -> str | None:
+    """Run K and ``plant`` for ``n`` samples; returns why the run stopped early, or None.
+
+    Per sample k: y = ``measure(k, plant.outputs())`` (default: as the plant gives them, in
+    ``plant.output_names`` order); ``stop(k, y)`` may end the run with a reason; p = K's schedule of
+    ``signals(k, y)`` (default y; named ``scheduling_names``, default the plant's outputs) and
+    ``references[k]`` (ny, NaN: hold the operating point); u_c = K.step(references[k], y of K's inputs,
+    p) — a non-finite u_c ends the run ("diverged: controller output non-finite at t = …"); the plant
+    input vector u = ``actuate(k, u_c, p)`` (default: u_c on K's outputs, the other inputs at their start
+    values, ``plant.start_value``); ``record(k, y, p, u_c, u)`` (u None when u_c ended the run); the plant
+    steps by Ts (default the controller's). A plant step that fails raises, or with ``plant_failure``
+    ends the run with its reason."""
+    names = list(plant.output_names if scheduling_names is None else scheduling_names)
+    schedule = K.scheduling(names)
+    y_index = [plant.output_names.index(name) for name in K.inputs]
+    u_index = [plant.input_names.index(name) for name in K.outputs]
+    if actuate is None:
+        held = np.array([plant.start_value(name) for name in plant.input_names], dtype=float)
+
+        def actuate(k: int, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
+            u = held.copy()
+            u[u_index] = u_c
+            return u
+
+    Ts = K.Ts if Ts is None else Ts
+    K.reset()
+    for k in range(n):
+        t = k * Ts
+        y = np.asarray(plant.outputs(), dtype=float)
+        if measure is not None:
+            y = measure(k, y)
+        if stop is not None and (reason := stop(k, y)) is not None:
+            return reason
+        p = schedule(y if signals is None else signals(k, y), references[k])
+        u_c = K.step(references[k], y[y_index], p)
+        if not np.all(np.isfinite(u_c)):
+            if record is not None:
+                record(k, y, p, u_c, None)
+            return f"diverged: controller output non-finite at t = {t:g} s"
+        u = actuate(k, u_c, p)
+        if record is not None:
+            record(k, y, p, u_c, u)
+        try:
+            plant.step(u, t, Ts)
+        except LpvflowError as exc:
+            if plant_failure is None:
+                raise
+            return plant_failure(k, exc)
+    return None

@@ -1,0 +1,35 @@
+"""The controller a design file designs, as ``lpvflow synth --config`` and the design's synth stage both
+write it: the ``[synth]`` method's controller (:func:`lpvflow.synth.design.synthesize_design`), its port
+record (:func:`lpvflow.pipeline.ports.design_signals`: names, units, operating points, scheduling
+expressions), its anti-windup law (:func:`lpvflow.pipeline.antiwindup.antiwindup`) and its check."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from lpvflow.models import LPVSS
+from lpvflow.pipeline.antiwindup import antiwindup
+from lpvflow.pipeline.ports import design_signals
+from lpvflow.pipeline.scenarios import Loop
+from lpvflow.synth.design import Design, synthesize_design
+
+
+def design_controller(
+    model: LPVSS, settings: Mapping[str, Any], *, loop: Loop | None, scheduling: Mapping[str, str] | None,
+    plant_fmu: str | Path | None,
+) -> Design:
+    """The design of the ``[synth]`` table ``settings`` for ``model`` with the controller's
+    ``info["signals"]`` (from the experiment's ``scheduling`` expressions, the plant FMU and the
+    verification ``loop``), its anti-windup for the loop's actuator limits and ``info["certificate"]``."""
+    design = synthesize_design(model, settings)
+    controller = design.controller
+    signals = design_signals(model, scheduling, plant_fmu, loop)
+    controller.info["signals"] = signals
+    check = design.certificate
+    fields = dataclasses.asdict(check) if dataclasses.is_dataclass(check) else {}
+    controller.info["certificate"] = fields | {"ok": bool(check.ok)}
+    controller.antiwindup = antiwindup(controller, loop, signals, design.antiwindup_gains)
+    return design

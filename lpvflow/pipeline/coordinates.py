@@ -1,0 +1,97 @@
+"""The signals a design's model is identified in: estimation/validation parts of the experiment record,
+offsets, the experiment controller's trim removed, outputs as increments."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from lpvflow.data import Dataset
+from lpvflow.errors import DataError
+from lpvflow.experiment.controller import GriddedController
+from lpvflow.experiment.loader import load_experiment_controller
+from lpvflow.experiment.scheduling import evaluate
+from lpvflow.experiment.synthesized import SynthesizedController
+from lpvflow.pipeline.context import StageContext
+
+
+def read_data(ctx: StageContext, model_signals: bool = False) -> tuple[Dataset, Dataset]:
+    """Estimation and validation parts, as measured or (``model_signals``) in the signals the model is
+    identified in (:func:`model_coordinates`); with ``remove_offsets`` both have the estimation part's mean
+    inputs and outputs subtracted (the model then works in deviations from that operating point)."""
+    cfg = ctx.config["identify"]
+    data = ctx.dataset(cfg["u"], cfg["y"], cfg["p"])
+    est, val = (model_coordinates(ctx, data) if model_signals else data).split(cfg["split"])
+    if not cfg["remove_offsets"]:
+        return est, val
+    return without_offsets(est, est), without_offsets(val, est)
+
+
+def model_coordinates(ctx: StageContext, data: Dataset) -> Dataset:
+    """The whole record ``data`` in the signals the model is identified in.
+
+    * ``[identify] remove_trim``: each input the experiment controller drives minus that controller's
+      trim u_op(θ(k)) (:func:`controller_trim`). The model then describes the plant with the trim closed
+      around it. On the ADIP the trim V_eq(φ1) = −d1 sin φ1 / (motor gain) cancels the arm's gravity torque
+      d1 sin φ1; left in, that torque has to be carried by LPV coefficients of the absolute arm angle, whose
+      frozen value is the secant d1 sin φ1/φ1 instead of the linearization's d1 cos φ1 (ν-gap 0.19 at ±75°
+      between the two exact frozen models).
+    * ``[identify] increments``: the listed outputs replaced by their increments y(k) − y(k−1) (0 at k = 0);
+      :func:`identify` integrates the model back (:func:`lpvflow.identify.realize.integrate_outputs`).
+      Coefficients scheduled on a measured, fast-moving p(k) multiply the increments (small, like the
+      other signals) instead of an absolute angle of up to 1.3 rad, so an error in their timing stays small.
+    """
+    cfg = ctx.config["identify"]
+    changes: dict[str, np.ndarray] = {}
+    if cfg["remove_trim"]:
+        changes["u"] = data.u - controller_trim(ctx, data)
+    if cfg["increments"]:
+        unknown = [name for name in cfg["increments"] if name not in data.y_names]
+        if unknown:
+            raise DataError(f"[identify] increments {unknown} are not model outputs {data.y_names}")
+        y = data.y.copy()
+        rows = [data.y_names.index(name) for name in cfg["increments"]]
+        y[:, rows] = np.diff(data.y[:, rows], axis=0, prepend=data.y[:1, rows])
+        changes["y"] = y
+    return replace(data, **changes)
+
+
+def controller_trim(ctx: StageContext, data: Dataset) -> np.ndarray:
+    """The experiment controller's trim at every sample of ``data`` (the whole record), (N, nu) over the
+    model inputs (0 for inputs it does not drive): a gridded controller's u_op(θ(k)), θ(k) its scheduling
+    expression of the recorded measurements and set-points (``<output>_setpoint``, 0 where not recorded)
+    and u_op interpolated linearly on its grid, clipped at the ends, as the controller ran
+    (:meth:`~lpvflow.experiment.controller.GriddedController.at`); an LTI controller's constant u_op; an LPV
+    controller's u_op + u_eq(p(k)), p(k) its scheduling expressions of the recorded outputs
+    (:meth:`~lpvflow.experiment.synthesized.SynthesizedController.trim_along`)."""
+    path = ctx.config["experiment"]["controller"]
+    if not path:
+        raise DataError("[identify] remove_trim needs an [experiment] controller (its trim is removed)")
+    K = load_experiment_controller(path)
+    missing = [name for name in K.outputs if name not in data.u_names]
+    if missing:
+        raise DataError(f"[identify] remove_trim: the experiment controller drives {missing}, which are not "
+                        f"model inputs {data.u_names}")
+    trim = np.zeros_like(data.u)
+    columns = [data.u_names.index(name) for name in K.outputs]
+    if not isinstance(K, GriddedController | SynthesizedController):
+        trim[:, columns] = K.u_op
+        return trim
+    table = ctx.columns()
+    if isinstance(K, SynthesizedController):
+        trim[:, columns] = K.trim_along(table, data.N)
+        return trim
+    signals = {name: table[name][: data.N] for name in K.inputs}
+    signals |= {f"{name}_setpoint": table.get(f"{name}_setpoint", np.zeros(len(table["time"])))[: data.N]
+                for name in K.inputs}
+    theta = np.broadcast_to(evaluate(K.scheduling, signals), (data.N,))
+    trim[:, columns] = np.column_stack([np.interp(theta, K.grid, column) for column in K.u_op.T])
+    return trim
+
+
+def without_offsets(data: Dataset, est: Dataset) -> Dataset:
+    """``data`` minus the mean inputs and outputs of ``est`` (the operating point), recorded in
+    ``offsets``."""
+    u0, y0 = est.u.mean(axis=0), est.y.mean(axis=0)
+    return replace(data, u=data.u - u0, y=data.y - y0, offsets={"u": u0.tolist(), "y": y0.tolist()})

@@ -1,0 +1,31 @@
+"""The validate stage's gate: the ν-gap of the model to the plant below the identification loop's margin."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def gate_verdict(outputs: dict, enabled: bool) -> dict:
+    """The ν-gap/b(P, K) gate of the validate stage: ``{"passed": bool | None, "reason": str}``.
+
+    The model passes when δν(G_FMU(θ), Ĝ(θ)) < b(Ĝ(θ), K_id) at every frozen grid point, i.e. the
+    identification controller provably stabilizes every frozen plant as close to the model as the FMU
+    is (Vinnicombe's robust-stability test; thesis Fig. 6.11). ``passed`` is False when it fails, with the
+    worst point in the reason (the design then stops after validate when the gate is on), and None when
+    it was not evaluated (gate off, or no FMU reference or no experiment controller to compute it)."""
+    if not enabled:
+        return {"passed": None, "reason": "gate off ([validate] gate = false)"}
+    if "nugap_below_b_everywhere" not in outputs:
+        return {"passed": None, "reason": "not evaluated: the ν-gap test needs [validate] reference = "
+                                          "\"linearization\" or \"local\" and an [experiment] controller"}
+    gaps, margins, theta = outputs["nugap"], outputs["b_P_Kid"], outputs["theta"]
+    worst = int(np.argmax(np.asarray(gaps) - np.asarray(margins)))
+    where = ", ".join(f"{v:.3g}" for v in theta[worst])
+    if outputs["nugap_below_b_everywhere"]:
+        return {"passed": True, "reason": f"ν-gap < b(P, K_id) at all {len(gaps)} frozen points (closest at "
+                                          f"θ = {where}: ν-gap {gaps[worst]:.3g} < b {margins[worst]:.3g})"}
+    failing = sum(g >= b for g, b in zip(gaps, margins, strict=True))
+    reason = (f"the identified model fails the ν-gap test at {failing} of {len(gaps)} frozen points "
+              f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g}); "
+              "it is not used for synthesis")
+    return {"passed": False, "reason": reason}

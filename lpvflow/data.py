@@ -22,6 +22,8 @@ TIME_TOLERANCE = 1e-6
 _MAT_NUMERIC = {"double", "single", "logical", *(f"{s}int{b}" for s in ("", "u") for b in (8, 16, 32, 64))}
 #: Bytes of CSV text pyarrow parses at a time (whole lines; also the chunk size of the row count).
 CSV_BLOCK_BYTES = 1 << 20
+#: Text encoding of CSV files: UTF-8, with the byte-order mark spreadsheet programs (Excel) write dropped.
+CSV_ENCODING = "utf-8-sig"
 
 
 def _matrix(name: str, values: np.ndarray | list, names: list[str]) -> np.ndarray:
@@ -255,11 +257,14 @@ def _uniform_step(t: np.ndarray, name: str) -> float:
 
 
 def _csv_header(path: Path) -> list[str]:
-    with path.open(newline="") as fh:
+    with path.open(newline="", encoding=CSV_ENCODING) as fh:
         try:
             header = [h.strip() for h in next(csv.reader(fh))]
         except StopIteration:
             raise DataError(f"{path.name} is empty; expected a header row and data") from None
+        except (UnicodeDecodeError, csv.Error):
+            raise DataError(f"{path.name} is not CSV text in UTF-8 (a binary file or another "
+                            "encoding); save the data as CSV (UTF-8)") from None
     if len(set(header)) != len(header):
         raise DataError(f"{path.name}: duplicate column names in the header {header}")
     return header
@@ -331,7 +336,7 @@ def _raise_csv_defect(path: Path, header: list[str], selected: list[str]) -> Non
     """After pyarrow refused the file: find the first short/long line or non-number in a selected column
     and raise it as a DataError with its line number (the file is only scanned on this error path)."""
     wanted = [header.index(c) for c in selected]
-    with path.open(newline="") as fh:
+    with path.open(newline="", encoding=CSV_ENCODING, errors="replace") as fh:
         reader = csv.reader(fh)
         next(reader)
         for row in reader:

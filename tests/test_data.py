@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.io
 
-from lpvflow.data import Dataset
+from lpvflow.data import Dataset, column_names
 from lpvflow.errors import DataError
 from lpvflow.pipeline.cli import main
 
@@ -193,3 +193,31 @@ def test_diagnose_reads_the_data_file_once(tmp_path, monkeypatch, good_rows, cap
                  "--json", str(tmp_path / "o.json")]) == 2  # too few samples: stops after reading
     assert "for validation" in capsys.readouterr().err
     assert reads == [path]
+
+
+def test_csv_with_a_utf8_byte_order_mark_reads_like_without(tmp_path, good_rows):
+    """Excel's "CSV UTF-8" starts with a byte-order mark; the first column is still named ``time``."""
+    plain = write_csv(tmp_path / "plain.csv", ["time", "u", "y", "p"], good_rows)
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    a, b = (Dataset.read(path, ["u"], ["y"], ["p"]) for path in (plain, bom))
+    assert b.Ts == a.Ts
+    np.testing.assert_array_equal(b.y, a.y)
+    assert column_names(bom) == ["time", "u", "y", "p"]
+
+
+@pytest.mark.parametrize("content", [
+    "latin-1 header", "png", "latin-1 after the header",
+])
+def test_csv_that_is_not_utf8_text_is_one_data_error(tmp_path, good_rows, content):
+    text = write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"], good_rows).read_bytes()
+    if content == "latin-1 header":
+        data = text.replace(b"time,u", b"time,\xe9u", 1)
+    elif content == "png":
+        data = b"\x89PNG\r\n\x1a\n" + bytes(np.random.default_rng(1).integers(0, 256, 4000, dtype=np.uint8))
+    else:
+        data = text.replace(b"\n", b"\n\xe9", 3)
+    path = tmp_path / "d.csv"
+    path.write_bytes(data)
+    with pytest.raises(DataError, match=r"d\.csv is not CSV text in UTF-8"):
+        Dataset.read(path, ["u"], ["y"], ["p"])

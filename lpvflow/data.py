@@ -283,7 +283,7 @@ def _read_csv(path: Path, columns: list[str] | None) -> dict[str, np.ndarray]:
 
     header = _csv_header(path)
     selected = header if columns is None else [c for c in columns if c in header]
-    read_options = pacsv.ReadOptions(column_names=header)
+    read_options = pacsv.ReadOptions(column_names=header, use_threads=False)
     convert_options = pacsv.ConvertOptions(include_columns=selected,
                                            column_types=dict.fromkeys(selected, pa.float64()))
     rows = _max_rows(path)
@@ -360,7 +360,7 @@ def _read_parquet(path: Path, columns: list[str] | None) -> dict[str, np.ndarray
 
     try:
         table = pq.read_table(path, columns=None if columns is None else
-                              [c for c in columns if c in pq.read_schema(path).names])
+                              [c for c in columns if c in pq.read_schema(path).names], use_threads=False)
     except Exception as exc:  # pyarrow raises several unrelated types for a bad file
         raise DataError(f"{path.name} is not a readable Parquet file ({exc.__class__.__name__})") from None
     return {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}

@@ -221,3 +221,25 @@ def test_csv_that_is_not_utf8_text_is_one_data_error(tmp_path, good_rows, conten
     path.write_bytes(data)
     with pytest.raises(DataError, match=r"d\.csv is not CSV text in UTF-8"):
         Dataset.read(path, ["u"], ["y"], ["p"])
+
+
+
+def test_data_files_are_parsed_without_arrow_worker_threads(tmp_path, good_rows, monkeypatch):
+    """pyarrow's worker pool (C++ std::threads) still busy at interpreter exit aborts the process
+    ("terminate called without an active exception", SIGABRT after the CLI's error line); the readers
+    parse on the calling thread, so a read leaves no worker running."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    calls = []
+    read_csv, read_table = pacsv.read_csv, pq.read_table
+    monkeypatch.setattr(pacsv, "read_csv", lambda *a, **k: calls.append(k["read_options"].use_threads)
+                        or read_csv(*a, **k))
+    monkeypatch.setattr(pq, "read_table", lambda *a, **k: calls.append(k.get("use_threads", True))
+                        or read_table(*a, **k))
+    cols = dict(zip(["time", "u", "y", "p"], np.array(good_rows).T, strict=True))
+    pq.write_table(pa.table(cols), tmp_path / "d.parquet")
+    for path in (write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"], good_rows), tmp_path / "d.parquet"):
+        assert Dataset.read(path, ["u"], ["y"], ["p"]).N == 200
+    assert calls == [False, False]

@@ -48,9 +48,10 @@ LOADER_PATHS = {
 
 #: JSON reports the commands write (kind → current version); :func:`load` returns them as dictionaries.
 #: validation: ``validate --json``; simulation: ``simulate --json``; diagnosis: ``diagnose --json``;
-#: verification: ``verify --json``; experiment: the sidecar ``<data>.csv.json`` of ``experiment``.
+#: verification: ``verify --json``; experiment: the sidecar ``<data>.csv.json`` of ``experiment``;
+#: design: a design folder's ``summary.json``; stage: its stage records ``<stage>.json`` (pipeline/cache.py).
 REPORT_VERSIONS = {"validation": 1, "simulation": 1, "diagnosis": 1, "verification": 1, "experiment": 1,
-                   "design": 1}
+                   "design": 1, "stage": 1}
 
 
 def register_format(kind: str, loader: Callable[[dict], Any]) -> None:
@@ -436,12 +437,13 @@ def load(path: str | os.PathLike) -> Any:
 
     Models (``lpvflow/lpvio``, ``lpvss``, ``lpvlfr``) and controllers (``lpv-controller``,
     ``lti-controller``) come back as objects; the JSON reports of :data:`REPORT_VERSIONS` (validation,
-    simulation, diagnosis, verification, the experiment sidecar) as dictionaries. A file of another
+    simulation, diagnosis, verification, the experiment sidecar, a design's summary and its stage records)
+    as dictionaries. A file of another
     version, or not written by lpvflow, is refused with one ModelError line.
     """
     path = Path(path)
     if not path.exists():
-        raise ModelError(f"model file {str(path)!r} does not exist")
+        raise ModelError(f"file {str(path)!r} does not exist; check the path")
     try:
         d = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

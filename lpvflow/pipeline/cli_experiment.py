@@ -7,7 +7,7 @@ import math
 
 from lpvflow.errors import DataError
 from lpvflow.experiment import run_fmu_experiment
-from lpvflow.experiment.record import sidecar_path, write_record
+from lpvflow.experiment.record import check_output_path, sidecar_path, write_record
 from lpvflow.experiment.scheduling import parse_assignment
 from lpvflow.experiment.specs import __doc__ as SPEC_HELP
 from lpvflow.pipeline.cli_paths import declare
@@ -40,6 +40,7 @@ def _numbers(items: dict[str, str], option: str = "--set") -> dict[str, float]:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_path(args.output)  # before the run: a wrong name costs nothing
     inputs = _assignments(args.input, "--input", "throttle=multisine:f_lo=0.1,f_hi=5,rms=0.1")
     excitation = _assignments(args.excitation, "--excitation", "voltage=multisine:f_lo=0.1,f_hi=5,rms=0.2")
     setpoint = _assignments(args.setpoint, "--setpoint",

@@ -648,7 +648,11 @@ def export_fmu(
 def export_controller(
     controller: LPVController, path: str | Path, fmt: str, names: Mapping[str, Sequence[str]] | None = None
 ) -> Path:
-    """Write ``controller`` as ``fmt`` (fmu, json or mat) to ``path``."""
+    """Write ``controller`` as ``fmt`` (fmu, json or mat) to ``path``, whose extension must be ``.fmt``
+    (a MAT file named ``k.fmu`` would be taken for an FMU by every tool that opens it)."""
+    if fmt in FORMATS and Path(path).suffix.lower() != f".{fmt}":
+        raise DataError(f"output {Path(path).name} does not end in .{fmt}, the format written; name it "
+                        f"{Path(path).with_suffix(f'.{fmt}').name} or choose the format its extension names")
     if fmt == "fmu":
         return export_fmu(controller, path, names)
     if fmt == "mat":

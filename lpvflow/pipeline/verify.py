@@ -245,10 +245,11 @@ def _sampled(
     )
 
 
-def _check_subset(what: str, names: Sequence[str], available: Sequence[str], where: str) -> None:
+def _check_subset(what: str, names: Sequence[str], available: Sequence[str], where: str,
+                  hint: str = "") -> None:
     unknown = [n for n in names if n not in available]
     if unknown:
-        raise DataError(f"{where}: unknown {what} {unknown[0]!r}; known: {', '.join(available)}")
+        raise DataError(f"{where}: unknown {what} {unknown[0]!r}; known: {', '.join(available)}{hint}")
 
 
 def _check_scenario(scenario: Scenario, loop: Loop, plant_inputs: Sequence[str]) -> None:
@@ -354,8 +355,10 @@ def _run(
     label: str,
 ) -> ClosedLoopRun:
     Ts = law.Ts
-    _check_subset("measured plant output", loop.measured, plant.output_names, "loop")
-    _check_subset("actuated plant input", loop.actuated, plant.input_names, "loop")
+    hint = (f" ({plant.model_name} is a controller written by `lpvflow export`, not a plant; give the "
+            "plant's FMU)") if getattr(plant, "exported_controller", False) else ""
+    _check_subset("measured plant output", loop.measured, plant.output_names, "loop", hint)
+    _check_subset("actuated plant input", loop.actuated, plant.input_names, "loop", hint)
     _check_subset("actuator limit input", list(loop.actuator_limits), loop.actuated, "loop")
     _check_scenario(scenario, loop, plant.input_names)
     t = np.arange(n) * Ts

@@ -239,6 +239,9 @@ def _data_file(path: str | Path) -> Path:
 
 
 def _uniform_step(t: np.ndarray, name: str) -> float:
+    """The sampling time of a time column t_k = t_0 + k·Ts, refused when a step is off the median step by
+    more than TIME_TOLERANCE: (t_last − t_0)/(N − 1) rounded to 12 significant digits, the decimal step
+    the column stands for (0.005, not the 0.0049999999999954525 that differences of rounded times give)."""
     if len(t) < 2 or not np.all(np.isfinite(t)):
         raise DataError(f"time column {name!r} needs at least 2 finite values")
     dt = np.diff(t)
@@ -253,7 +256,7 @@ def _uniform_step(t: np.ndarray, name: str) -> float:
             f"time column {name!r} is not uniformly spaced (step {dt[worst]:g} at sample {worst + 1}, "
             f"median {step:g}): resample the data to a fixed step first"
         )
-    return step
+    return float(f"{(t[-1] - t[0]) / (len(t) - 1):.12g}")
 
 
 def _csv_header(path: Path) -> list[str]:

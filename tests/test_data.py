@@ -243,3 +243,14 @@ def test_data_files_are_parsed_without_arrow_worker_threads(tmp_path, good_rows,
     for path in (write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"], good_rows), tmp_path / "d.parquet"):
         assert Dataset.read(path, ["u"], ["y"], ["p"]).N == 200
     assert calls == [False, False]
+
+
+def test_the_sampling_time_of_a_time_column_is_its_decimal_step(tmp_path):
+    """Times written as k·Ts in decimal text differ by Ts only up to rounding; Ts comes back exact."""
+    rng = np.random.default_rng(3)
+    for Ts in (0.005, 0.01, 0.2, 1e-4, 0.04, 2.5):
+        n = int(rng.integers(100, 50_000))
+        t = np.arange(n) * Ts + 300.0  # a late start: the differences carry the rounding of large times
+        path = write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"],
+                         [[repr(float(tk)), 1.0, 2.0, 3.0] for tk in t])
+        assert Dataset.read(path, ["u"], ["y"], ["p"]).Ts == Ts

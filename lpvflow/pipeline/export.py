@@ -191,13 +191,25 @@ def describe_signals(
     given = dict(operating_point or {})
     start = {n: float(v.start) for n, v in variables.items()
              if v.causality == "input" and v.start is not None}
-    centre = scheduling_centre(model)
-    signals = ControllerSignals(
-        tuple(port(n, given.get(n, 0.0)) for n in model.y_names),
-        tuple(port(n, c, expressions.get(n, n)) for n, c in zip(model.p_names, centre, strict=True)),
-        tuple(port(n, given.get(n, start.get(n, 0.0))) for n in model.u_names),
-    )
-    return signals.to_dict()
+    measured = tuple(port(n, given.get(n, 0.0)) for n in model.y_names)
+    actuated = tuple(port(n, given.get(n, start.get(n, 0.0))) for n in model.u_names)
+    at_rest = {n: p.operating_point for n, p in zip([*model.y_names, *model.u_names], measured + actuated,
+                                                    strict=True)}
+    scheduling = tuple(port(n, scheduling_at(expressions.get(n, n), at_rest, c), expressions.get(n, n))
+                       for n, c in zip(model.p_names, scheduling_centre(model), strict=True))
+    return ControllerSignals(measured, scheduling, actuated).to_dict()
+
+
+def scheduling_at(expression: str, signals: Mapping[str, float], otherwise: float) -> float:
+    """A scheduling expression's value with the plant signals at ``signals`` (their operating point: the
+    controller FMU's scheduling inputs then start where its measured inputs start, e.g. sin(arm_angle) = 0
+    with the arm at 0°); ``otherwise`` when it reads a signal that has no operating point."""
+    from lpvflow.experiment.scheduling import evaluate
+
+    try:
+        return float(evaluate(expression, {n: np.array([v]) for n, v in signals.items()})[0])
+    except DataError:
+        return otherwise
 
 
 def scheduling_centre(model: LPVSS) -> list[float]:
@@ -353,7 +365,9 @@ def export_mat(
         suffix = "_ref" if role == "reference" else ""
         content[f"{role}_names"] = _cell([port.name + suffix for port in ports])
         content[f"{role}_units"] = _cell([port.unit for port in ports])
-        content[f"{role}_descriptions"] = _cell([_port_description(role, port) for port in ports])
+        content[f"{role}_descriptions"] = _cell([_port_description(role, port, _offsets(controller, signals,
+                                                                                          port))
+                                                 for port in ports])
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as stream:
@@ -521,11 +535,21 @@ def _scheduling_ports(controller: LPVController, signals: ControllerSignals) -> 
             for port, c in zip(signals.scheduling, controller.polytope.box.mean(axis=1), strict=True)]
 
 
-def _port_description(role: str, port: Port) -> str:
-    """The FMU/MAT description of a port: role, the plant's description, the scheduling expression."""
+def _offsets(controller: LPVController, signals: ControllerSignals, port: Port) -> str:
+    """What an actuated output adds to the controller's law: its operating point and the trim u_eq(p)."""
+    parts = [f"the operating point {port.operating_point:g}{' ' + port.unit if port.unit else ''}"] \
+        if port.operating_point else []
+    if controller.trim is not None:
+        parts.append(f"the trim feed-forward u_eq({signals.scheduling[0].name})")
+    return " and ".join(parts)
+
+
+def _port_description(role: str, port: Port, trim: str = "") -> str:
+    """The FMU/MAT description of a port: role, the plant's description, the scheduling expression;
+    ``trim``: what an actuated output adds to the controller's law (:func:`_offsets`)."""
     words = {"reference": f"reference for {port.name}", "measured": f"measured {port.name}",
              "scheduling": f"scheduling {port.name} = {port.expression or port.name}",
-             "actuated": f"actuated {port.name} (includes the trim {port.operating_point:g})"}[role]
+             "actuated": f"actuated {port.name}" + (f" (includes {trim})" if trim else "")}[role]
     return f"{words}: {port.description}" if port.description else words
 
 
@@ -544,8 +568,8 @@ def _model_description(
     for vr, (port, role) in enumerate(_fmu_variables(controller, signals)):
         unit = f" unit={quoteattr(port.unit)}" if port.unit else ""
         units.add(port.unit)
-        description = _port_description(role, replace(port, name=port.name.removesuffix("_ref"))
-                                         if role == "reference" else port)
+        named = replace(port, name=port.name.removesuffix("_ref")) if role == "reference" else port
+        description = _port_description(role, named, _offsets(controller, signals, port))
         if role == "actuated":
             causality, real, extra = "output", f"<Real{unit}/>", ' initial="calculated"'
             outputs.append(f'      <Unknown index="{vr + 1}"/>')

@@ -20,6 +20,7 @@ Prints γ, the independent certificate checks and the solve time; exit 1 when a 
 from __future__ import annotations
 
 import argparse
+import sys
 
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS, load
@@ -56,6 +57,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"gamma = {design.gamma:.6g}  ({bound}, {design.seconds:.2f} s)")
     for line in design.certificate.lines():
         print(line)
+    if design.controller.info.get("status") == "optimal_inaccurate":
+        print("lpvflow synth: warning: the SDP solver returned the controller LMIs' solution as inaccurate "
+              "(optimal_inaccurate); the certificate checks above decide whether the controller is usable",
+              file=sys.stderr)
     cert = design.certificate
     design.controller.info["certificate"] = cert.__dict__ | {"ok": cert.ok}
     design.controller.info["signals"] = describe_signals(model)  # ports named after the model's signals

@@ -130,13 +130,19 @@ def user_mode(fd: int) -> None:
 
 def atomic_write_json(path: str | os.PathLike, payload: dict) -> None:
     """Write JSON to ``path`` via a temporary file and rename: a failure never truncates ``path``."""
+    atomic_write_text(path, json.dumps(payload, indent=1))
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file and rename: a failure (or Ctrl-C) never leaves a
+    truncated ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     user_mode(fd)
     try:
         with os.fdopen(fd, "w") as fh:
-            json.dump(payload, fh, indent=1)
+            fh.write(text)
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)

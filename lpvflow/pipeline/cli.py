@@ -16,6 +16,7 @@ import warnings
 from importlib.metadata import PackageNotFoundError, version
 
 from lpvflow.errors import LpvflowError
+from lpvflow.pipeline import interrupt
 from lpvflow.pipeline.cli_paths import check_declared
 
 #: Subcommand -> (module, function configuring its parser, one-line help), in ``lpvflow --help`` order.
@@ -87,9 +88,13 @@ def main(argv: list[str] | None = None) -> int:
     prefix = "lpvflow" if command not in COMMANDS else f"lpvflow {command}"
     try:
         return _run(build_parser(command).parse_args(argv), prefix)
+    except Exception:
+        if not interrupt.requested():  # an error of its own, not the aftermath of a Ctrl-C
+            raise
     except KeyboardInterrupt:
-        sys.stderr.write(f"{prefix}: interrupted by Ctrl-C\n")
-        return 130
+        pass
+    sys.stderr.write(f"{prefix}: interrupted by Ctrl-C\n")
+    return 130
 
 
 def _run(args: argparse.Namespace, prefix: str) -> int:

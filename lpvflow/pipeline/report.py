@@ -10,6 +10,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from lpvflow.models import atomic_write_text
 from lpvflow.pipeline.scenarios import run_passed
 
 FIGURE_CAPTIONS = {
@@ -491,6 +492,6 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>lpvflow design {summary['name']}"
             f"</title><style>{style}</style></head><body>{''.join(sections)}</body></html>")
     path = folder / "report.html"
-    path.write_text(page)
+    atomic_write_text(path, page)
     return path
 

@@ -48,7 +48,7 @@ def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
     )
     ranges = {name: [float(np.min(v)), float(np.max(v))]
               for name, v in record.columns.items() if name != "time"}
-    return {"samples": len(record.time), "Ts": record.Ts, "ranges": ranges}, ["data.csv"]
+    return {"samples": len(record.time), "Ts": record.Ts, "ranges": ranges}, ["data.csv", "data.csv.json"]
 
 
 def read_data(ctx: StageContext, model_signals: bool = False) -> tuple[Dataset, Dataset]:
@@ -259,7 +259,8 @@ def plot_residuals(
         ax_t.plot(t, e, lw=0.5)
         ax_t.set(xlabel="time [s]", ylabel=f"ε {name}")
         band = band99(len(e))
-        ax_r.stem(np.arange(lags + 1), autocorrelation(e, lags), basefmt=" ")
+        r = autocorrelation(e, lags)  # fewer than lags + 1 values for a residual shorter than lags
+        ax_r.stem(np.arange(len(r)), r, basefmt=" ")
         ax_r.axhspan(-band, band, color="tab:green", alpha=0.2)
         ax_r.set(xlabel="lag", ylabel="r̂_εε", title=f"Ljung–Box p = {p_values[-1]:.2g}")
     fig.tight_layout()

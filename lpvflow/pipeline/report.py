@@ -100,7 +100,7 @@ def _figures(folder: Path, units: dict[str, _Unit]) -> list[str]:
         names = [n for n in table if n != "time" and not n.startswith("diag_")]
         fig, axes = plt.subplots(len(names), 1, figsize=(10, 1.6 * len(names)), sharex=True, squeeze=False)
         for ax, name in zip(axes[:, 0], names, strict=True):
-            unit = units.get(name, _Unit(""))
+            unit = _unit_of(name, units)
             ax.plot(table["time"], table[name] * unit.factor, lw=0.6)
             ax.set_ylabel(f"{name} [{unit.label}]" if unit.label else f"{name} [–]", fontsize=8)
         axes[-1, 0].set_xlabel("time [s]")
@@ -233,8 +233,8 @@ def _scenario_table(scenarios: list[dict], units: dict[str, _Unit], scheduling: 
                 css = "" if run["stable"] and not missed else ' class="fail"'
                 body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells)
                             + "</tr>")
-    return ('<div class="wide"><table><tr>' + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(body)
-            + "</table></div>")
+    return ('<div class="wide"><table class="scenarios"><tr>' + "".join(f"<th>{h}</th>" for h in head)
+            + "</tr>" + "".join(body) + "</table></div>")
 
 
 # ------------------------------------------------------------------------------------- summary card
@@ -591,12 +591,20 @@ PERCENT = {("identify", "one_step_bfr_validation")}
 STRUCTURES = {"1dof": "1-DOF (reads r − y)", "2dof": "2-DOF (reads references and measurements apart)"}
 
 
+def _unit_of(name: str, units: dict[str, _Unit]) -> _Unit:
+    """The display unit of a recorded signal: its own, or for an experiment's ``<signal>_excitation`` and
+    ``<signal>_setpoint`` columns that of the signal; none for a scheduling signal."""
+    for suffix in ("", "_excitation", "_setpoint"):
+        if name.endswith(suffix) and name.removesuffix(suffix) in units:
+            return units[name.removesuffix(suffix)] if suffix else units[name]
+    return _Unit("")
+
+
 def _signal_value(name: str, value: float, units: dict[str, _Unit]) -> str:
-    """One value of a named signal in its display unit, e.g. "70.2°", "6.02 V", "0.1 (no unit)"."""
-    unit = units.get(name, _Unit(""))
-    if not unit.label:
-        return f"{unit.value(value)} (no unit)"
-    return unit.value(value) + ("" if unit.label == "°" else " ") + unit.label
+    """One value of a named signal in its display unit, e.g. "70.2°", "6.02 V" (a plain number without
+    one)."""
+    unit = _unit_of(name, units)
+    return unit.value(value) + ("" if unit.label in ("°", "") else " ") + unit.label
 
 
 def _signal_range(name: str, bounds: list[float], units: dict[str, _Unit]) -> str:
@@ -695,7 +703,7 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
              "overflow-x:auto}"
              ".summary h2{margin-top:0.4em}.verdict{font-size:17px}.why{font-size:12px;color:#555}"
              "table.card td{text-align:right}table.card td:first-child{text-align:left}"
-             "table.card th{font-size:12px}")
+             "table.card th{font-size:12px}table.scenarios td:nth-child(13){min-width:17em}")
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>lpvflow design {summary['name']}"
             f"</title><style>{style}</style></head><body>{''.join(sections)}</body></html>")
     path = folder / "report.html"

@@ -703,7 +703,8 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
              "overflow-x:auto}"
              ".summary h2{margin-top:0.4em}.verdict{font-size:17px}.why{font-size:12px;color:#555}"
              "table.card td{text-align:right}table.card td:first-child{text-align:left}"
-             "table.card th{font-size:12px}table.scenarios td:nth-child(13){min-width:17em}")
+             "table.card th{font-size:12px}table.scenarios td{font-size:12px}"
+             "table.scenarios td:nth-child(13){min-width:12em}")
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>lpvflow design {summary['name']}"
             f"</title><style>{style}</style></head><body>{''.join(sections)}</body></html>")
     path = folder / "report.html"

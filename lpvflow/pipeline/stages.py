@@ -747,7 +747,7 @@ def verify(ctx: StageContext) -> tuple[dict, list[str]]:
     artifacts = []
     for i, scenario_result in enumerate(result.results):
         name = f"verify_{i}.png"
-        plot_runs(scenario_result.runs, ctx.path(name), title=scenarios[i].name)
+        plot_runs(scenario_result.runs, ctx.path(name), title=scenarios[i].name, plant=plant)
         artifacts.append(name)
     outputs = result.to_dict()
     if cfg["largest_step"]:
@@ -814,7 +814,8 @@ def adoption(ctx: StageContext) -> tuple[dict, list[str]]:
     for i, doc in enumerate(cfg["scenario"]):
         scenario = parse_scenario(doc, i)
         runs = [simulate_loop(K, plant, scenario, loop, label) for label, K in controllers]
-        plot_runs(runs, ctx.path(f"adoption_{i}.png"), title=f"{scenario.name}: before/after adoption")
+        plot_runs(runs, ctx.path(f"adoption_{i}.png"), title=f"{scenario.name}: before/after adoption",
+                  plant=plant)
         artifacts.append(f"adoption_{i}.png")
         metrics = dict(zip(("before", "after"), (run_metrics(r, scenario, loop) for r in runs), strict=True))
         for output in list(metrics["after"]["outputs"] or metrics["before"]["outputs"]) or ["–"]:

@@ -692,14 +692,18 @@ def verify(
 
 
 # ---------------------------------------------------------------------------------------- figure
-def plot_runs(runs: Sequence[ClosedLoopRun], path: str | Path, title: str = "") -> Path:
-    """PNG of references, outputs and controls of the runs (e.g. LPV vs baseline), written atomically."""
+def plot_runs(runs: Sequence[ClosedLoopRun], path: str | Path, title: str = "",
+              plant: str | Path | None = None) -> Path:
+    """PNG of references, outputs and controls of the runs (e.g. LPV vs baseline), written atomically;
+    each axis labelled with the unit the ``plant`` FMU declares for its signal."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     first = runs[0]
+    units = fmu_units(plant) if plant is not None else {}
+    label = lambda name: f"{name} [{units[name]}]" if units.get(name) else name  # noqa: E731
     rows = len(first.measured) + len(first.actuated)
     fig, axes = plt.subplots(rows, 1, figsize=(7, 1.9 * rows), sharex=True, squeeze=False)
     for i, name in enumerate(first.measured):
@@ -707,14 +711,14 @@ def plot_runs(runs: Sequence[ClosedLoopRun], path: str | Path, title: str = "") 
         ax.plot(first.time, first.reference[:, i], "k--", lw=1, label="reference")
         for run in runs:
             ax.plot(run.time, run.outputs[:, i], lw=1.2, label=run.label)
-        ax.set_ylabel(name)
+        ax.set_ylabel(label(name))
     for j, name in enumerate(first.actuated):
         ax = axes[len(first.measured) + j, 0]
         for run in runs:
             ax.step(run.time, run.control[:, j], where="post", lw=1.2, label=run.label)
-        ax.set_ylabel(name)
+        ax.set_ylabel(label(name))
     axes[0, 0].legend(loc="best", fontsize=8)
-    axes[-1, 0].set_xlabel("time (s)")
+    axes[-1, 0].set_xlabel("time [s]")
     if title:
         fig.suptitle(title)
     fig.tight_layout()
@@ -732,3 +736,16 @@ def plot_runs(runs: Sequence[ClosedLoopRun], path: str | Path, title: str = "") 
     finally:
         plt.close(fig)
     return path
+
+
+def fmu_units(path: str | Path) -> dict[str, str]:
+    """Unit of every variable of an FMU that declares one (its own or its declared type's)."""
+    from fmpy import read_model_description
+
+    units = {}
+    for variable in read_model_description(str(path)).modelVariables:
+        declared = getattr(variable, "declaredType", None)
+        unit = variable.unit or getattr(declared, "unit", None)
+        if unit:
+            units[variable.name] = unit
+    return units

@@ -350,7 +350,7 @@ def _comparison_table(scenarios: list[dict], units: dict[str, _Unit], perturbed:
     first = ["scenario"] + (["parameter factors"] if perturbed else [])
     head = ("<tr>" + "".join(f'<th rowspan="2">{h}</th>' for h in first)
             + "".join(f'<th colspan="{len(heads)}">{label}</th>' for _, label in controllers) + "</tr><tr>"
-            + "".join(f"<th>{html.escape(h)}</th>" for _ in controllers for h in heads) + "</tr>")
+            + "".join(f"<th>{_breakable(h)}</th>" for _ in controllers for h in heads) + "</tr>")
     body = []
     for scenario in scenarios:
         requirements = scenario.get("requirements") or {}
@@ -372,7 +372,7 @@ def _run_cells(run: dict, tracked: list[str], after: list[str], requirements: di
                units: dict[str, _Unit]) -> list[str]:
     """The comparison cells of one run (:func:`_comparison_table`), escaped; a missed bound is red."""
     def cell(text: str, missed: bool) -> str:
-        return f'<td class="fail">{html.escape(text)}</td>' if missed else html.escape(text)
+        return f'<td class="fail">{_breakable(text)}</td>' if missed else _breakable(text)
 
     cells = []
     for name in tracked:
@@ -394,8 +394,14 @@ def _run_cells(run: dict, tracked: list[str], after: list[str], requirements: di
                      '<td class="pass">stable</td>')
     else:
         why = "" if run["stable"] else f": {_short_reason(run['reason'])}"
-        cells.append(f'<td class="fail">fail{html.escape(why)}</td>')
+        cells.append(f'<td class="fail">fail{_breakable(why)}</td>')
     return cells
+
+
+def _breakable(text: str) -> str:
+    """``text`` escaped for HTML, with line-break opportunities after underscores (signal names such as
+    upper_disk_position wrap there in a narrow column)."""
+    return html.escape(text).replace("_", "_<wbr>")
 
 
 def _short_reason(reason: str) -> str:
@@ -704,7 +710,9 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
              ".summary h2{margin-top:0.4em}.verdict{font-size:17px}.why{font-size:12px;color:#555}"
              "table.card td{text-align:right}table.card td:first-child{text-align:left}"
              "table.card th{font-size:12px}table.scenarios td{font-size:12px}"
-             "table.scenarios td:nth-child(13){min-width:12em}")
+             "table.scenarios td:nth-child(13){min-width:12em}"
+             "table.card,table.scenarios{width:100%}table.card{table-layout:fixed}"
+             "table.card th,table.card td,table.scenarios td{overflow-wrap:break-word}")
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>lpvflow design {summary['name']}"
             f"</title><style>{style}</style></head><body>{''.join(sections)}</body></html>")
     path = folder / "report.html"

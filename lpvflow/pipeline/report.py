@@ -231,7 +231,7 @@ def _scenario_table(scenarios: list[dict], units: dict[str, _Unit], scheduling: 
                          requirements, _scheduling_cell(run.get("scheduling"), scheduling),
                          _short_reason(run.get("reason", ""))]
                 css = "" if run["stable"] and not missed else ' class="fail"'
-                body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells)
+                body.append(f"<tr{css}>" + "".join(f"<td>{_breakable(str(c))}</td>" for c in cells)
                             + "</tr>")
     return ('<div class="wide"><table class="scenarios"><tr>' + "".join(f"<th>{h}</th>" for h in head)
             + "</tr>" + "".join(body) + "</table></div>")
@@ -710,8 +710,8 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
              ".summary h2{margin-top:0.4em}.verdict{font-size:17px}.why{font-size:12px;color:#555}"
              "table.card td{text-align:right}table.card td:first-child{text-align:left}"
              "table.card th{font-size:12px}table.scenarios td{font-size:12px}"
-             "table.scenarios td:nth-child(13){min-width:12em}"
-             "table.card,table.scenarios{width:100%}table.card{table-layout:fixed}"
+             "table.card,table.scenarios{width:100%;table-layout:fixed}"
+             "table.scenarios th:nth-child(13){width:14%}"
              "table.card th,table.card td,table.scenarios td{overflow-wrap:break-word}")
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>lpvflow design {summary['name']}"
             f"</title><style>{style}</style></head><body>{''.join(sections)}</body></html>")

@@ -179,11 +179,14 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     if method in IO_METHODS:
         io, ss = model, model.to_ss()
         residuals = prediction_residuals(io, val)
+        from lpvflow.pipeline.verify import fmu_units
+
+        units = fmu_units(ctx.config["design"]["plant"])
         one_step = 100 * (1 - np.linalg.norm(residuals, axis=0)
                           / np.linalg.norm(val.y[io.max_lag:] - val.y[io.max_lag:].mean(axis=0), axis=0))
         outputs |= {"one_step_bfr_validation": one_step.tolist(),
                     "ljung_box_p_value": plot_residuals(ctx.path("residuals.png"), residuals, val.Ts,
-                                                        val.y_names)}
+                                                        val.y_names, units)}
         artifacts.append("residuals.png")
     else:
         try:
@@ -240,7 +243,8 @@ def parse_prefilter(spec: str) -> tuple[str, list[float]]:
 
 
 def plot_residuals(
-    path: Path, residuals: np.ndarray, Ts: float, names: list[str], lags: int = 50
+    path: Path, residuals: np.ndarray, Ts: float, names: list[str], units: dict[str, str] | None = None,
+    lags: int = 50,
 ) -> list[float]:
     """Residual time series and autocorrelation r̂_ee(τ), τ ≤ ``lags``, with the 99 % band ±2.58/√N of a
     white sequence, one row per output (PNG); returns the Ljung–Box p-value (20 lags) per output."""
@@ -257,7 +261,8 @@ def plot_residuals(
     for (ax_t, ax_r), name, e in zip(axes, names, residuals.T, strict=True):
         p_values.append(ljung_box(e)[1])
         ax_t.plot(t, e, lw=0.5)
-        ax_t.set(xlabel="time [s]", ylabel=f"ε {name}")
+        unit = (units or {}).get(name)
+        ax_t.set(xlabel="time [s]", ylabel=f"ε {name} [{unit}]" if unit else f"ε {name}")
         band = band99(len(e))
         r = autocorrelation(e, lags)  # fewer than lags + 1 values for a residual shorter than lags
         ax_r.stem(np.arange(len(r)), r, basefmt=" ")
@@ -493,7 +498,9 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
         fit, fit_failure = None, str(exc)
     else:
         fit = fit_report(val.y, y_sim, val.y_names)
-        plot_fit(ctx.path("fit.png"), val, y_sim)
+        from lpvflow.pipeline.verify import fmu_units
+
+        plot_fit(ctx.path("fit.png"), val, y_sim, fmu_units(ctx.config["design"]["plant"]))
         artifacts.append("fit.png")
     reference = _fmu_reference(ctx, model)
     K, K_note, trim_feedback = _frozen_experiment_controller(ctx, model, reference)

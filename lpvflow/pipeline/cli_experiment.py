@@ -40,7 +40,8 @@ def _numbers(items: dict[str, str], option: str = "--set") -> dict[str, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_path(args.output)  # before the run: a wrong name costs nothing
+    inputs_of_run = [args.fmu, *([args.controller] if args.controller else [])]
+    check_output_path(args.output, inputs_of_run)  # before the run: a wrong name costs nothing
     inputs = _assignments(args.input, "--input", "throttle=multisine:f_lo=0.1,f_hi=5,rms=0.1")
     excitation = _assignments(args.excitation, "--excitation", "voltage=multisine:f_lo=0.1,f_hi=5,rms=0.2")
     setpoint = _assignments(args.setpoint, "--setpoint",
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         raise DataError("no --input and no --controller: every plant input stayed at its start value "
                         "(a constant, uninformative record, not written); add --input NAME=SPEC per plant "
                         "input, e.g. --input pump_voltage=levels:lo=4,hi=11,min_hold=5,max_hold=40")
-    write_record(record, args.output, [args.fmu, *([args.controller] if args.controller else [])])
+    write_record(record, args.output, inputs_of_run)
     columns = ", ".join(record.columns)
     print(f"wrote {args.output} ({record.metadata['n_samples']} samples; columns {columns}) "
           f"and {sidecar_path(args.output)}")

@@ -220,8 +220,8 @@ def _scenario_table(scenarios: list[dict], units: dict[str, _Unit], scheduling: 
             tracked = run.get("outputs", {}) or {"–": {}}
             for output, m in tracked.items():
                 value = lambda v, name=output: "–" if v is None else _signal_value(name, v, units)  # noqa: E731
-                overshoot = (f"{value(m['overshoot'])} ({_number(m['overshoot_percent'], ' %', 2)})"
-                             if "overshoot" in m else "–")
+                overshoot = (f"{value(m['overshoot'])} ({_number(m.get('overshoot_percent'), ' %', 2)})"
+                             if m.get("overshoot") is not None else "–")
                 unit = units.get(output, _Unit(""))
                 iae = ("–" if m.get("iae") is None
                        else f"{m['iae'] * unit.factor:.4g} {unit.label or '(no unit)'}·s")

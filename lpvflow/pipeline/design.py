@@ -134,8 +134,17 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
     summary["failed"] = failed
     summary["verdict"] = _verdict(summary)
     summary["stage_seconds"] = {n: s.get("seconds") for n, s in summary["stages"].items()}
-    atomic_write_json(folder / "summary.json", summary)
-    write_report(folder, summary)
+    before = _file_states(folder)
+    try:  # the summary and the report are undone together on Ctrl-C, like a stage's files
+        atomic_write_json(folder / "summary.json", summary)
+        write_report(folder, summary)
+        interrupt.raise_if_requested()
+    except BaseException as exc:
+        if not isinstance(exc, KeyboardInterrupt) and not interrupt.requested():
+            raise
+        _remove_changed(folder, before)
+        log("summary and report interrupted: their files were removed")
+        raise KeyboardInterrupt from None
     log(f"report: {folder / 'report.html'}")
     return summary
 

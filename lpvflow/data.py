@@ -22,6 +22,8 @@ TIME_TOLERANCE = 1e-6
 _MAT_NUMERIC = {"double", "single", "logical", *(f"{s}int{b}" for s in ("", "u") for b in (8, 16, 32, 64))}
 #: Bytes of CSV text pyarrow parses at a time (whole lines; also the chunk size of the row count).
 CSV_BLOCK_BYTES = 1 << 20
+#: Text encoding of CSV files: UTF-8, with the byte-order mark spreadsheet programs (Excel) write dropped.
+CSV_ENCODING = "utf-8-sig"
 
 
 def _matrix(name: str, values: np.ndarray | list, names: list[str]) -> np.ndarray:
@@ -237,6 +239,9 @@ def _data_file(path: str | Path) -> Path:
 
 
 def _uniform_step(t: np.ndarray, name: str) -> float:
+    """The sampling time of a time column t_k = t_0 + k·Ts, refused when a step is off the median step by
+    more than TIME_TOLERANCE: (t_last − t_0)/(N − 1) rounded to 12 significant digits, the decimal step
+    the column stands for (0.005, not the 0.0049999999999954525 that differences of rounded times give)."""
     if len(t) < 2 or not np.all(np.isfinite(t)):
         raise DataError(f"time column {name!r} needs at least 2 finite values")
     dt = np.diff(t)
@@ -251,15 +256,18 @@ def _uniform_step(t: np.ndarray, name: str) -> float:
             f"time column {name!r} is not uniformly spaced (step {dt[worst]:g} at sample {worst + 1}, "
             f"median {step:g}): resample the data to a fixed step first"
         )
-    return step
+    return float(f"{(t[-1] - t[0]) / (len(t) - 1):.12g}")
 
 
 def _csv_header(path: Path) -> list[str]:
-    with path.open(newline="") as fh:
+    with path.open(newline="", encoding=CSV_ENCODING) as fh:
         try:
             header = [h.strip() for h in next(csv.reader(fh))]
         except StopIteration:
             raise DataError(f"{path.name} is empty; expected a header row and data") from None
+        except (UnicodeDecodeError, csv.Error):
+            raise DataError(f"{path.name} is not CSV text in UTF-8 (a binary file or another "
+                            "encoding); save the data as CSV (UTF-8)") from None
     if len(set(header)) != len(header):
         raise DataError(f"{path.name}: duplicate column names in the header {header}")
     return header
@@ -278,7 +286,7 @@ def _read_csv(path: Path, columns: list[str] | None) -> dict[str, np.ndarray]:
 
     header = _csv_header(path)
     selected = header if columns is None else [c for c in columns if c in header]
-    read_options = pacsv.ReadOptions(column_names=header)
+    read_options = pacsv.ReadOptions(column_names=header, use_threads=False)
     convert_options = pacsv.ConvertOptions(include_columns=selected,
                                            column_types=dict.fromkeys(selected, pa.float64()))
     rows = _max_rows(path)
@@ -331,7 +339,7 @@ def _raise_csv_defect(path: Path, header: list[str], selected: list[str]) -> Non
     """After pyarrow refused the file: find the first short/long line or non-number in a selected column
     and raise it as a DataError with its line number (the file is only scanned on this error path)."""
     wanted = [header.index(c) for c in selected]
-    with path.open(newline="") as fh:
+    with path.open(newline="", encoding=CSV_ENCODING, errors="replace") as fh:
         reader = csv.reader(fh)
         next(reader)
         for row in reader:
@@ -355,7 +363,7 @@ def _read_parquet(path: Path, columns: list[str] | None) -> dict[str, np.ndarray
 
     try:
         table = pq.read_table(path, columns=None if columns is None else
-                              [c for c in columns if c in pq.read_schema(path).names])
+                              [c for c in columns if c in pq.read_schema(path).names], use_threads=False)
     except Exception as exc:  # pyarrow raises several unrelated types for a bad file
         raise DataError(f"{path.name} is not a readable Parquet file ({exc.__class__.__name__})") from None
     return {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}

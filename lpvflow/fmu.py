@@ -32,6 +32,9 @@ from lpvflow.errors import DataError, ModelError
 #: Prefix of the diagnostic (not measured) outputs of the lpvflow plants.
 DIAGNOSTIC_PREFIX = "diag_"
 
+#: The ``generationTool`` of the controller FMUs lpvflow exports (pipeline/controller_fmu template).
+EXPORT_TOOL = "lpvflow export"
+
 #: The only platform the bundled plants are built for (fmu_plants/build.py).
 PLATFORM = "linux64"
 
@@ -44,6 +47,7 @@ class FmuPlant:
         self._slave = None
         description = check_fmu(path)
         self.name = description.coSimulation.modelIdentifier
+        self.generation_tool = description.generationTool
         self._variables = {v.name: v for v in description.modelVariables}
         self.input_names = tuple(v.name for v in description.modelVariables if v.causality == "input")
         all_outputs = [v.name for v in description.modelVariables if v.causality == "output"]
@@ -104,8 +108,11 @@ class FmuPlant:
         """Set parameters (effects, physical values, x0_*) and restart at t = 0 with them."""
         for name in values:
             if name not in self.parameter_names:
-                raise DataError(f"{self.name}: unknown parameter {name!r}; "
-                                f"known: {', '.join(self.parameter_names)}")
+                raise DataError(f"{self.name}: unknown parameter {name!r}; " + (
+                    f"known: {', '.join(self.parameter_names)}" if self.parameter_names else
+                    f"{self.path.name} declares no parameters" + (
+                        " (it is a controller written by `lpvflow export`, not a plant; give the plant's "
+                        "FMU)" if self.generation_tool == EXPORT_TOOL else "")))
         previous = dict(self._parameters)
         self._parameters.update(values)
         try:

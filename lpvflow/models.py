@@ -51,9 +51,10 @@ LOADER_PATHS = {
 
 #: JSON reports the commands write (kind → current version); :func:`load` returns them as dictionaries.
 #: validation: ``validate --json``; simulation: ``simulate --json``; diagnosis: ``diagnose --json``;
-#: verification: ``verify --json``; experiment: the sidecar ``<data>.csv.json`` of ``experiment``.
+#: verification: ``verify --json``; experiment: the sidecar ``<data>.csv.json`` of ``experiment``;
+#: design: a design folder's ``summary.json``; stage: its stage records ``<stage>.json`` (pipeline/cache.py).
 REPORT_VERSIONS = {"validation": 1, "simulation": 1, "diagnosis": 1, "verification": 1, "experiment": 1,
-                   "design": 1}
+                   "design": 1, "stage": 1}
 
 
 def register_format(kind: str, loader: Callable[[dict], Any]) -> None:
@@ -132,13 +133,19 @@ def user_mode(fd: int) -> None:
 
 def atomic_write_json(path: str | os.PathLike, payload: dict) -> None:
     """Write JSON to ``path`` via a temporary file and rename: a failure never truncates ``path``."""
+    atomic_write_text(path, json.dumps(payload, indent=1))
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file and rename: a failure (or Ctrl-C) never leaves a
+    truncated ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     user_mode(fd)
     try:
         with os.fdopen(fd, "w") as fh:
-            json.dump(payload, fh, indent=1)
+            fh.write(text)
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)
@@ -308,12 +315,13 @@ def load(path: str | os.PathLike) -> Any:
 
     Models (``lpvflow/lpvio``, ``lpvss``, ``lpvlfr``) and controllers (``lpv-controller``,
     ``lti-controller``) come back as objects; the JSON reports of :data:`REPORT_VERSIONS` (validation,
-    simulation, diagnosis, verification, the experiment sidecar) as dictionaries. A file of another
+    simulation, diagnosis, verification, the experiment sidecar, a design's summary and its stage records)
+    as dictionaries. A file of another
     version, or not written by lpvflow, is refused with one ModelError line.
     """
     path = Path(path)
     if not path.exists():
-        raise ModelError(f"model file {str(path)!r} does not exist")
+        raise ModelError(f"file {str(path)!r} does not exist; check the path")
     try:
         d = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

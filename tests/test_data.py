@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.io
 
-from lpvflow.data import Dataset
+from lpvflow.data import Dataset, column_names
 from lpvflow.errors import DataError
 from lpvflow.pipeline.cli import main
 
@@ -193,3 +193,64 @@ def test_diagnose_reads_the_data_file_once(tmp_path, monkeypatch, good_rows, cap
                  "--json", str(tmp_path / "o.json")]) == 2  # too few samples: stops after reading
     assert "for validation" in capsys.readouterr().err
     assert reads == [path]
+
+
+def test_csv_with_a_utf8_byte_order_mark_reads_like_without(tmp_path, good_rows):
+    """Excel's "CSV UTF-8" starts with a byte-order mark; the first column is still named ``time``."""
+    plain = write_csv(tmp_path / "plain.csv", ["time", "u", "y", "p"], good_rows)
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    a, b = (Dataset.read(path, ["u"], ["y"], ["p"]) for path in (plain, bom))
+    assert b.Ts == a.Ts
+    np.testing.assert_array_equal(b.y, a.y)
+    assert column_names(bom) == ["time", "u", "y", "p"]
+
+
+@pytest.mark.parametrize("content", [
+    "latin-1 header", "png", "latin-1 after the header",
+])
+def test_csv_that_is_not_utf8_text_is_one_data_error(tmp_path, good_rows, content):
+    text = write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"], good_rows).read_bytes()
+    if content == "latin-1 header":
+        data = text.replace(b"time,u", b"time,\xe9u", 1)
+    elif content == "png":
+        data = b"\x89PNG\r\n\x1a\n" + bytes(np.random.default_rng(1).integers(0, 256, 4000, dtype=np.uint8))
+    else:
+        data = text.replace(b"\n", b"\n\xe9", 3)
+    path = tmp_path / "d.csv"
+    path.write_bytes(data)
+    with pytest.raises(DataError, match=r"d\.csv is not CSV text in UTF-8"):
+        Dataset.read(path, ["u"], ["y"], ["p"])
+
+
+
+def test_data_files_are_parsed_without_arrow_worker_threads(tmp_path, good_rows, monkeypatch):
+    """pyarrow's worker pool (C++ std::threads) still busy at interpreter exit aborts the process
+    ("terminate called without an active exception", SIGABRT after the CLI's error line); the readers
+    parse on the calling thread, so a read leaves no worker running."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    calls = []
+    read_csv, read_table = pacsv.read_csv, pq.read_table
+    monkeypatch.setattr(pacsv, "read_csv", lambda *a, **k: calls.append(k["read_options"].use_threads)
+                        or read_csv(*a, **k))
+    monkeypatch.setattr(pq, "read_table", lambda *a, **k: calls.append(k.get("use_threads", True))
+                        or read_table(*a, **k))
+    cols = dict(zip(["time", "u", "y", "p"], np.array(good_rows).T, strict=True))
+    pq.write_table(pa.table(cols), tmp_path / "d.parquet")
+    for path in (write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"], good_rows), tmp_path / "d.parquet"):
+        assert Dataset.read(path, ["u"], ["y"], ["p"]).N == 200
+    assert calls == [False, False]
+
+
+def test_the_sampling_time_of_a_time_column_is_its_decimal_step(tmp_path):
+    """Times written as k·Ts in decimal text differ by Ts only up to rounding; Ts comes back exact."""
+    rng = np.random.default_rng(3)
+    for Ts in (0.005, 0.01, 0.2, 1e-4, 0.04, 2.5):
+        n = int(rng.integers(100, 50_000))
+        t = np.arange(n) * Ts + 300.0  # a late start: the differences carry the rounding of large times
+        path = write_csv(tmp_path / "d.csv", ["time", "u", "y", "p"],
+                         [[repr(float(tk)), 1.0, 2.0, 3.0] for tk in t])
+        assert Dataset.read(path, ["u"], ["y"], ["p"]).Ts == Ts

@@ -251,5 +251,5 @@ def test_design_experiment_stage_takes_a_setpoint_table(adip, tmp_path):
     (tmp_path / "design.toml").write_text(text)
     config = load_config(tmp_path / "design.toml")
     outputs, artifacts = experiment(StageContext(tmp_path, config))
-    assert artifacts == ["data.csv"] and "arm_angle_setpoint" in outputs["ranges"]
+    assert artifacts == ["data.csv", "data.csv.json"] and "arm_angle_setpoint" in outputs["ranges"]
     assert max(map(abs, outputs["ranges"]["arm_angle_setpoint"])) <= 0.2

@@ -261,7 +261,7 @@ def test_fmu_ports_carry_names_units_expressions_trim_and_the_interpolation_rule
     assert [v.causality for v in ports.values()] == ["input"] * 5 + ["output"]
     assert ports["sin_arm"].description == "scheduling sin_arm = sin(arm_angle)"
     assert ports["arm_angle_ref"].description.startswith("reference for arm_angle")
-    assert "trim 0.7" in ports["voltage"].description
+    assert ports["voltage"].description.startswith("actuated voltage (includes the operating point 0.7 V)")
     assert "box polytope over sin_arm ∈ [-0.96, 0.96]" in description.description
     # the FMU adds the trim: u = 0.7 + K(r − y); with r = y it outputs the trim alone
     fmu = FmuController(path)
@@ -342,3 +342,46 @@ def test_data_column_names_become_port_names() -> None:
     assert [p.name for p in signals.measured] == ["arm_angle", "s_2nd"]
     assert signals.measured[0].description == "column 'arm angle'"
     assert (signals.scheduling[0].name, signals.scheduling[0].expression) == ("sin_arm_", "sin(arm)")
+
+
+def test_fmu_scheduling_inputs_start_at_the_operating_point_and_the_trim_is_named(tmp_path: Path) -> None:
+    """The scheduling ports start at their expressions of the measured ports' start values (the arm at its
+    operating angle, not the middle of the identified range), so an importer that leaves the inputs at
+    their start values gets u_op + u_eq(p(y_op)) at rest; an expression of a signal without an operating
+    point starts at the middle of the range."""
+    from lpvflow.synth.controller import Trim
+
+    rng = np.random.default_rng(7)
+    expressions = {"sin_arm": "sin(arm_angle)", "inv_det": "1/(1 - 0.3785*cos(arm_angle)**2)",
+                   "other": "2*diag_scheduling"}
+    for arm, u_op in rng.uniform([-1.2, -2.0], [1.2, 2.0], size=(4, 2)):
+        basis = Basis("affine", 3, p_min=(-0.2, 1.0, -1.0), p_max=(0.9, 1.7, 3.0))
+        zeros = lambda *shape: np.zeros((4, *shape))  # noqa: E731
+        model = LPVSS(zeros(1, 1), zeros(1, 1), zeros(2, 1), zeros(2, 1), basis, 0.005, u_names=["voltage"],
+                      y_names=["arm_angle", "pendulum_angle"],
+                      p_names=list(expressions))
+        signals = describe_signals(model, expressions, ADIP, {"arm_angle": arm, "voltage": u_op})
+        starts = [port["operating_point"] for port in signals["scheduling"]]
+        np.testing.assert_allclose(starts, [np.sin(arm), 1 / (1 - 0.3785 * np.cos(arm) ** 2), 1.0],
+                                   rtol=1e-15)
+    trim = Trim([-1.0, 1.0], [[4.2], [-4.2]])
+    controller = LPVController(np.zeros((2, 1, 1)), np.zeros((2, 1, 2)), np.zeros((2, 1, 1)),
+                               np.zeros((2, 1, 2)), Polytope("box", np.array([[-1.0, 1.0]]),
+                                                             np.array([[1.0, -1.0], [1.0, 1.0]])),
+                               Basis("affine", 1, p_min=(-0.2,), p_max=(0.9,)), 0.005, trim=trim)
+    controller.info["signals"] = describe_signals(_adip_model(), {"sin_arm": "sin(arm_angle)"}, ADIP,
+                                                  {"arm_angle": 0.0})
+    path = export_fmu(controller, tmp_path / "K.fmu")
+    description = read_model_description(str(path))
+    ports = {v.name: v for v in description.modelVariables}
+    assert float(ports["sin_arm"].start) == 0.0 and float(ports["arm_angle"].start) == 0.0
+    assert ports["voltage"].description.startswith("actuated voltage (includes the trim feed-forward "
+                                                   "u_eq(sin_arm))")
+    assert description.defaultExperiment.stepSize == "0.005"
+    fmu = FmuController(path)
+    try:
+        fmu.reset()
+        at_rest = fmu.step(np.zeros(2), np.array([float(ports["sin_arm"].start)]))
+    finally:
+        fmu.close()
+    np.testing.assert_array_equal(at_rest, [0.0])  # u_eq(sin 0°) = 0 V: the operating point

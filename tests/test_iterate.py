@@ -100,7 +100,8 @@ def test_a_failing_round_ends_the_run_and_its_stages_are_the_summary(adip, tmp_p
     assert summary["failed"]["stage"] == "synth (iteration 0)"
     assert summary["verdict"] == {"pass": False, "reason": "stage synth (iteration 0) failed"}
     assert len(summary["iterations"]) == 1
-    assert summary["stages"]["experiment"]["artifacts"] == ["iteration_0/data.csv"]
+    assert summary["stages"]["experiment"]["artifacts"] == ["iteration_0/data.csv",
+                                                            "iteration_0/data.csv.json"]
     assert (tmp_path / "iterated" / "iteration_0" / "data.csv").is_file()
     assert not (tmp_path / "iterated" / "data.csv").exists()
 

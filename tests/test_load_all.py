@@ -11,7 +11,9 @@ import pytest
 
 from lpvflow.errors import ModelError
 from lpvflow.models import load
+from lpvflow.pipeline import design
 from lpvflow.pipeline.cli import main
+from tests.test_cli_errors import design_file, patch_stages  # noqa: F401 (design_file: a fixture)
 from tests.test_cli_validate import true_system
 from tests.test_export import _adip_lpv_controller
 
@@ -114,3 +116,18 @@ def test_a_file_without_format_names_the_known_kinds(tmp_path: Path) -> None:
     with pytest.raises(ModelError, match=r"unknown format ''; expected one of .*lpvflow/lti-controller.*"
                                          r"lpvflow/verification"):
         load(path)
+
+
+def test_a_design_folder_s_summary_and_stage_records_load(design_file, monkeypatch) -> None:  # noqa: F811
+    patch_stages(monkeypatch, {})
+    design.run_design(design_file, log=lambda _: None)
+    folder = design_file.parent / "out" / "tanks"
+    loaded = {path.stem: load(path) for path in folder.glob("*.json")}
+    assert loaded["summary"]["format"] == "lpvflow/design"
+    stages = {name: record for name, record in loaded.items() if name != "summary"}
+    assert {"experiment", "identify", "synth", "verify", "export"} <= set(stages) <= {
+        stage.name for stage in design.STAGES}
+    for name, record in stages.items():
+        assert (record["format"], record["version"], record["stage"]) == ("lpvflow/stage", 1, name)
+    again = design.run_design(design_file, log=lambda _: None)["stages"]
+    assert {again[name]["status"] for name in stages} == {"cached"}  # the records still serve as the cache

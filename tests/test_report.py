@@ -72,7 +72,7 @@ def rows(table: str) -> list[list[str]]:
 
 
 def test_the_card_compares_both_controllers_per_scenario_in_order_with_units(summary):
-    card = summary_card(summary, UNITS)
+    card = summary_card(summary, UNITS).replace("<wbr>", "")  # line-break opportunities after "_"
     nominal, perturbed = card.split("Robustness: perturbed plants")
     heads = re.findall(r"<th[^>]*>(.*?)</th>", nominal)
     assert heads[:3] == ["scenario", "LPV controller", "LTI baseline"]
@@ -104,7 +104,7 @@ def test_the_card_states_spec_gammas_verdict_and_the_largest_held_step(summary):
 
 
 def test_without_units_the_card_says_output_units_and_shows_the_numbers_as_they_are(summary):
-    card = summary_card(summary, {})
+    card = summary_card(summary, {}).replace("<wbr>", "")
     assert "arm_angle overshoot (output units)" in card
     assert rows(card.split("Robustness")[0])[0][:3] == ["arm to +30 deg", "1.21", "0.0226"]
 
@@ -143,7 +143,7 @@ def test_the_report_opens_with_the_card_and_has_no_json_cells(tmp_path, summary)
     body = page.split("</style>", 1)[1]
     assert body.index("Results at a glance") < body.index("<h2>Stages</h2>") < body.index("<h2>verify</h2>")
     assert "{" not in body and "}" not in body and '"' not in re.sub(r"<[^>]+>", "", body)
-    assert "voltage: [-4.855, 4.407]" in body and "a: b: [1, 2]" in body
+    assert "voltage -4.86 V … 4.41 V" in body and "a: b: [1, 2]" in body
 
 
 @pytest.mark.parametrize(("value", "text"), [
@@ -179,3 +179,46 @@ def test_the_verdict_line_counts_scenarios_and_gives_the_reason(summary):
 
 def test_report_figures_are_optional(tmp_path: Path, summary):
     assert write_report(tmp_path, summary).name == "report.html"  # no controller.json: no units, no figures
+
+
+def test_stage_tables_use_words_units_and_file_names(tmp_path, summary):
+    """No raw output key, no bookkeeping row, no folder of the plant; angles in degrees like the card."""
+    verify = summary["stages"]["verify"]["outputs"]
+    verify |= {"format": "lpvflow/verification", "version": 1, "plant": "/home/someone/plants/adip.fmu",
+               "loop": {"measured": ["arm_angle"], "actuated": ["voltage"], "scheduling": ["sin(arm_angle)"],
+                        "actuator_limits": {"voltage": [-10.0, 10.0]}}}
+    summary["stages"]["validate"] = {"status": "ran", "seconds": 1.0, "artifacts": [], "outputs": {
+        "b_P_Kid": [0.11, 0.19], "nugap_below_b_everywhere": True, "scaling": {"arm_angle": 0.3}}}
+    body = write_report(tmp_path, summary, UNITS).read_text().split("</style>", 1)[1]
+    cells = re.findall(r"<th>([^<]*)</th>", body)
+    for key in ("b_P_Kid", "nugap_below_b_everywhere", "largest_held_step", "format", "version"):
+        assert key not in cells
+    assert "/home/someone" not in body and "<td>adip.fmu</td>" in body
+    assert "arm_angle 17.2°" in body  # 0.3 rad
+    assert "limits voltage -10 V … 10 V" in body
+    held = verify["largest_held_step"]
+    assert f"{math.degrees(held['baseline']):.3g}°" in body.split("<h2>verify</h2>", 1)[1]
+
+
+def test_the_nugap_figure_is_drawn_over_the_plant_signal_the_scheduling_comes_from(tmp_path):
+    """Frozen points of (sin φ, 1/(1 − κ cos² φ)) map back to the arm angle φ, in degrees."""
+    import numpy as np
+
+    from lpvflow.pipeline.report import GAP_FIGURE, _figures, _physical_axis, _Unit
+
+    rng = np.random.default_rng(4)
+    angles = np.sort(rng.uniform(-1.3, 1.3, 7))
+    expressions = {"sin_arm": "sin(arm_angle)", "inv_det": "1/(1 - 0.3785*cos(arm_angle)**2)"}
+    (tmp_path / "controller.json").write_text(json.dumps({"info": {"signals": {"scheduling": [
+        {"name": n, "expression": e} for n, e in expressions.items()]}}}))
+    (tmp_path / "experiment.json").write_text(json.dumps({"outputs": {"ranges": {
+        "voltage": [-6.0, 6.0], "arm_angle": [-1.33, 1.37]}}}))
+    thetas = [[np.sin(a), 1 / (1 - 0.3785 * np.cos(a) ** 2)] for a in angles]
+    units = {"arm_angle": _Unit.of("rad"), "voltage": _Unit.of("V")}
+    values, label = _physical_axis(tmp_path, thetas, units)
+    assert label == "arm_angle [°]"
+    np.testing.assert_allclose(values, np.degrees(angles), atol=0.05)  # the 4001-point search grid
+    assert _physical_axis(tmp_path, [[0.5, 9.0]], units) is None  # off the curve
+    (tmp_path / "validate.json").write_text(json.dumps({"outputs": {
+        "theta": thetas, "nugap": [0.05] * 7, "b_P_Kid": [0.2] * 7}}))
+    assert GAP_FIGURE in _figures(tmp_path, units)

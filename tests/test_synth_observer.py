@@ -170,8 +170,8 @@ def test_lpvflow_synth_designs_it_from_a_design_file(tmp_path, capsys):
         "breakpoints = [0.0, 0.5, 1.0]", "reference_filter = { bandwidth = 2.2 }", *weights]) + "\n")
     status = main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "synth.toml"),
                    "-o", str(tmp_path / "K.json")])
-    out = capsys.readouterr().out
-    assert status == 0
+    out, err = capsys.readouterr()
+    assert status == 0 and "inaccurate" not in err  # the observer design solves no SDP
     assert out.startswith("observer-based: frozen LQG designs at the breakpoints, interpolated, polytope "
                           "piecewise with 3 vertices, 2dof")
     assert "largest frozen closed-loop norm" in out and "largest spectral radius" in out
@@ -180,3 +180,28 @@ def test_lpvflow_synth_designs_it_from_a_design_file(tmp_path, capsys):
                                model, bundled_weights(), SETTINGS).controller
     np.testing.assert_allclose(K.Ck, expected.Ck, rtol=1e-9, atol=1e-12)
     assert K.info["method"] == "observer" and K.info["certificate"]["ok"] is True
+
+
+def test_lpvflow_synth_says_when_the_controller_rests_on_an_inaccurate_solve(tmp_path, capsys, monkeypatch):
+    """The line comes from the status the design records, once, only when that status is inaccurate."""
+    from lpvflow.synth import design as synth_design
+
+    model = adip_family()
+    model.save(tmp_path / "model.json")
+    text = bundled_config("adip").read_text()
+    weights = [line for line in text.splitlines() if line.startswith("weights.")]
+    (tmp_path / "synth.toml").write_text("\n".join([
+        "[synth]", 'method = "observer"', 'structure = "2dof"', "box = [[0.0, 1.0]]",
+        "breakpoints = [0.0, 0.5, 1.0]", *weights]) + "\n")
+    real = synth_design.synthesize_design
+
+    def inaccurate(*args, **kwargs):
+        result = real(*args, **kwargs)
+        result.controller.info["status"] = "optimal_inaccurate"
+        return result
+
+    monkeypatch.setattr(synth_design, "synthesize_design", inaccurate)
+    assert main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "synth.toml"),
+                 "-o", str(tmp_path / "K.json")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("lpvflow synth: warning: the SDP solver returned")

@@ -16,7 +16,7 @@ from typing import Protocol
 import numpy as np
 from fmpy import read_model_description
 
-from lpvflow.fmu import open_fmu
+from lpvflow.fmu import EXPORT_TOOL, open_fmu
 
 
 class Plant(Protocol):
@@ -56,6 +56,8 @@ class FmuExperimentPlant:
         self._types = {v.name: v.type for v in variables if v.causality == "parameter"}
         self._fmu = open_fmu(path, outputs=[v.name for v in variables if v.causality == "output"])
         self.model_name: str = self._fmu.name
+        #: True for a controller FMU written by `lpvflow export` (given as the plant by mistake, mostly).
+        self.exported_controller = self._fmu.generation_tool == EXPORT_TOOL
         self.input_names = list(self._fmu.input_names)
         self.output_names = list(self._fmu.output_names)
         self._set = dict(parameters)

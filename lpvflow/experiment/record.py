@@ -47,7 +47,8 @@ def _same_file(a: Path, b: Path) -> bool:
 
 
 def check_output_path(csv_path: str | Path, protected: Iterable[str | Path] = ()) -> Path:
-    """Refuse an output (CSV or its sidecar) in a missing folder or on top of a protected input file."""
+    """Refuse an output (CSV or its sidecar) in a missing folder, on top of a protected input file, or
+    not named ``*.csv`` (``-o data.csv.json`` would write CSV over another record's sidecar)."""
     csv_path = Path(csv_path)
     if not csv_path.parent.is_dir():
         raise DataError(f"output folder {csv_path.parent} does not exist; create it first")
@@ -57,6 +58,9 @@ def check_output_path(csv_path: str | Path, protected: Iterable[str | Path] = ()
         for source in map(Path, protected):
             if _same_file(target, source):
                 raise DataError(f"output {target} would overwrite the input {source}; choose another name")
+    if csv_path.suffix.lower() != ".csv":
+        raise DataError(f"output {csv_path.name}: an experiment is written as CSV; name the output "
+                        "DATA.csv (its record goes to DATA.csv.json)")
     return csv_path
 
 

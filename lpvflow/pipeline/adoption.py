@@ -64,7 +64,8 @@ def adoption(
     rows, artifacts, totals = [], [], {"before": 0.0, "after": 0.0}
     for i, scenario in enumerate(cfg["scenario"]):
         runs = [simulate_loop(K, plant, scenario, loop, label) for label, K in controllers]
-        plot_runs(runs, ctx.path(f"adoption_{i}.png"), title=f"{scenario.name}: before/after adoption")
+        plot_runs(runs, ctx.path(f"adoption_{i}.png"), title=f"{scenario.name}: before/after adoption",
+                  plant=plant)
         artifacts.append(f"adoption_{i}.png")
         metrics = dict(zip(("before", "after"), (run_metrics(r, scenario, loop) for r in runs), strict=True))
         for output in list(metrics["after"]["outputs"] or metrics["before"]["outputs"]) or ["–"]:

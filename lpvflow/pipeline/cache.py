@@ -25,7 +25,7 @@ from typing import Any
 
 from lpvflow.errors import DataError
 from lpvflow.experiment.plant import sha256_of
-from lpvflow.models import atomic_write_json
+from lpvflow.models import atomic_write_json, report_header
 
 #: The lock file inside a design folder (held with flock while a run writes the folder).
 LOCK_NAME = ".lock"
@@ -79,8 +79,10 @@ def load_record(folder: Path, stage: str, key: str) -> dict | None:
 
 def save_record(folder: Path, stage: str, key: str, outputs: dict, artifacts: list[str],
                 seconds: float) -> dict:
-    """Store a stage's key, outputs, artifacts (with their sha256) and run time as ``<stage>.json``."""
-    record = {"key": key, "outputs": outputs, "artifacts": artifacts, "seconds": seconds,
+    """Store a stage's key, outputs, artifacts (with their sha256) and run time as ``<stage>.json``
+    (format ``lpvflow/stage``, so :func:`lpvflow.load` reads it)."""
+    record = {**report_header("stage"), "stage": stage, "key": key, "outputs": outputs,
+              "artifacts": artifacts, "seconds": seconds,
               "artifact_sha256": {a: sha256_of(folder / a) for a in artifacts}}
     atomic_write_json(folder / f"{stage}.json", record)
     return record

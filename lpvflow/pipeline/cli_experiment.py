@@ -7,7 +7,7 @@ import math
 
 from lpvflow.errors import DataError
 from lpvflow.experiment import run_fmu_experiment
-from lpvflow.experiment.record import sidecar_path, write_record
+from lpvflow.experiment.record import check_output_path, sidecar_path, write_record
 from lpvflow.experiment.scheduling import parse_assignment
 from lpvflow.experiment.specs import __doc__ as SPEC_HELP
 from lpvflow.pipeline.cli_paths import declare
@@ -40,6 +40,8 @@ def _numbers(items: dict[str, str], option: str = "--set") -> dict[str, float]:
 
 
 def run(args: argparse.Namespace) -> int:
+    inputs_of_run = [args.fmu, *([args.controller] if args.controller else [])]
+    check_output_path(args.output, inputs_of_run)  # before the run: a wrong name costs nothing
     inputs = _assignments(args.input, "--input", "throttle=multisine:f_lo=0.1,f_hi=5,rms=0.1")
     excitation = _assignments(args.excitation, "--excitation", "voltage=multisine:f_lo=0.1,f_hi=5,rms=0.2")
     setpoint = _assignments(args.setpoint, "--setpoint",
@@ -60,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         raise DataError("no --input and no --controller: every plant input stayed at its start value "
                         "(a constant, uninformative record, not written); add --input NAME=SPEC per plant "
                         "input, e.g. --input pump_voltage=levels:lo=4,hi=11,min_hold=5,max_hold=40")
-    write_record(record, args.output, [args.fmu, *([args.controller] if args.controller else [])])
+    write_record(record, args.output, inputs_of_run)
     columns = ", ".join(record.columns)
     print(f"wrote {args.output} ({record.metadata['n_samples']} samples; columns {columns}) "
           f"and {sidecar_path(args.output)}")

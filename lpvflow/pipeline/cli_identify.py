@@ -166,8 +166,9 @@ def run_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def plot_fit(path: str | Path, data: Dataset, y_sim: np.ndarray) -> None:
-    """Measured and simulated outputs over time, one panel per output (PNG)."""
+def plot_fit(path: str | Path, data: Dataset, y_sim: np.ndarray, units: dict[str, str] | None = None) -> None:
+    """Measured and simulated outputs over time, one panel per output (PNG); ``units`` (output name →
+    unit) label the axes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -178,7 +179,7 @@ def plot_fit(path: str | Path, data: Dataset, y_sim: np.ndarray) -> None:
     for ax, name, y, ys in zip(axes[:, 0], data.y_names, data.y.T, y_sim.T, strict=True):
         ax.plot(t, y, lw=1, label="measured")
         ax.plot(t, ys, lw=1, ls="--", label="simulated")
-        ax.set_ylabel(name)
+        ax.set_ylabel(f"{name} [{units[name]}]" if units and units.get(name) else name)
         ax.legend(loc="upper right")
     axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()

@@ -37,7 +37,7 @@ def writable_folder(folder: str | Path, what: str) -> Path:
     """Create ``folder`` if needed and prove it writable; one-line DataError naming ``what`` if not."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
-        raise DataError(f"{what} {folder} is a file, not a folder; give a folder path")
+        raise DataError(f"{what}: {folder} is a file, not a folder; give a folder path")
     try:
         folder.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=folder):

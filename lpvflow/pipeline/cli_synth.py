@@ -23,6 +23,7 @@ Prints γ, the independent certificate checks and the solve time; exit 1 when a 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from lpvflow.errors import DataError, ModelError
@@ -64,6 +65,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"gamma = {design.gamma:.6g}  ({bound}, {design.seconds:.2f} s)")
     for line in design.certificate.lines():
         print(line)
+    if design.controller.info.get("status") == "optimal_inaccurate":
+        print("lpvflow synth: warning: the SDP solver returned the controller LMIs' solution as inaccurate "
+              "(optimal_inaccurate); the certificate checks above decide whether the controller is usable",
+              file=sys.stderr)
     design.controller.save(args.output)
     print(f"controller of order {design.controller.order} written to {args.output}")
     return 0 if design.certificate.ok else 1

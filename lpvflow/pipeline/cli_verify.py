@@ -37,7 +37,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.figures:
         for i, result in enumerate(verification.results):
-            plot_runs(result.runs, Path(args.figures) / f"scenario_{i + 1}.png", result.scenario.name)
+            plot_runs(result.runs, Path(args.figures) / f"scenario_{i + 1}.png", result.scenario.name,
+                      plant=args.plant)
     atomic_write_json(args.json, verification.to_dict())
     for result in verification.results:
         for metrics in result.metrics:

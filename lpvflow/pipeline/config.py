@@ -454,8 +454,10 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise DataError(f"design file {str(path)!r} does not exist; give the path of a .toml file")
     try:
-        return tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        return tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark (Notepad) dropped
+    except UnicodeDecodeError:
+        raise DataError(f"{path.name} is not UTF-8 text (TOML files are UTF-8); save it as UTF-8") from None
+    except tomllib.TOMLDecodeError as exc:
         raise DataError(f"{path.name} is not valid TOML: {exc}") from None
 
 

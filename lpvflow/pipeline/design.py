@@ -28,7 +28,7 @@ from pathlib import Path
 
 from lpvflow.errors import DataError, LpvflowError
 from lpvflow.models import atomic_write_json, report_header
-from lpvflow.pipeline import cache, stages
+from lpvflow.pipeline import cache, interrupt, stages
 from lpvflow.pipeline.adoption import StageFunction, adoption
 from lpvflow.pipeline.cli_paths import writable_folder
 from lpvflow.pipeline.config import INPUT_FILES, Config, load_config
@@ -60,8 +60,9 @@ EXPERIMENT = Stage(
     {"design": ("plant",), "experiment": ("Ts", "duration", "controller", "inputs", "excitation", "setpoint",
                                           "parameters", "scheduling", "seed", "quantization", "noise")},
     (), _PLANT + _CONTROLLER)
-IDENTIFY = Stage("identify", stages.identify, ("identify",), {"identify": ALL, "experiment": ("controller",)},
-                 ("experiment",), _CONTROLLER)
+IDENTIFY = Stage("identify", stages.identify, ("identify",),
+                 {"identify": ALL, "experiment": ("controller",), "design": ("plant",)},
+                 ("experiment",), _PLANT + _CONTROLLER)
 DIAGNOSE = Stage("diagnose", stages.diagnose, ("diagnose", "identify"),
                  {"diagnose": ALL, "identify": (*_SIGNALS, "increments", "na", "nb", "nk", "basis"),
                   "experiment": ("controller", "scheduling")}, ("identify",), _CONTROLLER)
@@ -162,8 +163,17 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
     summary["failed"] = failed
     summary["verdict"] = _verdict(summary)
     summary["stage_seconds"] = {n: s.get("seconds") for n, s in summary["stages"].items()}
-    atomic_write_json(folder / "summary.json", summary)
-    write_report(folder, summary)
+    before = _file_states(folder)
+    try:  # the summary and the report are undone together on Ctrl-C, like a stage's files
+        atomic_write_json(folder / "summary.json", summary)
+        write_report(folder, summary)
+        interrupt.raise_if_requested()
+    except BaseException as exc:
+        if not isinstance(exc, KeyboardInterrupt) and not interrupt.requested():
+            raise
+        _remove_changed(folder, before)
+        log("summary and report interrupted: their files were removed")
+        raise KeyboardInterrupt from None
     log(f"report: {folder / 'report.html'}")
     return summary
 
@@ -230,16 +240,21 @@ def _run_pass(
             t0 = time.perf_counter()
             before = _file_states(folder)
             try:
-                outputs, artifacts = stage.run(ctx)
-            except LpvflowError as exc:
-                outcome[stage.name] = {"status": "failed", "error": str(exc)}
-                log(f"[{i}/{count}] {stage.name} failed: {exc}")
-                return {"stage": stage.name, "error": str(exc)}
-            except KeyboardInterrupt:
+                try:
+                    outputs, artifacts = stage.run(ctx)
+                except LpvflowError as exc:
+                    outcome[stage.name] = {"status": "failed", "error": str(exc)}
+                    log(f"[{i}/{count}] {stage.name} failed: {exc}")
+                    return {"stage": stage.name, "error": str(exc)}
+                interrupt.raise_if_requested()  # a Ctrl-C something inside the stage swallowed
+                record = cache.save_record(folder, stage.name, key, outputs, artifacts,
+                                           time.perf_counter() - t0)
+            except BaseException as exc:
+                if not isinstance(exc, KeyboardInterrupt) and not interrupt.requested():
+                    raise
                 _remove_changed(folder, before)
                 log(f"[{i}/{count}] {stage.name} interrupted: its unfinished files were removed")
-                raise
-            record = cache.save_record(folder, stage.name, key, outputs, artifacts, time.perf_counter() - t0)
+                raise KeyboardInterrupt from None
             log(f"[{i}/{count}] {stage.name}: done in {record['seconds']:.1f} s")
             status = "ran"
         ctx.outputs[stage.name] = record["outputs"]
@@ -314,7 +329,11 @@ def verdict_line(summary: dict) -> str:
 def main_design(config_path: str | Path, root: Path | None = None) -> int:
     """``lpvflow design``: progress and, last, the verdict line (:func:`verdict_line`) on stderr; 0 when
     the design passes, 1 when it does not (bad input raises: exit 2, and Ctrl-C exits 130, in
-    :mod:`lpvflow.pipeline.cli`)."""
-    summary = run_design(config_path, log=lambda line: print(line, file=sys.stderr, flush=True), root=root)
-    print(verdict_line(summary), file=sys.stderr, flush=True)
+    :mod:`lpvflow.pipeline.cli`; a Ctrl-C is never lost and never follows the verdict,
+    :mod:`lpvflow.pipeline.interrupt`)."""
+    with interrupt.recorded():
+        summary = run_design(config_path, log=lambda line: print(line, file=sys.stderr, flush=True),
+                             root=root)
+        interrupt.settled()  # Ctrl-C from here on is ignored: the verdict printed is the exit status
+        print(verdict_line(summary), file=sys.stderr, flush=True)
     return 0 if summary["verdict"]["pass"] else 1

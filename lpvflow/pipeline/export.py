@@ -227,7 +227,9 @@ def export_mat(
         suffix = "_ref" if role == "reference" else ""
         content[f"{role}_names"] = _cell([port.name + suffix for port in ports])
         content[f"{role}_units"] = _cell([port.unit for port in ports])
-        content[f"{role}_descriptions"] = _cell([_port_description(role, port) for port in ports])
+        content[f"{role}_descriptions"] = _cell([_port_description(role, port, _offsets(controller, signals,
+                                                                                          port))
+                                                 for port in ports])
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as stream:
@@ -395,11 +397,21 @@ def _scheduling_ports(controller: LPVController, signals: ControllerSignals) -> 
             for port, c in zip(signals.scheduling, controller.polytope.box.mean(axis=1), strict=True)]
 
 
-def _port_description(role: str, port: Port) -> str:
-    """The FMU/MAT description of a port: role, the plant's description, the scheduling expression."""
+def _offsets(controller: LPVController, signals: ControllerSignals, port: Port) -> str:
+    """What an actuated output adds to the controller's law: its operating point and the trim u_eq(p)."""
+    parts = [f"the operating point {port.operating_point:g}{' ' + port.unit if port.unit else ''}"] \
+        if port.operating_point else []
+    if controller.trim is not None:
+        parts.append(f"the trim feed-forward u_eq({signals.scheduling[0].name})")
+    return " and ".join(parts)
+
+
+def _port_description(role: str, port: Port, trim: str = "") -> str:
+    """The FMU/MAT description of a port: role, the plant's description, the scheduling expression;
+    ``trim``: what an actuated output adds to the controller's law (:func:`_offsets`)."""
     words = {"reference": f"reference for {port.name}", "measured": f"measured {port.name}",
              "scheduling": f"scheduling {port.name} = {port.expression or port.name}",
-             "actuated": f"actuated {port.name} (includes the trim {port.operating_point:g})"}[role]
+             "actuated": f"actuated {port.name}" + (f" (includes {trim})" if trim else "")}[role]
     return f"{words}: {port.description}" if port.description else words
 
 
@@ -418,8 +430,8 @@ def _model_description(
     for vr, (port, role) in enumerate(_fmu_variables(controller, signals)):
         unit = f" unit={quoteattr(port.unit)}" if port.unit else ""
         units.add(port.unit)
-        description = _port_description(role, replace(port, name=port.name.removesuffix("_ref"))
-                                         if role == "reference" else port)
+        named = replace(port, name=port.name.removesuffix("_ref")) if role == "reference" else port
+        description = _port_description(role, named, _offsets(controller, signals, port))
         if role == "actuated":
             causality, real, extra = "output", f"<Real{unit}/>", ' initial="calculated"'
             outputs.append(f'      <Unknown index="{vr + 1}"/>')
@@ -522,7 +534,11 @@ def export_fmu(
 def export_controller(
     controller: LPVController, path: str | Path, fmt: str, names: Mapping[str, Sequence[str]] | None = None
 ) -> Path:
-    """Write ``controller`` as ``fmt`` (fmu, json or mat) to ``path``."""
+    """Write ``controller`` as ``fmt`` (fmu, json or mat) to ``path``, whose extension must be ``.fmt``
+    (a MAT file named ``k.fmu`` would be taken for an FMU by every tool that opens it)."""
+    if fmt in FORMATS and Path(path).suffix.lower() != f".{fmt}":
+        raise DataError(f"output {Path(path).name} does not end in .{fmt}, the format written; name it "
+                        f"{Path(path).with_suffix(f'.{fmt}').name} or choose the format its extension names")
     if fmt == "fmu":
         return export_fmu(controller, path, names)
     if fmt == "mat":

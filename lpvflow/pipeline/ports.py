@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import fmpy
+import numpy as np
 
 from lpvflow.errors import DataError, ModelError
 from lpvflow.models import LPVSS
@@ -125,13 +126,25 @@ def describe_signals(
     given = dict(operating_point or {})
     start = {n: float(v.start) for n, v in variables.items()
              if v.causality == "input" and v.start is not None}
-    centre = scheduling_centre(model)
-    signals = ControllerSignals(
-        tuple(port(n, given.get(n, 0.0)) for n in model.y_names),
-        tuple(port(n, c, expressions.get(n, n)) for n, c in zip(model.p_names, centre, strict=True)),
-        tuple(port(n, given.get(n, start.get(n, 0.0))) for n in model.u_names),
-    )
-    return signals.to_dict()
+    measured = tuple(port(n, given.get(n, 0.0)) for n in model.y_names)
+    actuated = tuple(port(n, given.get(n, start.get(n, 0.0))) for n in model.u_names)
+    at_rest = {n: p.operating_point for n, p in zip([*model.y_names, *model.u_names], measured + actuated,
+                                                    strict=True)}
+    scheduling = tuple(port(n, scheduling_at(expressions.get(n, n), at_rest, c), expressions.get(n, n))
+                       for n, c in zip(model.p_names, scheduling_centre(model), strict=True))
+    return ControllerSignals(measured, scheduling, actuated).to_dict()
+
+
+def scheduling_at(expression: str, signals: Mapping[str, float], otherwise: float) -> float:
+    """A scheduling expression's value with the plant signals at ``signals`` (their operating point: the
+    controller FMU's scheduling inputs then start where its measured inputs start, e.g. sin(arm_angle) = 0
+    with the arm at 0°); ``otherwise`` when it reads a signal that has no operating point."""
+    from lpvflow.experiment.scheduling import evaluate
+
+    try:
+        return float(evaluate(expression, {n: np.array([v]) for n, v in signals.items()})[0])
+    except DataError:
+        return otherwise
 
 
 def scheduling_centre(model: LPVSS) -> list[float]:

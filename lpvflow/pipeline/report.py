@@ -10,6 +10,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from lpvflow.models import atomic_write_text
 from lpvflow.pipeline.scenarios import run_passed
 
 FIGURE_CAPTIONS = {
@@ -19,6 +20,9 @@ FIGURE_CAPTIONS = {
     "margins.png": "Generalized stability margin b(P(θ), K_id) of frozen models over the scheduling range.",
     "nugap.png": "ν-gap of the frozen model to the plant FMU at the same scheduling value, and the "
                  "stability margin b(Ĝ(θ), K_id) of the identification loop: δν < b is the thesis' test.",
+    "nugap_physical.png": "ν-gap of the frozen model to the plant FMU at the same scheduling value, and "
+                          "the stability margin b(Ĝ(θ), K_id) of the identification loop, over the plant "
+                          "signal the scheduling is computed from: δν < b is the thesis' test.",
     "bode.png": "Frozen Bode magnitude: identified model (solid) and plant FMU linearization (dashed).",
     "residuals.png": "One-step prediction residuals on the validation part: time series and autocorrelation "
                      "with the 99 % whiteness band.",
@@ -79,8 +83,9 @@ def _is_numbers(value: object) -> bool:
             and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value))
 
 
-def _figures(folder: Path) -> list[str]:
-    """Data and margin figures from the stored artifacts (matplotlib, Agg); the names written."""
+def _figures(folder: Path, units: dict[str, _Unit]) -> list[str]:
+    """Data and margin figures from the stored artifacts (matplotlib, Agg), signals in their display
+    units (angles in degrees); the names written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -95,8 +100,9 @@ def _figures(folder: Path) -> list[str]:
         names = [n for n in table if n != "time" and not n.startswith("diag_")]
         fig, axes = plt.subplots(len(names), 1, figsize=(10, 1.6 * len(names)), sharex=True, squeeze=False)
         for ax, name in zip(axes[:, 0], names, strict=True):
-            ax.plot(table["time"], table[name], lw=0.6)
-            ax.set_ylabel(name, fontsize=8)
+            unit = _unit_of(name, units)
+            ax.plot(table["time"], table[name] * unit.factor, lw=0.6)
+            ax.set_ylabel(f"{name} [{unit.label}]" if unit.label else f"{name} [–]", fontsize=8)
         axes[-1, 0].set_xlabel("time [s]")
         fig.tight_layout()
         fig.savefig(folder / "data.png", dpi=90)
@@ -105,10 +111,18 @@ def _figures(folder: Path) -> list[str]:
     validate = folder / "validate.json"
     if validate.exists():
         out = json.loads(validate.read_text())["outputs"]
+        axis = _physical_axis(folder, out.get("theta") or [], units)
+        if out.get("nugap") and out.get("b_P_Kid") and axis is not None:
+            from lpvflow.validate.plots import gap_margin_plot
+
+            rows = [{"p": p, "nugap": g, "stability_margin_b": b}
+                    for p, g, b in zip(out["theta"], out["nugap"], out["b_P_Kid"], strict=True)]
+            gap_margin_plot(folder / GAP_FIGURE, rows, axis)
+            written.append(GAP_FIGURE)
         if out.get("b_P_Kid") and "nugap" not in out and len(out["theta"][0]) == 1:
             fig, ax = plt.subplots(figsize=(6, 3))
             ax.plot([p[0] for p in out["theta"]], out["b_P_Kid"], "o-")
-            ax.set(xlabel="θ", ylabel="b(P(θ), K_id)", ylim=(0, None))
+            ax.set(xlabel="scheduling θ [–]", ylabel="b(P(θ), K_id) [–]", ylim=(0, None))
             ax.grid(alpha=0.3)
             fig.tight_layout()
             fig.savefig(folder / "margins.png", dpi=90)
@@ -117,29 +131,78 @@ def _figures(folder: Path) -> list[str]:
     return written
 
 
+#: The ν-gap figure over a physical scheduling axis (drawn by the report; the validate stage's
+#: ``nugap.png``, over the scheduling coordinates, is shown when no such axis is found).
+GAP_FIGURE = "nugap_physical.png"
+
+
+def _physical_axis(folder: Path, thetas: list[list[float]], units: dict[str, _Unit]
+                   ) -> tuple[list[float], str] | None:
+    """The frozen points as values of the one recorded plant signal every scheduling expression is a
+    function of (e.g. the arm angle for sin(arm_angle), 1/(1 − κ cos²(arm_angle)), …), in its display
+    unit, with the axis label; None when there is no such signal or a point is off the curve. The signal
+    is searched over its recorded range (``experiment.json``) on 4001 values; a point maps to the
+    nearest, and is off the curve when its scheduling values miss by more than 1 % of their span."""
+    from lpvflow.errors import DataError
+    from lpvflow.experiment.scheduling import evaluate
+
+    experiment = folder / "experiment.json"
+    ports = _ports(folder).get("scheduling", [])
+    if not thetas or not ports or not experiment.exists():
+        return None
+    import numpy as np
+
+    ranges = json.loads(experiment.read_text()).get("outputs", {}).get("ranges", {})
+    points = np.asarray(thetas, dtype=float)
+    if points.ndim != 2 or points.shape[1] != len(ports):
+        return None
+    for name, (lo, hi) in ranges.items():
+        grid = np.linspace(lo, hi, 4001)
+        try:
+            curve = np.column_stack([evaluate(port["expression"] or port["name"], {name: grid})
+                                     for port in ports])
+        except DataError:
+            continue
+        span = np.ptp(curve, axis=0) + 1e-12
+        miss = np.abs((curve[None, :, :] - points[:, None, :]) / span).max(axis=2)
+        nearest = miss.argmin(axis=1)
+        if miss[np.arange(len(points)), nearest].max() > 0.01:
+            continue
+        unit = units.get(name, _Unit(""))
+        return (grid[nearest] * unit.factor).tolist(), f"{name} [{unit.label or '–'}]"
+    return None
+
+
 def _number(value: object, unit: str = "", digits: int = 3) -> str:
     return "–" if value is None else f"{value:.{digits}g}{unit}"
 
 
-def _scheduling_cell(coverage: dict | None) -> str:
-    """Visited range per scheduling signal; for an LPV controller, its design box and the time outside it."""
-    from lpvflow.pipeline.verify import box_text
-
+def _scheduling_cell(coverage: dict | None, names: list[str]) -> str:
+    """Visited range of each scheduling signal (by name); for an LPV controller, the time outside its
+    design box."""
     if not coverage:
         return "–"
-    cell = box_text(coverage["range"])
+    ranges = coverage["range"]
+    labels = names if len(names) == len(ranges) else [f"θ{i + 1}" for i in range(len(ranges))]
+    cell = "; ".join(f"{n} {lo:.3g} … {hi:.3g}" for n, (lo, hi) in zip(labels, ranges, strict=True))
     if coverage["box"] is not None:
-        cell += f" (box {box_text(coverage['box'])}: {_number(coverage['time_outside_box'])} s outside)"
+        cell += f"; {_number(coverage['time_outside_box'])} s outside the design box"
     return cell
 
 
-def _scenario_table(scenarios: list[dict]) -> str:
+#: How the verification record names the controllers, and how the report does.
+CONTROLLERS = {"lpv": "LPV controller", "baseline": "LTI baseline"}
+
+
+def _scenario_table(scenarios: list[dict], units: dict[str, _Unit], scheduling: list[str]) -> str:
     """One row per scenario and controller: verdict, and per tracked output and actuated input the
     settling time, overshoot, steady-state error, IAE and peak control, the untracked outputs' largest
     deviation after settling, the requirements missed, and the scheduling range visited with the time spent
-    outside the controller's design box (:mod:`lpvflow.pipeline.verify`)."""
+    outside the controller's design box (:mod:`lpvflow.pipeline.verify`); values in display units (angles
+    in degrees)."""
     head = ["scenario", "controller", "stable", "output", "settling [s]", "overshoot", "steady-state error",
-            "IAE", "peak control", "saturated [s]", "after settling", "requirements", "scheduling", "reason"]
+            "IAE", "peak control", "saturated [s]", "after settling", "requirements",
+            "scheduling visited", "reason"]
     body = []
     for scenario in scenarios:
         for key in ("controller", "baseline"):
@@ -147,23 +210,31 @@ def _scenario_table(scenarios: list[dict]) -> str:
             if not run:
                 continue
             inputs = run.get("controls", {})
-            controls = "; ".join(f"{u} {_number(c['peak_control'])}" for u, c in inputs.items())
+            controls = "; ".join(f"{u} {_signal_value(u, c['peak_control'], units)}"
+                                 for u, c in inputs.items())
             saturated = "; ".join(_number(c["saturation_time"]) for c in inputs.values())
-            after = "; ".join(f"{y} {_number(peak)}" for y, peak in run.get("after_settling", {}).items())
+            after = "; ".join(f"{y} {_signal_value(y, peak, units)}"
+                              for y, peak in run.get("after_settling", {}).items())
             missed = run.get("requirements_failed")
             requirements = "–" if missed is None else "; ".join(missed) or "met"
             tracked = run.get("outputs", {}) or {"–": {}}
             for output, m in tracked.items():
-                overshoot = (f"{_number(m['overshoot'])} ({_number(m['overshoot_percent'], ' %', 2)})"
-                             if "overshoot" in m else "–")
-                cells = [scenario["name"], run["controller"], "yes" if run["stable"] else "no", output,
-                         _number(m.get("settling_time")), overshoot, _number(m.get("steady_state_error")),
-                         _number(m.get("iae"), "", 4), controls, saturated, after or "–", requirements,
-                         _scheduling_cell(run.get("scheduling")), run.get("reason", "")]
+                value = lambda v, name=output: "–" if v is None else _signal_value(name, v, units)  # noqa: E731
+                overshoot = (f"{value(m['overshoot'])} ({_number(m.get('overshoot_percent'), ' %', 2)})"
+                             if m.get("overshoot") is not None else "–")
+                unit = units.get(output, _Unit(""))
+                iae = ("–" if m.get("iae") is None
+                       else f"{m['iae'] * unit.factor:.4g} {unit.label or '(no unit)'}·s")
+                cells = [scenario["name"], CONTROLLERS.get(run["controller"], run["controller"]),
+                         "yes" if run["stable"] else "no", output, _number(m.get("settling_time")), overshoot,
+                         value(m.get("steady_state_error")), iae, controls, saturated, after or "–",
+                         requirements, _scheduling_cell(run.get("scheduling"), scheduling),
+                         _short_reason(run.get("reason", ""))]
                 css = "" if run["stable"] and not missed else ' class="fail"'
-                body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells)
+                body.append(f"<tr{css}>" + "".join(f"<td>{_breakable(str(c))}</td>" for c in cells)
                             + "</tr>")
-    return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(body) + "</table>")
+    return ('<div class="wide"><table class="scenarios"><tr>' + "".join(f"<th>{h}</th>" for h in head)
+            + "</tr>" + "".join(body) + "</table></div>")
 
 
 # ------------------------------------------------------------------------------------- summary card
@@ -186,16 +257,22 @@ class _Unit:
         return _number(None if value is None else value * self.factor)
 
 
-def signal_units(folder: Path) -> dict[str, str]:
-    """Unit of every measured and actuated signal, from the synthesized controller's port record
-    (``controller.json``, :func:`lpvflow.pipeline.export.describe_signals`); empty without one."""
+def _ports(folder: Path) -> dict:
+    """The synthesized controller's port record (``controller.json`` ``info["signals"]``,
+    :func:`lpvflow.pipeline.export.describe_signals`); empty without one."""
     path = folder / "controller.json"
     if not path.exists():
         return {}
     try:
-        signals = json.loads(path.read_text()).get("info", {}).get("signals", {})
+        return json.loads(path.read_text()).get("info", {}).get("signals", {}) or {}
     except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
         return {}
+
+
+def signal_units(folder: Path) -> dict[str, str]:
+    """Unit of every measured and actuated signal, from the synthesized controller's port record
+    (:func:`_ports`); empty without one."""
+    signals = _ports(folder)
     return {port["name"]: port.get("unit", "") for kind in ("measured", "actuated")
             for port in signals.get(kind, [])}
 
@@ -273,7 +350,7 @@ def _comparison_table(scenarios: list[dict], units: dict[str, _Unit], perturbed:
     first = ["scenario"] + (["parameter factors"] if perturbed else [])
     head = ("<tr>" + "".join(f'<th rowspan="2">{h}</th>' for h in first)
             + "".join(f'<th colspan="{len(heads)}">{label}</th>' for _, label in controllers) + "</tr><tr>"
-            + "".join(f"<th>{html.escape(h)}</th>" for _ in controllers for h in heads) + "</tr>")
+            + "".join(f"<th>{_breakable(h)}</th>" for _ in controllers for h in heads) + "</tr>")
     body = []
     for scenario in scenarios:
         requirements = scenario.get("requirements") or {}
@@ -295,7 +372,7 @@ def _run_cells(run: dict, tracked: list[str], after: list[str], requirements: di
                units: dict[str, _Unit]) -> list[str]:
     """The comparison cells of one run (:func:`_comparison_table`), escaped; a missed bound is red."""
     def cell(text: str, missed: bool) -> str:
-        return f'<td class="fail">{html.escape(text)}</td>' if missed else html.escape(text)
+        return f'<td class="fail">{_breakable(text)}</td>' if missed else _breakable(text)
 
     cells = []
     for name in tracked:
@@ -317,8 +394,14 @@ def _run_cells(run: dict, tracked: list[str], after: list[str], requirements: di
                      '<td class="pass">stable</td>')
     else:
         why = "" if run["stable"] else f": {_short_reason(run['reason'])}"
-        cells.append(f'<td class="fail">fail{html.escape(why)}</td>')
+        cells.append(f'<td class="fail">fail{_breakable(why)}</td>')
     return cells
+
+
+def _breakable(text: str) -> str:
+    """``text`` escaped for HTML, with line-break opportunities after underscores (signal names such as
+    upper_disk_position wrap there in a narrow column)."""
+    return html.escape(text).replace("_", "_<wbr>")
 
 
 def _short_reason(reason: str) -> str:
@@ -351,6 +434,11 @@ def _held_step_line(verify: dict, units: dict[str, _Unit]) -> str:
     record = verify.get("largest_held_step")
     if not record:
         return "<p>Largest step the LTI baseline holds: not measured in this run.</p>"
+    return f"<p>{html.escape(_held_step_text(record, units))}.</p>"
+
+
+def _held_step_text(record: dict, units: dict[str, _Unit]) -> str:
+    """:func:`_held_step_line`'s sentence (also the verify table's cell), amplitudes in display units."""
     unit = units.get(record["output"], _Unit(""))
     criterion = {"passes": "meets its scenario's specification",
                  "bounded": "keeps the constrained outputs within their bounds"}[record["criterion"]]
@@ -361,7 +449,7 @@ def _held_step_line(verify: dict, units: dict[str, _Unit]) -> str:
     text += f"; held means the run {criterion}; found by bisection"
     if record.get("resolution"):
         text += f" to within {unit.value(record['resolution'])}{unit.label}"
-    return f"<p>{html.escape(text)}.</p>"
+    return text
 
 
 def scenario_tally(summary: dict) -> str:
@@ -454,12 +542,144 @@ def _adoption_table(rows: list[dict]) -> str:
             + "".join(body) + "</table>")
 
 
+# ---------------------------------------------------------------------------------------- stage tables
+#: (stage, output key) → the row's label in the report; keys not listed are shown by their words.
+LABELS = {
+    ("experiment", "samples"): "samples recorded",
+    ("experiment", "Ts"): "sampling time",
+    ("experiment", "ranges"): "range of each recorded signal",
+    ("identify", "method"): "identification method",
+    ("identify", "one_step_bfr_validation"): "one-step prediction fit on the validation part (BFR)",
+    ("identify", "ljung_box_p_value"): "Ljung–Box p-value of the residuals (small: not white)",
+    ("identify", "input"): "model input",
+    ("identify", "nx"): "model order (states)",
+    ("identify", "offsets"): "offsets removed",
+    ("identify", "scheduling_range"): "scheduling range of the data",
+    ("reduce", "order"): "order after reduction (states)",
+    ("reduce", "full_order"): "order before reduction (states)",
+    ("reduce", "order_rule"): "order chosen by",
+    ("reduce", "max_frozen_radius"): "largest frozen spectral radius, reduced model",
+    ("reduce", "full_max_frozen_radius"): "largest frozen spectral radius, full model",
+    ("reduce", "singular_values"): "Hankel singular values",
+    ("validate", "fit"): "simulation fit on the validation part",
+    ("validate", "scaling"): "signal scales of the ν-gap (typical amplitudes)",
+    ("validate", "theta"): "frozen scheduling points",
+    ("validate", "b_P_Kid"): "stability margin b(P, K_id) of the identification loop",
+    ("validate", "reference"): "ν-gap reference (plant FMU)",
+    ("validate", "nugap"): "ν-gap δν between plant FMU and model",
+    ("validate", "gate_margin"): "margin b(P, K_id) − δν",
+    ("validate", "nugap_below_b_everywhere"): "δν < b(P, K_id) at every frozen point",
+    ("validate", "gate"): "model gate",
+    ("synth", "method"): "synthesis method",
+    ("synth", "structure"): "controller structure",
+    ("synth", "gamma"): "γ, LPV controller",
+    ("synth", "gamma_lower"): "γ lower bound (LMI)",
+    ("synth", "baseline_gamma"): "γ, LTI baseline",
+    ("synth", "baseline_at"): "LTI baseline designed at",
+    ("synth", "certificate"): "certificate",
+    ("synth", "certificate_ok"): "certificate holds",
+    ("synth", "solve_seconds"): "synthesis time",
+    ("synth", "order"): "controller order (states)",
+    ("synth", "polytope"): "scheduling polytope",
+    ("verify", "plant"): "plant FMU",
+    ("verify", "loop"): "closed loop",
+    ("verify", "stable"): "every run of the LPV controller stable",
+    ("verify", "passed"): "every scenario passed",
+    ("verify", "largest_held_step"): "largest step the LTI baseline holds",
+    ("export", "files"): "files exported",
+}
+#: Stage outputs that are bookkeeping, not results (the file format of the verification record).
+HIDDEN = {("verify", "format"), ("verify", "version")}
+#: Stage outputs in seconds.
+SECONDS = {("experiment", "Ts"), ("synth", "solve_seconds")}
+#: Stage outputs in per cent.
+PERCENT = {("identify", "one_step_bfr_validation")}
+STRUCTURES = {"1dof": "1-DOF (reads r − y)", "2dof": "2-DOF (reads references and measurements apart)"}
+
+
+def _unit_of(name: str, units: dict[str, _Unit]) -> _Unit:
+    """The display unit of a recorded signal: its own, or for an experiment's ``<signal>_excitation`` and
+    ``<signal>_setpoint`` columns that of the signal; none for a scheduling signal."""
+    for suffix in ("", "_excitation", "_setpoint"):
+        if name.endswith(suffix) and name.removesuffix(suffix) in units:
+            return units[name.removesuffix(suffix)] if suffix else units[name]
+    return _Unit("")
+
+
+def _signal_value(name: str, value: float, units: dict[str, _Unit]) -> str:
+    """One value of a named signal in its display unit, e.g. "70.2°", "6.02 V" (a plain number without
+    one)."""
+    unit = _unit_of(name, units)
+    return unit.value(value) + ("" if unit.label in ("°", "") else " ") + unit.label
+
+
+def _signal_range(name: str, bounds: list[float], units: dict[str, _Unit]) -> str:
+    lo, hi = (_signal_value(name, v, units) for v in bounds)
+    return f"{name} {lo} … {hi}"
+
+
+def stage_rows(stage: str, outputs: dict, units: dict[str, _Unit],
+               scheduling: list[str] | None = None) -> list[tuple[str, str]]:
+    """A stage's outputs as (label, value) rows a reader understands: :data:`LABELS`, values with their
+    units (angles in degrees, times in s), file names without folders, no bookkeeping (:data:`HIDDEN`)
+    and no list longer than 12 values (those are drawn)."""
+    names = scheduling or []
+    rows = []
+    for key, value in outputs.items():
+        if (stage, key) in HIDDEN | SEPARATE_TABLES or (isinstance(value, list) and len(value) > 12):
+            continue
+        label = LABELS.get((stage, key), key.replace("_", " "))
+        if (stage, key) in SECONDS and isinstance(value, int | float):
+            text = f"{value:.4g} s"
+        elif (stage, key) in PERCENT and _is_numbers(value):
+            text = "; ".join(f"{v:.1f} %" for v in value)
+        elif key == "ranges" and isinstance(value, dict):
+            text = "; ".join(_signal_range(n, b, units) for n, b in value.items())
+        elif key == "scaling" and isinstance(value, dict):
+            text = "; ".join(f"{n} {_signal_value(n, v, units)}" for n, v in value.items())
+        elif key == "plant" and isinstance(value, str):
+            text = Path(value).name
+        elif key == "structure" and value in STRUCTURES:
+            text = STRUCTURES[value]
+        elif key == "largest_held_step" and isinstance(value, dict):
+            text = _held_step_text(value, units)
+        elif key == "loop" and isinstance(value, dict):
+            text = _loop_text(value, units)
+        elif key == "gate" and isinstance(value, dict):
+            text = ("passed" if value.get("passed") else "failed") + f": {value.get('reason', '')}"
+        elif key in ("theta", "baseline_at", "scheduling_range") and value and names:
+            points = value if isinstance(value[0], list) else [value]
+            if key == "scheduling_range":  # [[lo...], [hi...]]
+                text = "; ".join(f"{n} {lo:.3g} … {hi:.3g}" for n, lo, hi in zip(names, *value, strict=False))
+            else:
+                text = "; ".join("(" + ", ".join(f"{n} {v:.3g}" for n, v in zip(names, p, strict=False)) + ")"
+                                 for p in points)
+        else:
+            text = _fmt(value)
+        rows.append((label, text))
+    return rows
+
+
+def _loop_text(loop: dict, units: dict[str, _Unit]) -> str:
+    """The verification loop in words: what the controller reads and drives, its scheduling, the limits."""
+    parts = [f"measures {', '.join(loop.get('measured', []))}",
+             f"drives {', '.join(loop.get('actuated', []))}"]
+    if loop.get("scheduling"):
+        parts.append(f"scheduled on {', '.join(loop['scheduling'])}")
+    limits = loop.get("actuator_limits") or {}
+    if limits:
+        parts.append("limits " + ", ".join(_signal_range(n, b, units) for n, b in limits.items()))
+    return "; ".join(parts)
+
+
 def write_report(folder: Path, summary: dict, units: dict[str, str] | None = None) -> Path:
     """``report.html`` in ``folder``: the summary card (:func:`summary_card`), then a table per stage and
     every figure, embedded. ``units`` (signal name → unit) default to :func:`signal_units` of ``folder``."""
-    drawn = _figures(folder)
-    sections = [f"<h1>lpvflow design: {html.escape(summary['name'])}</h1>",
-                summary_card(summary, signal_units(folder) if units is None else units)]
+    units = signal_units(folder) if units is None else units
+    shown = {name: _Unit.of(unit) for name, unit in units.items()}
+    scheduling = [port["name"] for port in _ports(folder).get("scheduling", [])]
+    drawn = _figures(folder, shown)
+    sections = [f"<h1>lpvflow design: {html.escape(summary['name'])}</h1>", summary_card(summary, units)]
     times = [(n, f"{s.get('seconds', float('nan')):.1f} s ({s['status']})" if "seconds" in s else s["status"])
              for n, s in summary["stages"].items()]
     sections.append("<h2>Stages</h2>" + _table(times))
@@ -467,30 +687,35 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
         if stage["status"] == "not configured":
             continue
         outputs = stage.get("outputs", {})
-        rows = [(k, _fmt(v)) for k, v in outputs.items()
-                if (not isinstance(v, list) or len(v) <= 12) and (name, k) not in SEPARATE_TABLES]
+        rows = stage_rows(name, outputs, shown, scheduling)
         sections.append(f"<h2>{html.escape(name)}</h2>" + (_table(rows) if rows else ""))
         if name == "verify" and outputs.get("scenarios"):
-            sections.append(_scenario_table(outputs["scenarios"]))
+            sections.append(_scenario_table(outputs["scenarios"], shown, scheduling))
         if name == "adoption" and outputs.get("rows"):
             sections.append(_adoption_table(outputs["rows"]))
         for artifact in stage.get("artifacts", []):
-            if artifact.endswith(".png"):
+            if artifact == "nugap.png" and GAP_FIGURE in drawn:
+                sections.append(_embed(folder / GAP_FIGURE))
+            elif artifact.endswith(".png"):
                 sections.append(_embed(folder / artifact))
         extra = {"experiment": ["data.png"], "validate": ["margins.png"]}.get(name, [])
         sections += [_embed(folder / f) for f in extra if f in drawn]
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
-             "table{border-collapse:collapse;margin:0.5em 0}th,td{border:1px solid #ccc;padding:3px 8px;"
+             "table{border-collapse:collapse;margin:0.5em 0;max-width:100%}"
+             ".wide{overflow-x:auto;max-width:100%}th,td{border:1px solid #ccc;padding:3px 8px;"
              "text-align:left;font-size:13px;vertical-align:top}th{background:#f4f4f4}"
              "img{max-width:100%}figcaption{font-size:12px;color:#555}.fail{color:#b00}.pass{color:#070}"
              ".summary{border:1px solid #bbb;border-radius:6px;padding:0.5em 1.2em;background:#fcfcfc;"
              "overflow-x:auto}"
              ".summary h2{margin-top:0.4em}.verdict{font-size:17px}.why{font-size:12px;color:#555}"
              "table.card td{text-align:right}table.card td:first-child{text-align:left}"
-             "table.card th{font-size:12px}")
+             "table.card th{font-size:12px}table.scenarios td{font-size:12px}"
+             "table.card,table.scenarios{width:100%;table-layout:fixed}"
+             "table.scenarios th:nth-child(13){width:14%}"
+             "table.card th,table.card td,table.scenarios td{overflow-wrap:break-word}")
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>lpvflow design {summary['name']}"
             f"</title><style>{style}</style></head><body>{''.join(sections)}</body></html>")
     path = folder / "report.html"
-    path.write_text(page)
+    atomic_write_text(path, page)
     return path
 

@@ -13,7 +13,8 @@ from lpvflow.lpvio import LPVIO
 
 
 def plot_residuals(
-    path: Path, residuals: np.ndarray, Ts: float, names: list[str], lags: int = 50
+    path: Path, residuals: np.ndarray, Ts: float, names: list[str], units: dict[str, str] | None = None,
+    lags: int = 50,
 ) -> list[float]:
     """Residual time series and autocorrelation r̂_ee(τ), τ ≤ ``lags``, with the 99 % band ±2.58/√N of a
     white sequence, one row per output (PNG); returns the Ljung–Box p-value (20 lags) per output."""
@@ -30,9 +31,11 @@ def plot_residuals(
     for (ax_t, ax_r), name, e in zip(axes, names, residuals.T, strict=True):
         p_values.append(ljung_box(e)[1])
         ax_t.plot(t, e, lw=0.5)
-        ax_t.set(xlabel="time [s]", ylabel=f"ε {name}")
+        unit = (units or {}).get(name)
+        ax_t.set(xlabel="time [s]", ylabel=f"ε {name} [{unit}]" if unit else f"ε {name}")
         band = band99(len(e))
-        ax_r.stem(np.arange(lags + 1), autocorrelation(e, lags), basefmt=" ")
+        r = autocorrelation(e, lags)  # fewer than lags + 1 values for a residual shorter than lags
+        ax_r.stem(np.arange(len(r)), r, basefmt=" ")
         ax_r.axhspan(-band, band, color="tab:green", alpha=0.2)
         ax_r.set(xlabel="lag", ylabel="r̂_εε", title=f"Ljung–Box p = {p_values[-1]:.2g}")
     fig.tight_layout()
@@ -41,7 +44,8 @@ def plot_residuals(
     return p_values
 
 
-def one_step_residuals(io: LPVIO, val: Dataset, figure: Path) -> dict[str, list[float]]:
+def one_step_residuals(io: LPVIO, val: Dataset, figure: Path, units: dict[str, str] | None = None
+                       ) -> dict[str, list[float]]:
     """The one-step-ahead equation-error residuals ε(k) of ``io`` on ``val``: per output the BFR
     100 (1 − ‖ε‖/‖y − ȳ‖) and the Ljung–Box p-value, with their figure written to ``figure``
     (:func:`plot_residuals`)."""
@@ -49,4 +53,4 @@ def one_step_residuals(io: LPVIO, val: Dataset, figure: Path) -> dict[str, list[
     y = val.y[io.max_lag:]
     one_step = 100 * (1 - np.linalg.norm(residuals, axis=0) / np.linalg.norm(y - y.mean(axis=0), axis=0))
     return {"one_step_bfr_validation": one_step.tolist(),
-            "ljung_box_p_value": plot_residuals(figure, residuals, val.Ts, val.y_names)}
+            "ljung_box_p_value": plot_residuals(figure, residuals, val.Ts, val.y_names, units)}

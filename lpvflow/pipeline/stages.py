@@ -42,7 +42,7 @@ from lpvflow.pipeline.gate import gate_verdict
 from lpvflow.pipeline.model_loop import closed_loop_simulation
 from lpvflow.pipeline.residual_plot import one_step_residuals
 from lpvflow.pipeline.step_sweep import largest_steps
-from lpvflow.pipeline.verify import plot_runs, run_verification
+from lpvflow.pipeline.verify import fmu_units, plot_runs, run_verification
 from lpvflow.synth.design import synthesize_design
 from lpvflow.synth.polytope import scheduling_box
 from lpvflow.validate.diagnose import diagnose as run_diagnosis
@@ -65,7 +65,7 @@ def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
     )
     ranges = {name: [float(np.min(v)), float(np.max(v))]
               for name, v in record.columns.items() if name != "time"}
-    return {"samples": len(record.time), "Ts": record.Ts, "ranges": ranges}, ["data.csv"]
+    return {"samples": len(record.time), "Ts": record.Ts, "ranges": ranges}, ["data.csv", "data.csv.json"]
 
 
 def identify(ctx: StageContext) -> tuple[dict, list[str]]:
@@ -99,7 +99,8 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     artifacts = ["model_full.json"]
     if method in IO_METHODS:
         ss = model.to_ss()
-        outputs |= one_step_residuals(model, val, ctx.path("residuals.png"))
+        outputs |= one_step_residuals(model, val, ctx.path("residuals.png"),
+                                      fmu_units(ctx.config["design"]["plant"]))
         artifacts.append("residuals.png")
     else:
         try:
@@ -201,7 +202,7 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
         fit, fit_failure = None, str(exc)
     else:
         fit = fit_report(val.y, y_sim, val.y_names)
-        plot_fit(ctx.path("fit.png"), val, y_sim)
+        plot_fit(ctx.path("fit.png"), val, y_sim, fmu_units(ctx.config["design"]["plant"]))
         artifacts.append("fit.png")
     reference = fmu_reference(ctx, model)
     K, K_note, trim_feedback = frozen_experiment_controller(ctx, model, reference)
@@ -281,7 +282,7 @@ def verify(ctx: StageContext) -> tuple[dict, list[str]]:
     artifacts = []
     for i, scenario_result in enumerate(result.results):
         name = f"verify_{i}.png"
-        plot_runs(scenario_result.runs, ctx.path(name), title=scenarios[i].name)
+        plot_runs(scenario_result.runs, ctx.path(name), title=scenarios[i].name, plant=plant)
         artifacts.append(name)
     outputs = result.to_dict()
     if cfg["largest_step"]:

@@ -116,10 +116,11 @@ def _sampled(
     )
 
 
-def _check_subset(what: str, names: Sequence[str], available: Sequence[str], where: str) -> None:
+def _check_subset(what: str, names: Sequence[str], available: Sequence[str], where: str,
+                  hint: str = "") -> None:
     unknown = [n for n in names if n not in available]
     if unknown:
-        raise DataError(f"{where}: unknown {what} {unknown[0]!r}; known: {', '.join(available)}")
+        raise DataError(f"{where}: unknown {what} {unknown[0]!r}; known: {', '.join(available)}{hint}")
 
 
 def _check_scenario(scenario: Scenario, loop: Loop, plant_inputs: Sequence[str]) -> None:
@@ -254,8 +255,10 @@ def _run(
     disturbances on the measurement, output bounds as the stopping rule, exogenous inputs among the
     scheduling signals, actuator limits and input disturbances on the command."""
     Ts = law.Ts
-    _check_subset("measured plant output", loop.measured, plant.output_names, "loop")
-    _check_subset("actuated plant input", loop.actuated, plant.input_names, "loop")
+    hint = (f" ({plant.model_name} is a controller written by `lpvflow export`, not a plant; give the "
+            "plant's FMU)") if getattr(plant, "exported_controller", False) else ""
+    _check_subset("measured plant output", loop.measured, plant.output_names, "loop", hint)
+    _check_subset("actuated plant input", loop.actuated, plant.input_names, "loop", hint)
     _check_subset("actuator limit input", list(loop.actuator_limits), loop.actuated, "loop")
     _check_scenario(scenario, loop, plant.input_names)
     t = np.arange(n) * Ts
@@ -426,14 +429,18 @@ def verify(
 
 
 # ---------------------------------------------------------------------------------------- figure
-def plot_runs(runs: Sequence[ClosedLoopRun], path: str | Path, title: str = "") -> Path:
-    """PNG of references, outputs and controls of the runs (e.g. LPV vs baseline), written atomically."""
+def plot_runs(runs: Sequence[ClosedLoopRun], path: str | Path, title: str = "",
+              plant: str | Path | None = None) -> Path:
+    """PNG of references, outputs and controls of the runs (e.g. LPV vs baseline), written atomically;
+    each axis labelled with the unit the ``plant`` FMU declares for its signal."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     first = runs[0]
+    units = fmu_units(plant) if plant is not None else {}
+    label = lambda name: f"{name} [{units[name]}]" if units.get(name) else name  # noqa: E731
     rows = len(first.measured) + len(first.actuated)
     fig, axes = plt.subplots(rows, 1, figsize=(7, 1.9 * rows), sharex=True, squeeze=False)
     for i, name in enumerate(first.measured):
@@ -441,14 +448,14 @@ def plot_runs(runs: Sequence[ClosedLoopRun], path: str | Path, title: str = "") 
         ax.plot(first.time, first.reference[:, i], "k--", lw=1, label="reference")
         for run in runs:
             ax.plot(run.time, run.outputs[:, i], lw=1.2, label=run.label)
-        ax.set_ylabel(name)
+        ax.set_ylabel(label(name))
     for j, name in enumerate(first.actuated):
         ax = axes[len(first.measured) + j, 0]
         for run in runs:
             ax.step(run.time, run.control[:, j], where="post", lw=1.2, label=run.label)
-        ax.set_ylabel(name)
+        ax.set_ylabel(label(name))
     axes[0, 0].legend(loc="best", fontsize=8)
-    axes[-1, 0].set_xlabel("time (s)")
+    axes[-1, 0].set_xlabel("time [s]")
     if title:
         fig.suptitle(title)
     fig.tight_layout()
@@ -466,3 +473,16 @@ def plot_runs(runs: Sequence[ClosedLoopRun], path: str | Path, title: str = "") 
     finally:
         plt.close(fig)
     return path
+
+
+def fmu_units(path: str | Path) -> dict[str, str]:
+    """Unit of every variable of an FMU that declares one (its own or its declared type's)."""
+    from fmpy import read_model_description
+
+    units = {}
+    for variable in read_model_description(str(path)).modelVariables:
+        declared = getattr(variable, "declaredType", None)
+        unit = variable.unit or getattr(declared, "unit", None)
+        if unit:
+            units[variable.name] = unit
+    return units

@@ -79,11 +79,17 @@ def bode_overlay(
     plt.close(fig)
 
 
-def gap_margin_plot(path: str | Path, rows: Sequence[dict]) -> None:
-    """Write δν (and b with the δν < b pass region) over the frozen grid rows of `compare_frozen`."""
+def gap_margin_plot(path: str | Path, rows: Sequence[dict],
+                    axis: tuple[np.ndarray, str] | None = None) -> None:
+    """Write δν (and b with the δν < b pass region) over the frozen grid rows of `compare_frozen`, against
+    ``axis`` (one value per row and its label, e.g. the arm angle in degrees) when given, else against
+    the scheduling value (one signal) or the row number."""
     plt = _pyplot()
     p = np.array([row["p"] for row in rows], dtype=float)
-    x = p[:, 0] if p.shape[1] == 1 else np.arange(len(rows))
+    if axis is not None:
+        x = np.asarray(axis[0], dtype=float)
+    else:
+        x = p[:, 0] if p.shape[1] == 1 else np.arange(len(rows))
     order = np.argsort(x)
     x = x[order]
     gap = np.array([rows[k]["nugap"] for k in order])
@@ -97,8 +103,8 @@ def gap_margin_plot(path: str | Path, rows: Sequence[dict]) -> None:
             ax.plot(x[failing], gap[failing], "x", color="tab:red", ms=9, mew=2, label="fails")
     ax.plot(x, gap, color="tab:blue", lw=1.5, marker="o", ms=4, label="δν(G_ref(θ), Ĝ(θ))")
     ax.set_ylim(0, 1.02)
-    ax.set_xlabel("θ" if p.shape[1] == 1 else "grid point")
-    ax.set_ylabel("ν-gap / stability margin")
+    ax.set_xlabel(axis[1] if axis is not None else "θ" if p.shape[1] == 1 else "grid point")
+    ax.set_ylabel("ν-gap / stability margin [–]")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()

@@ -253,7 +253,7 @@ CASES: dict[str, tuple[str, str]] = {
     "export mat named fmu": ("export {d}/k.json --format mat -o {d}/k2.fmu", "does not end in .mat"),
     "export fmu named mat": ("export {d}/k.json --format fmu -o {d}/k2.mat", "does not end in .fmu"),
     "export json named txt": ("export {d}/k.json --format json -o {d}/k2.txt", "does not end in .json"),
-    "export a model": ("export {d}/model.json --format json -o {d}/k2.json", "not an lpvflow/lpv-controller"),
+    "export a model": ("export {d}/model.json --format json -o {d}/k2.json", "has format 'lpvflow/lpvss'"),
     "export an LTI controller": ("export {d}/lti.json --format json -o {d}/k2.json",
                                  "not an lpvflow/lpv-controller"),
     "export over the controller": ("export {d}/k.json --format json -o {d}/k.json",

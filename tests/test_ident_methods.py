@@ -41,7 +41,7 @@ def _context(tmp_path, n_p: int = 1, **identify_keys) -> tuple[StageContext, LPV
     np.savetxt(tmp_path / "data.csv", columns, delimiter=",", comments="",
                header=",".join(["time", "volt", "volt_excitation", *names, "angle"]))
     table = check_table("identify", {"u": ["volt"], "y": ["angle"], "p": names, **identify_keys}, "test")
-    config = {"identify": table, "experiment": {"controller": None}}
+    config = {"identify": table, "experiment": {"controller": None}, "design": {"plant": None}}
     return StageContext(tmp_path, config), true
 
 

@@ -184,7 +184,7 @@ def test_lpvflow_synth_designs_it_from_a_design_file(tmp_path, capsys):
 
 def test_lpvflow_synth_says_when_the_controller_rests_on_an_inaccurate_solve(tmp_path, capsys, monkeypatch):
     """The line comes from the status the design records, once, only when that status is inaccurate."""
-    from lpvflow.synth import design as synth_design
+    from lpvflow.pipeline import controller_design
 
     model = adip_family()
     model.save(tmp_path / "model.json")
@@ -193,14 +193,14 @@ def test_lpvflow_synth_says_when_the_controller_rests_on_an_inaccurate_solve(tmp
     (tmp_path / "synth.toml").write_text("\n".join([
         "[synth]", 'method = "observer"', 'structure = "2dof"', "box = [[0.0, 1.0]]",
         "breakpoints = [0.0, 0.5, 1.0]", *weights]) + "\n")
-    real = synth_design.synthesize_design
+    real = controller_design.synthesize_design
 
     def inaccurate(*args, **kwargs):
         result = real(*args, **kwargs)
         result.controller.info["status"] = "optimal_inaccurate"
         return result
 
-    monkeypatch.setattr(synth_design, "synthesize_design", inaccurate)
+    monkeypatch.setattr(controller_design, "synthesize_design", inaccurate)
     assert main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "synth.toml"),
                  "-o", str(tmp_path / "K.json")]) == 0
     err = capsys.readouterr().err

@@ -98,9 +98,8 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     outputs: dict[str, Any] = {"method": method}
     artifacts = ["model_full.json"]
     if method in IO_METHODS:
-        ss = model.to_ss()
-        outputs |= one_step_residuals(model, val, ctx.path("residuals.png"),
-                                      fmu_units(ctx.config["design"]["plant"]))
+        ss, units = model.to_ss(), fmu_units(ctx.config["design"]["plant"])
+        outputs |= one_step_residuals(model, val, ctx.path("residuals.png"), units)
         artifacts.append("residuals.png")
     else:
         try:

@@ -475,10 +475,13 @@ def plot_runs(runs: Sequence[ClosedLoopRun], path: str | Path, title: str = "",
     return path
 
 
-def fmu_units(path: str | Path) -> dict[str, str]:
-    """Unit of every variable of an FMU that declares one (its own or its declared type's)."""
+def fmu_units(path: str | Path | None) -> dict[str, str]:
+    """Unit of every variable of an FMU that declares one (its own or its declared type's); none without
+    an FMU (a design on recorded data)."""
     from fmpy import read_model_description
 
+    if path is None:
+        return {}
     units = {}
     for variable in read_model_description(str(path)).modelVariables:
         declared = getattr(variable, "declaredType", None)

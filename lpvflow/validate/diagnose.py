@@ -71,11 +71,12 @@ import numpy as np
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
-from lpvflow.errors import DataError, LpvflowError
+from lpvflow.errors import DataError, LpvflowError, ModelError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.identify.arx import prediction_residuals
 from lpvflow.validate import residuals
 from lpvflow.validate.closed_loop import Loop, simulate_in_loop
+from lpvflow.validate.diagnose_evidence import evidence, where
 from lpvflow.validate.extensions import (
     EXTENSIONS,
     Candidate,
@@ -101,6 +102,12 @@ from lpvflow.validate.noise_analysis import (  # noqa: F401  (frozen_response, M
 MIN_VALIDATION = 200
 #: Gains within this fraction of the best one count as practically equivalent.
 EQUIVALENCE = 0.05
+#: The verdict on two significant extensions of different causes that no test separates.
+AMBIGUOUS = "ambiguous"
+#: An extension gaining at least this many BFR points at block p < INADEQUATE_ALPHA shows the model
+#: inadequate even when no cause can be named (not significant at ``alpha``, or a tie broken to none).
+INADEQUATE_GAIN = 5.0
+INADEQUATE_ALPHA = 0.01
 #: Smallest noise_bias_change at which an LS winner is checked by output error when the bias is not
 #: material (:func:`_confirmed_by_output_error`): above equation noise (0.014–0.017), below 3 % white
 #: sensor noise (0.026–0.029). Checking every significant bias refitted friction by output error on
@@ -129,7 +136,8 @@ class Diagnosis:
     adequacy: dict | None = None  # input_explained of the final model; None in closed loop
     simulation: str = "open loop"  # or "closed loop": in the identification loop (module docstring)
     loop_scheduling: dict[str, str] = field(default_factory=dict)  # recomputed in the loop
-    untested: list[str] = field(default_factory=list)
+    untested: list[str] = field(default_factory=list)  # extensions that could not be fitted (reasons below)
+    unchanged: list[str] = field(default_factory=list)  # tried: the data chose the modelled structure
     untested_reasons: dict[str, str] = field(default_factory=dict)
     winner: Candidate | None = field(default=None, repr=False)
     nominal_y_val: np.ndarray | None = field(default=None, repr=False)
@@ -138,74 +146,6 @@ class Diagnosis:
     def to_dict(self) -> dict:
         hidden = ("winner", "nominal_y_val", "error_spectrum")
         return {k: v for k, v in self.__dict__.items() if k not in hidden}
-
-
-def _where(val: Dataset, error: np.ndarray) -> dict:
-    """Where the nominal validation simulation error lives, per output: spectrum, drift, and RMS
-    against every scheduling signal and every input's amplitude."""
-    out = []
-    for i in range(error.shape[1]):
-        e = error[:, i]
-        f, pxx = residuals.error_spectrum(e, val.Ts)
-        cum = np.cumsum(pxx) / np.sum(pxx)
-        slope, p_drift = residuals.drift(e)
-        out.append({
-            "output": val.y_names[i],
-            "spectrum_peak_hz": float(f[np.argmax(pxx)]),
-            "spectrum_half_power_below_hz": float(f[np.searchsorted(cum, 0.5)]),
-            "rms_vs_scheduling": [_binned(name, e, val.p[:, m]) for m, name in enumerate(val.p_names)],
-            "rms_vs_input_amplitude": [_binned(name, e, np.abs(val.u[:, j]))
-                                       for j, name in enumerate(val.u_names)],
-            "drift_slope": slope,
-            "drift_p_value": p_drift,
-        })
-    return {"outputs": out}
-
-
-def _binned(channel: str, e: np.ndarray, x: np.ndarray) -> dict:
-    centres, rms = residuals.binned_rms(e, x)
-    return {"channel": channel, "value": centres.tolist(), "rms": rms.tolist()}
-
-
-def _evidence(est: Dataset, nominal_residuals: np.ndarray, channels: dict) -> list[dict]:
-    """Residual tests on the nominal model's one-step residuals (estimation data), 99 % bands: for
-    every output, whiteness, cross-correlation with every input, and correlation with every input's
-    amplitude, the sign of its motion and of itself, a trend, every scheduling signal squared times
-    its last value, and every candidate channel."""
-    items = []
-    n = len(nominal_residuals)
-    band = residuals.band99(n)
-    start = est.N - n
-    for i, name in enumerate(est.y_names):
-        e = nominal_residuals[:, i]
-        q, p_lb = residuals.ljung_box(e)
-        items.append({"test": "ljung_box", "output": name, "Q": q, "p_value": p_lb,
-                      "text": f"{name}: one-step residuals {'are not' if p_lb < 0.01 else 'look'} white "
-                              f"(Ljung–Box Q={q:.1f}, p={p_lb:.2g})"})
-        for j, u_name in enumerate(est.u_names):
-            lags = range(-5, 31)
-            r = residuals.cross_correlation(e, est.u[start:, j], lags)
-            k = int(np.argmax(np.abs(r)))
-            items.append({"test": "cross_correlation", "output": name, "input": u_name,
-                          "peak_lag": lags[k], "peak": float(r[k]), "band99": band,
-                          "lags_outside_band": [lags[m] for m in np.flatnonzero(np.abs(r) > band)],
-                          "text": f"{name} residual vs {u_name}: peak correlation {r[k]:.3f} at lag "
-                                  f"{lags[k]} (99 % band ±{band:.3f})"})
-        features = {f"|{u_name}| (input amplitude)": np.abs(est.u[start:, j])
-                    for j, u_name in enumerate(est.u_names)}
-        features |= {f"sign of d{name}/dt": np.sign(np.diff(est.y[:, i]))[start - 1 :],
-                     f"sign of {name}(k-1)": np.sign(est.y[start - 1 : -1, i]),
-                     "trend": np.linspace(0, 1, n)}
-        features |= {f"{p_name}^2 * {name}(k-1)": est.p[start - 1 : -1, m] ** 2 * est.y[start - 1 : -1, i]
-                     for m, p_name in enumerate(est.p_names)}
-        features |= {f"channel {c}": values[0][start:] for c, values in channels.items()}
-        for label, x in features.items():
-            if np.std(x) == 0:
-                continue
-            r = float(np.corrcoef(e, x)[0, 1])
-            items.append({"test": "feature_correlation", "output": name, "feature": label, "r": r,
-                          "band99": band, "text": f"{name} residual vs {label}: r = {r:.3f}"})
-    return items
 
 
 def _rank(est: Dataset, val: Dataset, nominal: Fit, candidates: dict[str, Candidate], min_gain: float,
@@ -300,6 +240,7 @@ def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[s
     significant = [r for r in ranked if r["significant"]]
     if not significant:
         return "none"
+    significant_causes = {r["cause"] for r in significant}
     top, top_gain = significant[0]["cause"], significant[0]["bfr_gain"]
     others = [r for r in ranked if r["cause"] != top and r["bfr_gain"] > 0]
     equivalent = [r["cause"] for r in others if r["bfr_gain"] >= (1 - EQUIVALENCE) * top_gain]
@@ -308,11 +249,12 @@ def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[s
         fewest = min(candidates[c].fit.n_params for c in peers)
         simplest = [c for c in peers if candidates[c].fit.n_params == fewest]
         if len(simplest) > 1:
-            return "none"
+            return AMBIGUOUS if len([c for c in simplest if c in significant_causes]) > 1 else "none"
         winner = simplest[0]
-        return winner if next(r for r in ranked if r["cause"] == winner)["significant"] else "none"
+        return winner if winner in significant_causes else "none"
     if others and residuals.block_signed_rank(losses[others[0]["cause"]], losses[top])[1] >= 0.05:
-        return "none"  # not clearly better than the runner-up
+        # not clearly better than the runner-up: a tie when the runner-up gains significantly too
+        return AMBIGUOUS if others[0]["cause"] in significant_causes else "none"
     return top
 
 
@@ -385,11 +327,19 @@ def _noise_verdict(noisy: dict | None, noise: dict | None) -> str:
     return NOISE if noisy["significant"] else "none"
 
 
-def _parameters(cause: str, winner: Candidate | None, noise: dict | None, adequacy: dict | None) -> dict:
+def _parameters(cause: str, winner: Candidate | None, noise: dict | None, adequacy: dict | None,
+                ranked: list[dict]) -> dict:
     """The parameters of the verdict: the extension's, the noise level and spectrum for a noise
-    verdict, the adequacy test for ``unexplained``."""
+    verdict, the adequacy test for ``unexplained``, both tied extensions for ``ambiguous``."""
     if cause == "unexplained":
-        return {"input_explained_bfr_gain": adequacy["bfr_gain"], "p_value": adequacy["p_value"]}
+        params = {"input_explained_bfr_gain": adequacy["bfr_gain"], "p_value": adequacy["p_value"]}
+        if "strongest_extension" in adequacy:
+            params["strongest_extension"] = adequacy["strongest_extension"]
+        return params
+    if cause == AMBIGUOUS:
+        tied = [r for r in ranked if r["significant"] and "ruled_out" not in r][:2]
+        return {"candidates": [{"cause": r["cause"], "bfr_gain": r["bfr_gain"], "p_value": r["p_value"],
+                                "parameters": r["parameters"]} for r in tied]}
     params = dict(winner.parameters) if winner else {}
     if cause in (NOISE, "colored_noise") and noise is not None:
         level = noise["level"]
@@ -507,18 +457,27 @@ def diagnose(
                 else input_explained(est, val, final.model, final.y_val, min_gain, alpha))
     if cause in ("none", NOISE, "colored_noise") and adequacy is not None and adequacy["significant"]:
         cause = "unexplained"
+    used = refit_ranked or ranked
+    strong = [r for r in used if "ruled_out" not in r and not r["diverged"]
+              and r["bfr_gain"] >= INADEQUATE_GAIN and r["p_value"] < INADEQUATE_ALPHA]
+    if cause == "none" and strong:  # inadequate, but no cause stands out: not "none"
+        cause, adequacy = "unexplained", (adequacy or {}) | {"strongest_extension": strong[0]["cause"],
+                                                             "bfr_gain": strong[0]["bfr_gain"],
+                                                             "p_value": strong[0]["p_value"]}
+    _refuse_diverged(cause, nominal, candidates)
     winner = pool.get(NOISE if cause == "colored_noise" else cause)
     after = winner.fit.y_val if winner else nominal.y_val
     result = Diagnosis(
         bfr_before=bfr_nom.tolist(), bfr_after=bfr(val.y, after).tolist(),
         vaf_before=vaf(val.y, nominal.y_val).tolist(), vaf_after=vaf(val.y, after).tolist(),
-        cause=cause, parameters=_parameters(cause, winner, noise, adequacy),
-        evidence=_evidence(est, prediction_residuals(nominal.model, est), split_channels),
+        cause=cause, parameters=_parameters(cause, winner, noise, adequacy, used),
+        evidence=evidence(est, prediction_residuals(nominal.model, est), split_channels),
         ranking=ranked, refit_ranking=refit_ranked, noise=noise, adequacy=adequacy, summary="",
-        where=_where(val, val.y - nominal.y_val), winner=winner,
+        where=where(val, val.y - nominal.y_val), winner=winner,
         simulation="open loop" if loop is None else "closed loop",
         loop_scheduling=dict(loop.scheduling) if loop is not None else {},
-        untested=[c for c in tried if c not in candidates], untested_reasons=untested_reasons,
+        untested=list(untested_reasons), untested_reasons=untested_reasons,
+        unchanged=[c for c in tried if c not in candidates and c not in untested_reasons],
         nominal_y_val=nominal.y_val,
         error_spectrum=residuals.error_spectrum(val.y[:, 0] - nominal.y_val[:, 0], val.Ts),
     )
@@ -526,8 +485,33 @@ def diagnose(
     return result
 
 
+def _refuse_diverged(cause: str, nominal: Fit, candidates: dict[str, Candidate]) -> None:
+    """A verdict that rests on a diverged simulation is an error with its reason, never ``none``:
+    the nominal model's validation simulation (for ``none``) or the consistent refit's (for a noise
+    verdict) left ten times the data's extent (:func:`~lpvflow.validate.extensions.bounded`)."""
+    refit = candidates.get(NOISE)
+    if cause == "none" and nominal.diverged:
+        raise ModelError("the nominal model's validation simulation diverges, so its adequacy cannot be "
+                         "judged: check the orders and the basis, remove the signals' offsets "
+                         "(--remove-offsets), or give the controller of closed-loop data (--controller)")
+    if cause in (NOISE, "colored_noise") and refit is not None and refit.fit.diverged:
+        raise ModelError("the output-error refit of the nominal structure diverges in simulation, so the "
+                         "noise cannot be judged: check the orders and the basis")
+
+
 def _summary(result: Diagnosis, winner: Candidate | None) -> str:
     before, after = np.mean(result.bfr_before), np.mean(result.bfr_after)
+    if result.cause == AMBIGUOUS:
+        a, b = result.parameters["candidates"]
+        return (f"validation BFR {before:.1f} %; two extensions gain and no test separates them: "
+                f"{a['cause']} (+{a['bfr_gain']:.1f} points) and {b['cause']} (+{b['bfr_gain']:.1f}): "
+                "cause ambiguous")
+    if result.cause == "unexplained" and "strongest_extension" in result.parameters:
+        prm = result.parameters
+        return (f"validation BFR {before:.1f} %; the model is inadequate — {prm['strongest_extension']} "
+                f"gains {prm['input_explained_bfr_gain']:.1f} points (p = {prm['p_value']:.2g})"
+                " — but no cause of "
+                "the vocabulary is significant and unambiguous: cause unexplained")
     if result.cause == "unexplained":
         a = result.adequacy
         return (f"validation BFR {before:.1f} %; the simulation error is larger than the output noise "
@@ -538,7 +522,8 @@ def _summary(result: Diagnosis, winner: Candidate | None) -> str:
         tested = ", ".join(r["cause"] for r in result.ranking) or "nothing"
         return (f"validation BFR {before:.1f} %; no extension gives a significant, unambiguous gain "
                 f"(tested: {tested}) and the simulation error is not explained by the inputs: cause none")
-    text = (f"{winner.description} raises validation BFR from {before:.1f} % to {after:.1f} % "
+    verb = "raises" if after >= before else "lowers"
+    text = (f"{winner.description} {verb} validation BFR from {before:.1f} % to {after:.1f} % "
             f"(cause: {result.cause})")
     if result.cause == "colored_noise":
         order = max(m["ar_order"] for m in result.noise["noise_model"])

@@ -69,7 +69,7 @@ from lpvflow.validate.extensions_structural import (  # noqa: F401
 CAUSES = (
     "input_delay", "model_order", "scheduling_dependence", "scheduling_variable",
     "input_nonlinearity", "backlash", "sensor_saturation", "friction", "output_noise_bias",
-    "colored_noise", "offset", "unexplained", "none",
+    "colored_noise", "offset", "unexplained", "ambiguous", "none",
 )
 
 

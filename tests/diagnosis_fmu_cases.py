@@ -51,6 +51,7 @@ ADIP_CONTROLLER = ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json"
 ADIP_SCHEDULING = {"sin_arm": "sin(arm_angle)"}
 #: Stall torque per volt at the ADIP arm shaft (fmu_plants/adip/README.md): F_c [N·m] / 0.1284 in V.
 SRV02_TORQUE_PER_VOLT = 0.9 * 70 * 0.69 * 7.68e-3 / 2.6
+ADIP_COULOMB_VOLTS = 0.04 / SRV02_TORQUE_PER_VOLT  # 0.04 N·m of Coulomb friction in input units
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,7 @@ IN_VOCABULARY = {
     },
     "adip": {
         "Coulomb friction 0.04 N·m": Effect("friction", {"effect_coulomb": 0.04},
-                                            check=("coulomb_level_input_units", 0.04 / SRV02_TORQUE_PER_VOLT)),
+                                            check=("coulomb_level_input_units", ADIP_COULOMB_VOLTS)),
         "angle sensor offset 10 mrad": Effect("offset", {"effect_sensor_offset": 0.01},
                                               check=("output_offset", [0.01, 0.01])),
         "dead time 15 ms": Effect("input_delay", {"effect_input_delay": 0.015}, check=("nk", 4)),
@@ -252,7 +253,7 @@ def make_record(plant: str, effect: str, seed: int) -> Record:
     if "effect_noise_std" in parameters:
         parameters["effect_noise_seed"] = seed + 1
     inner = open_plant(BUILD / f"{setup.fmu}.fmu", parameters)
-    n = int(round(setup.duration / setup.Ts))
+    n = round(setup.duration / setup.Ts)
     wrapped = (ImpairedPlant(inner, spec.wrapper, IMPAIRMENT[plant][_size_key(spec.wrapper)], n, seed)
                if spec.wrapper else inner)
     controller = load_controller(ADIP_CONTROLLER) if setup.closed_loop else None

@@ -302,11 +302,13 @@ def bench_records(seeds: tuple[int, ...], clean_seeds: tuple[int, ...]) -> list[
 
 
 def within(value, truth, rel: float = 0.2) -> bool:
-    """Every element of ``value`` within ``rel`` of ``truth`` (exact for integers)."""
+    """``value`` equal to an integer ``truth`` (a delay: int or list of ints), else every element within
+    ``rel`` of ``truth``."""
+    exact = all(isinstance(t, int) for t in np.atleast_1d(np.asarray(truth, object)))
     value, truth = np.atleast_1d(np.asarray(value, float)), np.atleast_1d(np.asarray(truth, float))
     if value.shape != truth.shape:
         return False
-    if np.all(truth == np.round(truth)) and np.all(np.abs(truth) >= 1):
+    if exact:
         return bool(np.all(value == truth))
     return bool(np.all(np.abs(value - truth) <= rel * np.abs(truth)))
 

@@ -127,3 +127,11 @@ def test_plant_record_subset(plant, effect, seed):
     result = diagnose(record.data, record.structure, record.channels, controller=record.controller,
                       scheduling=record.scheduling)
     assert outcome(record, result.cause, result.parameters) == "right", (result.cause, result.ranking)
+
+
+def test_within_is_exact_for_integer_delays_and_relative_for_levels():
+    from tests.diagnosis_fmu_cases import within
+
+    assert within(4, 4) and not within(5, 4) and within([4, 4], [4, 4]) and not within([4, 3], [4, 4])
+    assert within(7.98, 8.0) and within(9.5, 8.0) and not within(9.7, 8.0)
+    assert within([0.0102, 0.0118], [0.01, 0.01]) and not within([0.0102, 0.0125], [0.01, 0.01])

@@ -74,9 +74,11 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError, LpvflowError, ModelError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.identify.arx import prediction_residuals
+from lpvflow.models import LPVIO
 from lpvflow.validate import residuals
 from lpvflow.validate.closed_loop import Loop, simulate_in_loop
 from lpvflow.validate.diagnose_evidence import evidence, where
+from lpvflow.validate.diagnose_summary import AMBIGUOUS, NOISE, summary, verdict_parameters
 from lpvflow.validate.extensions import (
     EXTENSIONS,
     Candidate,
@@ -104,8 +106,6 @@ from lpvflow.validate.noise_analysis import (  # noqa: F401  (frozen_response, M
 MIN_VALIDATION = 200
 #: Gains within this fraction of the best one count as practically equivalent.
 EQUIVALENCE = 0.05
-#: The verdict on two significant extensions of different causes that no test separates.
-AMBIGUOUS = "ambiguous"
 #: An extension gaining at least this many BFR points at block p < INADEQUATE_ALPHA shows the model
 #: inadequate even when no cause can be named (not significant at ``alpha``, or a tie broken to none).
 INADEQUATE_GAIN = 5.0
@@ -184,8 +184,6 @@ def _rank(est: Dataset, val: Dataset, nominal: Fit, candidates: dict[str, Candid
     return ranked, losses
 
 
-#: The extension that re-estimates the nominal structure consistently (output error / closed-loop IV).
-NOISE = "output_noise_bias"
 
 
 def _refits_in_loop(candidates: dict[str, Candidate], est: Dataset, loop: Loop) -> dict[str, Candidate]:
@@ -338,37 +336,6 @@ def _noise_verdict(noisy: dict | None, noise: dict | None) -> str:
     return NOISE if noisy["significant"] else "none"
 
 
-def _parameters(cause: str, winner: Candidate | None, noise: dict | None, adequacy: dict | None,
-                ranked: list[dict]) -> dict:
-    """The parameters of the verdict: the extension's, the noise level and spectrum for a noise
-    verdict, the adequacy test for ``unexplained``, both tied extensions for ``ambiguous``."""
-    if cause == "unexplained":
-        params = {"input_explained_bfr_gain": adequacy["bfr_gain"], "p_value": adequacy["p_value"]}
-        for key in ("unnamed_extension", "partial_extension"):
-            if key in adequacy:
-                params[key] = adequacy[key]
-        return params
-    if cause == AMBIGUOUS:
-        tied = [r for r in ranked if r["significant"] and "ruled_out" not in r][:2]
-        return {"candidates": [{"cause": r["cause"], "bfr_gain": r["bfr_gain"], "p_value": r["p_value"],
-                                "parameters": r["parameters"]} for r in tied]}
-    params = dict(winner.parameters) if winner else {}
-    if cause in (NOISE, "colored_noise") and noise is not None:
-        level = noise["level"]
-        params |= {"relative_noise": _scalar(level["relative_noise"]), "snr_db": _scalar(level["snr_db"]),
-                   "frozen_response_change": noise["bias"]["frozen_response_change"]}
-        if cause == "colored_noise":
-            models = noise["noise_model"]
-            params |= {"ar": _scalar([m["ar"] for m in models]),
-                       "spectrum": _scalar([m["spectrum"] for m in models])}
-    return params
-
-
-def _scalar(values: list):
-    """A per-output list as its only element for one output."""
-    return values[0] if len(values) == 1 else values
-
-
 def _judge_noise(ctx: Context, candidates: dict[str, Candidate], noisy: dict | None, min_gain: float,
                  alpha: float) -> dict | None:
     """:func:`noise_analysis` of the output-error refit (open loop), its findings written into the
@@ -444,6 +411,7 @@ def diagnose(
     data: Dataset, structure: Structure, channels: dict[str, np.ndarray] | None = None,
     split: float = 0.5, alpha: float = 1e-3, min_gain: float = 1.0, causes: list[str] | None = None,
     controller: LtiController | None = None, scheduling: Mapping[str, str] | None = None,
+    model: LPVIO | None = None,
 ) -> Diagnosis:
     """Fit ``structure`` on the first ``split`` of ``data``, diagnose its validation simulation.
 
@@ -457,6 +425,9 @@ def diagnose(
         scheduling: scheduling column → expression in the output names (the experiment's sidecar
             ``scheduling``), recomputed from the simulated outputs in the loop; columns without an
             expression are taken as recorded.
+        model: the user's identified model of ``structure`` (``Structure.of_model``): it is the
+            nominal model as it is — its validation simulation is the reported nominal fit — instead
+            of the structure refitted on the estimation split; the extensions are fitted there.
     """
     channels = channels or {}
     for name, values in channels.items():
@@ -472,8 +443,12 @@ def diagnose(
     k = est.N
     split_channels = {c: (np.asarray(v, float)[:k], np.asarray(v, float)[k:]) for c, v in channels.items()}
     loop = Loop.from_record(data, controller, scheduling) if controller is not None else None
-    nominal = fit(est, val, structure.na, structure.nb, structure.nk, structure.basis_for(data.p.shape[1]),
-                  structure.form, loop_simulator(est, val, loop))
+    if model is None:
+        basis = structure.basis_for(data.p.shape[1])
+        nominal = fit(est, val, structure.na, structure.nb, structure.nk, basis, structure.form,
+                      loop_simulator(est, val, loop))
+    else:
+        nominal = Fit.of_model(model, est, val, loop_simulator(est, val, loop))
     ctx = Context(est, val, structure, nominal, split_channels, loop)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)
@@ -502,7 +477,7 @@ def diagnose(
     result = Diagnosis(
         bfr_before=bfr_nom.tolist(), bfr_after=bfr(val.y, after).tolist(),
         vaf_before=vaf(val.y, nominal.y_val).tolist(), vaf_after=vaf(val.y, after).tolist(),
-        cause=cause, parameters=_parameters(cause, winner, noise, adequacy, used),
+        cause=cause, parameters=verdict_parameters(cause, winner, noise, adequacy, used),
         evidence=evidence(est, prediction_residuals(nominal.model, est), split_channels),
         ranking=ranked, refit_ranking=refit_ranked, noise=noise, adequacy=adequacy, summary="",
         where=where(val, val.y - nominal.y_val), winner=winner,
@@ -513,7 +488,7 @@ def diagnose(
         nominal_y_val=nominal.y_val,
         error_spectrum=residuals.error_spectrum(val.y[:, 0] - nominal.y_val[:, 0], val.Ts),
     )
-    result.summary = _summary(result, winner)
+    result.summary = summary(result, winner)
     return result
 
 
@@ -567,46 +542,3 @@ def _refuse_diverged(cause: str, nominal: Fit, candidates: dict[str, Candidate])
     if cause in (NOISE, "colored_noise") and refit is not None and refit.fit.diverged:
         raise ModelError("the output-error refit of the nominal structure diverges in simulation, so the "
                          "noise cannot be judged: check the orders and the basis")
-
-
-def _summary(result: Diagnosis, winner: Candidate | None) -> str:
-    before, after = np.mean(result.bfr_before), np.mean(result.bfr_after)
-    if result.cause == AMBIGUOUS:
-        a, b = result.parameters["candidates"]
-        return (f"validation BFR {before:.1f} %; two extensions gain and no test separates them: "
-                f"{a['cause']} (+{a['bfr_gain']:.1f} points) and {b['cause']} (+{b['bfr_gain']:.1f}): "
-                "cause ambiguous")
-    if result.cause == "unexplained" and "unnamed_extension" in result.parameters:
-        ext = result.parameters["unnamed_extension"]
-        return (f"validation BFR {before:.1f} %; the model is inadequate — {ext['cause']} gains "
-                f"{ext['bfr_gain']:.1f} points (p = {ext['p_value']:.2g}) — but no cause of the vocabulary "
-                "is significant and unambiguous: cause unexplained")
-    if result.cause == "unexplained" and "partial_extension" in result.parameters:
-        ext = result.parameters["partial_extension"]
-        left = ext["left_input_explained_bfr_gain"]
-        return (f"validation BFR {before:.1f} %; {ext['cause']} gains {ext['bfr_gain']:.1f} points but its "
-                f"model still leaves an error the input history explains (+{left:.1f} points, "
-                f"p = {ext['p_value']:.2g}): a partial explanation, cause unexplained")
-    if result.cause == "unexplained":
-        a = result.adequacy
-        return (f"validation BFR {before:.1f} %; the simulation error is larger than the output noise "
-                f"explains — a correction from the input history alone gains {a['bfr_gain']:.1f} points "
-                f"(p = {a['p_value']:.2g}) — and no extension of the vocabulary gains significantly: "
-                "cause unexplained")
-    if winner is None:
-        tested = ", ".join(r["cause"] for r in result.ranking) or "nothing"
-        return (f"validation BFR {before:.1f} %; no extension gives a significant, unambiguous gain "
-                f"(tested: {tested}) and the simulation error is not explained by the inputs: cause none")
-    verb = "raises" if after >= before else "lowers"
-    text = (f"{winner.description} {verb} validation BFR from {before:.1f} % to {after:.1f} % "
-            f"(cause: {result.cause})")
-    if result.cause == "colored_noise":
-        order = max(m["ar_order"] for m in result.noise["noise_model"])
-        text += (f"; coloured output noise (AR order {order}, "
-                 f"SNR {np.mean(result.parameters['snr_db']):.1f} dB) biases least squares")
-    elif result.cause == NOISE and result.noise is not None:
-        text += (f"; white output noise (SNR {np.mean(result.parameters['snr_db']):.1f} dB) biases least "
-                 "squares: refit by output error or IV")
-    elif result.refit_ranking:
-        text += "; output noise biases least squares, so every model was refitted by output error"
-    return text

@@ -16,6 +16,7 @@ import numpy as np
 
 from lpvflow.basis import Basis, SchedulingRangeWarning
 from lpvflow.data import Dataset
+from lpvflow.errors import ModelError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.models import LPVIO
 from lpvflow.validate.closed_loop import Loop, simulate_in_loop
@@ -36,6 +37,14 @@ class Structure:
         return (np.broadcast_to(np.asarray(self.na, int), (ny, ny)).copy(),
                 np.broadcast_to(np.asarray(self.nb, int), (ny, nu)).copy(),
                 np.broadcast_to(np.asarray(self.nk, int), (ny, nu)).copy())
+
+    @classmethod
+    def of_model(cls, model: LPVIO) -> Structure:
+        """The structure of an identified input-output model (its orders, delays, basis and form)."""
+        if model.na is None or model.nb is None or model.nk is None:
+            raise ModelError("the model file records no orders (na, nb, nk): diagnose needs the input-output "
+                             "model `lpvflow identify` saves with an IO method such as lpr-arx")
+        return cls(np.asarray(model.na), np.asarray(model.nb), np.asarray(model.nk), model.basis, model.form)
 
     def basis_for(self, n_p: int) -> Basis:
         return Basis.from_spec(self.basis, n_p) if isinstance(self.basis, str) else self.basis
@@ -65,6 +74,20 @@ class Fit:
         n_eff = n_samples - model.max_lag
         return cls(model, float(loss), n_params, float(n_eff * loss + n_params * np.log(n_eff)), simulate,
                    reference, data)
+
+    @classmethod
+    def of_model(cls, model: LPVIO, est: Dataset, val: Dataset,
+                 simulate: Callable[[LPVIO], np.ndarray] | None = None) -> Fit:
+        """A given (already identified) model scored like a fit: loss the log det of its one-step
+        residual covariance on ``est`` (:func:`~lpvflow.identify.arx.prediction_residuals`), its
+        parameter count the nonzero coefficients of A and B."""
+        from lpvflow.identify.arx import prediction_residuals
+
+        residual = prediction_residuals(model, est)
+        sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov(residual.T)))
+        n_params = int(np.count_nonzero(model.A) + np.count_nonzero(model.B))
+        return cls.scored(model, logdet if sign > 0 else -np.inf, n_params, est.N,
+                          simulate or (lambda m: simulate_validation(m, est, val)), val.y, est)
 
     @cached_property
     def _validation(self) -> tuple[np.ndarray, bool]:

@@ -97,3 +97,13 @@ def test_identify_checks_a_closed_loop_fit_in_the_loop(adip_csv, tmp_path, capsy
     line = capsys.readouterr().out
     bfrs = [float(part.split()[1]) for part in line.split("BFR ")[1].split(";")[0].split(", ")]
     assert len(bfrs) == 2 and min(bfrs) > 80, line
+
+
+def test_readme_diagnosis_example_prints_the_dead_time(monkeypatch):
+    """The README's worked example (section "Diagnosis"), run verbatim from the repository root."""
+    from tests.readme_blocks import README, run_python_block
+
+    monkeypatch.chdir(README.parent)
+    lines = run_python_block("## Diagnosis").splitlines()
+    assert lines[0] == "input_delay 4"
+    assert lines[1] == "validation BFR 89.0 % -> 97.9 %"

@@ -135,3 +135,12 @@ def test_within_is_exact_for_integer_delays_and_relative_for_levels():
     assert within(4, 4) and not within(5, 4) and within([4, 4], [4, 4]) and not within([4, 3], [4, 4])
     assert within(7.98, 8.0) and within(9.5, 8.0) and not within(9.7, 8.0)
     assert within([0.0102, 0.0118], [0.01, 0.01]) and not within([0.0102, 0.0125], [0.01, 0.01])
+
+
+def test_progress_bar_over_the_extensions(capsys):
+    data, channels, _ = make_case("input_delay", 1000)
+    diagnose(data, NOMINAL, channels, causes=["input_delay", "offset"], progress=True)
+    err = capsys.readouterr().err
+    assert "diagnose: fitting extensions" in err and "2/2" in err
+    diagnose(data, NOMINAL, channels, causes=["input_delay"])
+    assert "diagnose" not in capsys.readouterr().err

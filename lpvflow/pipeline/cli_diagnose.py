@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import textwrap
 from pathlib import Path
 
@@ -121,7 +122,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     controller = load_controller(args.controller) if args.controller else None
     result = diagnose(data, structure, {c: table[c] for c in names}, split=args.split, causes=args.causes,
                       controller=controller, scheduling=_scheduling(args, data_path) if controller else None,
-                      model=io)
+                      model=io, progress=sys.stderr.isatty())
     report = report_header("diagnosis") | {"model": model_path} | result.to_dict()
     report["extended_model"] = None
     if result.winner is not None:

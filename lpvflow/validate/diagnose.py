@@ -68,6 +68,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
@@ -411,7 +412,7 @@ def diagnose(
     data: Dataset, structure: Structure, channels: dict[str, np.ndarray] | None = None,
     split: float = 0.5, alpha: float = 1e-3, min_gain: float = 1.0, causes: list[str] | None = None,
     controller: LtiController | None = None, scheduling: Mapping[str, str] | None = None,
-    model: LPVIO | None = None,
+    model: LPVIO | None = None, progress: bool = False,
 ) -> Diagnosis:
     """Fit ``structure`` on the first ``split`` of ``data``, diagnose its validation simulation.
 
@@ -428,6 +429,7 @@ def diagnose(
         model: the user's identified model of ``structure`` (``Structure.of_model``): it is the
             nominal model as it is — its validation simulation is the reported nominal fit — instead
             of the structure refitted on the estimation split; the extensions are fitted there.
+        progress: show a tqdm bar over the extensions (the CLI does on a terminal).
     """
     channels = channels or {}
     for name, values in channels.items():
@@ -455,7 +457,7 @@ def diagnose(
         candidates = {}
         tried = list(causes or EXTENSIONS)
         untested_reasons: dict[str, str] = {}
-        for cause in tried:
+        for cause in tqdm(tried, desc="diagnose: fitting extensions", unit="cause", disable=not progress):
             try:
                 cand = EXTENSIONS[cause](ctx)
             except LpvflowError as exc:  # e.g. a richer structure the data cannot identify

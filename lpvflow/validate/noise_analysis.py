@@ -243,21 +243,22 @@ def input_explained(est: Dataset, val: Dataset, model: LPVIO, y_val: np.ndarray,
             "bfr_corrected": bfr(val.y, corrected).tolist()}
 
 
-def output_features(y_sim: np.ndarray, start: float = 0.0) -> np.ndarray:
+def output_features(y_sim: np.ndarray, start: float = 0.0, level: bool = True) -> np.ndarray:
     """Functions of a model's simulated outputs ŷ — functions of the input history, so no output noise
     correlates with them either — that the input lags of :func:`features` cannot form: per output
     ŷ and ŷ² − mean (a gain error, a sensor's curvature), sign(ŷ(k) − ŷ(k−1)) at lags 0–2
     (hysteresis and friction act against the direction of motion) and t·ŷ with t the time
     normalised to the whole record, starting at ``start`` (a gain drifting over the record), each
-    scaled to unit standard deviation. ŷ and ŷ² also take up the level-dependent misfit of an
-    approximate basis (tanks FMU with an 8 V pump limit, the saturation extension at 94.2 % BFR:
-    +6.5 points with them, +0.9 without), hence the share in diagnose's partial-explanation test."""
+    scaled to unit standard deviation. ŷ and ŷ² (``level``) also take up the level-dependent misfit
+    of an approximate basis (tanks FMU with an 8 V pump limit, the saturation extension at 94.2 %
+    BFR: +6.5 points with them, +0.9 without), so the test of an extended model leaves them out."""
     n = len(y_sim)
     t = start + (1 - start) * np.arange(n) / n
     cols = []
     for y in np.asarray(y_sim, float).T:
         direction = np.sign(np.diff(y, prepend=y[0]))
-        cols += [y - y.mean(), y**2 - np.mean(y**2), t * y - np.mean(t * y)]
+        cols += [y - y.mean(), y**2 - np.mean(y**2)] if level else []
+        cols.append(t * y - np.mean(t * y))
         cols += [np.concatenate([np.zeros(lag), direction[: n - lag]]) for lag in range(3)]
     return np.column_stack([c / s for c in cols if (s := np.std(c)) > 0])
 
@@ -304,10 +305,10 @@ def explained_within_validation(est: Dataset, val: Dataset, y_val: np.ndarray, l
     correction F c of the error y − ŷ is fitted on the first half of the validation split and
     scored on the second half (BFR gain and block signed-rank p per output), F the features of
     :func:`features` at ``lags`` on the user's inputs and scheduling and the :func:`output_features`
-    of ``y_val``."""
+    of ``y_val`` without the level terms."""
     whole = joined(est, val)
     feats = np.hstack([features(whole.u, whole.p, lags)[est.N :],
-                       output_features(y_val, start=est.N / whole.N)])
+                       output_features(y_val, start=est.N / whole.N, level=False)])
     half = val.N // 2
     coef = np.linalg.lstsq(feats[:half], (val.y - y_val)[:half], rcond=None)[0]
     y, y_sim = val.y[half:], y_val[half:]

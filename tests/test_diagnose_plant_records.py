@@ -121,12 +121,30 @@ def test_a_diverged_nominal_model_is_an_error_not_none():
         diagnose(data, extensions.Structure(1, 1, 1, "affine"), causes=["input_delay"])
 
 
-@pytest.mark.parametrize(("plant", "effect", "seed"), [])
-def test_plant_record_subset(plant, effect, seed):
-    record = make_record(plant, effect, seed)
-    result = diagnose(record.data, record.structure, record.channels, controller=record.controller,
-                      scheduling=record.scheduling)
-    assert outcome(record, result.cause, result.parameters) == "right", (result.cause, result.ranking)
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="not met yet: rates measured in benchmarks/README.md, 'Diagnosis on "
+                                       "plant records' (strict: this test fails once the targets are met)")
+def test_plant_bench_meets_the_targets():
+    """The full plant bench (bench_diagnose.py --records 3): right cause with its parameter within
+    20 % for ≥ 90 % of the in-vocabulary records, at most one verdict other than none or a noise
+    verdict on the 20 clean records, unexplained for ≥ 80 % of the out-of-vocabulary records, and no
+    diagnosis over 10 s."""
+    import time
+
+    from tests.diagnosis_fmu_cases import bench_records
+
+    tally: dict[str, list[bool]] = {"in": [], "clean": [], "out": []}
+    worst = 0.0
+    for plant, effect, seed in bench_records((0, 1, 2), tuple(range(5))):
+        record = make_record(plant, effect, seed)
+        start = time.perf_counter()
+        result = diagnose(record.data, record.structure, record.channels, controller=record.controller,
+                          scheduling=record.scheduling)
+        worst = max(worst, time.perf_counter() - start)
+        kind = {"none": "clean", "unexplained": "out"}.get(record.expected, "in")
+        tally[kind].append(outcome(record, result.cause, result.parameters) == "right")
+    assert np.mean(tally["in"]) >= 0.9 and len(tally["clean"]) - sum(tally["clean"]) <= 1
+    assert np.mean(tally["out"]) >= 0.8 and worst <= 10.0
 
 
 def test_within_is_exact_for_integer_delays_and_relative_for_levels():
@@ -144,3 +162,21 @@ def test_progress_bar_over_the_extensions(capsys):
     assert "diagnose: fitting extensions" in err and "2/2" in err
     diagnose(data, NOMINAL, channels, causes=["input_delay"])
     assert "diagnose" not in capsys.readouterr().err
+
+
+def test_figure_has_a_row_per_output_and_the_evidence(tmp_path):
+    """Two outputs: two rows of panels (time series, error against scheduling and against input
+    amplitude on separate axes, spectrum) and the evidence row — the figure is three rows high."""
+    import matplotlib.image
+
+    from lpvflow.validate.diagnose_plot import plot_diagnosis
+
+    data, _, _ = make_case("input_delay", 1000)
+    other = np.random.default_rng(0).normal(size=data.N)  # a second, unrelated output
+    two = Dataset(data.u, np.column_stack([data.y[:, 0], other]), data.p, data.Ts, ["u"], ["y", "y2"], ["p"])
+    heights = []
+    for record, name in ((data, "one.png"), (two, "two.png")):
+        result = diagnose(record, NOMINAL, causes=["input_delay"])
+        plot_diagnosis(result, record, str(tmp_path / name))
+        heights.append(matplotlib.image.imread(tmp_path / name).shape[0])
+    assert heights[1] == pytest.approx(heights[0] * 3 / 2, rel=0.02)

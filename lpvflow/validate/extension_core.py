@@ -84,9 +84,8 @@ class Fit:
         from lpvflow.identify.arx import prediction_residuals
 
         residual = prediction_residuals(model, est)
-        sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov(residual.T)))
         n_params = int(np.count_nonzero(model.A) + np.count_nonzero(model.B))
-        return cls.scored(model, logdet if sign > 0 else -np.inf, n_params, est.N,
+        return cls.scored(model, log_det(np.cov(residual.T)), n_params, est.N,
                           simulate or (lambda m: simulate_validation(m, est, val)), val.y, est)
 
     @cached_property
@@ -193,10 +192,8 @@ def fit(est: Dataset, val: Dataset, na, nb, nk, basis: Basis | str, form: str = 
     n_params = int(sum(c.shape[0] for c in model.param_cov))
     if estimator == "oe":
         model = output_error(est, model)
-    sign, logdet = np.linalg.slogdet(model.noise_cov)
-    loss = logdet if sign > 0 else -np.inf
-    return Fit.scored(model, loss, n_params, est.N, simulate or (lambda m: simulate_validation(m, est, val)),
-                      val.y, est)
+    return Fit.scored(model, log_det(model.noise_cov), n_params, est.N,
+                      simulate or (lambda m: simulate_validation(m, est, val)), val.y, est)
 
 
 #: Function evaluations of the output-error refinement (from the ARX fit, which is close).
@@ -215,6 +212,16 @@ def output_error(est: Dataset, start: LPVIO) -> LPVIO:
         warnings.simplefilter("ignore", RuntimeWarning)
         return identify_oe(est, start.na, start.nb, start.nk, start.basis, start.form, init=start,
                            max_nfev=OE_EVALUATIONS)
+
+
+def log_det(cov: np.ndarray) -> float:
+    """log det of a (residual) covariance: −inf when it is singular (an exact fit), +inf when it is
+    not finite (a fit or simulation that overflowed — never the best of a comparison)."""
+    cov = np.atleast_2d(cov)
+    if not np.all(np.isfinite(cov)):
+        return np.inf
+    sign, logdet = np.linalg.slogdet(cov)
+    return float(logdet) if sign > 0 else -np.inf
 
 
 def joined(est: Dataset, val: Dataset) -> Dataset:

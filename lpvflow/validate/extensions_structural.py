@@ -20,6 +20,7 @@ from lpvflow.validate.extension_core import (
     extend_orders,
     fit,
     joined,
+    log_det,
     simulate_validation,
     with_inputs,
 )
@@ -82,9 +83,8 @@ def simulation_bic(ctx: Context, candidate: Fit) -> float:
         else:
             y_sim = simulate_in_loop(candidate.model, ctx.est, ctx.loop)  # the loop's r starts with est
         y_sim = bounded(y_sim, ctx.est.y)[0]
-    sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov((ctx.est.y - y_sim).T)))
     n = ctx.est.N
-    return float(n * logdet if sign > 0 else -np.inf) + candidate.n_params * np.log(n)
+    return n * log_det(np.cov((ctx.est.y - y_sim).T)) + candidate.n_params * np.log(n)
 
 
 def model_order(ctx: Context) -> Candidate | None:

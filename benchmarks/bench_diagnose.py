@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from lpvflow.errors import LpvflowError
 from lpvflow.validate import extensions
 from lpvflow.validate.diagnose import diagnose
 from lpvflow.validate.extensions import Structure
@@ -270,14 +271,58 @@ def cost(n: int = 20_000) -> dict:
     return out
 
 
+def plant_records(seeds: tuple[int, ...], clean_seeds: tuple[int, ...]) -> dict:
+    """The plant bench of tests/diagnosis_fmu_cases.py: every record diagnosed as the user would (the
+    nominal structure, the controller of closed-loop records); per record the verdict, its outcome
+    (:func:`~tests.diagnosis_fmu_cases.outcome`) and the seconds of the diagnosis; rates per kind."""
+    from tests.diagnosis_fmu_cases import bench_records, make_record, outcome
+
+    rows = []
+    for plant, effect, seed in bench_records(seeds, clean_seeds):
+        record = make_record(plant, effect, seed)
+        start = time.perf_counter()
+        try:
+            result = diagnose(record.data, record.structure, record.channels, controller=record.controller,
+                              scheduling=record.scheduling)
+            cause, verdict = result.cause, outcome(record, result.cause, result.parameters)
+        except LpvflowError as exc:
+            cause, verdict = f"error: {exc}", "error"
+        seconds = time.perf_counter() - start
+        rows.append({"record": record.label, "expected": record.expected, "cause": cause, "outcome": verdict,
+                     "samples": record.data.N, "seconds": seconds})
+        print(f"{record.label}: expected {record.expected}, named {cause} ({verdict}, {seconds:.1f} s)",
+              flush=True)
+    kinds = {"in vocabulary": lambda r: r["expected"] not in ("none", "unexplained"),
+             "clean": lambda r: r["expected"] == "none",
+             "out of vocabulary": lambda r: r["expected"] == "unexplained"}
+    rates = {kind: {"right": sum(r["outcome"] == "right" for r in rows if pick(r)),
+                    "records": sum(1 for r in rows if pick(r))} for kind, pick in kinds.items()}
+    worst = max(rows, key=lambda r: r["seconds"])
+    return {"seeds": list(seeds), "clean_seeds": list(clean_seeds), "rates": rates,
+            "worst": {"record": worst["record"], "seconds": worst["seconds"], "samples": worst["samples"]},
+            "records": rows}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
+    parser.add_argument("--records", type=int, metavar="SEEDS",
+                        help="the plant bench (tests/diagnosis_fmu_cases.py) at seeds 0 … SEEDS−1 and clean "
+                             "seeds 0 … 4 → results/diagnose_fmu_records.json")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--fmu-seeds", type=int, default=5)
     parser.add_argument("--fmu-only", metavar="PREFIX",
                         help="only the FMU cases whose label starts with PREFIX (e.g. adip) → "
                              "results/diagnose_fmu_PREFIX.json")
     args = parser.parse_args()
+    if args.records:
+        results = plant_records(tuple(range(args.records)), tuple(range(5)))
+        out = Path(__file__).parent / "results" / "diagnose_fmu_records.json"
+        out.write_text(json.dumps(results, indent=1))
+        for kind, row in results["rates"].items():
+            print(f"{kind}: {row['right']}/{row['records']} right")
+        print(f"worst diagnosis: {results['worst']['seconds']:.1f} s ({results['worst']['record']}, "
+              f"N = {results['worst']['samples']})")
+        return
     if args.fmu_only:
         results = {"fmu_hit_rates": fmu_hit_rates(args.fmu_seeds, args.fmu_only)}
         out = Path(__file__).parent / "results" / f"diagnose_fmu_{args.fmu_only}.json"

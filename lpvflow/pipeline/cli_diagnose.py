@@ -4,26 +4,64 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+import textwrap
 from pathlib import Path
 
 from lpvflow.data import Dataset, read_columns, time_column
-from lpvflow.errors import DataError
+from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.run import sidecar_path
 from lpvflow.experiment.scheduling import parse_assignment
-from lpvflow.models import atomic_write_json, report_header
-from lpvflow.pipeline.cli_identify import add_data_arguments, parse_order
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import LPVSS, atomic_write_json, load, report_header
+from lpvflow.pipeline.cli_identify import parse_order
 from lpvflow.pipeline.cli_paths import check_paths
 from lpvflow.validate.diagnose import MIN_VALIDATION, diagnose
 from lpvflow.validate.extensions import EXTENSIONS, Structure
 
+#: Every verdict and what it means (``lpvflow diagnose --help``).
+VERDICTS = {
+    "none": "the model is adequate: its simulation error passes the residual tests (no part of it is "
+            "explained by the input history over the settling time) and no extension gains significantly",
+    "input_delay": "the dead time differs from nk (the data's nk is reported)",
+    "model_order": "the orders na/nb are too low",
+    "scheduling_dependence": "the coefficients need a richer basis in the given scheduling",
+    "scheduling_variable": "a recorded channel is a missing scheduling variable",
+    "input_nonlinearity": "a dead zone or saturation at an actuator (width/limit reported)",
+    "backlash": "play in an actuator (width reported)",
+    "sensor_saturation": "a clipping sensor",
+    "friction": "Coulomb friction against the motion of an output (level in input units)",
+    "offset": "a constant bias: an equation constant, or a sensor offset when it is identifiable",
+    "output_noise_bias": "white output noise biases least squares: refit the same structure by OE/IV "
+                         "(noise level reported)",
+    "colored_noise": "coloured output noise biases least squares (AR noise model and spectrum reported)",
+    "ambiguous": "two causes gain significantly and no test separates them: both are reported",
+    "unexplained": "the model is inadequate but no cause of the vocabulary explains it (or an extension "
+                   "explains only part of the error)",
+}
+
 
 def configure(p: argparse.ArgumentParser) -> None:
-    add_data_arguments(p)
-    p.add_argument("--na", default="2", help="output lags of the structure (default 2)")
-    p.add_argument("--nb", default="2", help="input lags of the structure (default 2)")
-    p.add_argument("--nk", default="1", help="input delay of the structure (default 1)")
-    p.add_argument("--basis", default="affine", help="basis of the structure (default affine)")
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = "verdicts:\n" + "\n".join(textwrap.fill(text, 100, initial_indent=f"  {name:22s} ",
+                                                           subsequent_indent=" " * 25)
+                                             for name, text in VERDICTS.items())
+    p.add_argument("files", nargs="+", metavar="[MODEL] DATA",
+                   help="the model `lpvflow identify` wrote (its structure and columns are used), then the "
+                        "data (CSV, Parquet or .mat); without MODEL give --u/--y/--p and the structure")
+    p.add_argument("--u", nargs="+", metavar="COL", help="input column(s) (default: the model's)")
+    p.add_argument("--y", nargs="+", metavar="COL", help="output column(s) (default: the model's)")
+    p.add_argument("--p", nargs="+", metavar="COL", help="scheduling column(s) (default: the model's)")
+    p.add_argument("--time", default="auto", metavar="COL",
+                   help="time column giving Ts (default: 'time' or 't' if present)")
+    p.add_argument("--Ts", type=float, help="sampling time in seconds when there is no time column")
+    structure = (("na", "2", "output lags"), ("nb", "2", "input lags"), ("nk", "1", "input delay"),
+                 ("basis", "affine", "basis"))
+    for name, default, text in structure:
+        p.add_argument(f"--{name}", help=f"{text} of the structure without MODEL (default {default})")
+    p.add_argument("--remove-offsets", action="store_true",
+                   help="subtract the record's mean inputs and outputs (as `identify --remove-offsets`)")
     p.add_argument("--candidates", nargs="+", metavar="COL",
                    help="recorded channels that may be scheduling variables (default: all unused columns)")
     p.add_argument("--causes", nargs="+", choices=sorted(EXTENSIONS), help="test only these causes")
@@ -40,13 +78,38 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.set_defaults(func=run_diagnose)
 
 
+def _user_model(args: argparse.Namespace) -> tuple[str | None, str, LPVIO | None]:
+    """(model path, data path, the model's input-output form) from the positional files."""
+    if len(args.files) > 2:
+        raise DataError(f"diagnose takes [MODEL] DATA, got {len(args.files)} files")
+    if len(args.files) == 1:
+        return None, args.files[0], None
+    model_path, data_path = args.files
+    given = [f"--{n}" for n in ("na", "nb", "nk", "basis") if getattr(args, n) is not None]
+    if given:
+        raise DataError(f"{', '.join(given)}: the structure comes from the model {model_path}; drop them")
+    model = load(model_path)
+    io = model.io if isinstance(model, LPVSS) else model
+    if not isinstance(io, LPVIO):
+        raise ModelError(f"{model_path} holds no input-output model: diagnose needs the model `lpvflow "
+                         "identify` writes with an IO method (lpr-arx, oe, iv-oe, ...)")
+    return model_path, data_path, io
+
+
 def run_diagnose(args: argparse.Namespace) -> int:
+    model_path, data_path, io = _user_model(args)
     model_out = args.model_out or str(Path(args.json_out).with_suffix("")) + ".extended.json"
-    check_paths([args.data, *([args.controller] if args.controller else [])],
-                [args.json_out, model_out, *([args.plot] if args.plot else [])])
-    table = read_columns(args.data)  # the file is read once: the dataset and the candidates come from it
-    data = Dataset.from_columns(table, Path(args.data).name, args.u, args.y, args.p, args.time, args.Ts)
-    used = {*args.u, *args.y, *args.p, args.time if args.time != "auto" else time_column(table)}
+    inputs = [path for path in (data_path, model_path, args.controller) if path]
+    check_paths(inputs, [args.json_out, model_out, *([args.plot] if args.plot else [])])
+    u, y, p = (args.u or (io.u_names if io else None), args.y or (io.y_names if io else None),
+               args.p or (io.p_names if io else None))
+    if not (u and y and p):
+        raise DataError("give the columns --u, --y and --p (or a MODEL whose columns are used)")
+    table = read_columns(data_path)  # the file is read once: the dataset and the candidates come from it
+    data = Dataset.from_columns(table, Path(data_path).name, u, y, p, args.time, args.Ts)
+    if args.remove_offsets:
+        data = data.remove_offsets()
+    used = {*u, *y, *p, args.time if args.time != "auto" else time_column(table)}
     names = args.candidates if args.candidates is not None else [c for c in table if c not in used]
     missing = [c for c in names if c not in table]
     if missing:
@@ -54,11 +117,14 @@ def run_diagnose(args: argparse.Namespace) -> int:
     if data.N * (1 - args.split) < MIN_VALIDATION:
         raise DataError(f"{data.N} samples leave fewer than {MIN_VALIDATION} for validation at split "
                         f"{args.split}: record longer data or lower --split")
-    structure = Structure(parse_order(args.na), parse_order(args.nb), parse_order(args.nk), args.basis)
+    structure = (Structure.of_model(io) if io is not None else
+                 Structure(parse_order(args.na or "2"), parse_order(args.nb or "2"),
+                           parse_order(args.nk or "1"), args.basis or "affine"))
     controller = load_controller(args.controller) if args.controller else None
     result = diagnose(data, structure, {c: table[c] for c in names}, split=args.split, causes=args.causes,
-                      controller=controller, scheduling=_scheduling(args) if controller else None)
-    report = report_header("diagnosis") | result.to_dict()
+                      controller=controller, scheduling=_scheduling(args, data_path) if controller else None,
+                      model=io, progress=sys.stderr.isatty())
+    report = report_header("diagnosis") | {"model": model_path} | result.to_dict()
     report["extended_model"] = None
     if result.winner is not None:
         model = result.winner.fit.model
@@ -73,9 +139,9 @@ def run_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
-def _scheduling(args: argparse.Namespace) -> dict[str, str]:
+def _scheduling(args: argparse.Namespace, data_path: str) -> dict[str, str]:
     """Scheduling expressions: ``--scheduling``, else the experiment sidecar's, else none."""
     if args.scheduling:
         return dict(parse_assignment(text) for text in args.scheduling)
-    side = sidecar_path(args.data)
+    side = sidecar_path(data_path)
     return dict(json.loads(side.read_text()).get("scheduling", {})) if side.is_file() else {}

@@ -59,9 +59,14 @@ def configure_identify(p: argparse.ArgumentParser) -> None:
     p.add_argument("--order", type=int,
                    help="state order: reduce the realization to it (IO methods) or the model order "
                         "(pbsid, cva, kcca-lfr)")
+    p.add_argument("--remove-offsets", action="store_true",
+                   help="subtract the record's mean inputs and outputs (the model works in deviations)")
+    p.add_argument("--controller", metavar="CONTROLLER.json",
+                   help="closed-loop data recorded under this lpvflow/lti-controller: the fit is checked by "
+                        "simulating the model in that loop (scheduling expressions from the data's sidecar)")
     p.add_argument("-o", "--output", required=True, help="model file to write (JSON)")
     p.set_defaults(func=run_identify)
-    declare(p, inputs=("data",), outputs=("output",))
+    declare(p, inputs=("data", "controller"), outputs=("output",))
 
 
 def configure_simulate(s: argparse.ArgumentParser) -> None:
@@ -94,6 +99,11 @@ def _identify_state_space(args: argparse.Namespace, data: Dataset):
 
 def run_identify(args: argparse.Namespace) -> int:
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
+    if args.remove_offsets:
+        data = data.remove_offsets()
+    if args.controller and args.method in SS_METHODS:
+        raise DataError(f"--controller checks an input-output model in the loop; --method {args.method} "
+                        "gives a state-space model: use an IO method (lpr-arx, iv-oe, ...)")
     if args.method in SS_METHODS:
         with warnings.catch_warnings():  # the fit is checked below for every method
             warnings.simplefilter("ignore", UselessFitWarning)
@@ -114,7 +124,7 @@ def run_identify(args: argparse.Namespace) -> int:
 
             model = reduce(model, order=args.order)
         description = f"basis {io.basis.kind} ({io.basis.n_psi} functions), state order {model.nx}"
-    fit = _estimation_fit(model, data)
+    fit = _loop_fit(io, data, args) if args.controller else _estimation_fit(model, data)
     model.save(args.output)
     print(f"{args.method}: {data.y.shape[1]}x{data.u.shape[1]}, {description}; "
           "estimation-data simulation BFR "
@@ -128,6 +138,25 @@ def _estimation_fit(model: LPVSS | LPVIO | LPVLFR, data: Dataset) -> dict:
     with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", SchedulingRangeWarning)
         return fit_report(data.y, model.simulate(data.u, data.p), data.y_names)
+
+
+def _loop_fit(io: LPVIO, data: Dataset, args: argparse.Namespace) -> dict:
+    """BFR, VAF and MSE of the model simulated in the identification loop of ``args.controller``
+    (:func:`~lpvflow.validate.closed_loop.simulate_in_loop`): an unstable plant's model cannot be
+    judged by an open-loop simulation."""
+    import json
+
+    from lpvflow.experiment.controller import load_controller
+    from lpvflow.experiment.run import sidecar_path
+    from lpvflow.validate.closed_loop import Loop, simulate_in_loop
+
+    side = sidecar_path(args.data)
+    scheduling = json.loads(side.read_text()).get("scheduling", {}) if side.is_file() else {}
+    loop = Loop.from_record(data, load_controller(args.controller),
+                            {k: v for k, v in scheduling.items() if k in data.p_names})
+    with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        return fit_report(data.y, simulate_in_loop(io, data, loop), data.y_names)
 
 
 def _fit_status(method: str, fit: dict) -> int:

@@ -1,4 +1,4 @@
-"""The figure behind a diagnosis verdict: where the nominal simulation misses, and what fixed it."""
+"""The figure behind a diagnosis verdict: where the nominal simulation misses, and the evidence."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import matplotlib
 import numpy as np
 
 from lpvflow.data import Dataset
+from lpvflow.validate import residuals
 from lpvflow.validate.diagnose import Diagnosis
 
 #: Samples of the validation time series shown (the whole record is too dense to read).
@@ -13,48 +14,71 @@ WINDOW_SAMPLES = 400
 
 
 def plot_diagnosis(result: Diagnosis, data: Dataset, path: str, split: float = 0.5) -> None:
-    """Four panels for the first output: validation time series (measured / nominal / extended),
-    error spectrum, error RMS against every scheduling signal and input amplitude, and the ranked BFR
-    gains."""
+    """One row per output — validation time series (measured / nominal / extended), nominal error
+    RMS against every scheduling signal, against every input's amplitude (separate axes: their units
+    differ), and the error spectrum — then the evidence of the verdict: the ranking it was decided on
+    (the noise round's when it ran; the named cause in red, significant gains green) and, per output,
+    the adequacy tests' input-explained gains (nominal or consistent refit, and the extended model)."""
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     _, val = data.split(split)
-    where = result.where["outputs"][0]
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
+    ny = val.y.shape[1]
+    fig, axes = plt.subplots(ny + 1, 4, figsize=(16, 3.2 * (ny + 1)), squeeze=False)
     window = slice(0, min(val.N, WINDOW_SAMPLES))
     t = np.arange(val.N)[window] * val.Ts
-    ax = axes[0, 0]
-    ax.plot(t, val.y[window, 0], lw=1, label="measured")
-    ax.plot(t, result.nominal_y_val[window, 0], lw=1, label=f"nominal (BFR {result.bfr_before[0]:.1f} %)")
-    if result.winner is not None:
-        ax.plot(t, result.winner.fit.y_val[window, 0], lw=1, ls="--",
-                label=f"{result.cause} (BFR {result.bfr_after[0]:.1f} %)")
-    ax.set(xlabel="time [s]", ylabel=val.y_names[0],
-           title=f"validation simulation (first {len(t)} samples)")
-    ax.legend(fontsize=8)
-    ax = axes[0, 1]
-    for row in where["rms_vs_scheduling"]:
-        ax.plot(row["value"], row["rms"], "o-", label=row["channel"])
-    for row in where["rms_vs_input_amplitude"]:
-        ax.plot(row["value"], row["rms"], "s-", label=f"|{row['channel']}|")
-    ax.set(xlabel="value", ylabel="nominal error RMS", title="where the error lives")
-    ax.legend(fontsize=8)
-    ax = axes[1, 0]
-    f, pxx = result.error_spectrum
-    ax.semilogy(f, pxx)
-    ax.set(xlabel="frequency [Hz]", ylabel="PSD", title="nominal simulation error spectrum")
-    ax = axes[1, 1]
-    ranking = result.ranking
-    colours = ["tab:green" if r["significant"] else "tab:gray" for r in ranking]
-    gains = np.array([r["bfr_gain"] for r in ranking])
-    floor = -max(5.0, 0.25 * gains.max(initial=0))  # very negative gains would squash the scale
-    ax.barh([r["cause"] for r in ranking], np.maximum(gains, floor), color=colours)
-    for row, gain in enumerate(gains):
-        if gain < floor:
-            ax.annotate(f"{gain:.0f}", (floor, row), va="center", ha="left", fontsize=8, color="white")
-    ax.invert_yaxis()
-    ax.set(xlabel="validation BFR gain [points] (green: significant)", title=f"verdict: {result.cause}")
+    for i, where in enumerate(result.where["outputs"]):
+        ax = axes[i, 0]
+        ax.plot(t, val.y[window, i], lw=1, label="measured")
+        ax.plot(t, result.nominal_y_val[window, i], lw=1, label=f"nominal ({result.bfr_before[i]:.1f} %)")
+        if result.winner is not None:
+            ax.plot(t, result.winner.fit.y_val[window, i], lw=1, ls="--",
+                    label=f"{result.cause} ({result.bfr_after[i]:.1f} %)")
+        ax.set(xlabel="time [s]", ylabel=val.y_names[i], title=f"validation simulation, {len(t)} samples")
+        ax.legend(fontsize=7)
+        for ax, key, title in ((axes[i, 1], "rms_vs_scheduling", "error RMS vs scheduling"),
+                               (axes[i, 2], "rms_vs_input_amplitude", "error RMS vs |input|")):
+            for row in where[key]:
+                ax.plot(row["value"], row["rms"], "o-", label=row["channel"])
+            ax.set(xlabel="value", ylabel=f"{val.y_names[i]} error RMS", title=title)
+            ax.legend(fontsize=7)
+        f, pxx = residuals.error_spectrum(val.y[:, i] - result.nominal_y_val[:, i], val.Ts)
+        axes[i, 3].semilogy(f, pxx)
+        axes[i, 3].set(xlabel="frequency [Hz]", ylabel="PSD", title=f"{val.y_names[i]} error spectrum")
+    _ranking(axes[ny, 0], result)
+    _adequacy(axes[ny, 1], result, val.y_names)
+    for ax in axes[ny, 2:]:
+        ax.axis("off")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def _ranking(ax, result: Diagnosis) -> None:
+    ranking = result.refit_ranking or result.ranking
+    colours = ["tab:red" if r["cause"] == result.cause else "tab:green" if r["significant"] else "tab:gray"
+               for r in ranking]
+    gains = np.array([r["bfr_gain"] for r in ranking])
+    floor = -max(5.0, 0.25 * gains.max(initial=0))  # very negative gains would squash the scale
+    ax.barh([r["cause"] for r in ranking], np.maximum(gains, floor), color=colours)
+    ax.invert_yaxis()
+    which = "noise round (consistent refits)" if result.refit_ranking else "least-squares fits"
+    ax.set(xlabel=f"validation BFR gain [points], {which}", title=f"verdict: {result.cause}")
+
+
+def _adequacy(ax, result: Diagnosis, names: list[str]) -> None:
+    adequacy = result.adequacy
+    if not adequacy:
+        ax.text(0.5, 0.5, "closed loop: judged by the loop simulations", ha="center", va="center")
+        ax.axis("off")
+        return
+    gains = [row["bfr_gain"] for row in adequacy["per_output"]]
+    labels = [f"{name}: nominal" for name in names]
+    if "extended_model" in adequacy:
+        gains.append(adequacy["extended_model"]["bfr_gain"])
+        labels.append(f"{result.cause} model")
+    ax.barh(labels, gains, color=["tab:red" if adequacy["significant"] else "tab:gray"] * len(names)
+            + ["tab:blue"] * (len(gains) - len(names)))
+    ax.invert_yaxis()
+    ax.set(xlabel="BFR gain of a correction from the input history [points]",
+           title=f"adequacy (lags {adequacy['lags'][0]}–{adequacy['lags'][1]})")

@@ -1,0 +1,92 @@
+"""The words of a diagnosis: the parameters a verdict reports and its one-line summary."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from lpvflow.validate.extensions import Candidate
+
+if TYPE_CHECKING:
+    from lpvflow.validate.diagnose import Diagnosis
+
+#: The extension that re-estimates the nominal structure consistently (output error / closed-loop IV).
+NOISE = "output_noise_bias"
+#: The verdict on two significant extensions of different causes that no test separates.
+AMBIGUOUS = "ambiguous"
+
+
+def verdict_parameters(cause: str, winner: Candidate | None, noise: dict | None, adequacy: dict | None,
+                ranked: list[dict]) -> dict:
+    """The parameters of the verdict: the extension's, the noise level and spectrum for a noise
+    verdict, the adequacy test for ``unexplained``, both tied extensions for ``ambiguous``."""
+    if cause == "unexplained":
+        params = {"input_explained_bfr_gain": adequacy["bfr_gain"], "p_value": adequacy["p_value"]}
+        for key in ("unnamed_extension", "partial_extension"):
+            if key in adequacy:
+                params[key] = adequacy[key]
+        return params
+    if cause == AMBIGUOUS:
+        tied = [r for r in ranked if r["significant"] and "ruled_out" not in r][:2]
+        return {"candidates": [{"cause": r["cause"], "bfr_gain": r["bfr_gain"], "p_value": r["p_value"],
+                                "parameters": r["parameters"]} for r in tied]}
+    params = dict(winner.parameters) if winner else {}
+    if cause in (NOISE, "colored_noise") and noise is not None:
+        level = noise["level"]
+        params |= {"relative_noise": scalar(level["relative_noise"]), "snr_db": scalar(level["snr_db"]),
+                   "frozen_response_change": noise["bias"]["frozen_response_change"]}
+        if cause == "colored_noise":
+            models = noise["noise_model"]
+            params |= {"ar": scalar([m["ar"] for m in models]),
+                       "spectrum": scalar([m["spectrum"] for m in models])}
+    return params
+
+
+def scalar(values: list):
+    """A per-output list as its only element for one output."""
+    return values[0] if len(values) == 1 else values
+
+
+
+def summary(result: Diagnosis, winner: Candidate | None) -> str:
+    before, after = np.mean(result.bfr_before), np.mean(result.bfr_after)
+    if result.cause == AMBIGUOUS:
+        a, b = result.parameters["candidates"]
+        return (f"validation BFR {before:.1f} %; two extensions gain and no test separates them: "
+                f"{a['cause']} (+{a['bfr_gain']:.1f} points) and {b['cause']} (+{b['bfr_gain']:.1f}): "
+                "cause ambiguous")
+    if result.cause == "unexplained" and "unnamed_extension" in result.parameters:
+        ext = result.parameters["unnamed_extension"]
+        return (f"validation BFR {before:.1f} %; the model is inadequate — {ext['cause']} gains "
+                f"{ext['bfr_gain']:.1f} points (p = {ext['p_value']:.2g}) — but no cause of the vocabulary "
+                "is significant and unambiguous: cause unexplained")
+    if result.cause == "unexplained" and "partial_extension" in result.parameters:
+        ext = result.parameters["partial_extension"]
+        left = ext["left_input_explained_bfr_gain"]
+        return (f"validation BFR {before:.1f} %; {ext['cause']} gains {ext['bfr_gain']:.1f} points but its "
+                f"model still leaves an error the input history explains (+{left:.1f} points, "
+                f"p = {ext['p_value']:.2g}): a partial explanation, cause unexplained")
+    if result.cause == "unexplained":
+        a = result.adequacy
+        return (f"validation BFR {before:.1f} %; the simulation error is larger than the output noise "
+                f"explains — a correction from the input history alone gains {a['bfr_gain']:.1f} points "
+                f"(p = {a['p_value']:.2g}) — and no extension of the vocabulary gains significantly: "
+                "cause unexplained")
+    if winner is None:
+        tested = ", ".join(r["cause"] for r in result.ranking) or "nothing"
+        return (f"validation BFR {before:.1f} %; no extension gives a significant, unambiguous gain "
+                f"(tested: {tested}) and the simulation error is not explained by the inputs: cause none")
+    verb = "raises" if after >= before else "lowers"
+    text = (f"{winner.description} {verb} validation BFR from {before:.1f} % to {after:.1f} % "
+            f"(cause: {result.cause})")
+    if result.cause == "colored_noise":
+        order = max(m["ar_order"] for m in result.noise["noise_model"])
+        text += (f"; coloured output noise (AR order {order}, "
+                 f"SNR {np.mean(result.parameters['snr_db']):.1f} dB) biases least squares")
+    elif result.cause == NOISE and result.noise is not None:
+        text += (f"; white output noise (SNR {np.mean(result.parameters['snr_db']):.1f} dB) biases least "
+                 "squares: refit by output error or IV")
+    elif result.refit_ranking:
+        text += "; output noise biases least squares, so every model was refitted by output error"
+    return text

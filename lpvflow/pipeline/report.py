@@ -133,7 +133,7 @@ def _figures(folder: Path, units: dict[str, _Unit]) -> list[str]:
             plt.close(fig)
             written.append("margins.png")
     robustness = folder / "robustness.json"
-    rows = json.loads(robustness.read_text())["outputs"]["rows"] if robustness.exists() else []
+    rows = json.loads(robustness.read_text())["outputs"].get("rows") if robustness.exists() else None
     if rows and "nugap" in rows[0]:
         from lpvflow.validate.plots import gap_margin_plot
 

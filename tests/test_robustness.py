@@ -56,8 +56,9 @@ def grid_margin(G: tuple, K: tuple) -> float:
                        [BK @ E @ CG, AK + BK @ E @ DG @ CK]])
     if np.max(np.abs(np.linalg.eigvals(closed))) >= 1.0:
         return 0.0
-    omega = np.concatenate([np.linspace(0.0, np.pi, 40001), np.logspace(-7, np.log10(np.pi), 20001)])
-    omega = np.unique(omega)
+    # ω > 0: a plant pole at z = 1 (an integrator) makes G(1) infinite while T stays finite near it
+    omega = np.linspace(0.0, np.pi, 40001)[1:]
+    omega = np.unique(np.concatenate([omega, np.logspace(-7, np.log10(np.pi), 20001)]))
     peak, i = _peak(G, K, omega)
     fine = np.linspace(omega[max(i - 1, 0)], omega[min(i + 1, len(omega) - 1)], 4001)
     return 1.0 / max(peak, _peak(G, K, fine)[0])

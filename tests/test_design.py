@@ -73,7 +73,8 @@ def test_rerun_skips_unchanged_stages_and_a_change_reruns_the_affected_ones(tmp_
     first = run_design(config, log=lines.append)
     statuses = {n: s["status"] for n, s in first["stages"].items()}
     assert statuses == {"experiment": "ran", "identify": "ran", "diagnose": "not configured", "reduce": "ran",
-                        "validate": "ran", "synth": "not configured", "verify": "not configured",
+                        "validate": "ran", "synth": "not configured", "robustness": "not configured",
+                        "verify": "not configured",
                         "adoption": "not configured", "export": "not configured"}
     assert first["failed"] is None
     assert first["verdict"]["pass"]  # identification-only: every configured stage ran

@@ -1,5 +1,5 @@
-"""`lpvflow design`: experiment → identify → [diagnose] → reduce → validate → synth → verify →
-[adoption] → export → report.
+"""`lpvflow design`: experiment → identify → [diagnose] → reduce → validate → synth → robustness →
+verify → [adoption] → export → report.
 
 Each stage runs only when its cache key changed (:mod:`lpvflow.pipeline.cache`); artifacts live in
 ``<output_dir>/<name>/``, locked while a run writes it. A stage that fails with an lpvflow error, or a
@@ -10,7 +10,9 @@ output folder) is refused before anything is written (exit 2). Ctrl-C removes th
 interrupted stage had written so far (exit 130).
 Without a [synth] table the run ends after validation; so does a run whose identified model fails
 the ν-gap/b(P, K) gate of the validate stage ([validate] gate, :func:`lpvflow.pipeline.gate.gate_verdict`),
-with the reason as the failure. With [diagnose] adopt = true and an adopted
+with the reason as the failure. The robustness stage (:mod:`lpvflow.pipeline.robustness`) reports
+b(Ĝ, K_fb) of the synthesized controller against the ν-gap at the validate points; the verdict does not
+read it. With [diagnose] adopt = true and an adopted
 extension, the adoption stage designs and verifies the identified model too and compares the two
 controllers in closed loop (:func:`lpvflow.pipeline.adoption.adoption`). With [experiment] iterate = N the
 experiment → synth stages first run N rounds, each under the controller the round before designed
@@ -33,6 +35,7 @@ from lpvflow.pipeline.adoption import StageFunction, adoption
 from lpvflow.pipeline.cli_paths import writable_folder
 from lpvflow.pipeline.config import INPUT_FILES, Config, load_config
 from lpvflow.pipeline.context import StageContext
+from lpvflow.pipeline.robustness import robustness
 from lpvflow.pipeline.settings import ALL, Reads, StageSettings, union
 
 
@@ -74,6 +77,9 @@ VALIDATE = Stage("validate", stages.validate, ("validate", "identify", "experime
 SYNTH = Stage("synth", stages.synth, ("synth",),
               {"synth": ALL, "verify": ("loop",), "experiment": ("scheduling",), "design": ("plant",)},
               ("reduce",), _PLANT)
+ROBUSTNESS = Stage("robustness", robustness, ("synth", *VALIDATE.requires),
+                   {"validate": ("scaling",), "identify": ("u", "y", "p", "split", "remove_offsets")},
+                   ("reduce", "validate", "synth"))
 VERIFY = Stage("verify", stages.verify, ("design", "verify"), {"design": ("plant",), "verify": ALL},
                ("synth",), _PLANT)
 ADOPTION = Stage("adoption",
@@ -83,7 +89,7 @@ ADOPTION = Stage("adoption",
                  ("identify", "diagnose", "synth"), _PLANT)
 EXPORT = Stage("export", stages.export, ("export",), {"export": ALL}, ("synth",))
 
-STAGES = (EXPERIMENT, IDENTIFY, DIAGNOSE, REDUCE, VALIDATE, SYNTH, VERIFY, ADOPTION, EXPORT)
+STAGES = (EXPERIMENT, IDENTIFY, DIAGNOSE, REDUCE, VALIDATE, SYNTH, ROBUSTNESS, VERIFY, ADOPTION, EXPORT)
 
 
 def run_design(config_path: str | Path, log: Callable[[str], None] = print, root: Path | None = None) -> dict:

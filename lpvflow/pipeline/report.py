@@ -23,6 +23,9 @@ FIGURE_CAPTIONS = {
     "nugap_physical.png": "ν-gap of the frozen model to the plant FMU at the same scheduling value, and "
                           "the stability margin b(Ĝ(θ), K_id) of the identification loop, over the plant "
                           "signal the scheduling is computed from: δν < b is the thesis' test.",
+    "robustness_physical.png": "Robust stability of the shipped controller: b(Ĝ(θ), K_fb(θ)) of the "
+                               "frozen model under the controller's feedback part, and the ν-gap of the "
+                               "model to the plant FMU there (Vinnicombe: b > δν guarantees stability).",
     "bode.png": "Frozen Bode magnitude: identified model (solid) and plant FMU linearization (dashed).",
     "residuals.png": "One-step prediction residuals on the validation part: time series and autocorrelation "
                      "with the 99 % whiteness band.",
@@ -30,7 +33,8 @@ FIGURE_CAPTIONS = {
                      "extension (green: significant).",
 }
 #: Stage outputs shown as their own table, not in the stage's key/value table.
-SEPARATE_TABLES = {("verify", "scenarios"), ("adoption", "rows")}
+SEPARATE_TABLES = {("verify", "scenarios"), ("adoption", "rows"), ("robustness", "rows"),
+                   ("robustness", "guaranteed"), ("robustness", "not_guaranteed_at")}
 
 
 def _embed(path: Path) -> str:
@@ -128,12 +132,25 @@ def _figures(folder: Path, units: dict[str, _Unit]) -> list[str]:
             fig.savefig(folder / "margins.png", dpi=90)
             plt.close(fig)
             written.append("margins.png")
+    robustness = folder / "robustness.json"
+    rows = json.loads(robustness.read_text())["outputs"].get("rows") if robustness.exists() else None
+    if rows and "nugap" in rows[0]:
+        from lpvflow.validate.plots import gap_margin_plot
+
+        gap_rows = [{"p": row["theta"], "nugap": row["nugap"], "stability_margin_b": row["b"]}
+                    for row in rows]
+        top = min(1.02, 1.25 * max(max(row["b"], row["nugap"]) for row in rows))
+        gap_margin_plot(folder / ROBUSTNESS_FIGURE, gap_rows,
+                        _physical_axis(folder, [row["theta"] for row in rows], units), top=top)
+        written.append(ROBUSTNESS_FIGURE)
     return written
 
 
 #: The ν-gap figure over a physical scheduling axis (drawn by the report; the validate stage's
 #: ``nugap.png``, over the scheduling coordinates, is shown when no such axis is found).
 GAP_FIGURE = "nugap_physical.png"
+#: b(Ĝ, K_fb) and the ν-gap of the robustness stage over the physical scheduling axis (drawn by the report).
+ROBUSTNESS_FIGURE = "robustness_physical.png"
 
 
 def _physical_axis(folder: Path, thetas: list[list[float]], units: dict[str, _Unit]
@@ -142,7 +159,8 @@ def _physical_axis(folder: Path, thetas: list[list[float]], units: dict[str, _Un
     function of (e.g. the arm angle for sin(arm_angle), 1/(1 − κ cos²(arm_angle)), …), in its display
     unit, with the axis label; None when there is no such signal or a point is off the curve. The signal
     is searched over its recorded range (``experiment.json``) on 4001 values; a point maps to the
-    nearest, and is off the curve when its scheduling values miss by more than 1 % of their span."""
+    nearest, refined on 201 values between its neighbours, and is off the curve when its scheduling
+    values miss by more than 1 % of their span."""
     from lpvflow.errors import DataError
     from lpvflow.experiment.scheduling import evaluate
 
@@ -158,18 +176,28 @@ def _physical_axis(folder: Path, thetas: list[list[float]], units: dict[str, _Un
         return None
     for name, (lo, hi) in ranges.items():
         grid = np.linspace(lo, hi, 4001)
+
+        def curve(values: np.ndarray, name: str = name) -> np.ndarray:
+            return np.column_stack([evaluate(port["expression"] or port["name"], {name: values})
+                                    for port in ports])
+
         try:
-            curve = np.column_stack([evaluate(port["expression"] or port["name"], {name: grid})
-                                     for port in ports])
+            span = np.ptp(curve(grid), axis=0) + 1e-12
         except DataError:
             continue
-        span = np.ptp(curve, axis=0) + 1e-12
-        miss = np.abs((curve[None, :, :] - points[:, None, :]) / span).max(axis=2)
+
+        def misses(values: np.ndarray, span: np.ndarray = span) -> np.ndarray:
+            return np.abs((curve(values)[None, :, :] - points[:, None, :]) / span).max(axis=2)
+
+        miss = misses(grid)
         nearest = miss.argmin(axis=1)
         if miss[np.arange(len(points)), nearest].max() > 0.01:
             continue
+        step = grid[1] - grid[0]  # refined between the grid values either side of the nearest
+        fine = grid[nearest][:, None] + np.linspace(-step, step, 201)[None, :]
+        best = [row[misses(row)[i].argmin()] for i, row in enumerate(fine)]
         unit = units.get(name, _Unit(""))
-        return (grid[nearest] * unit.factor).tolist(), f"{name} [{unit.label or '–'}]"
+        return (np.asarray(best) * unit.factor).tolist(), f"{name} [{unit.label or '–'}]"
     return None
 
 
@@ -542,6 +570,52 @@ def _adoption_table(rows: list[dict]) -> str:
             + "".join(body) + "</table>")
 
 
+def robustness_statement(outputs: dict, points: list[str]) -> str:
+    """The robustness stage's one line: "robust stability (Vinnicombe): guaranteed at every point" or
+    "… not guaranteed at N of M points (…)" naming them (``points``: every row's point as text), or that
+    no ν-gap was computed to compare b with."""
+    if outputs.get("guaranteed") is None:
+        return "robust stability (Vinnicombe): not assessed (the validate stage computed no ν-gap)"
+    if outputs["guaranteed"]:
+        return "robust stability (Vinnicombe): guaranteed at every point"
+    failing = [text for text, row in zip(points, outputs["rows"], strict=True) if not row["b_above_nugap"]]
+    return (f"robust stability (Vinnicombe): not guaranteed at {len(failing)} of {len(points)} points "
+            f"({'; '.join(failing)})")
+
+
+def robustness_section(folder: Path, outputs: dict, units: dict[str, _Unit], scheduling: list[str]) -> str:
+    """The robustness stage: :func:`robustness_statement` and one row per frozen point: the point (the
+    plant signal the scheduling is computed from, in its display unit, when there is one:
+    :func:`_physical_axis`), b(Ĝ, K_fb), δν, b > δν, the input delay margin and the input disk margin."""
+    rows = outputs["rows"]
+    thetas = [row["theta"] for row in rows]
+    axis = _physical_axis(folder, thetas, units)
+    if axis is not None:  # label "name [unit]"
+        name, unit = axis[1][:-1].rsplit(" [", 1)
+        unit = {"–": "", "°": "°"}.get(unit, f" {unit}")
+        span = max(axis[0]) - min(axis[0])  # three digits of the span: 0.1° on ±75°; + 0.0: no "-0"
+        digits = max(0, 3 - math.floor(math.log10(span))) if span > 0 else 3
+        values = [f"{round(v, digits) + 0.0:g}" for v in axis[0]]
+        points = [f"{name} {v}{unit}" for v in values]
+    else:
+        values = points = ["(" + ", ".join(f"{n} {v:.3g}" for n, v in zip(scheduling, p, strict=False))
+                           + ")" for p in thetas]
+    cells = [[text, _number(row["b"]), _number(row.get("nugap")),
+              "–" if "b_above_nugap" not in row else "yes" if row["b_above_nugap"] else "no",
+              str(row["delay_margin_samples"]) if row["delay_margin_samples"] >= 0 else "unstable",
+              f"{row['input_disk_margin']:.3g} (±{row['input_disk_gain_margin_db']:.3g} dB, "
+              f"±{row['input_disk_phase_margin_deg']:.3g}°)"]
+             for text, row in zip(values, rows, strict=True)]
+    shown = [axis[1] if axis is not None else "scheduling point", "b(Ĝ, K_fb)", "ν-gap δν", "b > δν",
+             "delay margin [samples]", "input disk margin α (gain, phase)"]
+    body = "".join("<tr" + ("" if c[3] != "no" else ' class="fail"') + ">"
+                   + "".join(f"<td>{html.escape(v)}</td>" for v in c) + "</tr>" for c in cells)
+    statement = robustness_statement(outputs, points)
+    css = "pass" if outputs.get("guaranteed") else "fail"
+    return (f'<p class="{css}">{html.escape(statement)}</p><table><tr>'
+            + "".join(f"<th>{html.escape(h)}</th>" for h in shown) + f"</tr>{body}</table>")
+
+
 # ---------------------------------------------------------------------------------------- stage tables
 #: (stage, output key) → the row's label in the report; keys not listed are shown by their words.
 LABELS = {
@@ -693,6 +767,10 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
             sections.append(_scenario_table(outputs["scenarios"], shown, scheduling))
         if name == "adoption" and outputs.get("rows"):
             sections.append(_adoption_table(outputs["rows"]))
+        if name == "robustness" and outputs.get("rows"):
+            sections.append(robustness_section(folder, outputs, shown, scheduling))
+            if ROBUSTNESS_FIGURE in drawn:
+                sections.append(_embed(folder / ROBUSTNESS_FIGURE))
         for artifact in stage.get("artifacts", []):
             if artifact == "nugap.png" and GAP_FIGURE in drawn:
                 sections.append(_embed(folder / GAP_FIGURE))

@@ -80,10 +80,10 @@ def bode_overlay(
 
 
 def gap_margin_plot(path: str | Path, rows: Sequence[dict],
-                    axis: tuple[np.ndarray, str] | None = None) -> None:
+                    axis: tuple[np.ndarray, str] | None = None, top: float = 1.02) -> None:
     """Write δν (and b with the δν < b pass region) over the frozen grid rows of `compare_frozen`, against
     ``axis`` (one value per row and its label, e.g. the arm angle in degrees) when given, else against
-    the scheduling value (one signal) or the row number."""
+    the scheduling value (one signal) or the row number; the vertical axis runs from 0 to ``top``."""
     plt = _pyplot()
     p = np.array([row["p"] for row in rows], dtype=float)
     if axis is not None:
@@ -102,7 +102,7 @@ def gap_margin_plot(path: str | Path, rows: Sequence[dict],
         if np.any(failing):
             ax.plot(x[failing], gap[failing], "x", color="tab:red", ms=9, mew=2, label="fails")
     ax.plot(x, gap, color="tab:blue", lw=1.5, marker="o", ms=4, label="δν(G_ref(θ), Ĝ(θ))")
-    ax.set_ylim(0, 1.02)
+    ax.set_ylim(0, top)
     ax.set_xlabel(axis[1] if axis is not None else "θ" if p.shape[1] == 1 else "grid point")
     ax.set_ylabel("ν-gap / stability margin [–]")
     ax.grid(True, alpha=0.3)

@@ -34,10 +34,10 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
    applied to R, S), so every block of step 5 is O(1). T is used only when that solve was accurate, R
    and S are positive definite and T is finite and well conditioned
    (:func:`lpvflow.synth.eliminated.balancing_transform`); otherwise step 5 starts in step 2's
-   coordinates. When γ̂ was not accurate, step 3 is solved again in the balanced coordinates. The lowest
-   level of step 5 that passes gives another strictly feasible pair; when its T is further from the
-   identity than cond :data:`REBALANCE_CONDITION`, the levels below it failed in coordinates that were
-   not balanced for them, and step 5 is repeated once in the coordinates it balances.
+   coordinates. Step 3 is solved again in the balanced coordinates. The first level of step 5 that passes
+   gives another strictly feasible pair; when its T is further from the identity than cond
+   :data:`REBALANCE_CONDITION`, the search stops there and is repeated once, below that level, in the
+   coordinates it balances (from γ_lower when there is one, else downwards from that level).
 5. **Certified level.** The change-of-variables LMIs of Scherer, Gahinet & Chilali (1997, eq. (33)),
    per vertex with common R, S and vertex variables (Â_i, B̂_i, Ĉ_i, D̂_i),
 
@@ -75,14 +75,14 @@ import scipy.linalg
 from lpvflow.errors import ModelError, SynthesisError
 from lpvflow.synth.bilinear import Coordinates, cayley_vertex, certificate_margin, inverse_cayley
 from lpvflow.synth.controller import LPVController, mix, series_input_filter
-from lpvflow.synth.eliminated import balancing_transform, infeasible_at, preconditioned, sym
+from lpvflow.synth.eliminated import balancing_transform, estimate, infeasible_at, preconditioned, sym
 from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
 from lpvflow.synth.rate_bounded import synthesize_scheduled
 from lpvflow.synth.riccati import riccati_gamma
 from lpvflow.synth.sdp import SolveReport, solve
 
-#: The lowest passing level's R, S further from balanced than this (cond T) repeat step 5 balanced on them.
+#: A first passing level's R, S further from balanced than this (cond T) repeat step 5 balanced on them.
 REBALANCE_CONDITION = 10.0
 #: Default relative width δ of the final level bracket (step 5).
 SUBOPTIMALITY = 2.5e-3
@@ -351,12 +351,12 @@ class _Search:
     infeasible: int = 0
     rejected: int = 0
 
-    def run(self, coords: Coordinates, start: float, suboptimality: float, gamma_max: float
-            ) -> tuple[HinfResult | None, np.ndarray | None]:
-        """:func:`lowest_certified_level` in ``coords``: the lowest passing result and the state transform
-        that balances its R, S (None when they are already balanced to cond REBALANCE_CONDITION)."""
+    def run(self, coords: Coordinates, start: float, suboptimality: float, gamma_max: float,
+            rebalance: bool) -> tuple[HinfResult | None, np.ndarray | None]:
+        """:func:`lowest_certified_level` in ``coords``: the lowest passing result, or with ``rebalance``
+        the first passing one whose R, S are further from balanced than cond REBALANCE_CONDITION, with the
+        state transform that balances them (else None): the levels below it are better searched there."""
         level = _LevelProblem([coords.apply(vc) for vc in self.cayleys])
-        passing: dict[float, np.ndarray | None] = {}
 
         def certified(gamma: float) -> HinfResult | None:
             try:
@@ -378,14 +378,23 @@ class _Search:
             if min(result.certificate) <= 0:
                 self.rejected += 1
                 return None
-            passing[gamma] = balancing_transform(level.R.value, level.S.value)
+            T = balancing_transform(level.R.value, level.S.value) if rebalance else None
+            if T is not None and np.linalg.cond(T) > REBALANCE_CONDITION:
+                raise _Unbalanced(result, T)
             return result
 
-        best = lowest_certified_level(certified, start, suboptimality, gamma_max, self.gamma_lower)
-        if best is None:
-            return None, None
-        T = passing[best.gamma]
-        return best, T if T is not None and np.linalg.cond(T) > REBALANCE_CONDITION else None
+        try:
+            return lowest_certified_level(certified, start, suboptimality, gamma_max, self.gamma_lower), None
+        except _Unbalanced as found:
+            return found.result, found.T
+
+
+class _Unbalanced(Exception):  # a control-flow signal of _Search.run, never raised to users
+    """A passing level of :meth:`_Search.run` whose R, S call for other coordinates."""
+
+    def __init__(self, result: HinfResult, T: np.ndarray) -> None:
+        super().__init__()
+        self.result, self.T = result, T
 
 
 def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: float = SUBOPTIMALITY,
@@ -403,10 +412,14 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
                              category=exc.category) from None
     estimate = pre.estimate
     search = _Search(vertices, cayleys, Ts, solver, pre.gamma_lower, list(pre.attempts))
-    best, T = search.run(pre.coordinates, min(estimate.gamma, gamma_max), suboptimality, gamma_max)
-    if T is not None:  # the levels below best failed in coordinates its own R, S show to be unbalanced
-        again, _ = search.run(pre.coordinates.transformed(T), min(estimate.gamma, best.gamma), suboptimality,
-                              best.gamma)
+    best, T = search.run(pre.coordinates, min(estimate.gamma, gamma_max), suboptimality, gamma_max, True)
+    if T is not None:  # the search goes on in the coordinates the first passing level's R, S balance
+        coords = pre.coordinates.transformed(T)
+        bound = estimate_in([coords.apply(vc) for vc in cayleys], gamma_max, solver, search)
+        if bound is not None and (search.gamma_lower is None or bound < search.gamma_lower):
+            search.gamma_lower = bound
+        start_again = search.gamma_lower if search.gamma_lower is not None else best.gamma
+        again, _ = search.run(coords, min(start_again, best.gamma), suboptimality, best.gamma, False)
         best = again if again is not None and again.gamma < best.gamma else best
     if best is None:
         if infeasible_at(pre.vertices, gamma_max, solver):
@@ -422,6 +435,17 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     best.report = SolveReport(best.report.solver, best.report.status, time.perf_counter() - start,
                               search.attempts)
     return best
+
+
+def estimate_in(verts: list[VertexPlant], gamma_max: float, solver: str, search: _Search) -> float | None:
+    """Step 3 in other coordinates: its optimum when the solve was accurate, else None (the SDP is
+    recorded in ``search``)."""
+    try:
+        found = estimate(verts, gamma_max, solver)
+    except SynthesisError:
+        return None
+    search.attempts += found.report.attempts
+    return found.gamma if found.accurate else None
 
 
 def _failure(category: str, what: str, vertices: list[VertexPlant], Ts: float, gamma_max: float) -> str:

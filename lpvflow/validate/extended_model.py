@@ -111,12 +111,12 @@ class ExtendedModel:
 
     def check_columns(self, data: Dataset) -> None:
         """Refuse (one line) data whose inputs, outputs or scheduling are not the model's columns."""
-        for what, wanted, given in (("input", self.u_names, data.u_names),
-                                    ("output", self.y_names, data.y_names),
-                                    ("scheduling", self.p_names, data.p_names)):
+        for what, flag, wanted, given in (("input", "u", self.u_names, data.u_names),
+                                          ("output", "y", self.y_names, data.y_names),
+                                          ("scheduling", "p", self.p_names, data.p_names)):
             if list(given) != list(wanted):
                 raise DataError(f"the extended model ({self.cause}) runs on the {what} column(s) {wanted}, "
-                                f"the data give {list(given)}: pass --{what[0]} {' '.join(wanted)}")
+                                f"the data give {list(given)}: pass --{flag} {' '.join(wanted)}")
 
     def simulate(self, data: Dataset) -> np.ndarray:
         """Simulation of the whole record from a zero past, with the map."""

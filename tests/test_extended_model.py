@@ -4,6 +4,7 @@ refuses data without the columns its map needs."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import warnings
 
@@ -51,13 +52,15 @@ def write_csv(path, data: Dataset, channels: dict) -> None:
     np.savetxt(path, np.column_stack(columns), delimiter=",", header=header, comments="")
 
 
-def diagnose_then_simulate(tmp_path, data: Dataset, channels: dict) -> tuple[dict, ExtendedModel, dict]:
-    """CLI diagnose → the saved extended model → CLI simulate --json on the same record."""
+def diagnose_then_simulate(tmp_path, data: Dataset, channels: dict, *options: str
+                           ) -> tuple[dict, ExtendedModel, dict]:
+    """CLI diagnose (with ``options``) → the saved extended model → CLI simulate --json on the same
+    record."""
     csv = tmp_path / "d.csv"
     write_csv(csv, data, channels)
     report_path = tmp_path / "diag.json"
     assert main(["diagnose", str(csv), "--u", "u", "--y", "y", "--p", "p", "--na", "2", "--nb", "2",
-                 "--nk", "1", "--json", str(report_path)]) == 0
+                 "--nk", "1", "--json", str(report_path), *options]) == 0
     report = json.loads(report_path.read_text())
     extended = load(report["extended_model"])
     assert isinstance(extended, ExtendedModel)
@@ -88,6 +91,16 @@ def test_plant_input_maps_reproduce_the_diagnosed_bfr(tmp_path, effect, kind):
     data, channels = plant_input_case(effect, seed)
     cause = "input_nonlinearity" if effect == "saturation" else "offset"
     check_reproduced(*diagnose_then_simulate(tmp_path, data, channels), cause, kind)
+
+
+def test_a_model_diagnosed_without_offsets_runs_on_the_recorded_signals(tmp_path):
+    """--remove-offsets: the saved model takes the recorded (offset) input and output columns."""
+    data, channels, _ = make_case("input_nonlinearity", seed=11, n=2000)
+    recorded = dataclasses.replace(data, u=data.u + 1.5, y=data.y + 20.0)
+    report, extended, simulated = diagnose_then_simulate(tmp_path, recorded, channels, "--remove-offsets")
+    check_reproduced(report, extended, simulated, "input_nonlinearity", "dead_zone")
+    assert extended.offsets["y"][0] == pytest.approx(20.0 + data.y.mean())
+    assert simulated["bfr"][0] > 90  # the whole record, in the recorded units
 
 
 def test_without_the_map_the_fit_is_lost(tmp_path):

@@ -130,9 +130,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
     if result.winner is not None:
         extended = result.winner.fit.model  # its scheduling includes an added channel
         validation_start = data.split(args.split)[0].N
+        removed = {k: data.offsets[k] for k in "uy" if k in data.offsets}  # --remove-offsets
         ExtendedModel(extended, result.winner.model_map, data.u_names, data.y_names,
                       extended.p_names or data.p_names, result.cause, validation_start, result.bfr_after,
-                      result.simulation).save(model_out)
+                      result.simulation, removed).save(model_out)
         report["extended_model"] = model_out
     atomic_write_json(args.json_out, report)
     if args.plot:

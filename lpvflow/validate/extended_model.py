@@ -108,6 +108,9 @@ class ExtendedModel:
     validation_start: int
     validation_bfr: list[float]
     simulation: str = "open loop"
+    #: Means the diagnosis removed (``--remove-offsets``), {"u": [...], "y": [...]}: the model runs on
+    #: u − ū and its output is shifted back by ȳ, so it takes the recorded signals.
+    offsets: dict[str, list[float]] = field(default_factory=dict)
 
     def check_columns(self, data: Dataset) -> None:
         """Refuse (one line) data whose inputs, outputs or scheduling are not the model's columns."""
@@ -119,17 +122,20 @@ class ExtendedModel:
                                 f"the data give {list(given)}: pass --{flag} {' '.join(wanted)}")
 
     def simulate(self, data: Dataset) -> np.ndarray:
-        """Simulation of the whole record from a zero past, with the map."""
+        """Simulation of the whole record from a zero past, with the map (and the removed means)."""
         self.check_columns(data)
+        u = data.u - np.asarray(self.offsets.get("u", 0.0))
         if self.map is None:
-            return self.model.simulate(data.u, data.p)
-        return self.map.simulate(self.model, data.u, data.p, data.u_names, data.y_names)
+            y = self.model.simulate(u, data.p)
+        else:
+            y = self.map.simulate(self.model, u, data.p, data.u_names, data.y_names)
+        return y + np.asarray(self.offsets.get("y", 0.0))
 
     def to_dict(self) -> dict[str, Any]:
         return {"format": f"lpvflow/{FORMAT}", "version": VERSION, "cause": self.cause,
                 "model": self.model.to_dict(), "map": self.map.to_dict() if self.map else None,
                 "u_names": self.u_names, "y_names": self.y_names, "p_names": self.p_names,
-                "simulation": self.simulation,
+                "simulation": self.simulation, "offsets": self.offsets,
                 "validation": {"start": self.validation_start, "bfr": self.validation_bfr}}
 
     @classmethod
@@ -139,7 +145,7 @@ class ExtendedModel:
             return cls(LPVIO.from_dict(d["model"]), ModelMap.from_dict(d["map"]) if d["map"] else None,
                        list(d["u_names"]), list(d["y_names"]), list(d["p_names"]), d["cause"],
                        int(d["validation"]["start"]), [float(b) for b in d["validation"]["bfr"]],
-                       d.get("simulation", "open loop"))
+                       d["simulation"], {k: [float(v) for v in d["offsets"][k]] for k in d["offsets"]})
         except (KeyError, TypeError) as exc:
             raise ModelError(f"lpvflow/{FORMAT} file lacks or mangles the field {exc.args[0]!r}") from None
 

@@ -32,6 +32,7 @@ BENCH = {
     "scheduling_dependence": ("scheduling_dependence", None, {}),
     "scheduling_variable": ("scheduling_variable", None, {}),
     "sensor_noise": ("output_noise_bias", None, {"seed": 17, "snr_db": 10, "n": 4000}),
+    "ar2_noise": ("colored_noise", None, {"seed": 39, "snr_db": 3, "n": 4000}),
 }
 
 

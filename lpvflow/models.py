@@ -47,6 +47,7 @@ LOADER_PATHS = {
     "lpvlfr": "lpvflow.lfr:LPVLFR.from_dict",
     "lpv-controller": "lpvflow.synth.controller:LPVController.from_dict",
     "lti-controller": "lpvflow.experiment.controller:LtiController.from_dict",
+    "extended-model": "lpvflow.validate.extended_model:ExtendedModel.from_dict",
 }
 
 #: JSON reports the commands write (kind → current version); :func:`load` returns them as dictionaries.

@@ -111,7 +111,7 @@ def test_cli_writes_the_diagnosis_and_the_extended_model(tmp_path, capsys):
     from lpvflow import load
 
     extended = load(report["extended_model"])
-    assert extended.io.nk.tolist() == [[3]]
+    assert extended.model.nk.tolist() == [[3]]
     assert (tmp_path / "diag.png").stat().st_size > 10_000
 
 

@@ -13,6 +13,7 @@ from lpvflow.errors import ModelError
 from lpvflow.models import load
 from lpvflow.pipeline import design
 from lpvflow.pipeline.cli import main
+from tests.diagnosis_cases import make_case
 from tests.test_cli_errors import design_file, patch_stages  # noqa: F401 (design_file: a fixture)
 from tests.test_cli_validate import true_system
 from tests.test_export import _adip_lpv_controller
@@ -44,6 +45,7 @@ EXPECTED = {
     "exported.json": ("lpvflow/lpv-controller", "LPVController"),
     "lti_controller.json": ("lpvflow/lti-controller", "LtiController"),
     "verification.json": ("lpvflow/verification", "dict"),
+    "extended.json": ("lpvflow/extended-model", "ExtendedModel"),
 }
 
 
@@ -74,10 +76,16 @@ def written(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (folder / "lti_controller.json").write_bytes(
         (ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json").read_bytes())
     (folder / "scenario.toml").write_text(SCENARIO)
+    dead_zone, _, _ = make_case("input_nonlinearity", seed=11, n=2000)
+    np.savetxt(folder / "dead_zone.csv", np.column_stack([dead_zone.u, dead_zone.y, dead_zone.p]),
+               delimiter=",", header="u,y,p", comments="")
     commands += [
         ["export", f("lpv_controller.json"), "--format", "json", "-o", f("exported.json")],
         ["verify", f("lpv_controller.json"), "--plant", str(ROOT / "fmu_plants" / "build" / "adip.fmu"),
          "--scenario", f("scenario.toml"), "--json", f("verification.json")],
+        ["diagnose", f("dead_zone.csv"), "--u", "u", "--y", "y", "--p", "p", "--Ts", "0.01",
+         "--causes", "input_nonlinearity", "--json", f("dead_zone_diagnosis.json"),
+         "--model-out", f("extended.json")],
     ]
     for command in commands:
         assert main(command) in (0, 1), command  # 1: a finding (e.g. validate's ν-gap), file still written

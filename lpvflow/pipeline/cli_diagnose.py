@@ -18,6 +18,7 @@ from lpvflow.models import LPVSS, atomic_write_json, load, report_header
 from lpvflow.pipeline.cli_identify import parse_order
 from lpvflow.pipeline.cli_paths import check_paths
 from lpvflow.validate.diagnose import MIN_VALIDATION, diagnose
+from lpvflow.validate.extended_model import ExtendedModel
 from lpvflow.validate.extensions import EXTENSIONS, Structure
 
 #: Every verdict and what it means (``lpvflow diagnose --help``).
@@ -127,8 +128,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
     report = report_header("diagnosis") | {"model": model_path} | result.to_dict()
     report["extended_model"] = None
     if result.winner is not None:
-        model = result.winner.fit.model
-        (model.to_ss() if model.form == "shifted" else model).save(model_out)
+        extended = result.winner.fit.model  # its scheduling includes an added channel
+        validation_start = data.split(args.split)[0].N
+        removed = {k: data.offsets[k] for k in "uy" if k in data.offsets}  # --remove-offsets
+        ExtendedModel(extended, result.winner.model_map, data.u_names, data.y_names,
+                      extended.p_names or data.p_names, result.cause, validation_start, result.bfr_after,
+                      result.simulation, removed).save(model_out)
         report["extended_model"] = model_out
     atomic_write_json(args.json_out, report)
     if args.plot:

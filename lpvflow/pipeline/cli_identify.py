@@ -178,14 +178,18 @@ def simulate_any(model: LPVSS | LPVIO | LPVLFR, data: Dataset) -> np.ndarray:
 
 
 def run_simulate(args: argparse.Namespace) -> int:
+    from lpvflow.validate.extended_model import ExtendedModel
+
     model = load(args.model)
-    if not isinstance(model, LPVSS | LPVIO | LPVLFR):
+    if not isinstance(model, LPVSS | LPVIO | LPVLFR | ExtendedModel):
         raise ModelError(f"{args.model} holds no LPV model (it is a {type(model).__name__})")
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
-    y_sim = simulate_any(model, data)
+    y_sim = model.simulate(data) if isinstance(model, ExtendedModel) else simulate_any(model, data)
     report = fit_report(data.y, y_sim, data.y_names)
     for name, b, v, m in zip(report["outputs"], report["bfr"], report["vaf"], report["mse"], strict=True):
         print(f"{name}: BFR {b:.2f} %  VAF {v:.2f} %  MSE {m:.4g}")
+    if isinstance(model, ExtendedModel):
+        report["validation"] = _diagnosed_validation(model, data, y_sim)
     if args.json_out:
         document = {**report_header("simulation"), "model": args.model, "data": args.data, **report}
         atomic_write_json(args.json_out, document)
@@ -193,6 +197,21 @@ def run_simulate(args: argparse.Namespace) -> int:
         plot_fit(args.plot, data, y_sim)
         print(f"plot written to {args.plot}", file=sys.stderr)
     return 0
+
+
+def _diagnosed_validation(model, data: Dataset, y_sim: np.ndarray) -> dict:
+    """The fit of a diagnosis' extended model on the validation part it was diagnosed on (samples from
+    ``model.validation_start`` of the same whole-record simulation), printed next to the diagnosis'
+    validation BFR."""
+    start = model.validation_start
+    if not 0 < start < data.N - 1:
+        raise DataError(f"the extended model was diagnosed with validation from sample {start}; the data "
+                        f"have {data.N} samples: simulate it on the diagnosed record")
+    part = fit_report(data.y[start:], y_sim[start:], data.y_names)
+    for name, b, diagnosed in zip(part["outputs"], part["bfr"], model.validation_bfr, strict=True):
+        print(f"{name}: validation part (samples {start}..{data.N - 1}) BFR {b:.2f} %, diagnosed "
+              f"{diagnosed:.2f} % ({model.simulation})")
+    return {"start": start, **part, "diagnosed_bfr": model.validation_bfr}
 
 
 def plot_fit(path: str | Path, data: Dataset, y_sim: np.ndarray, units: dict[str, str] | None = None) -> None:

@@ -20,6 +20,7 @@ from lpvflow.errors import ModelError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.lpvio import LPVIO
 from lpvflow.validate.closed_loop import Loop, simulate_in_loop
+from lpvflow.validate.extended_model import ModelMap
 
 
 @dataclass(frozen=True)
@@ -117,6 +118,9 @@ class Candidate:
     #: Structural values the extension chose from the data (a level, a delay per input, a channel):
     #: each counts as one parameter in the BIC/AIC changes of the ranking (issue 26, item 4).
     choices: int = 0
+    #: The input or output map the extended model runs with (None: the model alone); open-loop fits
+    #: are scored by its :meth:`~lpvflow.validate.extended_model.ModelMap.simulate_validation`.
+    model_map: ModelMap | None = None
 
 
 @dataclass

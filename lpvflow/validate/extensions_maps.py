@@ -15,6 +15,7 @@ from lpvflow.errors import LpvflowError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.lpvio import LPVIO
 from lpvflow.validate.closed_loop import velocity_sign
+from lpvflow.validate.extended_model import ModelMap
 from lpvflow.validate.extension_core import (
     Candidate,
     Context,
@@ -23,7 +24,6 @@ from lpvflow.validate.extension_core import (
     extend_orders,
     fit,
     joined,
-    simulate_validation,
     with_inputs,
 )
 
@@ -58,40 +58,39 @@ def search_level(loss: Callable[[float], float], grid: np.ndarray, maxiter: int 
 OE_LEVEL_EVALUATIONS = 6
 
 
-def _mapped_input_fit(ctx: Context, j: int, nonlin: Callable[[np.ndarray, float], np.ndarray], level: float,
-                      estimator: str, stateless: bool = True) -> Fit:
-    """The structure fitted with input j replaced by ``nonlin(u_j, level)`` (applied to the whole
-    record, so a map with memory runs on continuously into the validation part)."""
+def _mapped_input_fit(ctx: Context, j: int, kind: str, level: float, estimator: str) -> Fit:
+    """The structure fitted with input j replaced by the map ``kind`` of ``level`` (applied to the
+    whole record by :class:`ModelMap`, so a map with memory runs on continuously into the validation
+    part); simulated with that map, open loop, or in the identification loop (memoryless maps)."""
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
-    whole = joined(ctx.est, ctx.val)
-    u = whole.u.copy()
-    u[:, j] = nonlin(u[:, j], level)
+    model_map = ModelMap(kind, ctx.est.u_names[j], {"level": level})
+    u = model_map.inputs(joined(ctx.est, ctx.val).u, ctx.est.u_names)
     est, val = replace(ctx.est, u=u[: ctx.est.N]), replace(ctx.val, u=u[ctx.est.N :])
 
     def mapped(row: np.ndarray) -> np.ndarray:  # the map on the input the loop produces
-        out = row.copy()
-        out[j] = nonlin(row[j : j + 1], level)[0]
-        return out
+        return model_map.inputs(row[None, :], ctx.est.u_names)[0]
 
-    return fit(est, val, na, nb, nk, basis, ctx.structure.form,
-               ctx.in_loop(input_map=mapped) if stateless else None, estimator)
+    if ctx.loop is None:
+        simulate = lambda m: model_map.simulate_validation(m, ctx.est, ctx.val)  # noqa: E731
+    else:
+        simulate = ctx.in_loop(input_map=mapped)
+    return fit(est, val, na, nb, nk, basis, ctx.structure.form, simulate, estimator)
 
 
-def _level_of(ctx: Context, j: int, nonlin: Callable, grid: np.ndarray, stateless: bool = True
-              ) -> tuple[Fit, float]:
-    """Level of ``nonlin`` on input j and its fit: chosen by the LS one-step loss; in the noise round
-    (``ctx.estimator == "oe"``) refined by the output-error loss between the LS grid's neighbours of
-    that choice, the unbiased criterion under output noise (issue 26, item 4)."""
+def _level_of(ctx: Context, j: int, kind: str, grid: np.ndarray) -> tuple[Fit, float]:
+    """Level of the map ``kind`` on input j and its fit: chosen by the LS one-step loss; in the noise
+    round (``ctx.estimator == "oe"``) refined by the output-error loss between the LS grid's neighbours
+    of that choice, the unbiased criterion under output noise (issue 26, item 4)."""
     def loss(level: float, estimator: str = "arx") -> float:
-        return _mapped_input_fit(ctx, j, nonlin, level, estimator, stateless).loss
+        return _mapped_input_fit(ctx, j, kind, level, estimator).loss
 
     level = search_level(loss, grid)
     if ctx.estimator == "oe":
         step = float(np.median(np.diff(grid)))
         bracket = np.array([max(level - step, float(grid[0]) / 2), level, level + step])
         level = search_level(lambda w: loss(w, "oe"), bracket, maxiter=OE_LEVEL_EVALUATIONS)
-    return _mapped_input_fit(ctx, j, nonlin, level, ctx.estimator, stateless), level
+    return _mapped_input_fit(ctx, j, kind, level, ctx.estimator), level
 
 
 def input_nonlinearity(ctx: Context) -> Candidate | None:
@@ -100,15 +99,16 @@ def input_nonlinearity(ctx: Context) -> Candidate | None:
     results = []
     for j in range(ctx.nu):
         mag = np.abs(ctx.est.u[:, j])
-        for kind, nonlin, grid in (("dead_zone", dead_zone, np.quantile(mag, np.linspace(0.02, 0.6, 15))),
-                                   ("saturation", saturation, np.quantile(mag, np.linspace(0.4, 0.98, 15)))):
-            best, level = _level_of(ctx, j, nonlin, grid)
+        for kind, grid in (("dead_zone", np.quantile(mag, np.linspace(0.02, 0.6, 15))),
+                           ("saturation", np.quantile(mag, np.linspace(0.4, 0.98, 15)))):
+            best, level = _level_of(ctx, j, kind, grid)
             results.append((best, kind, level, j))
     best, kind, level, j = min(results, key=lambda r: r[0].loss)
     what = "width" if kind == "dead_zone" else "limit"
     channel = ctx.est.u_names[j]
     return Candidate("input_nonlinearity", {"kind": kind, what: level, "channel": channel}, best,
-                     f"a {kind.replace('_', ' ')} of {what} {level:.4g} on {channel}", choices=1)
+                     f"a {kind.replace('_', ' ')} of {what} {level:.4g} on {channel}", choices=1,
+                     model_map=ModelMap(kind, channel, {"level": level}))
 
 
 @numba.njit(cache=True)
@@ -132,12 +132,13 @@ def backlash(ctx: Context) -> Candidate | None:
     results = []
     for j in range(ctx.nu):
         grid = 2 * np.quantile(np.abs(ctx.est.u[:, j]), np.linspace(0.02, 0.6, 15))
-        best, width = _level_of(ctx, j, play, grid, stateless=False)
+        best, width = _level_of(ctx, j, "backlash", grid)
         results.append((best, width, j))
     best, width, j = min(results, key=lambda r: r[0].loss)
     channel = ctx.est.u_names[j]
     return Candidate("backlash", {"width": width, "channel": channel}, best,
-                     f"backlash (dead band with memory) of total width {width:.4g} on {channel}", choices=1)
+                     f"backlash (dead band with memory) of total width {width:.4g} on {channel}", choices=1,
+                     model_map=ModelMap("backlash", channel, {"level": width}))
 
 
 def sign_feature(y: np.ndarray, i: int, kind: str) -> np.ndarray:
@@ -221,10 +222,11 @@ def friction(ctx: Context) -> Candidate | None:
         for kind in _friction_kinds(ctx.est.y, i):
             name = f"sign_d{ctx.est.y_names[i]}" if kind == "position" else f"sign_{ctx.est.y_names[i]}"
 
-            def simulate_own(model: LPVIO, data: Dataset, i=i, kind=kind) -> np.ndarray:
+            own = ModelMap("friction", ctx.est.y_names[i], {"motion": kind})
+
+            def simulate_own(model: LPVIO, data: Dataset, own=own) -> np.ndarray:
                 with np.errstate(over="ignore", invalid="ignore"):
-                    return bounded(friction_simulation(model, data.u, data.p, i, kind == "velocity"),
-                                   data.y)[0]
+                    return bounded(own.simulate(model, data.u, data.p, data.u_names, data.y_names), data.y)[0]
 
             # Extension (scored and saved): the sign in the estimation data is taken from the model's
             # own simulation, refitted twice from the nominal model; it simulates best. Its level is
@@ -251,7 +253,8 @@ def friction(ctx: Context) -> Candidate | None:
     return Candidate("friction", {"output": name, "output_kind": kind, "coulomb_level_input_units": level,
                                   "level_in_extended_model": model_level}, best,
                      f"Coulomb friction against {motion} (about {level:.3g} in input units)",
-                     [f"sign_d{name}" if kind == "position" else f"sign_{name}"], choices=1)
+                     [f"sign_d{name}" if kind == "position" else f"sign_{name}"], choices=1,
+                     model_map=ModelMap("friction", name, {"motion": kind}))
 
 
 def sensor_saturation(ctx: Context) -> Candidate | None:
@@ -295,7 +298,8 @@ def sensor_saturation(ctx: Context) -> Candidate | None:
     name = ctx.est.y_names[i]
     return Candidate("sensor_saturation", {"output": name, "lower_limit": lo, "upper_limit": hi}, best,
                      f"the sensor of {name} clips at [{lo if lo is not None else '−∞'}, "
-                     f"{hi if hi is not None else '∞'}]", choices=2)
+                     f"{hi if hi is not None else '∞'}]", choices=2,
+                     model_map=ModelMap("sensor_clip", name, {"lower": lo, "upper": hi}))
 
 
 #: Smallest share of samples at an extreme of the output that makes it a clip (:func:`_piled_up`).
@@ -331,19 +335,20 @@ def _clipped_fit(ctx: Context, i: int, lo: float, hi: float) -> tuple[Fit, float
               for r in range(struct.ny)]
     model = struct.model(thetas)
 
-    def clip(y_sim: np.ndarray) -> np.ndarray:
-        out = y_sim.copy()
-        out[:, i] = np.clip(out[:, i], lo, hi)
-        return out
-
+    clip = ModelMap("sensor_clip", ctx.est.y_names[i], {"lower": _limit(lo), "upper": _limit(hi)})
     with np.errstate(over="ignore", invalid="ignore"):
-        y_est = bounded(clip(model.simulate(ctx.est.u, ctx.est.p)), y)[0]
+        y_est = bounded(clip.simulate(model, ctx.est.u, ctx.est.p, ctx.est.u_names, ctx.est.y_names), y)[0]
     sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov((y - y_est).T)))
     loss = float(logdet) if sign > 0 else np.inf
     model.noise_cov = np.atleast_2d(np.cov((y - y_est).T))
     n_params = sum(len(t) for t in thetas)
     return Fit.scored(model, loss, n_params, ctx.est.N,
-                      lambda m: clip(simulate_validation(m, ctx.est, ctx.val)), ctx.val.y, ctx.est), loss
+                      lambda m: clip.simulate_validation(m, ctx.est, ctx.val), ctx.val.y, ctx.est), loss
+
+
+def _limit(value: float) -> float | None:
+    """A clip limit for the saved map: None for an open side (±∞)."""
+    return None if np.isinf(value) else float(value)
 
 
 def coulomb_level(model: LPVIO, i: int) -> float:

@@ -136,7 +136,7 @@ def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop,
     elif cand.cause == "offset":
         params = offset_parameters(model, est.p, est.u.shape[1], "trend" in cand.inputs_added)
     return Candidate(cand.cause, params, refit, cand.description + " (refitted by closed-loop IV)",
-                     cand.inputs_added)
+                     cand.inputs_added, model_map=cand.model_map)
 
 
 def output_noise_bias(ctx: Context) -> Candidate | None:

@@ -12,6 +12,7 @@ from lpvflow.basis import Basis, SchedulingRangeWarning
 from lpvflow.errors import LpvflowError
 from lpvflow.lpvio import LPVIO
 from lpvflow.validate.closed_loop import simulate_in_loop
+from lpvflow.validate.extended_model import ModelMap
 from lpvflow.validate.extension_core import (
     Candidate,
     Context,
@@ -21,7 +22,6 @@ from lpvflow.validate.extension_core import (
     fit,
     joined,
     log_det,
-    simulate_validation,
     with_inputs,
 )
 from lpvflow.validate.extensions_maps import OE_LEVEL_EVALUATIONS, search_level
@@ -171,32 +171,32 @@ def offset(ctx: Context) -> Candidate | None:
     """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
-    n_total = ctx.est.N + ctx.val.N
-    features = {"const": (np.ones(ctx.est.N), np.ones(ctx.val.N)),
-                "trend": (np.arange(ctx.est.N) / n_total, np.arange(ctx.est.N, n_total) / n_total)}
-    trials = {}
+    maps = {}
     for names in (["const"],) if ctx.loop is not None else (["const"], ["const", "trend"]):
-        est = with_inputs(ctx.est, np.column_stack([features[f][0] for f in names]), names)
-        val = with_inputs(ctx.val, np.column_stack([features[f][1] for f in names]), names)
+        model_map = ModelMap("offset_inputs", None, {"inputs": names, "record_length": ctx.est.N + ctx.val.N})
+        est = with_inputs(ctx.est, model_map.inputs(ctx.est.u, [])[:, ctx.nu :], names)
+        val = with_inputs(ctx.val, model_map.inputs(ctx.val.u, [], ctx.est.N)[:, ctx.nu :], names)
         nb_o, nk_o = extend_orders(nb, nk, 1, 0, len(names))
+        simulate = (ctx.in_loop(exogenous=joined(est, val).u[:, ctx.nu :]) if ctx.loop is not None else
+                    lambda m, model_map=model_map: model_map.simulate_validation(m, ctx.est, ctx.val))
         try:
-            trials[tuple(names)] = ctx.fit(est, val, na, nb_o, nk_o, basis,
-                                       ctx.in_loop(exogenous=joined(est, val).u[:, ctx.nu :]))
+            maps[tuple(names)] = ctx.fit(est, val, na, nb_o, nk_o, basis, simulate), model_map
         except LpvflowError:
             continue
-    if not trials:
+    if not maps:
         return None
-    names, best = min(trials.items(), key=lambda item: item[1].bic)
+    names, (best, model_map) = min(maps.items(), key=lambda item: item[1][0].bic)
     sensor = _sensor_offset(ctx) if ctx.loop is None and ctx.ny == 1 else None
     if sensor is not None and sensor[0].bic + np.log(ctx.est.N) < best.bic:  # + its one chosen value
         fitted, level = sensor
         return Candidate("offset", {"kind": "sensor", "output_offset": level}, fitted,
-                         f"a sensor offset of {level:.4g} on {ctx.est.y_names[0]}", choices=1)
+                         f"a sensor offset of {level:.4g} on {ctx.est.y_names[0]}", choices=1,
+                         model_map=ModelMap("sensor_offset", ctx.est.y_names[0], {"offset": level}))
     params = offset_parameters(best.model, ctx.est.p, ctx.nu, "trend" in names)
     what = "a bias and a trend" if "trend" in names else "a constant bias"
     return Candidate("offset", params, best,
                      f"adding {what} (output-equivalent {np.round(params['output_offset'], 4).tolist()})",
-                     list(names))
+                     list(names), model_map=model_map)
 
 
 def _sensor_offset(ctx: Context) -> tuple[Fit, float] | None:
@@ -213,8 +213,9 @@ def _sensor_offset(ctx: Context) -> tuple[Fit, float] | None:
 
     def trial(o: float, estimator: str = "arx") -> Fit:
         est, val = replace(ctx.est, y=ctx.est.y - o), replace(ctx.val, y=ctx.val.y - o)
+        sensor = ModelMap("sensor_offset", ctx.est.y_names[0], {"offset": float(o)})
         return fit(est, val, na, nb, nk, basis, ctx.structure.form,
-                   lambda m: simulate_validation(m, est, val) + o, estimator)
+                   lambda m: sensor.simulate_validation(m, ctx.est, ctx.val), estimator)
 
     try:
         level = search_level(lambda o: trial(o).loss, np.quantile(ctx.est.y, np.linspace(0.02, 0.98, 15)))

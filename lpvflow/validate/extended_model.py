@@ -1,0 +1,154 @@
+"""The extended model a diagnosis saves: the fitted input-output model and the input or output map
+it needs to run (file format ``lpvflow/extended-model``, version 1).
+
+Maps (:mod:`lpvflow.validate.extensions` gives the equations), applied around the LPV-IO model's
+simulation from a zero past:
+
+    dead_zone / saturation / backlash   u_j ← f(u_j) on the named input before the model
+    offset_inputs                       u ← [u, 1 (, t/N)]: the constant (and trend) inputs, N the
+                                        diagnosed record's length
+    sensor_offset                       y_meas = y + o on the named output
+    sensor_clip                         y_meas = clip(y_i, lo, hi) on the named output
+    friction                            the last input sign v(k), v the motion of output i taken
+                                        from the model's own simulated output
+                                        (:func:`~lpvflow.validate.extensions_maps.friction_simulation`)
+
+The diagnosis scores its open-loop extensions with :meth:`ModelMap.simulate` itself, so the saved
+file reproduces the reported validation fit: simulate the whole record, score from sample
+``validation_start``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lpvflow.data import Dataset
+from lpvflow.errors import DataError, ModelError
+from lpvflow.lpvio import LPVIO
+from lpvflow.models import atomic_write_json, check_format
+
+FORMAT = "extended-model"
+VERSION = 1
+INPUT_MAPS = ("dead_zone", "saturation", "backlash")
+KINDS = (*INPUT_MAPS, "offset_inputs", "sensor_offset", "sensor_clip", "friction")
+
+
+@dataclass(frozen=True)
+class ModelMap:
+    """An input or output map around an LPV-IO model (module docstring); ``channel`` is the input
+    (input maps) or output (output maps) it acts on, ``values`` its level(s)."""
+
+    kind: str
+    channel: str | None = None
+    values: dict = field(default_factory=dict)
+
+    def inputs(self, u: np.ndarray, u_names: list[str], start: int = 0) -> np.ndarray:
+        """The model's inputs for the record's inputs ``u`` (its samples start, start+1, …): the named
+        input mapped (input maps), the offset inputs appended, or ``u`` itself (output maps)."""
+        u = np.array(u, dtype=float)
+        if self.kind in INPUT_MAPS:
+            from lpvflow.validate.extensions_maps import dead_zone, play, saturation
+
+            nonlin = {"dead_zone": dead_zone, "saturation": saturation, "backlash": play}[self.kind]
+            j = u_names.index(self.channel)
+            u[:, j] = nonlin(u[:, j], self.values["level"])
+            return u
+        if self.kind == "offset_inputs":
+            k = np.arange(start, start + len(u))
+            columns = {"const": np.ones(len(k)), "trend": k / self.values["record_length"]}
+            return np.hstack([u, np.column_stack([columns[name] for name in self.values["inputs"]])])
+        return u
+
+    def simulate(self, model: LPVIO, u: np.ndarray, p: np.ndarray, u_names: list[str],
+                 y_names: list[str]) -> np.ndarray:
+        """The mapped model's simulation of the record (u, p) from a zero past."""
+        if self.kind == "friction":
+            from lpvflow.validate.extensions_maps import friction_simulation
+
+            return friction_simulation(model, u, p, y_names.index(self.channel),
+                                       self.values["motion"] == "velocity")
+        y = model.simulate(self.inputs(u, u_names), p)
+        if self.kind == "sensor_offset":
+            return y + self.values["offset"]
+        if self.kind == "sensor_clip":
+            i, lo, hi = y_names.index(self.channel), self.values["lower"], self.values["upper"]
+            y[:, i] = np.clip(y[:, i], -np.inf if lo is None else lo, np.inf if hi is None else hi)
+        return y
+
+    def simulate_validation(self, model: LPVIO, est: Dataset, val: Dataset) -> np.ndarray:
+        """The validation part of the whole record's simulation (as the diagnosis scores it)."""
+        u, p = np.vstack([est.u, val.u]), np.vstack([est.p, val.p])
+        return self.simulate(model, u, p, est.u_names, est.y_names)[est.N :]
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "channel": self.channel, "values": self.values}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ModelMap:
+        if d.get("kind") not in KINDS:
+            raise ModelError(f"unknown model map {d.get('kind')!r}; this lpvflow knows {', '.join(KINDS)}")
+        return cls(d["kind"], d.get("channel"), dict(d.get("values", {})))
+
+
+@dataclass
+class ExtendedModel:
+    """A diagnosis' extended model: ``model`` with its ``map`` (None: the model alone), the columns
+    it runs on, the diagnosed split and the validation BFR the diagnosis reported."""
+
+    model: LPVIO
+    map: ModelMap | None
+    u_names: list[str]
+    y_names: list[str]
+    p_names: list[str]
+    cause: str
+    validation_start: int
+    validation_bfr: list[float]
+    simulation: str = "open loop"
+    #: Means the diagnosis removed (``--remove-offsets``), {"u": [...], "y": [...]}: the model runs on
+    #: u − ū and its output is shifted back by ȳ, so it takes the recorded signals.
+    offsets: dict[str, list[float]] = field(default_factory=dict)
+
+    def check_columns(self, data: Dataset) -> None:
+        """Refuse (one line) data whose inputs, outputs or scheduling are not the model's columns."""
+        for what, flag, wanted, given in (("input", "u", self.u_names, data.u_names),
+                                          ("output", "y", self.y_names, data.y_names),
+                                          ("scheduling", "p", self.p_names, data.p_names)):
+            if list(given) != list(wanted):
+                raise DataError(f"the extended model ({self.cause}) runs on the {what} column(s) {wanted}, "
+                                f"the data give {list(given)}: pass --{flag} {' '.join(wanted)}")
+
+    def simulate(self, data: Dataset) -> np.ndarray:
+        """Simulation of the whole record from a zero past, with the map (and the removed means)."""
+        self.check_columns(data)
+        u = data.u - np.asarray(self.offsets.get("u", 0.0))
+        if self.map is None:
+            y = self.model.simulate(u, data.p)
+        else:
+            y = self.map.simulate(self.model, u, data.p, data.u_names, data.y_names)
+        return y + np.asarray(self.offsets.get("y", 0.0))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"format": f"lpvflow/{FORMAT}", "version": VERSION, "cause": self.cause,
+                "model": self.model.to_dict(), "map": self.map.to_dict() if self.map else None,
+                "u_names": self.u_names, "y_names": self.y_names, "p_names": self.p_names,
+                "simulation": self.simulation, "offsets": self.offsets,
+                "validation": {"start": self.validation_start, "bfr": self.validation_bfr}}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ExtendedModel:
+        check_format(d, FORMAT, VERSION)
+        try:
+            return cls(LPVIO.from_dict(d["model"]), ModelMap.from_dict(d["map"]) if d["map"] else None,
+                       list(d["u_names"]), list(d["y_names"]), list(d["p_names"]), d["cause"],
+                       int(d["validation"]["start"]), [float(b) for b in d["validation"]["bfr"]],
+                       d["simulation"], {k: [float(v) for v in d["offsets"][k]] for k in d["offsets"]})
+        except (KeyError, TypeError) as exc:
+            raise ModelError(f"lpvflow/{FORMAT} file lacks or mangles the field {exc.args[0]!r}") from None
+
+    def save(self, path: str | os.PathLike) -> None:
+        atomic_write_json(path, self.to_dict())
+

@@ -30,6 +30,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import atomic_write_json, check_format
+from lpvflow.validate.signal_maps import dead_zone, friction_simulation, play, saturation
 
 FORMAT = "extended-model"
 VERSION = 1
@@ -51,7 +52,6 @@ class ModelMap:
         input mapped (input maps), the offset inputs appended, or ``u`` itself (output maps)."""
         u = np.array(u, dtype=float)
         if self.kind in INPUT_MAPS:
-            from lpvflow.validate.extensions_maps import dead_zone, play, saturation
 
             nonlin = {"dead_zone": dead_zone, "saturation": saturation, "backlash": play}[self.kind]
             j = u_names.index(self.channel)
@@ -67,7 +67,6 @@ class ModelMap:
                  y_names: list[str]) -> np.ndarray:
         """The mapped model's simulation of the record (u, p) from a zero past."""
         if self.kind == "friction":
-            from lpvflow.validate.extensions_maps import friction_simulation
 
             return friction_simulation(model, u, p, y_names.index(self.channel),
                                        self.values["motion"] == "velocity")

@@ -6,7 +6,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 
-import numba
 import numpy as np
 import scipy.optimize
 
@@ -26,14 +25,7 @@ from lpvflow.validate.extension_core import (
     joined,
     with_inputs,
 )
-
-
-def dead_zone(u: np.ndarray, width: float) -> np.ndarray:
-    return np.sign(u) * np.maximum(np.abs(u) - width, 0.0)
-
-
-def saturation(u: np.ndarray, limit: float) -> np.ndarray:
-    return np.clip(u, -limit, limit)
+from lpvflow.validate.signal_maps import dead_zone, friction_simulation, play, saturation  # noqa: F401
 
 
 def search_level(loss: Callable[[float], float], grid: np.ndarray, maxiter: int = 500) -> float:
@@ -111,18 +103,6 @@ def input_nonlinearity(ctx: Context) -> Candidate | None:
                      model_map=ModelMap(kind, channel, {"level": level}))
 
 
-@numba.njit(cache=True)
-def play(u: np.ndarray, width: float) -> np.ndarray:
-    """Backlash (play operator) of total width w: x(k) = min(max(x(k−1), u(k) − w/2), u(k) + w/2),
-    x(−1) = 0 — a dead band of ±w/2 with memory: the output moves only when the input pushes it."""
-    out = np.empty_like(u)
-    state = 0.0
-    for k in range(u.shape[0]):
-        state = min(max(state, u[k] - width / 2), u[k] + width / 2)
-        out[k] = state
-    return out
-
-
 def backlash(ctx: Context) -> Candidate | None:
     """Backlash in one actuator: input j replaced by :func:`play` of width w, chosen by
     :func:`_level_of` over twice the 2–60 % quantiles of |u_j|. Open loop only (the loop's input
@@ -153,41 +133,6 @@ def _friction_kinds(y: np.ndarray, i: int) -> list[str]:
     samples of each sign) — on a one-signed output sign(y) is a constant, i.e. an offset."""
     share = np.mean(y[:, i] > 0)
     return ["position", "velocity"] if 0.1 <= share <= 0.9 else ["position"]
-
-
-def friction_simulation(model: LPVIO, u: np.ndarray, p: np.ndarray, i: int, velocity: bool) -> np.ndarray:
-    """Simulation of a friction extension (its last input the friction sign) from a zero past, the
-    sign taken sample by sample from its own output i: sign y_i(k) (velocity output) or
-    sign(y_i(k) − y_i(k−1)) (position output). Causal because the friction input enters with a
-    delay ≥ 1: y(k) = −Σᵢ Aᵢ y(k−i) + Σⱼ Bⱼ v(k−j), coefficients at ψ(p(k−i)) (shifted form) or
-    ψ(p(k)) (static form), v = [u, sign]."""
-    psi = model.basis.eval(p, check_range=False)
-    a_at = np.einsum("kl,ilrc->kirc", psi, model.A)
-    b_at = np.einsum("kl,jlrc->kjrc", psi, model.B)
-    return _friction_recursion(np.ascontiguousarray(a_at), np.ascontiguousarray(b_at),
-                               np.ascontiguousarray(u, dtype=float), i, velocity,
-                               model.form == "shifted")
-
-
-@numba.njit(cache=True)
-def _friction_recursion(a_at: np.ndarray, b_at: np.ndarray, u: np.ndarray, i: int, velocity: bool,
-                        shifted: bool) -> np.ndarray:
-    n, n_a, ny = a_at.shape[0], a_at.shape[1], a_at.shape[2]
-    n_b, nu = b_at.shape[1], u.shape[1]
-    y = np.zeros((n, ny))
-    sign = np.zeros(n)
-    for k in range(n):
-        for lag in range(1, n_a + 1):
-            if k - lag >= 0:
-                at = k - lag if shifted else k
-                y[k] -= a_at[at, lag - 1] @ y[k - lag]
-        for lag in range(n_b):
-            if k - lag >= 0:
-                at = k - lag if shifted else k
-                y[k] += b_at[at, lag, :, :nu] @ u[k - lag] + b_at[at, lag, :, nu] * sign[k - lag]
-        motion = y[k, i] if velocity else y[k, i] - (y[k - 1, i] if k > 0 else y[k, i])
-        sign[k] = np.sign(motion)
-    return y
 
 
 def friction(ctx: Context) -> Candidate | None:

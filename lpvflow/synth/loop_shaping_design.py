@@ -85,6 +85,44 @@ def _matrices(M: control.StateSpace) -> tuple[np.ndarray, ...]:
     return tuple(np.asarray(X, dtype=float) for X in (M.A, M.B, M.C, M.D))
 
 
+def modal_form(K: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """K in real modal coordinates fixed up to nothing, so that controllers of nearby plants realized by
+    different solves get nearby matrices: eigenvalues in ascending (real, imaginary) order, a real mode
+    scaled so its row of B has unit norm and a positive first nonzero entry, a complex pair σ ± jω as the
+    block [σ ω; −ω σ] rotated and scaled (which commutes with it) so its two rows of B start [1, 0]ᵀ·(·)
+    and have unit norm. Assumes distinct eigenvalues (a diagonalizable K)."""
+    A, B, C, D = K
+    values, vectors = np.linalg.eig(A)
+    order = np.lexsort((values.imag, values.real))
+    columns, i = [], 0
+    while i < len(order):
+        lam, v = values[order[i]], vectors[:, order[i]]
+        if abs(lam.imag) > 1e-12 * max(1.0, abs(lam)):
+            columns += [v.real, v.imag]
+            i += 2  # the conjugate follows in the sorted order
+        else:
+            columns.append(v.real)
+            i += 1
+    T = np.column_stack(columns)
+    A, B, C = np.linalg.solve(T, A @ T), np.linalg.solve(T, B), C @ T
+    S = np.eye(A.shape[0])
+    i = 0
+    while i < A.shape[0]:
+        if i + 1 < A.shape[0] and abs(A[i, i + 1]) > 1e-12 * max(1.0, abs(A[i, i])):
+            b = B[i:i + 2]
+            first = b[:, int(np.argmax(np.linalg.norm(b, axis=0) > 1e-12))]
+            angle = np.arctan2(first[1], first[0])
+            R = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+            S[i:i + 2, i:i + 2] = R * np.linalg.norm(b)
+            i += 2
+        else:
+            row = B[i]
+            nonzero = row[np.abs(row) > 1e-12 * max(1.0, np.abs(row).max())]
+            S[i, i] = np.linalg.norm(row) * (np.sign(nonzero[0]) if nonzero.size else 1.0) or 1.0
+            i += 1
+    return np.linalg.solve(S, A @ S), np.linalg.solve(S, B), C @ S, D
+
+
 def frozen_margin_check(model_vertices: list[tuple[np.ndarray, ...]], weights: list[tuple[np.ndarray, ...]],
                         K_inf: list[tuple[np.ndarray, ...]], gammas: list[float], lams: list[np.ndarray],
                         Ts: float) -> FrozenMarginCheck:
@@ -136,8 +174,8 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
         shaped = loop_shaping([G], [W1_i], W2, solver=solver)
         gammas.append(shaped.gamma)
         weights.append(_matrices(W1_i))
-        K_inf.append(_matrices(shaped.K_inf[0]))
-        feedback.append(_matrices(shaped.feedback[0]))
+        K_inf.append(modal_form(_matrices(shaped.K_inf[0])))
+        feedback.append(_matrices(W1_i * control.ss(*K_inf[-1], Ts)))
     lams = design_coordinates(plant.polytope, plant.basis, FROZEN_PER_SEGMENT)
     check = frozen_margin_check(model_vertices, weights, K_inf, gammas, lams, Ts)
     exported = [controller_matrices(K, plant.structure) for K in feedback]

@@ -73,7 +73,7 @@ def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, see
                  "-o", str(out)]) in (0, 1)
     controller = load(out)
     gammas = json.loads(out.read_text())["info"]["vertex_gammas"]
-    assert controller.info["method"] == "loop-shaping"
+    assert controller.info["method"] == "loop-shaping" and controller.info["crossover"] == CROSSOVER
     W1 = integrator_lead_weight(model.Ts, CROSSOVER)
     for i, p in enumerate(BREAKPOINTS):
         G = model.frozen(np.array([p]))
@@ -109,3 +109,13 @@ def test_frozen_check_refuses_a_destabilized_controller():
     assert np.abs(loop.poles()).max() > 1.0  # independently: the frozen loop there is unstable
     check = frozen_margin_check(vertices, weights, [K_inf[0], broken, K_inf[2]], gammas, lams, model.Ts)
     assert not check.ok and check.worst_ratio == 0.0
+
+
+def test_crossover_above_the_weight_band_is_one_error_line(tmp_path, capsys):
+    two_state_plant().save(tmp_path / "model.json")
+    (tmp_path / "design.toml").write_text(DESIGN.replace(f"crossover = {CROSSOVER}", "crossover = 1000.0"))
+    out = tmp_path / "K.json"
+    assert main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
+                 "-o", str(out)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "crossover 1000" in error[0] and not out.exists()

@@ -11,6 +11,7 @@ import pytest
 
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
+from lpvflow.synth.controller import mix
 from lpvflow.synth.loop_shaping import crossover_normalized, integrator_lead_weight, loop_shaping
 from lpvflow.synth.loop_shaping_design import FROZEN_PER_SEGMENT, frozen_margin_check, modal_form
 from lpvflow.synth.polytope import hat_coordinates
@@ -69,8 +70,8 @@ def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, see
     (tmp_path / "design.toml").write_text(DESIGN)
     out = tmp_path / "K.json"
     # exit 1 only when the frozen check between breakpoints fails; the controller is written either way
-    assert main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
-                 "-o", str(out)]) in (0, 1)
+    rc = main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
+               "-o", str(out)])
     controller = load(out)
     gammas = json.loads(out.read_text())["info"]["vertex_gammas"]
     assert controller.info["method"] == "loop-shaping" and controller.info["crossover"] == CROSSOVER
@@ -82,6 +83,20 @@ def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, see
         # the written controller reads e = r − y: u = −K e is u = K y with B and D negated back
         K = (controller.Ak[i], -controller.Bk[i], controller.Ck[i], -controller.Dk[i])
         assert _margin_on_grid(G, K, W1_i) >= 1.0 / (1.01 * gammas[i])
+    # between the breakpoints: the interpolated controller on the interpolated model, W1(λ) = Σλ_iW1_i
+    plants = [model.frozen(np.array([p])) for p in BREAKPOINTS]
+    weights = [crossover_normalized(G, W1, CROSSOVER) for G in plants]
+    ratios = []
+    for t in np.linspace(BREAKPOINTS[0], BREAKPOINTS[-1], 2 * FROZEN_PER_SEGMENT - 1):
+        lam = hat_coordinates(BREAKPOINTS, t)
+        G, W1_l = (control.ss(*mix([(M.A, M.B, M.C, M.D) for M in Ms], lam), model.Ts)
+                   for Ms in (plants, weights))
+        Ak, Bk, Ck, Dk = mix([(controller.Ak[i], controller.Bk[i], controller.Ck[i], controller.Dk[i])
+                              for i in range(len(BREAKPOINTS))], lam)
+        ratios.append(_margin_on_grid(G, (Ak, -Bk, Ck, -Dk), W1_l) * 1.1 * gammas[int(np.argmax(lam))])
+    certificate = controller.info["certificate"]
+    assert min(ratios) == pytest.approx(certificate["worst_ratio"], rel=1e-2)
+    assert (rc == 0) == certificate["ok"] == (certificate["worst_ratio"] >= 1.0)
 
 
 def test_frozen_check_refuses_a_destabilized_controller():

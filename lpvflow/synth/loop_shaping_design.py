@@ -88,9 +88,11 @@ def _matrices(M: control.StateSpace) -> tuple[np.ndarray, ...]:
 def modal_form(K: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
     """K in real modal coordinates fixed up to nothing, so that controllers of nearby plants realized by
     different solves get nearby matrices: eigenvalues in ascending (real, imaginary) order, a real mode
-    scaled so its row of B has unit norm and a positive first nonzero entry, a complex pair σ ± jω as the
-    block [σ ω; −ω σ] rotated and scaled (which commutes with it) so its two rows of B start [1, 0]ᵀ·(·)
-    and have unit norm. Assumes distinct eigenvalues (a diagonalizable K)."""
+    scaled so its row of B has the norm of its column of C and a positive first nonzero entry, a complex
+    pair σ ± jω as the block [σ ω; −ω σ] rotated and scaled (which commutes with it) so its two rows of B
+    start along [1, 0]ᵀ and have the norm of its two columns of C. Assumes distinct eigenvalues (a
+    diagonalizable K). Interpolating these forms is still not the frozen design between vertices: the
+    check measures what it loses."""
     A, B, C, D = K
     values, vectors = np.linalg.eig(A)
     order = np.lexsort((values.imag, values.real))
@@ -113,14 +115,20 @@ def modal_form(K: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
             first = b[:, int(np.argmax(np.linalg.norm(b, axis=0) > 1e-12))]
             angle = np.arctan2(first[1], first[0])
             R = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
-            S[i:i + 2, i:i + 2] = R * np.linalg.norm(b)
+            S[i:i + 2, i:i + 2] = R * _balance(np.linalg.norm(b), np.linalg.norm(C[:, i:i + 2]))
             i += 2
         else:
             row = B[i]
             nonzero = row[np.abs(row) > 1e-12 * max(1.0, np.abs(row).max())]
-            S[i, i] = np.linalg.norm(row) * (np.sign(nonzero[0]) if nonzero.size else 1.0) or 1.0
+            sign = np.sign(nonzero[0]) if nonzero.size else 1.0
+            S[i, i] = _balance(np.linalg.norm(row), np.linalg.norm(C[:, i])) * sign
             i += 1
     return np.linalg.solve(S, A @ S), np.linalg.solve(S, B), C @ S, D
+
+
+def _balance(b: float, c: float) -> float:
+    """The scale s of a mode after which its B row(s) and C column(s) have equal norms, ‖b‖/s = s‖c‖."""
+    return float(np.sqrt(b / c)) if b > 0 and c > 0 else 1.0
 
 
 def frozen_margin_check(model_vertices: list[tuple[np.ndarray, ...]], weights: list[tuple[np.ndarray, ...]],

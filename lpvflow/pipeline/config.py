@@ -404,6 +404,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                       "; ".join(f"{name}: {m.summary}" for name, m in SYNTHESIS_METHODS.items())),
         "rate_bound": Key(None, number(0.0, open_low=True),
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
+        "crossover": Key(None, number(0.0, open_low=True),
+                         "loop-shaping: crossover of the shaped loop, rad/s (default: π/(20·Ts))"),
         "breakpoints": Key(None, breakpoints, "piecewise polytope: ascending values (or rows) end to end"),
         "structure": Key("1dof", string(("1dof", "2dof")), "1dof: controller reads r − y; 2dof: [r; y]"),
         "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R, N], [integrator_shift]"),

@@ -48,4 +48,7 @@ SYNTHESIS_METHODS: dict[str, SynthesisMethod] = {
                                     "lpvflow.synth.design:design_rate_bounded", ("rate_bound",)),
     "observer": SynthesisMethod("observer-based: frozen LQG designs at the breakpoints, interpolated",
                                 "lpvflow.synth.design:design_observer"),
+    "loop-shaping": SynthesisMethod("H∞ loop shaping: LMI designs of the shaped plant at the breakpoints, "
+                                    "interpolated", "lpvflow.synth.loop_shaping_design:design",
+                                    ("crossover",)),
 }

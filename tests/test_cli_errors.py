@@ -126,7 +126,7 @@ def test_a_bad_design_value_is_one_line_exit_2_and_keeps_the_previous_report(
 
 @pytest.mark.parametrize(("table", "fragment"), [
     ("[synth]\nbx = [[0, 1]]\nweights.S = { bandwidth = 1.0 }\nweights.K = { num = [1], den = [1] }\n",
-     "[synth] has unknown key(s) ['bx']; known: ['baseline_at', 'box', 'breakpoints', 'method', "
+     "[synth] has unknown key(s) ['bx']; known: ['baseline_at', 'box', 'breakpoints', 'crossover', 'method', "
      "'observer', 'rate_bound', 'reference_filter', 'solver', 'structure', 'trim', 'vertex_weights', "
      "'weights']"),
     ("[synth]\nmethd = 'common'\n", "[synth] has unknown key(s) ['methd']"),

@@ -27,12 +27,13 @@ from dataclasses import dataclass
 @dataclass(frozen=True)
 class SynthesisMethod:
     """One synthesis method: ``summary`` (one line, shown by ``lpvflow synth`` and in the schema's key
-    description), ``keys`` (numeric ``[synth]`` keys only this method reads, printed with their values) and
-    ``entry`` (``"module:function"`` of its design function)."""
+    description), ``keys`` (numeric ``[synth]`` keys only this method reads, printed with their values),
+    ``entry`` (``"module:function"`` of its design function) and ``gamma_is`` (what the γ it reports is)."""
 
     summary: str
     entry: str
     keys: tuple[str, ...] = ()
+    gamma_is: str = "certified level"
 
     def design_function(self) -> Callable:
         """The design function named by ``entry``."""
@@ -47,8 +48,9 @@ SYNTHESIS_METHODS: dict[str, SynthesisMethod] = {
     "rate-bounded": SynthesisMethod("rate-bounded parameter-dependent Lyapunov function",
                                     "lpvflow.synth.design:design_rate_bounded", ("rate_bound",)),
     "observer": SynthesisMethod("observer-based: frozen LQG designs at the breakpoints, interpolated",
-                                "lpvflow.synth.design:design_observer"),
+                                "lpvflow.synth.design:design_observer",
+                                gamma_is="largest frozen closed-loop norm"),
     "loop-shaping": SynthesisMethod("H∞ loop shaping: LMI designs of the shaped plant at the breakpoints, "
                                     "interpolated", "lpvflow.synth.loop_shaping_design:design",
-                                    ("crossover",)),
+                                    ("crossover",), gamma_is="largest breakpoint level"),
 }

@@ -20,7 +20,7 @@ from lpvflow.validate.norms import hinf_norm
 from tests.hinf_cases import polytopic_case, weighted_cases
 
 #: Share of random plants whose certified γ is within 1 % of SB10DD. The issue's target is every one;
-#: measured 52 of 63 (seed 2027) and 13 of 14 (seed 2026): the gap is recorded in benchmarks/README.md.
+#: measured 52 of 63 (seed 2027) and 14 of 14 (seed 2026): the gap is recorded in benchmarks/README.md.
 WITHIN_ONE_PERCENT = 0.8
 
 

@@ -21,27 +21,11 @@ from lpvflow.data import Dataset
 from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.design import run_design
 from lpvflow.validate.metrics import bfr
+from tests.design_files import tanks_head
 
 ROOT = Path(__file__).resolve().parents[1]
 
-TANKS = """
-[design]
-name = "tanks"
-plant = "{plant}"
-output_dir = "{out}"
-
-[experiment]
-Ts = 1.0
-duration = 1500.0
-inputs = {{ pump_voltage = "levels:lo=4,hi=11,min_hold=5,max_hold=40" }}
-scheduling = {{ level = "lower_level" }}
-seed = 3
-
-[identify]
-u = ["pump_voltage"]
-y = ["lower_level"]
-p = ["level"]
-na = {na}
+TANKS = """na = {na}
 nb = 2
 nk = 1
 basis = "poly:2"
@@ -63,7 +47,7 @@ def tanks_fmu() -> Path:
 
 def write(tmp_path: Path, fmu: Path, na: int = 2, extra: str = "") -> Path:
     path = tmp_path / "design.toml"
-    path.write_text(TANKS.format(plant=fmu, out=tmp_path / "out", na=na) + extra)
+    path.write_text(tanks_head(fmu, tmp_path / "out") + TANKS.format(na=na) + extra)
     return path
 
 

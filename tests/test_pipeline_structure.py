@@ -19,6 +19,7 @@ from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.config import INPUT_FILES, SCHEMA, load_config
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.settings import ALL, StageSettings, TableView, UndeclaredSetting
+from tests.design_files import tanks_head
 
 PACKAGE = Path(lpvflow.__file__).resolve().parent
 ROOT = PACKAGE.parent
@@ -276,24 +277,7 @@ def test_synthesis_error_is_one_of_lpvflows_error_types():
 
 TANKS = ROOT / "fmu_plants" / "build" / "tanks.fmu"
 
-TANKS_DESIGN = """
-[design]
-name = "tanks"
-plant = "{plant}"
-output_dir = "{out}"
-
-[experiment]
-Ts = 1.0
-duration = 1500.0
-inputs = {{ pump_voltage = "levels:lo=4,hi=11,min_hold=5,max_hold=40" }}
-scheduling = {{ level = "lower_level" }}
-seed = 3
-
-[identify]
-u = ["pump_voltage"]
-y = ["lower_level"]
-p = ["level"]
-basis = "poly:2"
+TANKS_DESIGN = """basis = "poly:2"
 split = 0.6
 remove_offsets = true
 
@@ -371,7 +355,7 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
     monkeypatch.setattr(config_module, "parse_loop", lambda doc: parses.append(doc) or original_parse(doc))
     monkeypatch.setattr(report_module, "write_report", report)
     path = tmp_path / "design.toml"
-    path.write_text(TANKS_DESIGN.format(plant=TANKS, out=tmp_path / "out"))
+    path.write_text(tanks_head(TANKS, tmp_path / "out") + TANKS_DESIGN.format())
     summary = run_design(path, log=lambda _: None)
     ran = {name for name, stage in summary["stages"].items() if stage["status"] == "ran"}
     assert {"identify", "validate", "synth", "verify"} <= ran, summary["failed"]

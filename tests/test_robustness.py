@@ -22,6 +22,7 @@ from lpvflow.synth.controller import LPVController
 from lpvflow.synth.loop_shaping import central_ncf_controller
 from lpvflow.synth.polytope import Polytope
 from lpvflow.validate.robust_stability import generalized_margin
+from tests.design_files import tanks_head
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -106,24 +107,7 @@ def test_feedback_part_has_the_margin_of_the_controller_it_was_built_from(seed, 
 
 #: A fast design (about 7 s): the stable tanks, LPV model of the lower level, the "common" LMI controller
 #: (1-DOF), validated against the FMU's linearizations at three levels with fixed signal scales.
-TANKS = """
-[design]
-name = "tanks"
-plant = "{root}/fmu_plants/build/tanks.fmu"
-output_dir = "{out}"
-
-[experiment]
-Ts = 1.0
-duration = 1500.0
-inputs = {{ pump_voltage = "levels:lo=4,hi=11,min_hold=5,max_hold=40" }}
-scheduling = {{ level = "lower_level" }}
-seed = 3
-
-[identify]
-u = ["pump_voltage"]
-y = ["lower_level"]
-p = ["level"]
-na = 2
+TANKS = """na = 2
 nb = 2
 nk = 1
 basis = "poly:2"
@@ -157,7 +141,8 @@ def test_design_reports_b_of_its_controller_against_the_nugap_without_changing_t
     reports)."""
     u_scale, y_scale = 2.0, 0.05
     path = tmp_path / "design.toml"
-    path.write_text(TANKS.format(root=ROOT, out=tmp_path / "out", u_scale=u_scale, y_scale=y_scale))
+    path.write_text(tanks_head(ROOT / "fmu_plants" / "build" / "tanks.fmu", tmp_path / "out")
+                    + TANKS.format(u_scale=u_scale, y_scale=y_scale))
     summary = run_design(path, log=lambda _: None)
     folder = tmp_path / "out" / "tanks"
     assert summary["verdict"]["pass"] is True

@@ -285,7 +285,7 @@ class _Levels:
 
 
 def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: Coordinates, schedule: Schedule,
-                 gamma: float, gamma_lower: float, Ts: float) -> ScheduledResult:
+                 gamma: float, gamma_lower: float | None, Ts: float) -> ScheduledResult:
     """Controller of the module docstring at every breakpoint, 𝒫 and 𝒢 in the scaled state, and the
     certificate margins rebuilt from the returned discrete numbers."""
     X, Y, S = (np.asarray(V.value, dtype=float) for V in (levels.X, levels.Y, levels.S))

@@ -18,13 +18,13 @@ class ModelError(LpvflowError, ValueError):
 
 
 class SynthesisError(ModelError):
-    """No controller was returned, and why: ``category`` is ``"infeasible"`` (the LMIs have no solution at
-    any level tried, proven by an accurate solve), ``"accuracy"`` (the solver could not reach the accuracy
+    """No controller was returned, and why (every raise states it): ``category`` is ``"infeasible"`` (the
+    LMIs have no solution at any level tried, proven by an accurate solve), ``"accuracy"`` (the solver could not reach the accuracy
     a certificate needs) or ``"assumption"`` (the plant violates an assumption of the method)."""
 
     CATEGORIES = ("infeasible", "accuracy", "assumption")
 
-    def __init__(self, message: str, category: str = "infeasible") -> None:
+    def __init__(self, message: str, category: str) -> None:
         if category not in self.CATEGORIES:
             raise ValueError(f"unknown SynthesisError category {category!r}")
         super().__init__(message)

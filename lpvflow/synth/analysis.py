@@ -255,7 +255,8 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
             return best
         if not failed:
             raise SynthesisError(f"{what}: the SDP solver returned no point at any level from the largest "
-                                 f"frozen norm {max(norms):.4g} up: lower the rate bound or check the loop")
+                                 f"frozen norm {max(norms):.4g} up: lower the rate bound or check the loop",
+                                 category="accuracy")
         top, where = max(failed)
         if np.any(design == where):  # the LMIs are imposed there already: refining cannot help
             break
@@ -263,7 +264,8 @@ def rate_bounded_gain(loop_at: Callable[[float], Loop | control.StateSpace], bre
     raise SynthesisError(f"{what}: no level up to γ = {top:.4g} (the largest frozen norm is "
                          f"{max(norms):.4g}) passes the certificate with the LMIs at "
                          f"{len(np.unique(design))} points, refined where it failed; it fails at "
-                         f"p = {where:.4g}: lower the rate bound or add breakpoints near that point")
+                         f"p = {where:.4g}: lower the rate bound or add breakpoints near that point",
+                         category="accuracy")
 
 
 def _worst(result: RateBoundedGain, pairs: list, images: dict[float, Loop], gamma: float

@@ -457,7 +457,7 @@ def synthesize_state_feedback(
             if "infeasible" in str(exc):
                 if best is None:
                     reason = infeasibility_reason(verts, disk, gamma_max, scheduled)
-                    raise SynthesisError(f"{exc}: {reason}") from None
+                    raise SynthesisError(f"{exc}: {reason}", category=exc.category) from None
                 reports += step.reports  # a re-centred pass the solver calls infeasible: keep the best
                 notes.append(f"pass {k + 1}: stopped, the solver reports infeasible")
                 break
@@ -473,7 +473,8 @@ def synthesize_state_feedback(
             if best is None:
                 raise SynthesisError(f"{what}: no strictly feasible point that passes the independent "
                                      f"vertex-LMI re-check ({'; '.join(notes)}): "
-                                     f"{infeasibility_reason(verts, disk, gamma_max, scheduled)}")
+                                     f"{infeasibility_reason(verts, disk, gamma_max, scheduled)}",
+                                     category="accuracy")
             break
         previous, best = best, candidate if best is None or candidate.gamma < best.gamma else best
         if previous is not None and candidate.gamma_opt > previous.gamma_opt * (1.0 - 0.25 * suboptimality):

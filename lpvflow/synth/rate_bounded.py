@@ -414,7 +414,7 @@ def synthesize_gridded(plant_at: Callable[[float], VertexPlant], breakpoints: Se
     raise SynthesisError(f"after {refinements} refinements (breakpoints {np.round(points, 4).tolist()}) the "
                          f"certificate still fails against the true plant at p = {where:.4g} (margin "
                          f"{margin:.3g} at {1 + gamma_slack:g}× the designed γ): add breakpoints near it or "
-                         "lower the rate bound")
+                         "lower the rate bound", category="accuracy")
 
 
 def synthesize_rate_bounded(plant: GeneralizedPlant, rate_bound: float | None, solver: str = "CLARABEL",

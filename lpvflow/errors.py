@@ -19,8 +19,9 @@ class ModelError(LpvflowError, ValueError):
 
 class SynthesisError(ModelError):
     """No controller was returned, and why (every raise states it): ``category`` is ``"infeasible"`` (the
-    LMIs have no solution at any level tried, proven by an accurate solve), ``"accuracy"`` (the solver could not reach the accuracy
-    a certificate needs) or ``"assumption"`` (the plant violates an assumption of the method)."""
+    LMIs have no solution at any level tried, proven by an accurate solve), ``"accuracy"`` (the solver
+    could not reach the accuracy a certificate needs) or ``"assumption"`` (the plant violates an
+    assumption of the method)."""
 
     CATEGORIES = ("infeasible", "accuracy", "assumption")
 

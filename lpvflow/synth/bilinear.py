@@ -27,9 +27,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
-from lpvflow.synth.plant import VertexPlant
+from lpvflow.synth.plant import VertexPlant, interpolate
 from lpvflow.validate.stability import scaled_margin
+
+#: Largest condition number of the balancing state transform T that is used.
+MAX_BALANCING_CONDITION = 1e8
 
 
 def cayley(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -135,16 +139,69 @@ class Coordinates:
 
 
 def plain_coordinates(cayleys: list[VertexPlant]) -> Coordinates:
-    """Coordinates that need no solve: ω₀ = the largest ‖A_c‖₂, T = I, and D_u, D_y giving every column
-    of [B2; D12] and every row of [C2 D21] unit norm at the first vertex (the whole column and row: a
-    2-DOF reference has no state in it, and a measurement in other units has its size in D21 as much as
-    in C2). w and z are not scaled per channel: that would change ‖T_zw‖∞. There is no diagonal state
-    balancing: balancing |A_c| alone (``scipy.linalg.matrix_balance``) ignores B and C, and on 14 random
-    weighted plants (tests/hinf_cases.py, seed 2026) it left 11 more than 1 % from SB10DD where the
-    unbalanced image left 1."""
-    omega = max(float(np.linalg.norm(vc.A, 2)) for vc in cayleys)
-    n, nu, ny = cayleys[0].dims[0], cayleys[0].dims[2], cayleys[0].dims[4]
-    v0 = Coordinates(np.eye(n), omega, np.ones(nu), np.ones(ny)).apply(cayleys[0])
-    du = 1.0 / np.maximum(np.linalg.norm(np.vstack([v0.B2, v0.D12]), axis=0), 1e-300)
-    dy = np.maximum(np.linalg.norm(np.hstack([v0.C2, v0.D21]), axis=1), 1e-300)
-    return Coordinates(np.eye(n), omega, du, dy)
+    """Coordinates that need no SDP: the state transform of :func:`lqg_balancing` at the mean of the
+    vertices (identity when it does not exist), then ω₀ = the largest ‖A_c‖₂ and D_u, D_y giving every
+    column of [B2; D12] and every row of [C2 D21] unit norm at the first vertex (the whole column and row:
+    a 2-DOF reference has no state in it, and a measurement in other units has its size in D21 as much as
+    in C2). w and z are not scaled per channel: that would change ‖T_zw‖∞.
+
+    The state transform makes the coordinates the user's realization was given in irrelevant (a diagonal
+    state scaling of condition 95 made a 9-state chain of tests/hinf_cases.py unsolvable in them, and one
+    of the README plant left it 79 % above SB10DD). Diagonal balancing of |A_c| alone
+    (``scipy.linalg.matrix_balance``) is not used: it ignores B and C, and on 14 random weighted plants
+    (seed 2026) it left 11 more than 1 % from SB10DD."""
+    n = cayleys[0].dims[0]
+    mean = interpolate(cayleys, np.full(len(cayleys), 1.0 / len(cayleys)))
+    T = lqg_balancing(Coordinates(np.eye(n), 1.0, *_io_scales(mean, np.eye(n), 1.0)).apply(mean))
+    T = np.eye(n) if T is None else T
+    Ti = np.linalg.inv(T)
+    omega = max(float(np.linalg.norm(Ti @ vc.A @ T, 2)) for vc in cayleys)
+    return Coordinates(T, omega, *_io_scales(cayleys[0], T, omega))
+
+
+def _io_scales(vc: VertexPlant, T: np.ndarray, omega: float) -> tuple[np.ndarray, np.ndarray]:
+    """D_u, D_y giving the columns of [B2; D12] and rows of [C2 D21] of ``vc`` unit norm in (T, ω₀)."""
+    nu, ny = vc.dims[2], vc.dims[4]
+    v = Coordinates(T, omega, np.ones(nu), np.ones(ny)).apply(vc)
+    du = 1.0 / np.maximum(np.linalg.norm(np.vstack([v.B2, v.D12]), axis=0), 1e-300)
+    dy = np.maximum(np.linalg.norm(np.hstack([v.C2, v.D21]), axis=1), 1e-300)
+    return du, dy
+
+
+def lqg_balancing(vc: VertexPlant) -> np.ndarray | None:
+    """The state transform that balances the LQG Riccati pair of a continuous system (Jonckheere &
+    Silverman 1983, "A new set of invariants for linear systems — application to reduced order
+    compensator design", IEEE TAC 28(10)), here of the generalized plant as one system with all its
+    inputs B = [B1 B2] and outputs C = [C1; C2]: the stabilizing X, Y ⪰ 0 of
+
+        AᵀX + XA − XBBᵀX + CᵀC = 0,    AY + YAᵀ − YCᵀCY + BBᵀ = 0,
+
+    and T with T⁻¹YT⁻ᵀ = TᵀXT = Σ (:func:`balancing_transform`). Unlike Gramians they exist for unstable
+    plants; they depend on the realization only through T, so the coordinates T gives do not depend on
+    the state basis the plant was given in. (The H2 pair of the H∞ problem itself is singular for mixed
+    sensitivity: the weight states driven by the measured error are estimated exactly.) None when either
+    equation has no stabilizing solution or the pair is not positive definite."""
+    B, C = np.hstack([vc.B1, vc.B2]), np.vstack([vc.C1, vc.C2])
+    try:
+        X = scipy.linalg.solve_continuous_are(vc.A, B, C.T @ C, np.eye(B.shape[1]))
+        Y = scipy.linalg.solve_continuous_are(vc.A.T, C.T, B @ B.T, np.eye(C.shape[0]))
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    return balancing_transform(Y, X)
+
+
+def balancing_transform(R: np.ndarray, S: np.ndarray) -> np.ndarray | None:
+    """T with T⁻¹RT⁻ᵀ = TᵀST = Σ (R = LLᵀ, LᵀSL = VΣ²Vᵀ, T = LVΣ^(−1/2)), or None unless R and S are
+    positive definite and T is finite with cond(T) ≤ :data:`MAX_BALANCING_CONDITION`."""
+    R, S = 0.5 * (R + R.T), 0.5 * (S + S.T)
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(S))):
+        return None
+    r, U = np.linalg.eigh(R)
+    if r[0] <= 0 or np.linalg.eigvalsh(S)[0] <= 0:
+        return None
+    L = U * np.sqrt(r)[None, :]
+    w, V = np.linalg.eigh(L.T @ S @ L)
+    if w[0] <= 0:
+        return None
+    T = L @ V / w[None, :] ** 0.25
+    return T if np.all(np.isfinite(T)) and np.linalg.cond(T) <= MAX_BALANCING_CONDITION else None

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.linalg
 
 from lpvflow.errors import SynthesisError
-from lpvflow.synth.bilinear import Coordinates, plain_coordinates
+from lpvflow.synth.bilinear import Coordinates, balancing_transform, plain_coordinates
 from lpvflow.synth.plant import VertexPlant
 from lpvflow.synth.sdp import SolveReport, solve
 
@@ -25,8 +25,6 @@ from lpvflow.synth.sdp import SolveReport, solve
 #: two rounds (2.0, then 1.15) left 3 of 14 more than 1 % above and the ADIP 0.47 % above; 3.0 left 1 and
 #: the ADIP 1.09 %; 2.0 left 1 and the ADIP 0.74 %.
 BALANCING_FACTOR = 2.0
-#: Largest condition number of the balancing state transform T that is used.
-MAX_BALANCING_CONDITION = 1e8
 
 
 def sym(M: cp.Expression) -> cp.Expression:
@@ -143,23 +141,6 @@ def infeasible_at(verts: list[VertexPlant], gamma: float, solver: str) -> bool:
     except SynthesisError as exc:
         return exc.category == "infeasible"
     return report.accurate and float(t.value) < 0
-
-
-def balancing_transform(R: np.ndarray, S: np.ndarray) -> np.ndarray | None:
-    """T with T⁻¹RT⁻ᵀ = TᵀST = Σ (R = LLᵀ, LᵀSL = VΣ²Vᵀ, T = LVΣ^(−1/2)), or None unless R and S are
-    positive definite and T is finite with cond(T) ≤ :data:`MAX_BALANCING_CONDITION`."""
-    R, S = 0.5 * (R + R.T), 0.5 * (S + S.T)
-    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(S))):
-        return None
-    r, U = np.linalg.eigh(R)
-    if r[0] <= 0 or np.linalg.eigvalsh(S)[0] <= 0:
-        return None
-    L = U * np.sqrt(r)[None, :]
-    w, V = np.linalg.eigh(L.T @ S @ L)
-    if w[0] <= 0:
-        return None
-    T = L @ V / w[None, :] ** 0.25
-    return T if np.all(np.isfinite(T)) and np.linalg.cond(T) <= MAX_BALANCING_CONDITION else None
 
 
 @dataclass

@@ -16,8 +16,9 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
 1. **Assumptions** (:func:`check_assumptions`): at every vertex (A, B2) stabilizable and (C2, A) detectable
    (PBH rank test at every mode with |z| ≥ 1) and no pole at z = −1 (where the bilinear map of step 2 does
    not exist); otherwise no controller of any kind exists, and the error names the mode.
-2. **Coordinates.** Every LMI is posed on the bilinear (Cayley) image of each vertex, in the scalings of
-   :func:`lpvflow.synth.bilinear.plain_coordinates` (no solve; the module docstring there says why).
+2. **Coordinates.** Every LMI is posed on the bilinear (Cayley) image of each vertex, in the coordinates
+   of :func:`lpvflow.synth.bilinear.plain_coordinates` (no SDP: the LQG-balanced state of the mean vertex,
+   a frequency scale and u/y scalings), so the state basis the plant was given in does not matter.
 3. **Estimate** by the eliminated continuous conditions (Gahinet & Apkarian 1994, Thm. 4.3), per vertex
    with its own null-space bases N_R,i of [B2_iᵀ D12_iᵀ] and N_S,i of [C2_i D21_i]:
 
@@ -33,7 +34,7 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
    x = T x̃ with R = LLᵀ, LᵀSL = VΣ²Vᵀ, T = LVΣ^(−1/2) makes T⁻¹RT⁻ᵀ = TᵀST = Σ (Moore's balancing
    applied to R, S), so every block of step 5 is O(1). T is used only when that solve was accurate, R
    and S are positive definite and T is finite and well conditioned
-   (:func:`lpvflow.synth.eliminated.balancing_transform`); otherwise step 5 starts in step 2's
+   (:func:`lpvflow.synth.bilinear.balancing_transform`); otherwise step 5 starts in step 2's
    coordinates. Step 3 is solved again in the balanced coordinates. The first level of step 5 that passes
    gives another strictly feasible pair; when its T is further from the identity than cond
    :data:`REBALANCE_CONDITION`, the search stops there and is repeated below that level in the
@@ -77,9 +78,15 @@ import numpy as np
 import scipy.linalg
 
 from lpvflow.errors import ModelError, SynthesisError
-from lpvflow.synth.bilinear import Coordinates, cayley_vertex, certificate_margin, inverse_cayley
+from lpvflow.synth.bilinear import (
+    Coordinates,
+    balancing_transform,
+    cayley_vertex,
+    certificate_margin,
+    inverse_cayley,
+)
 from lpvflow.synth.controller import LPVController, mix, series_input_filter
-from lpvflow.synth.eliminated import balancing_transform, estimate, infeasible_at, preconditioned, sym
+from lpvflow.synth.eliminated import estimate, infeasible_at, preconditioned, sym
 from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
 from lpvflow.synth.rate_bounded import synthesize_scheduled

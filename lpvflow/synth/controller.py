@@ -196,6 +196,17 @@ class LPVController:
         return self.Ck.shape[1]
 
     @property
+    def n_p(self) -> int:
+        """The number of scheduling signals."""
+        return self.basis.n_p
+
+    @property
+    def design_box(self) -> np.ndarray | None:
+        """The scheduling box (n_p, 2) the controller was designed on; None when designed at one point
+        (``"point"`` polytope)."""
+        return None if self.polytope.kind == "point" else np.asarray(self.polytope.box, dtype=float)
+
+    @property
     def n_measured(self) -> int:
         """ny, the number of measured outputs (and of references) the controller reads."""
         return self.n_in // 2 if self.structure == "2dof" else self.n_in

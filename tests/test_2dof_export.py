@@ -22,7 +22,7 @@ from lpvflow.pipeline.ports import describe_signals
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
 from lpvflow.pipeline.verify import simulate_loop
 from lpvflow.synth.controller import AntiWindup, LPVController, Trim, observer_gains
-from lpvflow.synth.polytope import Polytope
+from lpvflow.synth.polytope import BoxPolytope, PiecewisePolytope, PointPolytope, Polytope
 from tests.adip_cases import TS
 from tests.test_antiwindup import upright_controller
 from tests.test_export import ADIP, _adip_model
@@ -42,8 +42,8 @@ SCENARIO = Scenario("-20° then +29°", 3.0,
 
 
 def _piecewise() -> Polytope:
-    return Polytope("piecewise", np.array([[BREAKPOINTS[0], BREAKPOINTS[-1]]]),
-                    np.column_stack([np.ones(3), BREAKPOINTS]), breakpoints=BREAKPOINTS)
+    return PiecewisePolytope(np.array([[BREAKPOINTS[0], BREAKPOINTS[-1]]]),
+                             np.column_stack([np.ones(3), BREAKPOINTS]), breakpoints=BREAKPOINTS)
 
 
 @functools.cache
@@ -178,8 +178,8 @@ def test_fmu_coordinates_are_the_python_hat_functions(tmp_path: Path) -> None:
 def test_fmu_trim_is_np_interp_in_and_outside_the_table(tmp_path: Path) -> None:
     trim = Trim([-0.5, 0.1, 0.4], [[1.0, -2.0], [3.0, 0.5], [-1.0, 0.0]])
     controller = LPVController(np.zeros((2, 1, 1)), np.zeros((2, 1, 1)), np.zeros((2, 2, 1)),
-                               np.zeros((2, 2, 1)), Polytope("box", np.array([[-1.0, 1.0]]),
-                                                             np.array([[1.0, -1.0], [1.0, 1.0]])),
+                               np.zeros((2, 2, 1)), BoxPolytope(np.array([[-1.0, 1.0]]),
+                                                       np.array([[1.0, -1.0], [1.0, 1.0]])),
                                Basis("affine", 1), 0.01, trim=trim)
     path = export_fmu(controller, tmp_path / "trim.fmu")
     p = np.concatenate([trim.p, np.linspace(-1.0, 1.0, 41)])
@@ -240,7 +240,7 @@ def test_fmu_antiwindup_sees_the_command_with_the_trim(tmp_path: Path) -> None:
 def test_an_lti_baseline_on_a_point_polytope_exports_and_steps_like_python(tmp_path: Path) -> None:
     """The pipeline's LTI baseline (a "point" polytope), 2-DOF with a trim: the FMU is the Python law."""
     rng = np.random.default_rng(5)
-    point = Polytope("point", np.array([[0.1, 0.1]]), np.array([[1.0, 0.1]]))
+    point = PointPolytope(np.array([[0.1, 0.1]]), np.array([[1.0, 0.1]]))
     controller = LPVController(0.3 * rng.standard_normal((1, 2, 2)), rng.standard_normal((1, 2, 2)),
                                rng.standard_normal((1, 1, 2)), rng.standard_normal((1, 1, 2)), point,
                                Basis("affine", 1), 0.01, structure="2dof",

@@ -23,14 +23,14 @@ from lpvflow.models import load
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
 from lpvflow.pipeline.verify import run_verification, simulate_loop
 from lpvflow.synth.controller import AntiWindup, LPVController, Trim
-from lpvflow.synth.polytope import Polytope
+from lpvflow.synth.polytope import PiecewisePolytope, PointPolytope, Polytope
 from tests.test_verify import BASIS, POLY, TS
 from tests.test_verify import B as GAIN
 from tests.test_verify import plants as plants  # the analytic plant FMUs (a pytest fixture)
 
 LOOP = Loop(("y",), ("u",), ("y",))
 STEP = Scenario("step", 1.0, reference={"y": Signal(steps=((0.1, 1.0),))})
-POINT = Polytope("point", np.array([[0.0, 0.0]]), np.array([[1.0, 0.0]]))
+POINT = PointPolytope(np.array([[0.0, 0.0]]), np.array([[1.0, 0.0]]))
 
 
 def _static(D: list[float], structure: str, poly: Polytope = POLY, trim: Trim | None = None) -> LPVController:
@@ -103,8 +103,7 @@ def test_the_controller_output_includes_the_trim_and_the_antiwindup_sees_it() ->
 
 def _piecewise(b: list[float]) -> Polytope:
     b = np.asarray(b, dtype=float)
-    return Polytope("piecewise", np.array([[b[0], b[-1]]]), np.column_stack([np.ones(len(b)), b]),
-                    breakpoints=b)
+    return PiecewisePolytope(np.array([[b[0], b[-1]]]), np.column_stack([np.ones(len(b)), b]), breakpoints=b)
 
 
 def test_piecewise_coordinates_are_hat_functions_of_the_first_signal() -> None:
@@ -129,9 +128,15 @@ def test_a_piecewise_controller_interpolates_its_vertex_matrices_per_segment() -
                       np.array([[[1.0]], [[3.0]], [[-1.0]]]), poly, BASIS, TS)
     assert K.matrices(np.array([-0.5]))[3][0, 0] == pytest.approx(2.0)
     assert K.matrices(np.array([0.25]))[3][0, 0] == pytest.approx(1.0)
-    unsorted = Polytope("piecewise", poly.box, poly.psi_vertices, breakpoints=np.array([0.0, -1.0, 0.5]))
     with pytest.raises(ModelError, match="one strictly ascending breakpoint per vertex"):
-        LPVController(K.Ak, K.Bk, K.Ck, K.Dk, unsorted, BASIS, TS)
+        PiecewisePolytope(poly.box, poly.psi_vertices, breakpoints=np.array([0.0, -1.0, 0.5]))
+    record = K.to_dict()  # a controller file: the same line, and an unknown kind is named
+    record["polytope"]["breakpoints"] = [0.0, -1.0, 0.5]
+    with pytest.raises(ModelError, match="one strictly ascending breakpoint per vertex"):
+        LPVController.from_dict(record)
+    record["polytope"]["kind"] = "simplex"
+    with pytest.raises(ModelError, match="unknown polytope kind 'simplex'"):
+        LPVController.from_dict(record)
 
 
 def test_structure_trim_and_breakpoints_survive_the_controller_file(tmp_path: Path) -> None:

@@ -18,7 +18,7 @@ from lpvflow.pipeline.verify import simulate_loop
 from lpvflow.synth.controller import AntiWindup, LPVController, observer_gains
 from lpvflow.synth.hinf import synthesize
 from lpvflow.synth.plant import generalized_plant
-from lpvflow.synth.polytope import Polytope
+from lpvflow.synth.polytope import BoxPolytope
 from tests.adip_cases import HINF_WEIGHTS, TS, rm
 from tests.test_verify import _constant
 from tests.test_verify import plants as plants  # the analytic plant FMUs (a pytest fixture)
@@ -44,7 +44,7 @@ def upright_controller() -> LPVController:
                   np.array([G.D, 0 * G.D]), basis, TS)
     point = synthesize(generalized_plant(model, HINF_WEIGHTS, [[0.0, 0.0]])).controller
     # the same controller at both vertices of a box: exportable (the FMU knows box polytopes)
-    box = Polytope("box", np.array([[-0.5, 0.5]]), np.array([[1.0, -0.5], [1.0, 0.5]]))
+    box = BoxPolytope(np.array([[-0.5, 0.5]]), np.array([[1.0, -0.5], [1.0, 0.5]]))
     return LPVController(*(np.repeat(M, 2, axis=0) for M in (point.Ak, point.Bk, point.Ck, point.Dk)), box,
                          basis, TS)
 

@@ -386,18 +386,18 @@ def test_only_extensions_on_the_unmapped_signals_are_adopted(cause, parameters, 
 
 def test_report_cells_show_text_not_escapes():
     """The report showed the certificate as a JSON list with \\u221e escapes."""
-    from lpvflow.pipeline.report import _fmt
+    from lpvflow.pipeline.report_text import format_value
 
-    assert _fmt(["frozen H∞ max 1.46", "γ = 1.47"]) == "frozen H∞ max 1.46; γ = 1.47"
-    assert "γ" in _fmt({"γ": [1, "‖ξ‖"]}) and "\\u" not in _fmt({"γ": [1, "‖ξ‖"]})
-    assert _fmt({"voltage": [-4.855337518599313, 4.4072050203053585]}) == "voltage: [-4.855, 4.407]"
+    assert format_value(["frozen H∞ max 1.46", "γ = 1.47"]) == "frozen H∞ max 1.46; γ = 1.47"
+    assert "γ" in format_value({"γ": [1, "‖ξ‖"]}) and "\\u" not in format_value({"γ": [1, "‖ξ‖"]})
+    assert format_value({"voltage": [-4.855337518599313, 4.4072050203053585]}) == "voltage: [-4.855, 4.407]"
 
 
 def test_verification_figures_have_a_caption_not_a_file_name(tmp_path):
     """The report captioned the closed-loop figures 'verify 0', 'verify 1', … (issue 25)."""
-    from lpvflow.pipeline.report import _embed
+    from lpvflow.pipeline.report_figures import embed_figure
 
     png = tmp_path / "verify_0.png"
     png.write_bytes(b"\x89PNG\r\n\x1a\n")
-    caption = _embed(png).split("<figcaption>")[1]
+    caption = embed_figure(png).split("<figcaption>")[1]
     assert "verify 0" not in caption and "LTI baseline" in caption

@@ -24,7 +24,7 @@ from lpvflow.pipeline.ports import controller_signals, describe_signals, design_
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
 from lpvflow.pipeline.verify import simulate_loop
 from lpvflow.synth.controller import LPVController
-from lpvflow.synth.polytope import Polytope, _corners
+from lpvflow.synth.polytope import BoxPolytope, ParabolaTriangle, Polytope, TermBoxPolytope, _corners
 
 ROOT = Path(__file__).resolve().parents[1]
 ADIP = ROOT / "fmu_plants" / "build" / "adip.fmu"
@@ -49,22 +49,22 @@ def _random_controller(
 
 def _box_controller() -> LPVController:
     box = np.array([[-1.0, 1.0], [0.0, 2.0]])
-    poly = Polytope("box", box, np.column_stack([np.ones(4), _corners(box)]))
+    poly = BoxPolytope(box, np.column_stack([np.ones(4), _corners(box)]))
     return _random_controller(poly, Basis("affine", 2, p_min=(-1.0, 0.0), p_max=(1.0, 2.0)), 1)
 
 
 def _parabola_controller() -> LPVController:
     a, b = -0.5, 1.5
     verts = np.array([[1.0, a, a * a], [1.0, 0.5 * (a + b), a * b], [1.0, b, b * b]])
-    poly = Polytope("parabola-triangle", np.array([[a, b]]), verts)
+    poly = ParabolaTriangle(np.array([[a, b]]), verts)
     return _random_controller(poly, Basis("poly", 1, degree=2, p_min=(a,), p_max=(b,)), 2)
 
 
 def _term_box_controller() -> LPVController:
     basis = Basis.spline([0.2], 1)  # ψ = [1, p, |p − 0.2|³] on p ∈ [−1, 1]
     term_box = np.array([[-1.0, 1.0], [0.0, 1.2**3]])
-    poly = Polytope(
-        "term-box", np.array([[-1.0, 1.0]]), np.column_stack([np.ones(4), _corners(term_box)]), term_box
+    poly = TermBoxPolytope(
+        np.array([[-1.0, 1.0]]), np.column_stack([np.ones(4), _corners(term_box)]), term_box
     )
     return _random_controller(poly, basis, 3, n=2, ny=1, nu=1)
 
@@ -122,7 +122,7 @@ def test_exported_fmu_validates_and_carries_binary_and_sources(exported: dict) -
 def _adip_lpv_controller() -> LPVController:
     """The ADIP's stabilizing LTI controller in the LPV convention e = r − y, a second vertex 5 % stronger."""
     lti = load_controller(ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json")
-    poly = Polytope("box", np.array([[-0.96, 0.96]]), np.array([[1.0, -0.96], [1.0, 0.96]]))
+    poly = BoxPolytope(np.array([[-0.96, 0.96]]), np.array([[1.0, -0.96], [1.0, 0.96]]))
     scale = np.array([1.0, 1.05])[:, None, None]
     stack = lambda M: np.array([M, M])  # noqa: E731
     return LPVController(
@@ -366,8 +366,8 @@ def test_fmu_scheduling_inputs_start_at_the_operating_point_and_the_trim_is_name
                                    rtol=1e-15)
     trim = Trim([-1.0, 1.0], [[4.2], [-4.2]])
     controller = LPVController(np.zeros((2, 1, 1)), np.zeros((2, 1, 2)), np.zeros((2, 1, 1)),
-                               np.zeros((2, 1, 2)), Polytope("box", np.array([[-1.0, 1.0]]),
-                                                             np.array([[1.0, -1.0], [1.0, 1.0]])),
+                               np.zeros((2, 1, 2)), BoxPolytope(np.array([[-1.0, 1.0]]),
+                                                       np.array([[1.0, -1.0], [1.0, 1.0]])),
                                Basis("affine", 1, p_min=(-0.2,), p_max=(0.9,)), 0.005, trim=trim)
     controller.info["signals"] = describe_signals(_adip_model(), {"sin_arm": "sin(arm_angle)"}, ADIP,
                                                   {"arm_angle": 0.0})

@@ -12,7 +12,9 @@ from pathlib import Path
 import pytest
 
 from lpvflow.pipeline.design import verdict_line
-from lpvflow.pipeline.report import _fmt, signal_units, summary_card, write_report
+from lpvflow.pipeline.report import write_report
+from lpvflow.pipeline.report_card import summary_card
+from lpvflow.pipeline.report_text import format_value, signal_units
 
 UNITS = {"arm_angle": "rad", "pendulum_angle": "rad", "voltage": "V"}
 SPEC = {"settling_time": 1.5, "overshoot": 0.0349, "after_settling": {"pendulum_angle": 0.0175}}
@@ -155,7 +157,7 @@ def test_the_report_opens_with_the_card_and_has_no_json_cells(tmp_path, summary)
     ({}, "–"),
 ])
 def test_stage_outputs_read_as_text_not_json(value, text):
-    assert _fmt(value) == text
+    assert format_value(value) == text
 
 
 def test_units_come_from_the_controllers_port_record(tmp_path):
@@ -204,7 +206,8 @@ def test_the_nugap_figure_is_drawn_over_the_plant_signal_the_scheduling_comes_fr
     """Frozen points of (sin φ, 1/(1 − κ cos² φ)) map back to the arm angle φ, in degrees."""
     import numpy as np
 
-    from lpvflow.pipeline.report import GAP_FIGURE, _figures, _physical_axis, _Unit
+    from lpvflow.pipeline.report_figures import GAP_FIGURE, draw_figures, physical_axis
+    from lpvflow.pipeline.report_text import DisplayUnit
 
     rng = np.random.default_rng(4)
     angles = np.sort(rng.uniform(-1.3, 1.3, 7))
@@ -214,11 +217,11 @@ def test_the_nugap_figure_is_drawn_over_the_plant_signal_the_scheduling_comes_fr
     (tmp_path / "experiment.json").write_text(json.dumps({"outputs": {"ranges": {
         "voltage": [-6.0, 6.0], "arm_angle": [-1.33, 1.37]}}}))
     thetas = [[np.sin(a), 1 / (1 - 0.3785 * np.cos(a) ** 2)] for a in angles]
-    units = {"arm_angle": _Unit.of("rad"), "voltage": _Unit.of("V")}
-    values, label = _physical_axis(tmp_path, thetas, units)
+    units = {"arm_angle": DisplayUnit.of("rad"), "voltage": DisplayUnit.of("V")}
+    values, label = physical_axis(tmp_path, thetas, units)
     assert label == "arm_angle [°]"
     np.testing.assert_allclose(values, np.degrees(angles), atol=0.05)  # the 4001-point search grid
-    assert _physical_axis(tmp_path, [[0.5, 9.0]], units) is None  # off the curve
+    assert physical_axis(tmp_path, [[0.5, 9.0]], units) is None  # off the curve
     (tmp_path / "validate.json").write_text(json.dumps({"outputs": {
         "theta": thetas, "nugap": [0.05] * 7, "b_P_Kid": [0.2] * 7}}))
-    assert GAP_FIGURE in _figures(tmp_path, units)
+    assert GAP_FIGURE in draw_figures(tmp_path, units)

@@ -20,7 +20,7 @@ from lpvflow.pipeline.design import run_design
 from lpvflow.pipeline.robustness import measurement_feedback
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.loop_shaping import central_ncf_controller
-from lpvflow.synth.polytope import Polytope
+from lpvflow.synth.polytope import PointPolytope
 from lpvflow.validate.robust_stability import generalized_margin
 from tests.design_files import tanks_head
 
@@ -84,7 +84,7 @@ def _wrapped(K: control.StateSpace, structure: str, rng: np.random.Generator) ->
         C = -C
     else:
         Bk, Dk = np.hstack([rng.standard_normal(B.shape), B]), np.hstack([rng.standard_normal(D.shape), D])
-    point = Polytope("point", np.array([[0.0, 0.0]]), np.array([[1.0, 0.0]]))
+    point = PointPolytope(np.array([[0.0, 0.0]]), np.array([[1.0, 0.0]]))
     return LPVController(A[None], Bk[None], C[None], Dk[None], point, Basis("affine", 1), 0.01,
                          structure=structure)
 

@@ -91,7 +91,7 @@ def test_the_verify_stage_records_the_largest_step_each_controller_holds(tmp_pat
     summary card states it."""
     from lpvflow.pipeline import stages
     from lpvflow.pipeline.config import check_table
-    from lpvflow.pipeline.report import summary_card
+    from lpvflow.pipeline.report_card import summary_card
 
     lti_controller.save(tmp_path / "controller.json")
     lti_controller.save(tmp_path / "baseline.json")

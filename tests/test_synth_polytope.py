@@ -1,6 +1,7 @@
 """Polytope of an LPVSS: convex coordinates reproduce ψ(p) and the vertex systems interpolate the model."""
 
 import numpy as np
+import pytest
 
 from lpvflow.basis import Basis
 from lpvflow.models import LPVSS
@@ -76,3 +77,47 @@ def test_a_design_on_signals_tied_along_breakpoints_is_checked_along_them_not_at
     result = synthesize(generalized_plant(model, weights, box, "1dof", rows))
     assert certify(result, None, weights).frozen_hinf_max <= result.gamma
     assert certify(result, model, weights).frozen_hinf_max > result.gamma
+
+
+def test_every_polytope_kind_is_a_class_and_survives_a_controller_file():
+    """polytope_of picks the kind's class (box, parabola-triangle, term-box, point; piecewise from
+    breakpoints); its λ(p) is a convex combination reproducing ψ(p) inside the box (the hat functions p₁
+    for piecewise), and a controller file gives back the same class with the same λ."""
+    from lpvflow.synth.controller import LPVController
+    from lpvflow.synth.polytope import (
+        BoxPolytope,
+        ParabolaTriangle,
+        PiecewisePolytope,
+        PointPolytope,
+        TermBoxPolytope,
+        piecewise_polytope,
+    )
+
+    rng = np.random.default_rng(34)
+    cases = [(Basis("affine", 2, p_min=(-1.0, 0.0), p_max=(2.0, 5.0)), None, BoxPolytope),
+             (Basis("poly", 1, degree=2, p_min=(-1.0,), p_max=(3.0,)), None, ParabolaTriangle),
+             (Basis("poly", 1, degree=3, p_min=(-1.0,), p_max=(1.0,)), None, TermBoxPolytope),
+             (Basis("affine", 1, p_min=(0.5,), p_max=(0.5,)), None, PointPolytope),
+             (Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,)), np.sort(rng.uniform(-0.9, 0.9, 3)),
+              PiecewisePolytope)]
+    for basis, inner, cls in cases:
+        model = _model(basis)
+        if inner is None:
+            poly = polytope_of(model)
+        else:
+            poly = piecewise_polytope(model, None, np.concatenate([[-1.0], inner, [1.0]]))
+        assert type(poly) is cls and poly.n_vertices == poly.expected_vertices
+        N = poly.n_vertices
+        K = LPVController(*(rng.standard_normal((N, *shape)) for shape in ((2, 2), (2, 1), (1, 2), (1, 1))),
+                          poly, basis, 0.01)
+        loaded = LPVController.from_dict(K.to_dict()).polytope
+        assert type(loaded) is cls and loaded.kind == poly.kind
+        for p in rng.uniform(basis.p_min, basis.p_max, size=(10, basis.n_p)):
+            lam = poly.coordinates_at(basis, p)
+            assert lam.min() >= 0 and abs(lam.sum() - 1) < 1e-12
+            np.testing.assert_array_equal(loaded.coordinates_at(basis, p), lam)
+            if cls is PiecewisePolytope:
+                assert lam @ poly.breakpoints == pytest.approx(p[0], abs=1e-12)
+            else:
+                psi = basis.eval(p.reshape(1, -1))[0]
+                np.testing.assert_allclose(lam @ poly.psi_vertices, psi, atol=1e-12)

@@ -16,7 +16,7 @@ from lpvflow.pipeline import stages
 from lpvflow.pipeline.config import load_tables
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.design import trim as design_trim
-from lpvflow.synth.polytope import Polytope
+from lpvflow.synth.polytope import BoxPolytope
 
 SYNTH = '[synth]\nweights.S = { bandwidth = 1.0 }\nweights.K = { num = [1], den = [1] }\n'
 
@@ -61,7 +61,7 @@ def test_a_bad_trim_table_is_one_line_naming_the_key(tmp_path: Path, trim: str, 
 
 
 def _controller(nu: int) -> LPVController:
-    poly = Polytope("box", np.array([[-1.0, 1.0]]), np.array([[1.0, -1.0], [1.0, 1.0]]))
+    poly = BoxPolytope(np.array([[-1.0, 1.0]]), np.array([[1.0, -1.0], [1.0, 1.0]]))
     return LPVController(np.zeros((2, 1, 1)), np.zeros((2, 1, 2)), np.zeros((2, nu, 1)), np.zeros((2, nu, 2)),
                          poly, Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,)), 0.01)
 

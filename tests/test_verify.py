@@ -25,13 +25,13 @@ from lpvflow.pipeline.loop_metrics import ClosedLoopRun, after_settling_peaks, r
 from lpvflow.pipeline.scenarios import Loop, Requirements, Scenario, Signal
 from lpvflow.pipeline.verify import coverage_note, plot_runs, run_verification, verify
 from lpvflow.synth.controller import LPVController
-from lpvflow.synth.polytope import Polytope
+from lpvflow.synth.polytope import BoxPolytope
 from tests.test_export import _adip_lpv_controller
 
 ROOT = Path(__file__).resolve().parents[1]
 ADIP = ROOT / "fmu_plants" / "build" / "adip.fmu"
 TS, B = 0.01, 0.5
-POLY = Polytope("box", np.array([[-1.0, 1.0]]), np.array([[1.0, -1.0], [1.0, 1.0]]))
+POLY = BoxPolytope(np.array([[-1.0, 1.0]]), np.array([[1.0, -1.0], [1.0, 1.0]]))
 BASIS = Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,))
 LOOP = Loop(("y",), ("u",), ("y",))
 
@@ -90,7 +90,7 @@ def test_scheduling_outside_the_design_box_is_measured_and_named(plants: dict) -
     # c = 0.9, scheduled on y itself: y = 1 − 0.9^j after the step at k = 10 leaves the box [−0.5, 0.5]
     # when 0.9^j < 0.5, i.e. from j = 7 (k = 17) to the end of the 100-sample run: 83 samples outside
     kp = 0.1 / B
-    narrow = Polytope("box", np.array([[-0.5, 0.5]]), np.array([[1.0, -0.5], [1.0, 0.5]]))
+    narrow = BoxPolytope(np.array([[-0.5, 0.5]]), np.array([[1.0, -0.5], [1.0, 0.5]]))
     basis = Basis("affine", 1, p_min=(-0.5,), p_max=(0.5,))
     zero = np.zeros((2, 1, 1))
     controller = LPVController(zero, zero, zero, np.full((2, 1, 1), kp), narrow, basis, TS)  # u = kp e

@@ -81,6 +81,10 @@ class LtiController:
             u_op=np.zeros(len(outputs)) if u_op is None else np.asarray(u_op, float).reshape(-1),
         )
 
+    def trim_along(self, columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+        """(n, nu) trim of the first n samples of a record: the constant u_op (``columns`` unused)."""
+        return np.broadcast_to(self.u_op, (n, len(self.u_op)))
+
     def response(self, w: np.ndarray) -> np.ndarray:
         """The controller's outputs (N, n_u) for the input sequence ``w`` (N, n_y) from rest, without the
         operating points: xc(k+1) = A xc(k) + B w(k), v(k) = C xc(k) + D w(k)."""
@@ -259,6 +263,18 @@ class GriddedController:
         j = min(i + 1, len(self.grid) - 1)
         mats = (self.A, self.B, self.C, self.D, self.y_op, self.u_op)
         return tuple((1 - t) * M[i] + t * M[j] for M in mats)
+
+    def trim_along(self, columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+        """(n, nu) trim u_op(θ(k)) of the first n samples of a record, θ(k) the scheduling expression of
+        its columns (the measurements read and their ``<output>_setpoint``, 0 where not recorded), u_op
+        interpolated linearly on the grid and clipped at its ends, as the controller ran (:meth:`at`)."""
+        from lpvflow.experiment.scheduling import evaluate
+
+        signals = {name: columns[name][:n] for name in self.inputs}
+        signals |= {f"{name}_setpoint": columns.get(f"{name}_setpoint", np.zeros(n))[:n]
+                    for name in self.inputs}
+        theta = np.broadcast_to(evaluate(self.scheduling, signals), (n,))
+        return np.column_stack([np.interp(theta, self.grid, column) for column in self.u_op.T])
 
     def scheduling_function(self):
         """θ as a function of one sample of [outputs read, their set-points] (:attr:`scheduling_names`)."""

@@ -1,6 +1,7 @@
 """The one closed-loop engine: a controller of the protocol (:mod:`lpvflow.loop.protocol`) and a plant
 (an FMU, :class:`lpvflow.experiment.plant.Plant`, or an identified model, :class:`ModelPlant`) stepped
-together at the controller's Ts. The experiment, the model-in-the-loop validation and verification all
+together at the controller's Ts. The experiment, the model-in-the-loop validation, verification and the
+diagnosis (an input-output model in the identification loop, :mod:`lpvflow.validate.closed_loop`) all
 close their loops here; what differs between them (sensor models and disturbances on the measurement,
 excitation, limits and disturbances on the command, stopping rules, what is recorded) enters through
 the hooks of :func:`close_loop`.
@@ -71,6 +72,8 @@ def close_loop(
     record: Callable[[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None], None] | None = None,
     plant_failure: Callable[[int, LpvflowError], str] | None = None,
     Ts: float | None = None,
+    respond: Callable[[int, np.ndarray], np.ndarray] | None = None,
+    passes: int = 0,
 ) -> str | None:
     """Run K and ``plant`` for ``n`` samples; returns why the run stopped early, or None.
 
@@ -82,7 +85,13 @@ def close_loop(
     input vector u = ``actuate(k, u_c, p)`` (default: u_c on K's outputs, the other inputs at their start
     values, ``plant.start_value``); ``record(k, y, p, u_c, u)`` (u None when u_c ended the run); the plant
     steps by Ts (default the controller's). A plant step that fails raises, or with ``plant_failure``
-    ends the run with its reason."""
+    ends the run with its reason.
+
+    A plant whose output at t_k depends on its input at t_k (direct feedthrough: an algebraic loop with
+    K) gives ``respond(k, u)``, its output with u as the present input; y(k) is then resolved from
+    ``plant.outputs()`` by ``passes`` fixed-point passes y ← respond(k, actuate(k, K.output(r, y, p), p)),
+    p the schedule of y, K's state not advanced (``K``: a
+    :class:`~lpvflow.loop.protocol.FeedthroughController`), before ``measure`` and the step."""
     names = list(plant.output_names if scheduling_names is None else scheduling_names)
     schedule = K.scheduling(names)
     y_index = [plant.output_names.index(name) for name in K.inputs]
@@ -100,6 +109,9 @@ def close_loop(
     for k in range(n):
         t = k * Ts
         y = np.asarray(plant.outputs(), dtype=float)
+        for _ in range(passes):
+            p = schedule(y if signals is None else signals(k, y), references[k])
+            y = respond(k, actuate(k, K.output(references[k], y[y_index], p), p))
         if measure is not None:
             y = measure(k, y)
         if stop is not None and (reason := stop(k, y)) is not None:

@@ -23,7 +23,10 @@ class FmuController:
     read, then ``fmi2DoStep(t_k, Ts)``. An FMU without measured ports (written before they existed) reads
     e = r − y on its reference ports (``structure = "1dof"``). The FMU's outputs include its operating
     point and trim feed-forward, so ``u_offset`` is zero and the loop adds no operating point of its own.
+    The FMU does not record the scheduling box it was designed on (``design_box`` None).
     """
+
+    design_box = None
 
     def __init__(self, path: str | Path) -> None:
         path = Path(path)
@@ -69,6 +72,10 @@ class FmuController:
         self._slave.doStep(self._time, self.Ts)
         self._time += self.Ts
         return u
+
+    def feedforward(self, p: np.ndarray) -> np.ndarray:
+        """Zero: the trim feed-forward is in the FMU's outputs (class docstring)."""
+        return np.zeros(self.n_out)
 
     def close(self) -> None:
         if self._slave is not None:

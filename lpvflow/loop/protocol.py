@@ -51,6 +51,13 @@ class LoopController(Protocol):
     def trim(self, p: np.ndarray) -> np.ndarray: ...
 
 
+class FeedthroughController(LoopController, Protocol):
+    """A controller whose command can be evaluated without advancing its state: ``output(r, y, p)`` is
+    what ``step(r, y, p)`` returns (the fixed-point passes of :func:`lpvflow.loop.engine.close_loop`)."""
+
+    def output(self, r: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray: ...
+
+
 def _held(r: np.ndarray, operating: np.ndarray) -> np.ndarray:
     """The references, the operating point where none is given (NaN)."""
     r = np.asarray(r, dtype=float)
@@ -79,6 +86,13 @@ class LtiLaw:
         z = self._law @ self._w
         self._w[: self._nx] = z[: self._nx]
         return self.K.u_op + z[self._nx:]
+
+    def output(self, r: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """u(k) = u_op + C xc(k) + D (y − ȳ) at the present state, without advancing it (the fixed-point
+        passes of a plant with direct feedthrough: :func:`lpvflow.loop.engine.close_loop`)."""
+        w = self._w.copy()
+        w[self._nx:] = y - _held(r, self.K.y_op)
+        return self.K.u_op + self._law[self._nx:] @ w
 
     def trim(self, p: np.ndarray) -> np.ndarray:
         return self.K.u_op

@@ -9,10 +9,7 @@ import numpy as np
 
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
-from lpvflow.experiment.controller import GriddedController
 from lpvflow.experiment.loader import load_experiment_controller
-from lpvflow.experiment.scheduling import evaluate
-from lpvflow.experiment.synthesized import SynthesizedController
 from lpvflow.pipeline.context import StageContext
 
 
@@ -59,12 +56,10 @@ def model_coordinates(ctx: StageContext, data: Dataset) -> Dataset:
 
 def controller_trim(ctx: StageContext, data: Dataset) -> np.ndarray:
     """The experiment controller's trim at every sample of ``data`` (the whole record), (N, nu) over the
-    model inputs (0 for inputs it does not drive): a gridded controller's u_op(θ(k)), θ(k) its scheduling
-    expression of the recorded measurements and set-points (``<output>_setpoint``, 0 where not recorded)
-    and u_op interpolated linearly on its grid, clipped at the ends, as the controller ran
-    (:meth:`~lpvflow.experiment.controller.GriddedController.at`); an LTI controller's constant u_op; an LPV
-    controller's u_op + u_eq(p(k)), p(k) its scheduling expressions of the recorded outputs
-    (:meth:`~lpvflow.experiment.synthesized.SynthesizedController.trim_along`)."""
+    model inputs (0 for inputs it does not drive), as the controller ran: its ``trim_along`` of the
+    recorded columns (an LTI controller's constant u_op; a gridded controller's u_op(θ(k)),
+    :meth:`~lpvflow.experiment.controller.GriddedController.trim_along`; an LPV controller's
+    u_op + u_eq(p(k)), :meth:`~lpvflow.experiment.synthesized.SynthesizedController.trim_along`)."""
     path = ctx.config["experiment"]["controller"]
     if not path:
         raise DataError("[identify] remove_trim needs an [experiment] controller (its trim is removed)")
@@ -74,19 +69,7 @@ def controller_trim(ctx: StageContext, data: Dataset) -> np.ndarray:
         raise DataError(f"[identify] remove_trim: the experiment controller drives {missing}, which are not "
                         f"model inputs {data.u_names}")
     trim = np.zeros_like(data.u)
-    columns = [data.u_names.index(name) for name in K.outputs]
-    if not isinstance(K, GriddedController | SynthesizedController):
-        trim[:, columns] = K.u_op
-        return trim
-    table = ctx.columns()
-    if isinstance(K, SynthesizedController):
-        trim[:, columns] = K.trim_along(table, data.N)
-        return trim
-    signals = {name: table[name][: data.N] for name in K.inputs}
-    signals |= {f"{name}_setpoint": table.get(f"{name}_setpoint", np.zeros(len(table["time"])))[: data.N]
-                for name in K.inputs}
-    theta = np.broadcast_to(evaluate(K.scheduling, signals), (data.N,))
-    trim[:, columns] = np.column_stack([np.interp(theta, K.grid, column) for column in K.u_op.T])
+    trim[:, [data.u_names.index(name) for name in K.outputs]] = K.trim_along(ctx.columns(), data.N)
     return trim
 
 

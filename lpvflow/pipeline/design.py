@@ -325,7 +325,7 @@ def verdict_line(summary: dict) -> str:
     """The one line ``lpvflow design`` ends with: passed or not, the scenarios each controller passes and
     the verdict's reason, e.g. "design did not pass: LPV controller passes 2 of 4 scenarios, LTI
     baseline 4 of 4; arm to +75 deg: …"."""
-    from lpvflow.pipeline.report import scenario_tally
+    from lpvflow.pipeline.report_card import scenario_tally
 
     verdict = summary["verdict"]
     head = "design passed" if verdict["pass"] else "design did not pass"

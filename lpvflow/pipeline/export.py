@@ -69,7 +69,6 @@ from lpvflow.loop.loader import load_controller_file
 from lpvflow.models import user_mode
 from lpvflow.pipeline.ports import ControllerSignals, Port, controller_signals
 from lpvflow.synth.controller import LPVController
-from lpvflow.synth.polytope import Polytope
 
 FORMATS = ("fmu", "json", "mat")
 TEMPLATE_DIR = Path(__file__).resolve().parent / "controller_fmu"
@@ -87,29 +86,12 @@ _POLYTOPE_CODES = {
 
 
 def interpolation_rule(controller: LPVController, signals: ControllerSignals) -> str:
-    """How the FMU and MAT user get the vertex weights λ(p) of this controller's polytope, in words."""
-    poly, basis = controller.polytope, controller.basis
+    """How the FMU and MAT user get the vertex weights λ(p) of this controller's polytope, in words
+    (:meth:`lpvflow.synth.polytope.Polytope.rule`)."""
+    basis = controller.basis
     p_names = [port.name for port in signals.scheduling]
     psi = f"ψ(p) = [{', '.join(basis.term_names)}] with (p0, p1, …) = ({', '.join(p_names)})"
-    if poly.kind == "box":
-        return (f"{psi}; box polytope over {box_words(poly.box, p_names)}: "
-                "t_k = clip((p_k − lo_k)/(hi_k − lo_k), 0, 1), λ_v = Π_k (t_k at the upper, 1 − t_k at the "
-                "lower bound of corner v), corners ordered with the first signal varying slowest")
-    if poly.kind == "parabola-triangle":
-        return (f"{psi}; triangle around the parabola over {box_words(poly.box, p_names)} (vertices "
-                "ψ at a, (a+b)/2 with ab, b): λ = vertex_inverse · ψ(p) (barycentric), negative entries "
-                "set to 0 and λ divided by its sum")
-    if poly.kind == "point":
-        at = ", ".join(f"{name} = {lo:g}" for name, (lo, _) in zip(p_names, poly.box, strict=True))
-        return f"one vertex: an LTI controller designed at {at}; λ = [1] (only the trim reads the scheduling)"
-    if poly.kind == "piecewise":
-        b = ", ".join(f"{v:g}" for v in poly.breakpoints)
-        return (f"piecewise over {p_names[0]} with breakpoints b = [{b}] (vertex i at b_i): "
-                f"t = clip({p_names[0]}, b_0, b_last), j the last segment start with b_j ≤ t, "
-                "λ_(j+1) = (t − b_j)/(b_(j+1) − b_j), λ_j = 1 − λ_(j+1), every other λ zero")
-    return (f"{psi}; term box (bounds of each non-constant term of ψ over the scheduling box "
-            f"{box_words(poly.box, p_names)}): t_j = clip((ψ_j − lo_j)/(hi_j − lo_j), 0, 1), "
-            "λ multilinear in t as for a box, first term varying slowest")
+    return controller.polytope.rule(psi, p_names)
 
 
 def trim_rule(controller: LPVController, signals: ControllerSignals) -> str:
@@ -120,11 +102,6 @@ def trim_rule(controller: LPVController, signals: ControllerSignals) -> str:
     name = signals.scheduling[0].name
     return (f"u_eq({name}) per actuated input: linear interpolation of the trim table over {name} = "
             f"[{', '.join(f'{v:g}' for v in trim.p)}], clamped at its ends")
-
-
-def box_words(box: np.ndarray, names: Sequence[str]) -> str:
-    """``name ∈ [lo, hi]`` per scheduling signal."""
-    return ", ".join(f"{name} ∈ [{lo:g}, {hi:g}]" for name, (lo, hi) in zip(names, box, strict=True))
 
 
 def load_lpv_controller(path: str | Path) -> LPVController:
@@ -184,6 +161,7 @@ def export_mat(
     _check_finite(controller)
     signals = controller_signals(controller, names)
     basis, poly = controller.basis, controller.polytope
+    tables = poly.tables()
     basis_struct = {
         "kind": basis.kind,
         "n_p": basis.n_p,
@@ -209,14 +187,14 @@ def export_mat(
         "basis": basis_struct,
         "Ts": float(controller.Ts),
         "interpolation": interpolation_rule(controller, signals),
-        "vertex_inverse": _vertex_inverse(poly) if poly.kind == "parabola-triangle" else np.zeros((0, 0)),
+        "vertex_inverse": tables.get("vertex_inverse", np.zeros((0, 0))),
         "scheduling_expressions": _cell([port.expression or port.name for port in signals.scheduling]),
         "y_operating_point": np.array([port.operating_point for port in signals.measured]),
         "u_operating_point": np.array([port.operating_point for port in signals.actuated]),
         "structure": controller.structure,
         "trim_p": controller.trim.p if controller.trim is not None else np.zeros(0),
         "trim_u": controller.trim.u if controller.trim is not None else np.zeros((0, controller.n_out)),
-        "breakpoints": np.asarray(poly.breakpoints if poly.kind == "piecewise" else [], dtype=float),
+        "breakpoints": tables.get("breakpoints", np.zeros(0)),
     }
     if controller.antiwindup is not None:  # x⁺ += Σλ_i L_i (clip(u_op + u, u_min, u_max) − u_op − u)
         aw = controller.antiwindup
@@ -281,37 +259,23 @@ def _basis_code(controller: LPVController) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _vertex_inverse(poly: Polytope) -> np.ndarray:
-    """V⁻¹ with V the vertex basis vectors as columns: λ = V⁻¹ ψ (parabola-triangle)."""
-    return np.linalg.inv(poly.psi_vertices.T)
+def _c_matrix(name: str, rows: np.ndarray) -> str:
+    """``static const double NAME[r][c] = {{...}, ...};``."""
+    body = ",\n    ".join("{" + ", ".join(_c_number(v) for v in row) + "}" for row in rows)
+    return f"static const double {name}[{len(rows)}][{len(rows[0])}] = {{\n    {body}\n}};\n"
 
 
 def _polytope_code(controller: LPVController) -> str:
-    poly = controller.polytope
-    if poly.kind == "parabola-triangle":
-        inverse = _vertex_inverse(poly)
-        rows = ",\n    ".join("{" + ", ".join(_c_number(v) for v in row) + "}" for row in inverse)
-        return f"static const double VERTEX_INVERSE[{len(inverse)}][{len(inverse)}] = {{\n    {rows}\n}};\n"
-    if poly.kind == "piecewise":
-        return _c_array("BREAKPOINTS", poly.breakpoints)
-    if poly.kind == "point":
-        return ""
-    bounds = poly.box if poly.kind == "box" else poly.term_box
-    rows = ",\n    ".join("{" + ", ".join(_c_number(v) for v in row) + "}" for row in bounds)
-    return f"static const double TERM_BOUNDS[{len(bounds)}][2] = {{\n    {rows}\n}};\n"
+    """The polytope's tables (:meth:`lpvflow.synth.polytope.Polytope.tables`) as C arrays, names in
+    capitals."""
+    return "".join(_c_matrix(name.upper(), values) if np.ndim(values) == 2 else _c_array(name.upper(), values)
+                   for name, values in controller.polytope.tables().items())
 
 
 def _check_exportable(controller: LPVController) -> None:
     _check_finite(controller)
     poly, basis = controller.polytope, controller.basis
-    if poly.kind not in _POLYTOPE_CODES:
-        raise ModelError(f"unknown polytope kind {poly.kind!r}; export knows {', '.join(_POLYTOPE_CODES)}")
-    if poly.kind == "piecewise":  # LPVController checked one breakpoint per vertex
-        expected = len(poly.breakpoints)
-    elif poly.kind == "point":
-        expected = 1
-    else:
-        expected = 3 if poly.kind == "parabola-triangle" else 2 ** (basis.n_psi - 1)
+    expected = poly.expected_vertices
     if poly.n_vertices != expected or poly.psi_vertices.shape[1] != basis.n_psi:
         raise ModelError(
             f"the {poly.kind} polytope has {poly.n_vertices} vertices of size "

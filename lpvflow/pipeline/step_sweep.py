@@ -13,7 +13,7 @@ unchanged (duration, disturbances, plant parameters, bounds, requirements). A ru
 Assuming that a controller which holds a step also holds every smaller one, bisection finds the largest
 held amplitude to within ``resolution``: the returned a is held (or 0: no tried step was held) and
 a + resolution is not, unless a = a_max. The design report shows the result when the verify stage
-records it as ``largest_held_step`` (:func:`lpvflow.pipeline.report.summary_card`).
+records it as ``largest_held_step`` (:func:`lpvflow.pipeline.report_card.summary_card`).
 """
 
 from __future__ import annotations

@@ -48,9 +48,12 @@ _TS_TOLERANCE = 1e-9
 
 # ------------------------------------------------------------------------------------------ laws
 class _FixedLaw:
-    """LTI law u = C x + D (s·e), x⁺ = A x + B (s·e), with s = +1 (e = r − y) or −1 (y − r); 1-DOF."""
+    """LTI law u = C x + D (s·e), x⁺ = A x + B (s·e), with s = +1 (e = r − y) or −1 (y − r); 1-DOF, not
+    scheduled (no n_p, no design box)."""
 
     structure = "1dof"
+    n_p = None
+    design_box = None
 
     def __init__(
         self,
@@ -76,13 +79,18 @@ class _FixedLaw:
         self.x = self.A @ self.x + self.B @ w
         return u
 
+    def feedforward(self, p: np.ndarray) -> np.ndarray:
+        """No trim apart from the operating point: zero."""
+        return np.zeros(self.n_out)
+
 
 #: Controllers the loop can run.
 Baseline = LPVController | control.StateSpace | LtiController | FmuController
 
 
 def _law(controller: Baseline, loop: Loop) -> LPVController | _FixedLaw | FmuController:
-    """The controller as an object with Ts, n_in, n_out, structure, reset() and step(w, p) -> u − u_op."""
+    """The controller as an object with Ts, n_in, n_out, structure, n_p (None: not scheduled), design_box
+    (None: none recorded), reset(), step(w, p) -> u − u_op and feedforward(p) (the trim u_eq(p))."""
     if isinstance(controller, LPVController | FmuController):
         return controller
     if isinstance(controller, control.StateSpace):
@@ -186,7 +194,7 @@ def simulate_loop_on(
             f"{len(loop.measured)} plant output(s) {list(loop.measured)} ({inputs} {law.structure} "
             f"controller inputs) and drives {len(loop.actuated)} input(s) {list(loop.actuated)}"
         )
-    n_p = law.basis.n_p if isinstance(law, LPVController) else getattr(law, "n_p", None)
+    n_p = law.n_p
     if n_p is not None and not callable(loop.scheduling) and n_p != len(loop.scheduling):
         raise ModelError(
             f"{label} is scheduled on {n_p} signal(s); the loop gives "
@@ -240,7 +248,7 @@ class _LoopLaw:
         return self.u_op + self.law.step(w, p)
 
     def trim(self, p: np.ndarray) -> np.ndarray:
-        return self.u_op + (self.law.feedforward(p) if isinstance(self.law, LPVController) else 0.0)
+        return self.u_op + self.law.feedforward(p)
 
 
 def _run(
@@ -312,14 +320,7 @@ def _run(
     p_arr = np.full((n, n_p), np.nan)
     p_arr[: len(p_log)] = p_log
     return ClosedLoopRun(label, t, r, y, u_c, u, p_arr, loop.measured, loop.actuated, failure,
-                         _design_box(law))
-
-
-def _design_box(law: LPVController | _FixedLaw | FmuController) -> np.ndarray | None:
-    """The scheduling box of an LPV controller's polytope; None when the law does not schedule."""
-    if isinstance(law, LPVController) and law.polytope.kind != "point":
-        return np.asarray(law.polytope.box, dtype=float)
-    return None
+                         law.design_box)
 
 
 def box_text(rows: Sequence[Sequence[float]]) -> str:

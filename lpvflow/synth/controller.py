@@ -42,7 +42,7 @@ import numpy as np
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, ModelError
 from lpvflow.models import FORMAT_VERSION, atomic_write_json, check_format
-from lpvflow.synth.polytope import Polytope
+from lpvflow.synth.polytope import Polytope, polytope_of_kind
 
 
 @dataclass
@@ -175,12 +175,6 @@ class LPVController:
         if self.trim is not None and self.trim.u.shape[1] != nu:
             raise ModelError(f"the trim table has {self.trim.u.shape[1]} column(s) for the controller's "
                              f"{nu} output(s)")
-        poly = self.polytope
-        if poly.kind == "piecewise":
-            b = poly.breakpoints
-            if b is None or len(b) != N or N < 2 or np.any(np.diff(b) <= 0):
-                raise ModelError(f"a piecewise polytope needs one strictly ascending breakpoint per vertex "
-                                 f"({N}), at least 2; got {None if b is None else np.asarray(b).tolist()}")
         self.reset()
 
     @property
@@ -194,6 +188,17 @@ class LPVController:
     @property
     def n_out(self) -> int:
         return self.Ck.shape[1]
+
+    @property
+    def n_p(self) -> int:
+        """The number of scheduling signals."""
+        return self.basis.n_p
+
+    @property
+    def design_box(self) -> np.ndarray | None:
+        """The scheduling box (n_p, 2) the controller was designed on; None when designed at one point
+        (``"point"`` polytope)."""
+        return self.polytope.design_box
 
     @property
     def n_measured(self) -> int:
@@ -279,10 +284,10 @@ class LPVController:
         check_format(d, "lpv-controller")
         try:
             pd = d["polytope"]
-            poly = Polytope(pd["kind"], np.asarray(pd["box"], float), np.asarray(pd["psi_vertices"], float),
-                            None if pd.get("term_box") is None else np.asarray(pd["term_box"], float),
-                            breakpoints=None if pd.get("breakpoints") is None
-                            else np.asarray(pd["breakpoints"], float))
+            term_box, breakpoints = (None if pd.get(key) is None else np.asarray(pd[key], float)
+                                     for key in ("term_box", "breakpoints"))
+            poly = polytope_of_kind(pd["kind"], np.asarray(pd["box"], float),
+                                    np.asarray(pd["psi_vertices"], float), term_box, breakpoints)
             Dk = np.asarray(d["Dk"], float)
             N, nu, ny = Dk.shape
             # JSON drops the empty dimensions of a controller without states: n from the size of Ak

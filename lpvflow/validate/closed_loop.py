@@ -12,6 +12,10 @@ is recomputed from the simulated outputs; other scheduling columns are taken as 
 
 The excitation is recovered from the record itself, r(k) = u(k) − K(y)(k) (the controller run on the
 recorded outputs it read), so no excitation column is needed and r is exact up to rounding.
+
+Every loop here is :func:`lpvflow.loop.engine.close_loop` with the controller's protocol object
+(:class:`lpvflow.loop.protocol.LtiLaw`): the model in the loop as the plant :class:`InLoopModel`, the
+record's outputs played back (:class:`PlayedBack`) to recover the excitation and the loop's signals.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.scheduling import compile_expression
+from lpvflow.loop.engine import close_loop
+from lpvflow.loop.protocol import LtiLaw
 from lpvflow.lpvio import LPVIO
 
 #: A simulated state beyond this magnitude means the model's closed loop diverged.
@@ -48,10 +54,9 @@ class Loop:
         if missing:
             raise DataError(f"the controller reads or drives {missing}, which are not outputs/inputs of the "
                             f"data (y {data.y_names}, u {data.u_names})")
-        y_index = [data.y_names.index(n) for n in controller.inputs]
         u_index = [data.u_names.index(n) for n in controller.outputs]
-        law = controller.u_op + controller.response(data.y[:, y_index] - controller.y_op)
-        return cls(controller, data.u[:, u_index] - law, dict(scheduling or {}))
+        return cls(controller, data.u[:, u_index] - _commands(controller, data.y, data),
+                   dict(scheduling or {}))
 
 
 def velocity_sign(y: np.ndarray) -> np.ndarray:
@@ -90,51 +95,97 @@ def simulate_in_loop(
     if model.form != "shifted":
         raise DataError("closed-loop simulation needs the shifted (LPR) form: in the static form the "
                         "coefficients of past outputs depend on the current, simulated scheduling")
-    K = loop.controller
-    n, ny = data.N, data.y.shape[1]
-    y_index, u_index, computed = _wiring(data, loop)
-    extra = np.zeros((n, 0)) if exogenous is None else np.asarray(exogenous, float).reshape(n, -1)
-    n_a, n_b, n_psi = model.A.shape[0], model.B.shape[0], model.basis.n_psi
-    a_flat = np.moveaxis(model.A, 1, 0).reshape(n_psi, -1)  # ψ @ a_flat = A_1 … A_na at ψ, flattened
-    b_flat = np.moveaxis(model.B, 1, 0).reshape(n_psi, -1)
-    a_at = np.zeros((n, n_a, ny, ny))  # A_i(ψ(k)) and B_j(ψ(k)) of every sample
-    b_at = np.zeros((n, n_b, ny, model.nu))
-    has_b0 = bool(np.any(model.B[0]))
-    u, p = data.u.copy(), data.p.copy()
-    v = np.zeros((n, model.nu))
-    y = np.full((n, ny), np.inf)
-    xc = np.zeros(K.A.shape[0])
+    plant = InLoopModel(model, data, loop, input_map, exogenous, sign_of)
+    y = np.full((data.N, data.y.shape[1]), np.inf)
 
-    def close(k: int, y_k: np.ndarray) -> np.ndarray:
-        """Scheduling, plant input and model input at k for the output y_k; B_0(ψ(k)) v(k)."""
-        for i, expression in computed:
-            p[k, i] = expression(y_k)
-        psi = model.basis.eval(p[k], check_range=False)[0]
-        a_at[k] = (psi @ a_flat).reshape(a_at.shape[1:])
-        b_at[k] = (psi @ b_flat).reshape(b_at.shape[1:])
-        u[k, u_index] = K.u_op + K.C @ xc + K.D @ (y_k[y_index] - K.y_op) + loop.excitation[k]
-        mapped = input_map(u[k]) if input_map is not None else u[k]
-        parts = [mapped, extra[k]]
-        if sign_of is not None:
-            recent = np.concatenate([y[max(k - 2, 0) : k, sign_of], y_k[sign_of : sign_of + 1]])
-            parts.append(velocity_sign(recent)[-1:])
-        v[k] = np.concatenate(parts)
-        return b_at[k, 0] @ v[k]
+    def record(k: int, y_k: np.ndarray, p: np.ndarray, u_c: np.ndarray, u: np.ndarray | None) -> None:
+        if u is not None:  # a non-finite command ends the run: the model's loop diverged at k
+            y[k] = y_k
 
-    for k in range(n):
-        past = np.zeros(ny)
-        for i in range(1, min(n_a, k) + 1):
-            past -= a_at[k - i, i - 1] @ y[k - i]
-        for j in range(1, min(n_b - 1, k) + 1):
-            past += b_at[k - j, j] @ v[k - j]
-        y_k = past
-        for _ in range(3 if has_b0 else 1):
-            y_k = past + close(k, y_k)
-        if not np.all(np.abs(y_k) < DIVERGED):
-            break
-        y[k] = y_k
-        xc = K.A @ xc + K.B @ (y_k[y_index] - K.y_op)
+    close_loop(LtiLaw(loop.controller), plant, data.N, _no_references(loop.controller, data.N),
+               actuate=plant.actuate, record=record, respond=plant.respond, passes=plant.passes,
+               stop=lambda k, y_k: None if np.all(np.abs(y_k) < DIVERGED) else "diverged")
     return y
+
+
+class InLoopModel:
+    """A shifted-form LPVIO as the plant of :func:`lpvflow.loop.engine.close_loop` over a record:
+    ``outputs()`` is y(k) from the past, −Σ_i A_i(ψ(k−i)) y(k−i) + Σ_{j≥1} B_j(ψ(k−j)) v(k−j);
+    ``respond(k, u)`` adds B_0(ψ(k)) v(k) for the present plant input u, with ψ(k) of the scheduling
+    recomputed from the output the plant last gave and v(k) = [input_map(u), exogenous(k),
+    :func:`velocity_sign` of output ``sign_of``]. ``passes`` (3 with a lag-0 term, else 0) resolves
+    that term; a plant whose output was resolved so keeps, at its step, the input it was resolved with
+    (the model equation holds at the output the loop saw), otherwise ``step(u)`` makes u its present
+    input. ``actuate`` puts the controller's command plus the excitation on the driven inputs and the
+    recorded values on the others (:func:`simulate_in_loop`)."""
+
+    def __init__(self, model: LPVIO, data: Dataset, loop: Loop,
+                 input_map: Callable[[np.ndarray], np.ndarray] | None,
+                 exogenous: np.ndarray | None, sign_of: int | None) -> None:
+        n, ny = data.N, data.y.shape[1]
+        self.model, self.loop, self.input_map, self.sign_of = model, loop, input_map, sign_of
+        self.input_names, self.output_names = list(data.u_names), list(data.y_names)
+        self._u_index, self._computed = _wiring(data, loop)
+        self._extra = np.zeros((n, 0)) if exogenous is None else np.asarray(exogenous, float).reshape(n, -1)
+        n_a, n_b, n_psi = model.A.shape[0], model.B.shape[0], model.basis.n_psi
+        self._a_flat = np.moveaxis(model.A, 1, 0).reshape(n_psi, -1)  # ψ @ a_flat: A_1 … A_na at ψ
+        self._b_flat = np.moveaxis(model.B, 1, 0).reshape(n_psi, -1)
+        self._a_at = np.zeros((n, n_a, ny, ny))  # A_i(ψ(k)) and B_j(ψ(k)) of every sample
+        self._b_at = np.zeros((n, n_b, ny, model.nu))
+        self.passes = 3 if np.any(model.B[0]) else 0
+        self._u, self._p = data.u.copy(), data.p.copy()
+        self._v = np.zeros((n, model.nu))
+        self._y = np.full((n, ny), np.inf)
+        self._k, self._past, self._resolved = 0, np.zeros(ny), False
+        self._last = self._past
+
+    def outputs(self) -> np.ndarray:
+        self._last = self._past
+        return self._past
+
+    def actuate(self, k: int, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
+        u = self._u[k].copy()
+        u[self._u_index] = u_c + self.loop.excitation[k]
+        return u
+
+    def respond(self, k: int, u: np.ndarray) -> np.ndarray:
+        self._last = self._past + self._present(u)
+        self._resolved = True
+        return self._last
+
+    def step(self, u: np.ndarray, t: float, dt: float) -> None:
+        if not self._resolved:
+            self._present(u)
+        k = self._k
+        self._y[k], self._k, self._resolved = self._last, k + 1, False
+        self._past = self._from_past(k + 1)
+
+    def _present(self, u: np.ndarray) -> np.ndarray:
+        """Scheduling, plant input and model input at the present sample for the plant input u and the
+        output last given; B_0(ψ(k)) v(k)."""
+        k, y_k = self._k, self._last
+        for i, expression in self._computed:
+            self._p[k, i] = expression(y_k)
+        psi = self.model.basis.eval(self._p[k], check_range=False)[0]
+        self._a_at[k] = (psi @ self._a_flat).reshape(self._a_at.shape[1:])
+        self._b_at[k] = (psi @ self._b_flat).reshape(self._b_at.shape[1:])
+        self._u[k] = u
+        parts = [self.input_map(u) if self.input_map is not None else u, self._extra[k]]
+        if self.sign_of is not None:
+            i = self.sign_of
+            recent = np.concatenate([self._y[max(k - 2, 0) : k, i], y_k[i : i + 1]])
+            parts.append(velocity_sign(recent)[-1:])
+        self._v[k] = np.concatenate(parts)
+        return self._b_at[k, 0] @ self._v[k]
+
+    def _from_past(self, k: int) -> np.ndarray:
+        """−Σ_i A_i(ψ(k−i)) y(k−i) + Σ_{j≥1} B_j(ψ(k−j)) v(k−j)."""
+        past = np.zeros(self._y.shape[1])
+        for i in range(1, min(self._a_at.shape[1], k) + 1):
+            past -= self._a_at[k - i, i - 1] @ self._y[k - i]
+        for j in range(1, min(self._b_at.shape[1] - 1, k) + 1):
+            past += self._b_at[k - j, j] @ self._v[k - j]
+        return past
 
 
 def loop_signals(y: np.ndarray, data: Dataset, loop: Loop) -> tuple[np.ndarray, np.ndarray]:
@@ -144,25 +195,51 @@ def loop_signals(y: np.ndarray, data: Dataset, loop: Loop) -> tuple[np.ndarray, 
     others), the scheduling columns with an expression recomputed from y, the others as recorded:
     the signals :func:`simulate_in_loop` fed its model, rebuilt from its output.
     """
-    K = loop.controller
-    y_index, u_index, computed = _wiring(data, loop)
+    u_index, computed = _wiring(data, loop)
     u, p = data.u.copy(), data.p.copy()
-    xc = np.zeros(K.A.shape[0])
-    for k in range(data.N):
-        dy = y[k, y_index] - K.y_op
-        u[k, u_index] = K.u_op + K.C @ xc + K.D @ dy + loop.excitation[k]
-        xc = K.A @ xc + K.B @ dy
+    u[:, u_index] = _commands(loop.controller, y, data) + loop.excitation[: data.N]
     for i, expression in computed:
         p[:, i] = [expression(row) for row in y]
     return u, p
 
 
-def _wiring(data: Dataset, loop: Loop) -> tuple[list[int], list[int], list[tuple[int, Callable]]]:
-    """Columns of the controller's measured outputs in ``data.y`` and of its driven inputs in
-    ``data.u``, and the scheduling columns recomputed in the loop with their compiled expressions."""
-    K = loop.controller
-    y_index = [data.y_names.index(name) for name in K.inputs]
-    u_index = [data.u_names.index(name) for name in K.outputs]
+class PlayedBack:
+    """Output trajectories (N, ny) played back as a plant of :func:`lpvflow.loop.engine.close_loop`:
+    ``outputs()`` is the k-th row, the input is ignored."""
+
+    def __init__(self, y: np.ndarray, data: Dataset) -> None:
+        self.output_names, self.input_names = list(data.y_names), list(data.u_names)
+        self._y, self._k = y, 0
+
+    def outputs(self) -> np.ndarray:
+        return self._y[self._k]
+
+    def step(self, u: np.ndarray, t: float, dt: float) -> None:
+        self._k += 1
+
+
+def _commands(controller: LtiController, y: np.ndarray, data: Dataset) -> np.ndarray:
+    """(N, len(controller.outputs)) commands u_op + C xc(k) + D (y(k) − y_op) of the controller run on
+    the outputs ``y`` (N, ny) (names ``data.y_names``) from rest; NaN after a non-finite command."""
+    commands = np.full((len(y), len(controller.outputs)), np.nan)
+
+    def record(k: int, y_k: np.ndarray, p: np.ndarray, u_c: np.ndarray, u: np.ndarray | None) -> None:
+        commands[k] = u_c
+
+    close_loop(LtiLaw(controller), PlayedBack(y, data), len(y), _no_references(controller, len(y)),
+               actuate=lambda k, u_c, p: u_c, record=record)
+    return commands
+
+
+def _no_references(controller: LtiController, n: int) -> np.ndarray:
+    """No references (NaN): the controller holds its operating point y_op."""
+    return np.full((n, len(controller.inputs)), np.nan)
+
+
+def _wiring(data: Dataset, loop: Loop) -> tuple[list[int], list[tuple[int, Callable]]]:
+    """Columns of the controller's driven inputs in ``data.u``, and the scheduling columns recomputed in
+    the loop with their compiled expressions."""
+    u_index = [data.u_names.index(name) for name in loop.controller.outputs]
     computed = [(i, compile_expression(loop.scheduling[name], data.y_names))
                 for i, name in enumerate(data.p_names) if name in loop.scheduling]
-    return y_index, u_index, computed
+    return u_index, computed

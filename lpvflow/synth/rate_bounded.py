@@ -66,15 +66,17 @@ P̂(p⁺) by P̂(p) + hZ_p — and (P̂(p⁺) − P̂(p))/h ⪰ Z_p at every p�
 all of them: ⇐ since WᵀΦW = Ψ(p; Z_p) + e(P̂(p⁺) − P̂(p) − hZ_p)eᵀ; ⇒ since Ψ = WᵀΦ_ZW, Φ_Z the
 shift form with P̂(p⁺) replaced by P̂(p) + hZ_p in its (1,1) block only, and by a Schur complement on the
 last three block rows (positive definite in every Φ ≻ 0) Φ_Z ≻ 0 ⟺ P̂(p) + hZ_p ≻ N(p) and Φ ≻ 0 ⟺
-P̂(p⁺) ≻ N(p), for one matrix N(p) not depending on p⁺; so hZ_p = N(p) − P̂(p) + εI serves for ε small. The large LMIs (size 4n + n_w + n_z) are then one per
-distinct p instead of one per pair; the per-pair ones are of size 2n.
+P̂(p⁺) ≻ N(p), for one matrix N(p) not depending on p⁺; so hZ_p = N(p) − P̂(p) + εI serves for ε small.
+The large LMIs (size 4n + n_w + n_z) are then one per distinct p instead of one per pair; the per-pair
+ones are of size 2n.
 
 **Numerics.** The LMIs are posed in the coordinates of :func:`lpvflow.synth.eliminated.preconditioned`
 for the plant at the breakpoint nearest the centre (a state transform that balances the interior
 Lyapunov matrices of a frozen design, and u/y scalings; the state transform commutes with the Cayley
 map, so it is the discrete one too); strictness is Ψ ⪰ t·I with the margin t maximised at each γ level
-(t ≤ 1), the level search is :func:`lpvflow.synth.levels.lowest_certified_level` from the largest frozen
-estimate over the breakpoints (a bound no controller beats when its solves were accurate; minimising γ
+(t ≤ 1), the level search is :func:`lpvflow.synth.levels.lowest_certified_level` bracketed by the largest
+frozen estimate over the breakpoints (a bound no controller beats when its solves were accurate) and the
+level of the common-Lyapunov polytopic design on the same vertices (tried first; minimising γ
 over these LMIs directly is ill-posed — the slack and P̂ grow without bound near the optimum, and
 Clarabel stops with a numerical error on the ADIP), and a level passes only when the reconstructed
 controller's Φ, rebuilt from the returned discrete numbers in shift form, is positive definite at every
@@ -356,6 +358,23 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: Coordinat
     return result
 
 
+def _common_lyapunov_level(vertices: list[VertexPlant], Ts: float, suboptimality: float, gamma_max: float,
+                           solver: str, attempts: list) -> float | None:
+    """γ of the polytopic design with one common Lyapunov matrix on the same vertices
+    (:func:`lpvflow.synth.hinf.synthesize_vertices`; its SDPs are appended to ``attempts``), or None when
+    it has no certified result. A constant P̂ is one choice of these LMIs, so the rate-bounded optimum is
+    expected at or below it; it is the first level tried (the level search goes on upwards if it fails)."""
+    from lpvflow.synth.hinf import synthesize_vertices  # hinf imports this module
+
+    try:
+        result = synthesize_vertices(vertices, Ts, suboptimality, gamma_max, solver)
+    except SynthesisError as exc:
+        attempts.append((solver.upper(), exc.category, 0.0))
+        return None
+    attempts.extend(result.report.attempts)
+    return float(result.gamma)
+
+
 def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[float], Ts: float, *,
                          rate_bound: float | None, suboptimality: float = 1e-2, solver: str = "CLARABEL",
                          points: Sequence[float] = (), gamma_max: float = GAMMA_MAX) -> ScheduledResult:
@@ -382,6 +401,8 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
     gamma_lower = None if None in lowers else max(lowers)
     estimate = max(f.estimate.gamma for f in frozen)
     attempts = [a for f in frozen for a in f.attempts]
+    common = _common_lyapunov_level(vertices, Ts, suboptimality, gamma_max, solver, attempts)
+    first = estimate if common is None else max(estimate, common / (1 + suboptimality))
     verts = [coords.apply(v) for v in vertices]
     levels = _Levels(verts, schedule, schedule.pairs(points), delta_step(verts, centre))
     what = (f"the rate-bounded H∞ LMIs ({len(verts)} breakpoints, "
@@ -402,9 +423,11 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
         result.report = level_report
         return result if min(result.margins) > 0 else None
 
-    best = lowest_certified_level(certified, estimate, suboptimality, gamma_max, gamma_lower)
+    best = lowest_certified_level(certified, first, suboptimality, gamma_max, gamma_lower)
     if best is None:
-        raise SynthesisError(f"{what}: no level from the largest frozen estimate {estimate:.4g} up to "
+        polytopic = "none" if common is None else f"{common:.4g}"
+        raise SynthesisError(f"{what}: no level from {first * (1 + suboptimality):.4g} (frozen estimate "
+                             f"{estimate:.4g}, common-Lyapunov level {polytopic}) up to "
                              f"{gamma_max:.4g} gave a controller that passes the certificate: lower the rate "
                              "bound, shrink the range, add breakpoints or loosen the weights",
                              category="accuracy")

@@ -57,8 +57,8 @@ point, and the variables Q = S + h·Q_δ, F = h·F_δ (so every variable the sol
            ⎣ ⋆      ⋆                        ⋆       γI   ⎦
 
 (ℬ = [B1 + B2RD21; YB1 + hF_δD21], 𝒞 = [C1X + D12L  C1 + D12RC2], 𝒟 = D11 + D12RD21): the O(h)
-differences are formed from A' algebraically, not by the solver (the δ-operator form of the discrete
-bounded-real lemma; the congruence is the one that takes x⁺ to (x⁺ − x)/h).
+differences 𝒜𝒢 − Γ and P̂(p⁺) − P̂(p) enter divided by h, formed from A' algebraically rather than by the
+solver from O(1) numbers. The controller and the certificate are those of the shift form (Q, F above).
 
 **One large LMI per p.** p⁺ enters WᵀΦW only through e·P̂(p⁺)·eᵀ, e = [I; −I/√h; 0; 0]. With a variable
 Z_p per distinct p, the LMIs Ψ(p; Z_p) ≻ 0 — WᵀΦW with (P̂(p⁺) − P̂(p))/h replaced by Z_p, i.e.

@@ -1,16 +1,19 @@
-"""Rate-bounded gain-scheduled H∞ synthesis (lpvflow.synth.rate_bounded): wall time as a ratio to one
-solve of its SDP, and γ against the frozen lower bound (issue 23's benchmark).
+"""Rate-bounded gain-scheduled H∞ synthesis (lpvflow.synth.rate_bounded): wall time against the number and
+the largest of its SDP solves, and γ against the frozen lower bound.
 
-Cases: ``random_lpv(3, nx, n_p=1, nu=1, ny=1)`` on p ∈ [−1, 1] with W_S (integral action) and a
-strictly proper W_B (two states): 3 breakpoints with nx = 2 (generalized plant of order 4), rate bound
-0.02 per sample and any rate; 2 breakpoints with nx = 6 (order 8: no level certified, recorded as
-such). Issue 23's case, 11 breakpoints at order 8, does not finish in reasonable time
-(benchmarks/README.md). The breakpoints form a
-piecewise polytope over the affine model, so the plant is exact between them.
+Cases (``tests/rate_bounded_cases.random_scheduled_plant``: a random stable, down to lightly damped, plant
+of ``states`` states with one scheduling signal p ∈ [−1, 1], mixed-sensitivity weights W_S, W_K and an
+actuator lag W_B, Ts = 10 ms, |Δp| ≤ 0.05 per sample, the frozen plants at equally spaced breakpoints):
+``order`` is the generalized plant's (states + 2). The 13-breakpoint case of an 8-state plant is run in a
+child process stopped after ``LIMIT`` seconds; a row that did not finish says so.
+
+Columns: γ certified; ``lower`` the frozen lower bound (``ScheduledResult.gamma_lower``); ``s`` wall time;
+``SDPs`` every cvxpy solve of the synthesis (frozen estimates, the common-Lyapunov bracket, the levels);
+``largest`` the longest single one; ``ratio`` = s / largest. One thread (OPENBLAS_NUM_THREADS=1), one run.
 
 The limit on the ADIP (issue 23's ±75° test): the exact linearizations at −75°, 0°, 75° with the bundled
 weights (1-DOF, ``tests/adip_cases.py``), breakpoints at sin φ1, and the largest margin t of the LMIs
-(Φ ⪰ t·I, t ≤ 1) at γ = 2 × the largest frozen bound at these three points (over the whole range the
+(Ψ_δ ⪰ t·I, t ≤ 1) at γ = 2 × the largest frozen bound at these three points (over the whole range the
 frozen optimum peaks higher, at ±70°: see the next row) for the rate of a 70° move in 2.0 s with a
 triangular velocity profile (0.006 per sample) and a tenth of it. t < 0: no controller of this class
 reaches that level, whatever the reconstruction.
@@ -23,16 +26,13 @@ linearizations with the interpolated controller on 121 points (python-control), 
 with the Lyapunov breakpoints at the controller's, 2 LMI points per interval: its certified γ, or where it
 fails.
 
-``ratio`` = the synthesis' wall time / the wall time of one Clarabel solve of its margin SDP (the
-maximisation of t at one γ level, timed around the solver call in the same run): the floor of any
-synthesis that has to solve these LMIs once. One thread (OPENBLAS_NUM_THREADS=1 is set below), one run.
-
 Run:  .venv/bin/python benchmarks/bench_rate_bounded.py   → benchmarks/results/rate_bounded.json
 """
 
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import sys
 import time
@@ -41,46 +41,59 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import cvxpy as cp
 import numpy as np
 
 from lpvflow.synth import rate_bounded
-from lpvflow.synth.examples import random_lpv
-from lpvflow.synth.plant import generalized_plant
 
 OUT = Path(__file__).parent / "results" / "rate_bounded.json"
-WEIGHTS = {"S": {"bandwidth": 1.0, "hf_gain": 2.0}, "K": {"num": [0.05], "den": [1]},
-           "B": {"num": [0, 0.4], "den": [1, -0.6]}, "integrator_shift": 1e-3}
+TS = 0.01
+RATE = 0.05
+#: Wall-clock limit of one case, seconds.
+LIMIT = 900.0
+#: (name, seed, plant states, breakpoints).
+CASES = [("small", 1, 2, 3), ("13 breakpoints", 4, 2, 13), ("order 6", 2, 4, 5),
+         ("13 breakpoints, 8 states", 0, 8, 13)]
 
 
-def measure(nx: int, breakpoints: int, rate_bound: float | None) -> dict:
-    model = random_lpv(3, nx=nx, n_p=1, nu=1, ny=1)
-    plant = generalized_plant(model, WEIGHTS, [[-1.0, 1.0]], breakpoints=np.linspace(-1.0, 1.0, breakpoints))
+def _run(seed: int, states: int, breakpoints: int, out) -> None:
+    """One synthesis with every cvxpy solve timed (in a child process)."""
+    from tests.rate_bounded_cases import random_scheduled_plant
+
+    vertices, b = random_scheduled_plant(seed, states, breakpoints, TS)
     solves = []
-    inner = rate_bounded.solve
+    inner = cp.Problem.solve
 
-    def timed(problem, solver, what):
+    def timed(self, *args, **kwargs):
         start = time.perf_counter()
-        out = inner(problem, solver, what)
-        if " at γ = " in what:
+        try:
+            return inner(self, *args, **kwargs)
+        finally:
             solves.append(time.perf_counter() - start)
-        return out
 
-    rate_bounded.solve = timed
-    row = {"rate_bound": rate_bound, "order": plant.dims[0], "breakpoints": breakpoints,
-           "lmis": sum(len(nexts) for _, nexts in rate_bounded.Schedule(
-               np.linspace(-1.0, 1.0, breakpoints), rate_bound).pairs())}
+    cp.Problem.solve = timed
     start = time.perf_counter()
     try:
-        result, _ = rate_bounded.synthesize_rate_bounded(plant, rate_bound)
+        result = rate_bounded.synthesize_scheduled(vertices, b, TS, rate_bound=RATE)
+        row = {"gamma": result.gamma, "gamma_lower": result.gamma_lower}
     except rate_bounded.SynthesisError as exc:
-        return row | {"error": str(exc)[:300], "seconds": time.perf_counter() - start,
-                      "level_solves": len(solves), "one_sdp_seconds": min(solves)}
-    finally:
-        rate_bounded.solve = inner
+        row = {"error": str(exc)[:300]}
     seconds = time.perf_counter() - start
-    return row | {
-            "gamma": result.gamma, "frozen_lower_bound": result.gamma_lower, "seconds": seconds,
-            "level_solves": len(solves), "one_sdp_seconds": min(solves), "ratio": seconds / min(solves)}
+    out.put(row | {"order": vertices[0].dims[0], "seconds": seconds, "sdps": len(solves),
+                   "largest_sdp": max(solves), "ratio": seconds / max(solves)})
+
+
+def measure(name: str, seed: int, states: int, breakpoints: int) -> dict:
+    row = {"case": name, "seed": seed, "breakpoints": breakpoints, "order": states + 2, "rate_bound": RATE}
+    out = multiprocessing.Queue()
+    child = multiprocessing.Process(target=_run, args=(seed, states, breakpoints, out))
+    child.start()
+    child.join(LIMIT)
+    if child.is_alive():
+        child.terminate()
+        child.join()
+        return row | {"error": f"not finished in {LIMIT:.0f} s", "seconds": LIMIT}
+    return row | out.get()
 
 
 def adip_margin(rate_bound: float) -> dict:
@@ -97,7 +110,7 @@ def adip_margin(rate_bound: float) -> dict:
     schedule = rate_bounded.Schedule(np.sin(np.deg2rad(degrees)), rate_bound)
     coords = frozen[1].coordinates.discrete()  # those of the 0° vertex
     verts = [coords.apply(v) for v in vertices]
-    levels = rate_bounded._Levels(verts, schedule, schedule.pairs())
+    levels = rate_bounded._Levels(verts, schedule, schedule.pairs(), rate_bounded.delta_step(verts, 1))
     levels.gamma.value = 2.0 * bound
     start = time.perf_counter()
     rate_bounded.solve(levels.margin_problem, "CLARABEL", "the ADIP margin SDP")
@@ -137,22 +150,21 @@ def adip_interpolated(rate_bound: float) -> dict:
 
 
 def main() -> None:
-    rows = [measure(2, 3, 0.02), measure(2, 3, None), measure(6, 2, 0.02)]
+    rows = [measure(*case) for case in CASES]
     adip = [adip_margin(0.006), adip_margin(0.0006)]
     interpolated = adip_interpolated(0.0006)
     OUT.write_text(json.dumps({"rows": rows, "adip": adip, "adip_interpolated": interpolated}, indent=1,
                               default=float) + "\n")
-    heads = ("ν", "n", "bps", "LMIs", "γ", "frozen", "s", "solves", "SDP s", "ratio")
-    print(" ".join(f"{h:>7}" for h in heads))
+    heads = ("case", "bps", "order", "γ", "lower", "s", "SDPs", "largest", "ratio")
+    print(f"{heads[0]:>26} " + " ".join(f"{h:>8}" for h in heads[1:]))
     for r in rows:
-        nu = "any" if r["rate_bound"] is None else f"{r['rate_bound']:g}"
+        lead = f"{r['case']:>26} {r['breakpoints']:>8} {r['order']:>8} "
         if "error" in r:
-            print(f"{nu:>7} {r['order']:>7} {r['breakpoints']:>7} {r['lmis']:>7}  {r['seconds']:.0f} s, "
-                  f"{r['level_solves']} solves of ≥ {r['one_sdp_seconds']:.1f} s: {r['error']}")
+            print(lead + f"{r['seconds']:.0f} s: {r['error']}")
             continue
-        print(f"{nu:>7} {r['order']:>7} {r['breakpoints']:>7} {r['lmis']:>7} {r['gamma']:7.4g} "
-              f"{r['frozen_lower_bound']:7.4g} {r['seconds']:7.1f} {r['level_solves']:>7} "
-              f"{r['one_sdp_seconds']:7.2f} {r['ratio']:7.1f}")
+        lower = "—" if r["gamma_lower"] is None else f"{r['gamma_lower']:.4g}"
+        print(lead + f"{r['gamma']:8.4g} {lower:>8} {r['seconds']:8.1f} {r['sdps']:>8} "
+              f"{r['largest_sdp']:8.2f} {r['ratio']:8.1f}")
     for r in adip:
         print(f"ADIP ±75°, ν = {r['rate_bound']:g}: γ = 2 × {r['frozen_lower_bound']:.4g}, margin t = "
               f"{r['margin_t']:.3g} ({r['seconds']:.0f} s)")

@@ -43,17 +43,44 @@ to the range) and at the breakpoints between (:meth:`Schedule.pairs`). With ν =
 breakpoint. Nothing is gridded, so nothing is missed between grid points; :func:`fine_check` re-checks
 Φ on a grid ten times finer anyway, and against the true plant when it is not linear between breakpoints.
 
+**δ form** (what the solver sees). With a small Ts, A ≈ I and Φ carries its information in O(h)
+differences of O(1) blocks (h the dimensionless step of :func:`delta_step`). The constant congruence
+W = [I −cI 0 0; 0 cI 0 0; 0 0 I 0; 0 0 0 I], c = 1/√h, changes no definiteness and gives, with
+Γ = [X I; S Y] (so 𝒢 + 𝒢ᵀ of the slack is Γ + Γᵀ), A' = (A − I)/h, B2' = B2/h formed once in floating
+point, and the variables Q = S + h·Q_δ, F = h·F_δ (so every variable the solver sees is O(1)),
+
+    E = (𝒜𝒢 − Γ)/h = [A'X + B2'L   A' + B2'RC2 ;  Q_δ   YA' + F_δC2],
+
+    WᵀΦW = ⎡ P̂(p⁺)   (Γ − P̂(p⁺))/√h + √h·E    ℬ      0    ⎤
+           ⎢ ⋆      (P̂(p⁺) − P̂(p))/h − E − Eᵀ  −ℬ/√h   𝒞ᵀ/√h ⎥
+           ⎢ ⋆      ⋆                        γI      𝒟ᵀ   ⎥
+           ⎣ ⋆      ⋆                        ⋆       γI   ⎦
+
+(ℬ = [B1 + B2RD21; YB1 + hF_δD21], 𝒞 = [C1X + D12L  C1 + D12RC2], 𝒟 = D11 + D12RD21): the O(h)
+differences 𝒜𝒢 − Γ and P̂(p⁺) − P̂(p) enter divided by h, formed from A' algebraically rather than by the
+solver from O(1) numbers. The controller and the certificate are those of the shift form (Q, F above).
+
+**One large LMI per p.** p⁺ enters WᵀΦW only through e·P̂(p⁺)·eᵀ, e = [I; −I/√h; 0; 0]. With a variable
+Z_p per distinct p, the LMIs Ψ(p; Z_p) ≻ 0 — WᵀΦW with (P̂(p⁺) − P̂(p))/h replaced by Z_p, i.e.
+P̂(p⁺) by P̂(p) + hZ_p — and (P̂(p⁺) − P̂(p))/h ⪰ Z_p at every p⁺ of p are equivalent to Φ(p, p⁺) ≻ 0 at
+all of them: ⇐ since WᵀΦW = Ψ(p; Z_p) + e(P̂(p⁺) − P̂(p) − hZ_p)eᵀ; ⇒ since Ψ = WᵀΦ_ZW, Φ_Z the
+shift form with P̂(p⁺) replaced by P̂(p) + hZ_p in its (1,1) block only, and by a Schur complement on the
+last three block rows (positive definite in every Φ ≻ 0) Φ_Z ≻ 0 ⟺ P̂(p) + hZ_p ≻ N(p) and Φ ≻ 0 ⟺
+P̂(p⁺) ≻ N(p), for one matrix N(p) not depending on p⁺; so hZ_p = N(p) − P̂(p) + εI serves for ε small.
+The large LMIs (size 4n + n_w + n_z) are then one per distinct p instead of one per pair; the per-pair
+ones are of size 2n.
+
 **Numerics.** The LMIs are posed in the coordinates of :func:`lpvflow.synth.eliminated.preconditioned`
 for the plant at the breakpoint nearest the centre (a state transform that balances the interior
 Lyapunov matrices of a frozen design, and u/y scalings; the state transform commutes with the Cayley
-map, so it is the discrete one too); strictness is Φ ⪰ t·I with the margin t maximised at each γ level
-(t ≤ 1), the level search is :func:`lpvflow.synth.levels.lowest_certified_level` from the largest frozen
-estimate over the breakpoints (a bound no controller beats when its solves were accurate; minimising γ
+map, so it is the discrete one too); strictness is Ψ ⪰ t·I with the margin t maximised at each γ level
+(t ≤ 1), the level search is :func:`lpvflow.synth.levels.lowest_certified_level` bracketed by the largest
+frozen estimate over the breakpoints (a bound no controller beats when its solves were accurate) and the
+level of the common-Lyapunov polytopic design on the same vertices (tried first; minimising γ
 over these LMIs directly is ill-posed — the slack and P̂ grow without bound near the optimum, and
 Clarabel stops with a numerical error on the ADIP), and a level passes only when the reconstructed
-controller's Φ, rebuilt from the returned discrete numbers, is positive definite at every (p, p⁺) with a
-Jacobi-scaled margin above
-round-off (:class:`Slack`).
+controller's Φ, rebuilt from the returned discrete numbers in shift form, is positive definite at every
+(p, p⁺) with a Jacobi-scaled margin above round-off (:class:`Slack`).
 """
 
 from __future__ import annotations
@@ -238,48 +265,72 @@ class ScheduledResult:
 
 
 # ------------------------------------------------------------------------------------------ LMIs
-class _Levels:
-    """Φ of the module docstring at every pair, in scaled coordinates, at the level γ (a Parameter):
-    maximise t subject to Φ ⪰ t·I, t ≤ 1."""
+def delta_step(verts: list[VertexPlant], centre: int) -> float:
+    """h of the δ form (module docstring): ‖A − I‖₂ of the centre vertex in the LMIs' coordinates, the
+    dimensionless step by which the plant moves per sample (floored at machine precision)."""
+    A = verts[centre].A
+    return max(float(np.linalg.norm(A - np.eye(len(A)), 2)), float(np.finfo(float).eps))
 
-    def __init__(self, verts: list[VertexPlant], schedule: Schedule, pairs: list) -> None:
+
+class _Levels:
+    """Φ_δ of the module docstring at every pair, in scaled coordinates, at the level γ (a Parameter):
+    maximise t subject to Ψ_δ(p) ⪰ t·I at every distinct p and (P̂(p⁺) − P̂(p))/h ⪰ Z_p at its p⁺, t ≤ 1.
+    Variables X, Y, S, per breakpoint P̂, L, R, F_δ, Q_δ (F = h·F_δ, Q = S + h·Q_δ), per p the bound Z_p."""
+
+    def __init__(self, verts: list[VertexPlant], schedule: Schedule, pairs: list, h: float) -> None:
         n, _nw, nu, _nz, ny = verts[0].dims
         M = len(verts)
+        self.h = h
         self.gamma, self.t = cp.Parameter(pos=True), cp.Variable()
         self.X, self.Y, self.S = (cp.Variable((n, n)) for _ in range(3))
         self.P = [cp.Variable((2 * n, 2 * n), symmetric=True) for _ in range(M)]
         self.L = [cp.Variable((nu, n)) for _ in range(M)]
         self.R = [cp.Variable((nu, ny)) for _ in range(M)]
-        self.F = [cp.Variable((n, ny)) for _ in range(M)]
-        self.Q = [cp.Variable((n, n)) for _ in range(M)]
+        self.Fd = [cp.Variable((n, ny)) for _ in range(M)]
+        self.Qd = [cp.Variable((n, n)) for _ in range(M)]
+        # A' = (A − I)/h and B2' = B2/h at every breakpoint, formed once in floating point
+        self.Ad = [(v.A - np.eye(n)) / h for v in verts]
+        self.B2d = verts[0].B2 / h
         self.verts, self.schedule, self.pairs = verts, schedule, pairs
-        margin_rows = []
+        constraints = [self.t <= 1]
         for p, nexts in pairs:
-            for q in nexts:
-                margin_rows.append(self._phi(p, q, self.gamma))
-        self.margin_problem = cp.Problem(cp.Maximize(self.t), [Phi >> self.t * np.eye(Phi.shape[0])
-                                                                for Phi in margin_rows] + [self.t <= 1])
+            Z = cp.Variable((2 * n, 2 * n), symmetric=True)
+            Psi = self._psi(p, Z, self.gamma)
+            constraints.append(Psi >> self.t * np.eye(Psi.shape[0]))
+            P = self._mix(self.P, schedule.weights(p))
+            constraints += [(self._mix(self.P, schedule.weights(q)) - P) / h - Z >> 0 for q in nexts]
+        self.margin_problem = cp.Problem(cp.Maximize(self.t), constraints)
 
     def _mix(self, mats: list, lam: np.ndarray):
         return sum(float(li) * M for li, M in zip(lam, mats, strict=True) if li != 0.0)
 
-    def _phi(self, p: float, q: float, gamma) -> cp.Expression:
-        lam, lam_next = self.schedule.weights(p), self.schedule.weights(q)
+    def controller_variables(self, i: int) -> tuple[np.ndarray, ...]:
+        """(L, R, F, Q) at breakpoint i from the solution: F = h·F_δ, Q = S + h·Q_δ."""
+        L, R, Fd, Qd, S = (np.asarray(m.value, dtype=float)
+                           for m in (self.L[i], self.R[i], self.Fd[i], self.Qd[i], self.S))
+        return L, R, self.h * Fd, S + self.h * Qd
+
+    def _psi(self, p: float, Z: cp.Variable, gamma) -> cp.Expression:
+        """Ψ_δ(p; Z): Φ_δ(p, p⁺) with (P̂(p⁺) − P̂(p))/h replaced by Z."""
+        lam = self.schedule.weights(p)
         v = interpolate(self.verts, lam)
         n, nw, _, nz, _ = v.dims
+        h, c = self.h, 1.0 / np.sqrt(self.h)
         X, Y, S = self.X, self.Y, self.S
-        L, R, F, Q = (self._mix(m, lam) for m in (self.L, self.R, self.F, self.Q))
-        I = np.eye(n)
-        Acl = cp.bmat([[v.A @ X + v.B2 @ L, v.A + v.B2 @ R @ v.C2], [Q, Y @ v.A + F @ v.C2]])
-        Bcl = cp.vstack([v.B1 + v.B2 @ R @ v.D21, Y @ v.B1 + F @ v.D21])
+        L, R, Fd, Qd = (self._mix(m, lam) for m in (self.L, self.R, self.Fd, self.Qd))
+        Ad, B2d = self._mix(self.Ad, lam), self.B2d
+        E = cp.bmat([[Ad @ X + B2d @ L, Ad + B2d @ R @ v.C2], [Qd, Y @ Ad + Fd @ v.C2]])
+        Gamma = cp.bmat([[X, np.eye(n)], [S, Y]])
+        P = self._mix(self.P, lam)
+        Bcl = cp.vstack([v.B1 + v.B2 @ R @ v.D21, Y @ v.B1 + h * Fd @ v.D21])
         Ccl = cp.hstack([v.C1 @ X + v.D12 @ L, v.C1 + v.D12 @ R @ v.C2])
         Dcl = v.D11 + v.D12 @ R @ v.D21
-        G = cp.bmat([[X + X.T, I + S.T], [S + I, Y + Y.T]])
+        off = c * (Gamma - P) - Z / c + E / c
         Phi = cp.bmat([
-            [self._mix(self.P, lam_next), Acl, Bcl, np.zeros((2 * n, nz))],
-            [Acl.T, G - self._mix(self.P, lam), np.zeros((2 * n, nw)), Ccl.T],
-            [Bcl.T, np.zeros((nw, 2 * n)), gamma * np.eye(nw), Dcl.T],
-            [np.zeros((nz, 2 * n)), Ccl, Dcl, gamma * np.eye(nz)],
+            [P + h * Z, off, Bcl, np.zeros((2 * n, nz))],
+            [off.T, Z - E - E.T, -c * Bcl, c * Ccl.T],
+            [Bcl.T, -c * Bcl.T, gamma * np.eye(nw), Dcl.T],
+            [np.zeros((nz, 2 * n)), c * Ccl, Dcl, gamma * np.eye(nz)],
         ])
         return 0.5 * (Phi + Phi.T)
 
@@ -293,7 +344,7 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: Coordinat
     V, U = W * np.sqrt(sig), np.sqrt(sig)[:, None] * Zt
     K_vertices = []
     for i, v in enumerate(levels.verts):
-        L, R, F, Q = (np.asarray(m[i].value, dtype=float) for m in (levels.L, levels.R, levels.F, levels.Q))
+        L, R, F, Q = levels.controller_variables(i)
         Dk = R
         Ck = np.linalg.solve(U.T, (L - R @ v.C2 @ X).T).T
         Bk = np.linalg.solve(V, F - Y @ v.B2 @ R)
@@ -305,6 +356,23 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: Coordinat
                              Slack(X, Y, U, V, np.asarray(coords.T)))
     result.margins = [result.margin(result.plant_at(p), p, q) for p, nexts in levels.pairs for q in nexts]
     return result
+
+
+def _common_lyapunov_level(vertices: list[VertexPlant], Ts: float, suboptimality: float, gamma_max: float,
+                           solver: str, attempts: list) -> float | None:
+    """γ of the polytopic design with one common Lyapunov matrix on the same vertices
+    (:func:`lpvflow.synth.hinf.synthesize_vertices`; its SDPs are appended to ``attempts``), or None when
+    it has no certified result. A constant P̂ is one choice of these LMIs, so the rate-bounded optimum is
+    expected at or below it; it is the first level tried (the level search goes on upwards if it fails)."""
+    from lpvflow.synth.hinf import synthesize_vertices  # hinf imports this module
+
+    try:
+        result = synthesize_vertices(vertices, Ts, suboptimality, gamma_max, solver)
+    except SynthesisError as exc:
+        attempts.append((solver.upper(), exc.category, 0.0))
+        return None
+    attempts.extend(result.report.attempts)
+    return float(result.gamma)
 
 
 def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[float], Ts: float, *,
@@ -333,8 +401,10 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
     gamma_lower = None if None in lowers else max(lowers)
     estimate = max(f.estimate.gamma for f in frozen)
     attempts = [a for f in frozen for a in f.attempts]
+    common = _common_lyapunov_level(vertices, Ts, suboptimality, gamma_max, solver, attempts)
+    first = estimate if common is None else max(estimate, common / (1 + suboptimality))
     verts = [coords.apply(v) for v in vertices]
-    levels = _Levels(verts, schedule, schedule.pairs(points))
+    levels = _Levels(verts, schedule, schedule.pairs(points), delta_step(verts, centre))
     what = (f"the rate-bounded H∞ LMIs ({len(verts)} breakpoints, "
             f"ν = {'any' if rate_bound is None else f'{rate_bound:g}'} per sample)")
 
@@ -353,9 +423,11 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
         result.report = level_report
         return result if min(result.margins) > 0 else None
 
-    best = lowest_certified_level(certified, estimate, suboptimality, gamma_max, gamma_lower)
+    best = lowest_certified_level(certified, first, suboptimality, gamma_max, gamma_lower)
     if best is None:
-        raise SynthesisError(f"{what}: no level from the largest frozen estimate {estimate:.4g} up to "
+        polytopic = "none" if common is None else f"{common:.4g}"
+        raise SynthesisError(f"{what}: no level from {first * (1 + suboptimality):.4g} (frozen estimate "
+                             f"{estimate:.4g}, common-Lyapunov level {polytopic}) up to "
                              f"{gamma_max:.4g} gave a controller that passes the certificate: lower the rate "
                              "bound, shrink the range, add breakpoints or loosen the weights",
                              category="accuracy")

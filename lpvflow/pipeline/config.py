@@ -406,6 +406,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
         "crossover": Key(None, number(0.0, open_low=True),
                          "loop-shaping: crossover of the shaped loop, rad/s (default: π/(20·Ts))"),
+        "scaling": Key(None, mapping(number(0.0, open_low=True), "scale > 0"),
+                       "loop-shaping: { signal = scale } for every model input and output: the loop is "
+                       "shaped in D_y⁻¹·G·D_u (default: none)"),
         "breakpoints": Key(None, breakpoints, "piecewise polytope: ascending values (or rows) end to end"),
         "structure": Key("1dof", string(("1dof", "2dof")), "1dof: controller reads r − y; 2dof: [r; y]"),
         "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R, N], [integrator_shift]"),
@@ -415,7 +418,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "baseline_at": Key(None, point, "scheduling point of the LTI baseline (default: box centre)"),
         "trim": Key(None, trim, "trim feed-forward u_eq(p): { p = [...], u = [[...], ...] }, interpolated"),
         "observer": Key({}, observer, "observer: Kalman noise { input, state, disturbance, noise }"),
-        "reference_filter": Key(None, reference_filter, "observer: { bandwidth = rad/s, damping } on r"),
+        "reference_filter": Key(None, reference_filter, "observer, loop-shaping (2dof): { bandwidth = rad/s, "
+                                "damping } on r"),
     },
     "verify": {
         "loop": Key(REQUIRED, loop, "how the controller is wired to the plant FMU ([verify.loop])"),

@@ -436,7 +436,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
 #: without [synth] the run ends after validation (identification only).
 OPTIONAL = ("diagnose", "synth", "verify", "export")
 
-BUNDLED = ("adip", "maglev", "airpath")
+BUNDLED = ("adip", "maglev", "airpath", "adip-robust")
 
 #: Table -> keys holding input files, resolved and checked on load.
 INPUT_FILES = (("design", "plant"), ("experiment", "controller"))

@@ -448,7 +448,7 @@ def repository_root() -> Path:
 
 
 def bundled_config(name: str = BUNDLED[0]) -> Path:
-    """Path of a bundled example configuration (``adip``, ``maglev``, ``airpath``)."""
+    """Path of a bundled example configuration (``adip``, ``maglev``, ``airpath``, ``adip-robust``)."""
     if name not in BUNDLED:
         raise DataError(f"no bundled design {name!r}; bundled: {', '.join(BUNDLED)}")
     return Path(str(resources.files("lpvflow.pipeline") / "examples" / f"{name}.toml"))

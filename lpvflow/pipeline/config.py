@@ -409,6 +409,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "scaling": Key(None, mapping(number(0.0, open_low=True), "scale > 0"),
                        "loop-shaping: { signal = scale } for every model input and output: the loop is "
                        "shaped in D_y⁻¹·G·D_u (default: none)"),
+        "robustness_gate": Key(False, boolean, "stop the design after the robustness stage when the "
+                               "controller's b(Ĝ, K_fb) is not above the ν-gap at a validate point"),
         "breakpoints": Key(None, breakpoints, "piecewise polytope: ascending values (or rows) end to end"),
         "structure": Key("1dof", string(("1dof", "2dof")), "1dof: controller reads r − y; 2dof: [r; y]"),
         "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R, N], [integrator_shift]"),

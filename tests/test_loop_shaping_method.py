@@ -14,9 +14,16 @@ from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
 from lpvflow.synth.controller import mix
 from lpvflow.synth.loop_shaping import central_ncf_controller, crossover_normalized, integrator_lead_weight
-from lpvflow.synth.loop_shaping_design import FROZEN_PER_SEGMENT, GAMMA_FACTOR, frozen_margin_check
+from lpvflow.synth.loop_shaping_design import (
+    FROZEN_PER_SEGMENT,
+    GAMMA_FACTOR,
+    frozen_margin_check,
+    reference_model_gains,
+    with_reference_model,
+)
 from lpvflow.synth.polytope import hat_coordinates
-from lpvflow.validate.robust_stability import optimal_margin
+from lpvflow.validate.robust_stability import generalized_margin, optimal_margin
+from lpvflow.validate.scaling import SignalScaling
 from tests.synth_cases import two_state_plant
 
 BREAKPOINTS = [-1.0, 0.0, 1.0]
@@ -204,3 +211,34 @@ def test_crossover_above_the_weight_band_is_one_error_line(tmp_path, capsys):
                  "-o", str(out)]) == 2
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and "crossover 1000" in error[0] and not out.exists()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_reference_model_path_leaves_the_feedback_nothing_to_correct_on_the_model(seed):
+    """u = u_m + K(y − y_m): on the model itself the loop's output is the reference model's (the feedback
+    sees no error), the reference model holds a reachable reference at steady state, and the columns
+    reading y are the feedback K (same b)."""
+    rng = np.random.default_rng(seed)
+    A = np.diag(np.r_[1.0, rng.uniform(0.3, 0.9, 2)])  # an integrator, as the ADIP arm
+    A[0, 1:] = rng.uniform(0.05, 0.2, 2)
+    B, C = rng.standard_normal((3, 1)), rng.standard_normal((1, 3))
+    G = control.ss(A, B, C, np.zeros((1, 1)), 0.01)
+    mats = tuple(np.asarray(M) for M in (G.A, G.B, G.C, G.D))
+    scale = SignalScaling(np.array([rng.uniform(0.5, 2)]), np.array([rng.uniform(0.5, 2)]))
+    F, N = reference_model_gains(mats, scale, 1.0)
+    K, _ = central_ncf_controller(G, GAMMA_FACTOR)
+    K_fb = tuple(np.asarray(M) for M in (K.A, K.B, K.C, K.D))
+    Ac, Bc, Cc, Dc = with_reference_model(K_fb, mats, F, N)
+    r = np.ones(600)
+    x, xc, xm, y, ym = np.zeros(3), np.zeros(Ac.shape[0]), np.zeros(3), [], []
+    for rk in r:
+        yk = float((C @ x)[0])
+        u = Cc @ xc + Dc @ np.array([rk, yk])
+        x, xc = A @ x + B @ u, Ac @ xc + Bc @ np.array([rk, yk])
+        y.append(yk)
+        ym.append(float((C @ xm)[0]))
+        xm = (A + B @ F) @ xm + B @ N @ np.array([rk])
+    assert np.allclose(y, ym, atol=1e-9)
+    assert ym[-1] == pytest.approx(1.0, abs=1e-3)
+    K_y = control.ss(Ac, Bc[:, 1:], Cc, Dc[:, 1:], 0.01)
+    assert generalized_margin(G, K_y) == pytest.approx(generalized_margin(G, K), rel=1e-3)

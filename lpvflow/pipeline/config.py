@@ -279,6 +279,14 @@ def reference_filter(value: Any, where: str) -> dict[str, float]:
     return {k: number(0.0, open_low=True)(v, f"{where}.{k}") for k, v in value.items()}
 
 
+def reference_model(value: Any, where: str) -> dict[str, float]:
+    """``{ control_weight = ρ }`` with ρ > 0."""
+    table = mapping(number(0.0, open_low=True), "number > 0")(value, where)
+    if set(table) != {"control_weight"}:
+        raise _fail(where, value, "{ control_weight = ρ } with ρ > 0")
+    return table
+
+
 def trim(value: Any, where: str) -> dict[str, list]:
     """``{ p = [p_1, …, p_M], u = [[u_11, …, u_1nu], …] }``: breakpoints of the first scheduling signal,
     strictly ascending, and one row of plant inputs per breakpoint (the trim feed-forward u_eq(p))."""
@@ -409,6 +417,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "scaling": Key(None, mapping(number(0.0, open_low=True), "scale > 0"),
                        "loop-shaping: { signal = scale } for every model input and output: the loop is "
                        "shaped in D_y⁻¹·G·D_u (default: none)"),
+        "reference_model": Key(None, reference_model, "loop-shaping (2dof): { control_weight = ρ }, u = u_m "
+                               "+ K(y − y_m) with a model copy under an LQ gain as reference model"),
         "robustness_gate": Key(False, boolean, "stop the design after the robustness stage when the "
                                "controller's b(Ĝ, K_fb) is not above the ν-gap at a validate point"),
         "breakpoints": Key(None, breakpoints, "piecewise polytope: ascending values (or rows) end to end"),

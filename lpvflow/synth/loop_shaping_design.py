@@ -58,7 +58,7 @@ from lpvflow.synth.loop_shaping import (
     loop_shaping,
     shaped_plant,
 )
-from lpvflow.synth.observer import reference_filter, with_reference_filter
+from lpvflow.synth.observer import antiwindup_gains, reference_filter, with_reference_filter
 from lpvflow.synth.plant import GeneralizedPlant
 from lpvflow.synth.polytope import vertex_matrices
 from lpvflow.validate.robust_stability import generalized_margin
@@ -72,6 +72,8 @@ MARGIN_FACTOR = 1.1
 DEFAULT_CROSSOVER_FRACTION = 0.05
 #: The central controllers' level γ_i = GAMMA_FACTOR·γ_opt(Gs_i).
 GAMMA_FACTOR = 1.01
+#: Relative residual below which a reference channel's steady state is reachable (reference model).
+REACH_TOL = 1e-8
 #: The LMI witness: hinfsyn's γ at every vertex within this fraction of γ_opt(Gs_i).
 WITNESS_TOLERANCE = 0.01
 
@@ -189,6 +191,47 @@ def controller_matrices(K_inf: tuple[np.ndarray, ...], W1: control.StateSpace, s
     return _matrices(W1 * control.ss(A, -B, C, -D, W1.dt))
 
 
+def reference_model_gains(model_mats: tuple[np.ndarray, ...], scale: SignalScaling, control_weight: float
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """(F, N) of the reference model x_m⁺ = A x_m + B u_m, u_m = F x_m + N r of one frozen model: F the LQ
+    gain of ``control.dlqr(A, B, CᵀD_y⁻²C, ρ D_u⁻²)`` (ρ = ``control_weight``, the outputs and the input in
+    the shaping scale), N = u_ss − F x_ss per reference whose steady state the model can hold
+    ([A − I  B; C  0][x_ss; u_ss] = [0; e_j]; none for a channel it cannot, e.g. the ADIP's pendulum)."""
+    A, B, C, _ = model_mats
+    n, nu, ny = A.shape[0], B.shape[1], C.shape[0]
+    Dy_inv, Du_inv = np.linalg.inv(scale.Dy), np.linalg.inv(scale.Du)
+    Cy = Dy_inv @ C
+    Q = Cy.T @ Cy
+    K, _, _ = control.dlqr(A, B, (Q + Q.T) / 2, control_weight * Du_inv @ Du_inv)
+    F = -np.asarray(K, dtype=float)
+    M = np.block([[A - np.eye(n), B], [C, np.zeros((ny, nu))]])
+    N = np.zeros((nu, ny))
+    for j in range(ny):
+        target = np.r_[np.zeros(n), np.eye(ny)[j]]
+        sol = np.linalg.lstsq(M, target, rcond=None)[0]
+        if np.linalg.norm(M @ sol - target) <= REACH_TOL:
+            N[:, j] = sol[n:] - F @ sol[:n]
+    return F, N
+
+
+def with_reference_model(K_fb: tuple[np.ndarray, ...], model_mats: tuple[np.ndarray, ...], F: np.ndarray,
+                         N: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The 2dof controller u = u_m + K_fb(y − y_m) from [r; y] (u = K_fb y the feedback), (x_m, u_m, y_m)
+    the reference model of :func:`reference_model_gains`: state [x_m; x_K],
+
+        A = [A + BF  0; −B_K C  A_K],  B = [BN  0; 0  B_K],  C = [F − D_K C  C_K],  D = [N  D_K].
+
+    When the plant is the model, y = y_m and the feedback sees no error: the reference model gives the
+    speed, the feedback the robustness (the 2-DOF structure; Vinnicombe 2001, §1.5)."""
+    Ak, Bk, Ck, Dk = K_fb
+    A, B, C, _ = model_mats
+    n, nk = A.shape[0], Ak.shape[0]
+    ny = C.shape[0]
+    Ac = np.block([[A + B @ F, np.zeros((n, nk))], [-Bk @ C, Ak]])
+    Bc = np.block([[B @ N, np.zeros((n, ny))], [np.zeros((nk, ny)), Bk]])
+    return Ac, Bc, np.hstack([F - Dk @ C, Ck]), np.hstack([N, Dk])
+
+
 def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
            frozen_model: LPVSS | None) -> Design:
     """The loop-shaping controller of the module docstring at the vertices of ``plant``'s polytope;
@@ -212,6 +255,10 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     if filt is not None and plant.structure != "2dof":
         raise ModelError('[synth] reference_filter filters the reference a 2dof controller reads: set '
                          'structure = "2dof" or remove reference_filter')
+    reference = settings.get("reference_model")
+    if reference is not None and plant.structure != "2dof":
+        raise ModelError('[synth] reference_model drives a 2dof controller: set structure = "2dof" or remove '
+                         'reference_model')
     scale = shaping_scale(model, settings.get("scaling"))
     W1 = integrator_lead_weight(Ts, crossover, model.nu)
     W2 = control.ss([], [], [], np.eye(model.ny), Ts)
@@ -226,7 +273,13 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
         gammas.append(gamma)
         weights.append(_matrices(W1_i))
         K_inf.append(_matrices(K))
-        exported.append(physical_feedback(controller_matrices(_matrices(K), W1_i, plant.structure), scale))
+        if reference is None:
+            exported.append(physical_feedback(controller_matrices(_matrices(K), W1_i, plant.structure),
+                                              scale))
+        else:
+            feedback = physical_feedback(_matrices(W1_i * K), scale)
+            exported.append(with_reference_model(feedback, mats, *reference_model_gains(
+                mats, scale, reference["control_weight"])))
     lams = design_coordinates(plant.polytope, plant.basis, FROZEN_PER_SEGMENT)
     check = frozen_margin_check(scaled, weights, K_inf, gammas, lmi_gammas, lams, Ts)
     if filt is not None:
@@ -235,8 +288,13 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     info = {"method": "loop-shaping", "gamma": max(gammas), "vertex_gammas": gammas,
             "lmi_gammas": lmi_gammas, "crossover": float(crossover), "b_min": check.b_min,
             "b_plant_min": check.b_plant_min, "scaling": settings.get("scaling"),
-            "reference_filter": None if filt is None else dict(filt_settings)}
+            "reference_filter": None if filt is None else dict(filt_settings),
+            "reference_model": None if reference is None else dict(reference)}
     if plant.polytope.breakpoints is not None:
         info["breakpoints"] = [float(b) for b in plant.polytope.breakpoints]
     controller = LPVController(*stacks, plant.polytope, plant.basis, Ts, info=info, structure=plant.structure)
-    return Design(controller, max(gammas), None, check, plant, time.perf_counter() - start)
+    # with a reference model: its copy of the model is driven by the applied input when the actuator
+    # saturates (x_m⁺ += B(u_a − u), :func:`lpvflow.synth.observer.antiwindup_gains`)
+    gains = None if reference is None else antiwindup_gains([B for _, B, _, _ in model_vertices],
+                                                            controller.order)
+    return Design(controller, max(gammas), None, check, plant, time.perf_counter() - start, gains)

@@ -1,6 +1,6 @@
-"""The bundled robust ADIP design end to end: the scheduled loop-shaping controller's b(Ĝ, K_fb) against
-the ν-gap at the nine gate points, by a frequency-grid formula independent of lpvflow's margin code, and
-the arm steps it holds on the plant FMU while the LTI baseline loses them."""
+"""The bundled default ADIP design end to end (what `make design` runs): the scheduled loop-shaping
+controller's b(Ĝ, K_fb) against the ν-gap at the nine gate points, by a frequency-grid formula independent of
+lpvflow's margin code, and the arm steps it holds on the plant FMU while the LTI baseline loses them."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from lpvflow.pipeline.config import bundled_config, repository_root
 from lpvflow.pipeline.design import run_design
 from tests.test_robustness import _matrices, grid_margin
 
-NAME = "adip-robust"
+NAME = "adip"
 
 pytestmark = pytest.mark.slow  # the whole design: about a minute on two cores
 

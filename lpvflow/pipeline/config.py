@@ -448,7 +448,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
 #: without [synth] the run ends after validation (identification only).
 OPTIONAL = ("diagnose", "synth", "verify", "export")
 
-BUNDLED = ("adip", "maglev", "airpath", "adip-robust")
+BUNDLED = ("adip", "maglev", "airpath", "adip-fast")
 
 #: Table -> keys holding input files, resolved and checked on load.
 INPUT_FILES = (("design", "plant"), ("experiment", "controller"))
@@ -460,7 +460,7 @@ def repository_root() -> Path:
 
 
 def bundled_config(name: str = BUNDLED[0]) -> Path:
-    """Path of a bundled example configuration (``adip``, ``maglev``, ``airpath``, ``adip-robust``)."""
+    """Path of a bundled example configuration (``adip``, ``maglev``, ``airpath``, ``adip-fast``)."""
     if name not in BUNDLED:
         raise DataError(f"no bundled design {name!r}; bundled: {', '.join(BUNDLED)}")
     return Path(str(resources.files("lpvflow.pipeline") / "examples" / f"{name}.toml"))

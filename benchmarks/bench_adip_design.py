@@ -1,12 +1,12 @@
 """The bundled ADIP design on other identification data, and with identification for control (issue 24).
 
-The bundled design file (lpvflow/pipeline/examples/adip.toml) run end to end with ``[experiment] seed`` =
-1 … 6 (another multisine and other sensor noise each time, so another identified model; its observer
-design was tuned on the FMU scenarios with the models of seeds 1–4 — seeds 5 and 6 are the out-of-sample
-check), and with seed 1 and ``[experiment] iterate = 1`` (the designed controller runs a second
+The bundled fast design file (lpvflow/pipeline/examples/adip-fast.toml, the observer design) run end to end
+with ``[experiment] seed`` = 1 … 6 (another multisine and other sensor noise each time, so another identified
+model; its observer design was tuned on the FMU scenarios with the models of seeds 1–4 — seeds 5 and 6 are the
+out-of-sample check), and with seed 1 and ``[experiment] iterate = 1`` (the designed controller runs a second
 experiment, whose model the ν-gap gate then judges). Per run: the verdict, scenarios passed, the gate's
-largest ν-gap and smallest b(P, K_id), and the worst settling times and overshoot of the LPV controller;
-for the iterated run, each round's numbers (``summary.json`` ``iterations``).
+largest ν-gap and smallest b(P, K_id), and the worst settling times and overshoot of the LPV controller; for
+the iterated run, each round's numbers (``summary.json`` ``iterations``).
 
 Run: .venv/bin/python benchmarks/bench_adip_design.py   (about 4 minutes on 2 cores)
      → results/adip_design.json
@@ -31,10 +31,10 @@ TUNED_ON = (1, 2, 3, 4)
 
 def design_file(folder: Path, name: str, seed: int, iterate: int = 0) -> Path:
     """The bundled file with another name, output folder, experiment seed and iterate."""
-    text = bundled_config("adip").read_text()
+    text = bundled_config("adip-fast").read_text()
     assert "seed = 1\n" in text
     text = text.replace("seed = 1\n", f"seed = {seed}\niterate = {iterate}\n")
-    text = text.replace('name = "adip"', f'name = "{name}"\noutput_dir = "{folder}"')
+    text = text.replace('name = "adip-fast"', f'name = "{name}"\noutput_dir = "{folder}"')
     path = folder / f"{name}.toml"
     path.write_text(text)
     return path

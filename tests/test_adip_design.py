@@ -1,5 +1,6 @@
-"""The bundled default design end to end (what `make design` runs): issue 24's specification on the plant
-FMU, read from the summary.json a user gets."""
+"""The bundled fast design end to end (`lpvflow design --example adip-fast`, the observer-based controller
+without a robustness guarantee): issue 24's specification on the plant FMU, read from the summary.json a
+user gets."""
 
 from __future__ import annotations
 
@@ -21,14 +22,14 @@ KAPPA = 0.3785  # the bundled scheduling's κ (adip.toml [experiment] scheduling
 
 @pytest.fixture(scope="module")
 def adip_run(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("adip")
-    text = bundled_config("adip").read_text()
-    text = text.replace('name = "adip"', f'name = "adip"\noutput_dir = "{folder}"')
+    folder = tmp_path_factory.mktemp("adip-fast")
+    text = bundled_config("adip-fast").read_text()
+    text = text.replace('name = "adip-fast"', f'name = "adip-fast"\noutput_dir = "{folder}"')
     (folder / "adip.toml").write_text(text)
     with pytest.MonkeyPatch.context() as patch:
         patch.chdir(repository_root())
         summary = run_design(folder / "adip.toml", log=lambda _: None)
-    written = json.loads((folder / "adip" / "summary.json").read_text())
+    written = json.loads((folder / "adip-fast" / "summary.json").read_text())
     assert written["verdict"] == summary["verdict"]
     return summary, {s["name"]: s for s in written["stages"]["verify"]["outputs"]["scenarios"]}, folder
 
@@ -67,7 +68,7 @@ def test_the_exported_fmu_with_the_plant_fmu_reproduces_the_python_loop_of_the_7
     references ``<output>_ref``, the measured angles, the three scheduling signals computed from the arm
     angle), against ``lpvflow verify``'s Python loop with the design's controller.json: equal to 1e-9."""
     _, _, folder = adip_run
-    controller = load(folder / "adip" / "controller.json")
+    controller = load(folder / "adip-fast" / "controller.json")
     scenarios = load_scenarios(folder / "adip.toml")
     step = next(s for s in scenarios.scenarios if s.name == "arm to +70 deg")
     python = simulate_loop(controller, ADIP, step, scenarios.loop)
@@ -75,7 +76,7 @@ def test_the_exported_fmu_with_the_plant_fmu_reproduces_the_python_loop_of_the_7
     scheduling = {"sin_arm": np.sin,
                   "inv_det": lambda a: 1.0 / (1.0 - KAPPA * np.cos(a) ** 2),
                   "cos_inv_det": lambda a: np.cos(a) / (1.0 - KAPPA * np.cos(a) ** 2)}
-    outputs, applied = fmpy_closed_loop(folder / "adip" / "exported_controller.fmu", ADIP, step,
+    outputs, applied = fmpy_closed_loop(folder / "adip-fast" / "exported_controller.fmu", ADIP, step,
                                         controller.Ts, tmp_path, scheduling)
     difference = max(np.max(np.abs(outputs - python.outputs)), np.max(np.abs(applied - python.control[:, 0])))
     assert difference <= 1e-9, difference
@@ -89,7 +90,8 @@ def test_the_report_states_b_of_the_shipped_controller_against_the_nugap_at_the_
     delay margin 1 sample, input disk margin 0.41–0.44; the design passes all the same."""
     summary, _, folder = adip_run
     stage = summary["stages"]["robustness"]["outputs"]
-    model, controller = load(folder / "adip" / "model.json"), load(folder / "adip" / "controller.json")
+    run = folder / "adip-fast"
+    model, controller = load(run / "model.json"), load(run / "controller.json")
     assert controller.structure == "2dof" and len(stage["rows"]) == 9
     Du, Dy = np.diag([3.0]), np.diag([0.3, 0.025])
     for row in stage["rows"]:
@@ -99,6 +101,6 @@ def test_the_report_states_b_of_the_shipped_controller_against_the_nugap_at_the_
         K_fb = (AK, BK[:, 2:] @ Dy, np.linalg.solve(Du, CK), np.linalg.solve(Du, DK[:, 2:]) @ Dy)
         assert row["b"] == pytest.approx(grid_margin(G, K_fb), rel=0.01)
     failing = sum(not row["b_above_nugap"] for row in stage["rows"])
-    report = (folder / "adip" / "report.html").read_text()
+    report = (folder / "adip-fast" / "report.html").read_text()
     statement = (f"not guaranteed at {failing} of 9 points" if failing else "guaranteed at every point")
     assert f"robust stability (Vinnicombe): {statement}" in report

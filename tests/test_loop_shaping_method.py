@@ -1,6 +1,7 @@
-"""``[synth] method = "loop-shaping"`` through ``lpvflow synth --config``: the vertex levels against the
-Riccati optimum of the shaped plant, the margin of the written controller by an independent frequency-grid
-formula, and the frozen check refusing a destabilized controller."""
+"""``[synth] method = "loop-shaping"`` through ``lpvflow synth --config``: the vertex levels (Riccati central
+controllers) and the LMI witness against the Riccati optimum of the shaped plant, the margin of the written
+controller by an independent frequency-grid formula (1dof, and 2dof in a signal scaling with the reference
+injected after K∞), and the frozen check refusing a destabilized controller."""
 
 import itertools
 import json
@@ -12,10 +13,17 @@ import pytest
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
 from lpvflow.synth.controller import mix
-from lpvflow.synth.loop_shaping import crossover_normalized, integrator_lead_weight, loop_shaping
-from lpvflow.synth.loop_shaping_design import FROZEN_PER_SEGMENT, frozen_margin_check, modal_form
+from lpvflow.synth.loop_shaping import central_ncf_controller, crossover_normalized, integrator_lead_weight
+from lpvflow.synth.loop_shaping_design import (
+    FROZEN_PER_SEGMENT,
+    GAMMA_FACTOR,
+    frozen_margin_check,
+    reference_model_gains,
+    with_reference_model,
+)
 from lpvflow.synth.polytope import hat_coordinates
-from lpvflow.validate.robust_stability import optimal_margin
+from lpvflow.validate.robust_stability import generalized_margin, optimal_margin
+from lpvflow.validate.scaling import SignalScaling
 from tests.synth_cases import two_state_plant
 
 BREAKPOINTS = [-1.0, 0.0, 1.0]
@@ -29,6 +37,10 @@ weights.S = {{ num = [0.5], den = [1] }}
 weights.K = {{ num = [0.1], den = [1] }}
 weights.B = {{ num = [0, 0.5], den = [1, -0.5] }}
 """
+
+#: The design for two outputs (one sensitivity weight per output).
+TWO_OUTPUTS = DESIGN.replace("weights.S = { num = [0.5], den = [1] }",
+                             "weights.S = [{ num = [0.5], den = [1] }, { num = [0.5], den = [1] }]")
 
 
 def _random_plant(seed: int) -> LPVSS:
@@ -73,17 +85,22 @@ def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, see
     rc = main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
                "-o", str(out)])
     controller = load(out)
-    gammas = json.loads(out.read_text())["info"]["vertex_gammas"]
+    info = json.loads(out.read_text())["info"]
+    gammas, lmi_gammas = info["vertex_gammas"], info["lmi_gammas"]
     assert controller.info["method"] == "loop-shaping" and controller.info["crossover"] == CROSSOVER
     W1 = integrator_lead_weight(model.Ts, CROSSOVER)
     for i, p in enumerate(BREAKPOINTS):
         G = model.frozen(np.array([p]))
         W1_i = crossover_normalized(G, W1, CROSSOVER)
-        assert gammas[i] == pytest.approx(1.0 / optimal_margin(G * W1_i), rel=1e-2)
+        gamma_opt = 1.0 / optimal_margin(G * W1_i)
+        assert gammas[i] == pytest.approx(GAMMA_FACTOR * gamma_opt, rel=1e-6)
+        # the witness: hinfsyn's LMI level on the NCF plant equals the Riccati optimum within 1 %
+        assert gamma_opt * (1 - 1e-6) <= lmi_gammas[i] <= 1.01 * gamma_opt
         # the written controller reads e = r − y: u = −K e is u = K y with B and D negated back
         K = (controller.Ak[i], -controller.Bk[i], controller.Ck[i], -controller.Dk[i])
-        assert _margin_on_grid(G, K, W1_i) >= 1.0 / (1.01 * gammas[i])
-    # between the breakpoints: the interpolated controller on the interpolated model, W1(λ) = Σλ_iW1_i
+        assert _margin_on_grid(G, K, W1_i) >= 1.0 / gammas[i]
+    # between the breakpoints: the interpolated controller on the interpolated model, W1(λ) = Σλ_iW1_i,
+    # held to the larger γ of the two breakpoints around the point
     plants = [model.frozen(np.array([p])) for p in BREAKPOINTS]
     weights = [crossover_normalized(G, W1, CROSSOVER) for G in plants]
     ratios = []
@@ -93,37 +110,97 @@ def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, see
                    for Ms in (plants, weights))
         Ak, Bk, Ck, Dk = mix([(controller.Ak[i], controller.Bk[i], controller.Ck[i], controller.Dk[i])
                               for i in range(len(BREAKPOINTS))], lam)
-        ratios.append(_margin_on_grid(G, (Ak, -Bk, Ck, -Dk), W1_l) * 1.1 * gammas[int(np.argmax(lam))])
+        level = max(g for g, li in zip(gammas, lam, strict=True) if li > 0)
+        ratios.append(_margin_on_grid(G, (Ak, -Bk, Ck, -Dk), W1_l) * 1.1 * level)
     certificate = controller.info["certificate"]
     assert min(ratios) == pytest.approx(certificate["worst_ratio"], rel=1e-2)
     assert (rc == 0) == certificate["ok"] == (certificate["worst_ratio"] >= 1.0)
 
 
+def _two_output_plant(seed: int) -> LPVSS:
+    """A random stable 3-state, 1-input, 2-output plant affine in p ∈ [−1, 1], C constant, D = 0."""
+    rng = np.random.default_rng(seed)
+    A0 = np.diag(rng.uniform(0.5, 0.9, 3)) + np.triu(rng.uniform(-0.1, 0.1, (3, 3)), 1)
+    A1 = np.diag(rng.uniform(-0.05, 0.05, 3))
+    B = np.array([rng.standard_normal((3, 1)), 0.2 * rng.standard_normal((3, 1))])
+    C = np.array([rng.standard_normal((2, 3)), np.zeros((2, 3))])
+    basis = two_state_plant().basis
+    return LPVSS(np.array([A0, A1]), B, C, np.zeros((2, 2, 1)), basis, 0.01, u_names=["u"],
+                 y_names=["y1", "y2"])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_scaled_two_dof_controller_has_the_shaped_margin_and_injects_r_after_k_inf(tmp_path, seed):
+    model = _two_output_plant(seed)
+    model.save(tmp_path / "model.json")
+    scales = {"u": 2.0, "y1": 0.5, "y2": 0.05}
+    # (the 2dof generalized plant, built from the weights though the method does not use them, needs W_R)
+    (tmp_path / "design.toml").write_text(TWO_OUTPUTS + 'structure = "2dof"\n'
+                                          'scaling = { u = 2.0, y1 = 0.5, y2 = 0.05 }\n'
+                                          'weights.R = [{ num = [1.0], den = [1] }, '
+                                          '{ num = [1.0], den = [1] }]\n')
+    out = tmp_path / "K.json"
+    main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"), "-o", str(out)])
+    controller = load(out)
+    gammas = controller.info["vertex_gammas"]
+    Du, Dy = np.diag([scales["u"]]), np.diag([scales["y1"], scales["y2"]])
+    W1 = integrator_lead_weight(model.Ts, CROSSOVER)
+    for i, p in enumerate(BREAKPOINTS):
+        Gp = model.frozen(np.array([p]))
+        G = control.ss(Gp.A, Gp.B @ Du, np.linalg.inv(Dy) @ Gp.C, 0 * Gp.D, model.Ts)  # D_y⁻¹ G D_u
+        W1_i = crossover_normalized(G, W1, CROSSOVER)
+        Ak, Bk, Ck, Dk = controller.Ak[i], controller.Bk[i], controller.Ck[i], controller.Dk[i]
+        # the columns reading y, in the scaled signals: D_u⁻¹ K_y D_y
+        K_y = (Ak, Bk[:, 2:] @ Dy, np.linalg.inv(Du) @ Ck, np.linalg.inv(Du) @ Dk[:, 2:] @ Dy)
+        assert _margin_on_grid(G, K_y, W1_i) >= 1.0 / gammas[i]
+        # the reference path is −W1·K∞(1) (scaled): K_r(z) = −K_y(z)·K∞(z)⁻¹K∞(1) on the frequency grid
+        K_inf, _ = central_ncf_controller(G * W1_i, GAMMA_FACTOR)
+        dc = K_inf(1.0, squeeze=False)
+        for w in (0.1, 3.0, 30.0):
+            z = np.exp(1j * w * model.Ts)
+            resolvent = np.linalg.solve(z * np.eye(Ak.shape[0]) - Ak, Bk)
+            K_r = np.linalg.inv(Du) @ (Ck @ resolvent[:, :2] + Dk[:, :2]) @ Dy
+            expected = -(W1_i(z, squeeze=False) @ dc)
+            assert np.allclose(K_r, expected, rtol=1e-6, atol=1e-9)
+
+
+def test_scaling_that_misses_a_signal_is_one_error_line(tmp_path, capsys):
+    _two_output_plant(0).save(tmp_path / "model.json")
+    (tmp_path / "design.toml").write_text(TWO_OUTPUTS + 'scaling = { u = 2.0, y1 = 0.5 }\n')
+    out = tmp_path / "K.json"
+    assert main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
+                 "-o", str(out)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "missing ['y2']" in error[0] and not out.exists()
+
+
 def test_frozen_check_refuses_a_destabilized_controller():
     model = two_state_plant()
     W1 = integrator_lead_weight(model.Ts, CROSSOVER)
-    W2 = control.ss([], [], [], np.eye(1), model.Ts)
     vertices, weights, K_inf, gammas = [], [], [], []
     for p in BREAKPOINTS:
         G = model.frozen(np.array([p]))
         W1_i = crossover_normalized(G, W1, CROSSOVER)
-        design = loop_shaping([G], [W1_i], W2)
+        K, gamma = central_ncf_controller(G * W1_i, GAMMA_FACTOR)
         vertices.append(tuple(np.asarray(M) for M in (G.A, G.B, G.C, G.D)))
         weights.append(tuple(np.asarray(M) for M in (W1_i.A, W1_i.B, W1_i.C, W1_i.D)))
-        K_inf.append(modal_form(tuple(np.asarray(M) for M in (design.K_inf[0].A, design.K_inf[0].B,
-                                                             design.K_inf[0].C, design.K_inf[0].D))))
-        gammas.append(design.gamma)
+        K_inf.append(tuple(np.asarray(M) for M in (K.A, K.B, K.C, K.D)))
+        gammas.append(gamma)
+    lmi = [g / GAMMA_FACTOR for g in gammas]  # a witness that agrees exactly
     t = np.unique(np.concatenate([np.linspace(lo, hi, FROZEN_PER_SEGMENT)
                                   for lo, hi in itertools.pairwise(BREAKPOINTS)]))
     lams = [hat_coordinates(BREAKPOINTS, ti) for ti in t]
-    assert frozen_margin_check(vertices, weights, K_inf, gammas, lams, model.Ts).b_min > 0  # all stable
+    assert frozen_margin_check(vertices, weights, K_inf, gammas, lmi, lams, model.Ts).b_min > 0  # all stable
     Ak, Bk, Ck, Dk = K_inf[1]
     broken = (Ak, Bk, Ck, Dk - 50.0)  # a large positive-feedback gain at the middle breakpoint
     G, W1_1 = control.ss(*vertices[1], model.Ts), control.ss(*weights[1], model.Ts)
     loop = (G * W1_1).feedback(control.ss(*broken, model.Ts), sign=1)
     assert np.abs(loop.poles()).max() > 1.0  # independently: the frozen loop there is unstable
-    check = frozen_margin_check(vertices, weights, [K_inf[0], broken, K_inf[2]], gammas, lams, model.Ts)
+    check = frozen_margin_check(vertices, weights, [K_inf[0], broken, K_inf[2]], gammas, lmi, lams, model.Ts)
     assert not check.ok and check.worst_ratio == 0.0
+    # a witness 2 % off the Riccati optimum fails the check, the loops unchanged
+    off = frozen_margin_check(vertices, weights, K_inf, gammas, [1.02 * g for g in lmi], lams, model.Ts)
+    assert off.worst_ratio >= 1.0 and not off.ok
 
 
 def test_crossover_above_the_weight_band_is_one_error_line(tmp_path, capsys):
@@ -134,3 +211,34 @@ def test_crossover_above_the_weight_band_is_one_error_line(tmp_path, capsys):
                  "-o", str(out)]) == 2
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and "crossover 1000" in error[0] and not out.exists()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_reference_model_path_leaves_the_feedback_nothing_to_correct_on_the_model(seed):
+    """u = u_m + K(y − y_m): on the model itself the loop's output is the reference model's (the feedback
+    sees no error), the reference model holds a reachable reference at steady state, and the columns
+    reading y are the feedback K (same b)."""
+    rng = np.random.default_rng(seed)
+    A = np.diag(np.r_[1.0, rng.uniform(0.3, 0.9, 2)])  # an integrator, as the ADIP arm
+    A[0, 1:] = rng.uniform(0.05, 0.2, 2)
+    B, C = rng.standard_normal((3, 1)), rng.standard_normal((1, 3))
+    G = control.ss(A, B, C, np.zeros((1, 1)), 0.01)
+    mats = tuple(np.asarray(M) for M in (G.A, G.B, G.C, G.D))
+    scale = SignalScaling(np.array([rng.uniform(0.5, 2)]), np.array([rng.uniform(0.5, 2)]))
+    F, N = reference_model_gains(mats, scale, 1.0)
+    K, _ = central_ncf_controller(G, GAMMA_FACTOR)
+    K_fb = tuple(np.asarray(M) for M in (K.A, K.B, K.C, K.D))
+    Ac, Bc, Cc, Dc = with_reference_model(K_fb, mats, F, N)
+    r = np.ones(600)
+    x, xc, xm, y, ym = np.zeros(3), np.zeros(Ac.shape[0]), np.zeros(3), [], []
+    for rk in r:
+        yk = float((C @ x)[0])
+        u = Cc @ xc + Dc @ np.array([rk, yk])
+        x, xc = A @ x + B @ u, Ac @ xc + Bc @ np.array([rk, yk])
+        y.append(yk)
+        ym.append(float((C @ xm)[0]))
+        xm = (A + B @ F) @ xm + B @ N @ np.array([rk])
+    assert np.allclose(y, ym, atol=1e-9)
+    assert ym[-1] == pytest.approx(1.0, abs=1e-3)
+    K_y = control.ss(Ac, Bc[:, 1:], Cc, Dc[:, 1:], 0.01)
+    assert generalized_margin(G, K_y) == pytest.approx(generalized_margin(G, K), rel=1e-3)

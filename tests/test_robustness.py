@@ -16,6 +16,7 @@ import pytest
 
 from lpvflow.basis import Basis, SchedulingRangeWarning
 from lpvflow.models import load
+from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.design import run_design
 from lpvflow.pipeline.robustness import measurement_feedback
 from lpvflow.synth.controller import LPVController
@@ -173,3 +174,44 @@ def test_design_reports_b_of_its_controller_against_the_nugap_without_changing_t
     named = [f"lower_level {round(row['theta'][0], 4) + 0.0:g} m" for row in failing]
     assert all(name in report for name in named)
     assert "robustness_physical.png" in report
+
+
+@pytest.mark.parametrize("gate", [True, False])
+def test_robustness_gate_stops_a_design_whose_b_is_below_the_nugap_naming_the_point(tmp_path, capsys, gate):
+    """The tanks design of the test above (its controller's b is below the ν-gap at the empty-tank end)
+    with [synth] robustness_gate: on, ``lpvflow design`` exits 1 after the robustness stage with one line
+    naming the point where b − ν-gap is smallest (b from the grid formula here) and runs no verification;
+    off, the same design passes."""
+    u_scale, y_scale = 2.0, 0.05
+    path = tmp_path / "design.toml"
+    path.write_text(tanks_head(ROOT / "fmu_plants" / "build" / "tanks.fmu", tmp_path / "out")
+                    + TANKS.format(u_scale=u_scale, y_scale=y_scale)
+                    + f"robustness_gate = {str(gate).lower()}\n")
+    status = main(["design", str(path)])
+    captured = capsys.readouterr()
+    out = captured.out + captured.err
+    folder = tmp_path / "out" / "tanks"
+    summary = json.loads((folder / "summary.json").read_text())
+    if not gate:
+        assert status == 0 and summary["stages"]["robustness"]["outputs"]["gate"]["passed"] is None
+        return
+    assert status == 1 and "verify" not in summary["stages"]
+    model, controller = load(folder / "model.json"), load(folder / "controller.json")
+    validate = summary["stages"]["validate"]["outputs"]
+    excess = []
+    for theta, gap in zip(validate["theta"], validate["nugap"], strict=True):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SchedulingRangeWarning)
+            AG, BG, CG, DG = _matrices(model.frozen(np.array(theta)))
+        AK, BK, CK, DK = _matrices(controller.frozen(np.array(theta)))
+        G = (AG, BG * u_scale, CG / y_scale, DG * u_scale / y_scale)
+        b = grid_margin(G, (AK, -BK * y_scale, CK / u_scale, -DK * y_scale / u_scale))
+        excess.append((b - gap, theta, b, gap))
+    worst = min(excess, key=lambda row: row[0])
+    assert worst[0] < 0  # independently: b is below the ν-gap there
+    lines = [line for line in out.splitlines() if "robustness: the controller" in line]
+    assert len(lines) == 1
+    where = ", ".join(f"{v:.3g}" for v in worst[1])
+    assert f"worst θ = {where}: b(Ĝ, K_fb) " in lines[0] and f"ν-gap {worst[3]:.3g})" in lines[0]
+    stated_b = float(lines[0].split("b(Ĝ, K_fb) ")[1].split(" ")[0])
+    assert stated_b == pytest.approx(worst[2], rel=0.01)

@@ -47,7 +47,7 @@ def test_bundled_examples_find_their_files_from_any_folder(name: str, tmp_path: 
 
 
 def test_a_design_file_is_a_synth_config_and_a_scenario_file() -> None:
-    path = bundled_config("adip")
+    path = bundled_config("adip-fast")
     tables = load_tables(path, need=("synth",))
     assert tables["synth"]["method"] == "observer" and tables["synth"]["structure"] == "2dof"
     assert len(tables["synth"]["box"]) == 3 and [len(b) for b in tables["synth"]["breakpoints"]] == [3] * 13

@@ -279,6 +279,14 @@ def reference_filter(value: Any, where: str) -> dict[str, float]:
     return {k: number(0.0, open_low=True)(v, f"{where}.{k}") for k, v in value.items()}
 
 
+def reference_model(value: Any, where: str) -> dict[str, float]:
+    """``{ control_weight = ρ }`` with ρ > 0."""
+    table = mapping(number(0.0, open_low=True), "number > 0")(value, where)
+    if set(table) != {"control_weight"}:
+        raise _fail(where, value, "{ control_weight = ρ } with ρ > 0")
+    return table
+
+
 def trim(value: Any, where: str) -> dict[str, list]:
     """``{ p = [p_1, …, p_M], u = [[u_11, …, u_1nu], …] }``: breakpoints of the first scheduling signal,
     strictly ascending, and one row of plant inputs per breakpoint (the trim feed-forward u_eq(p))."""
@@ -406,6 +414,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
         "crossover": Key(None, number(0.0, open_low=True),
                          "loop-shaping: crossover of the shaped loop, rad/s (default: π/(20·Ts))"),
+        "scaling": Key(None, mapping(number(0.0, open_low=True), "scale > 0"),
+                       "loop-shaping: { signal = scale } for every model input and output: the loop is "
+                       "shaped in D_y⁻¹·G·D_u (default: none)"),
+        "reference_model": Key(None, reference_model, "loop-shaping (2dof): { control_weight = ρ }, u = u_m "
+                               "+ K(y − y_m) with a model copy under an LQ gain as reference model"),
+        "robustness_gate": Key(False, boolean, "stop the design after the robustness stage when the "
+                               "controller's b(Ĝ, K_fb) is not above the ν-gap at a validate point"),
         "breakpoints": Key(None, breakpoints, "piecewise polytope: ascending values (or rows) end to end"),
         "structure": Key("1dof", string(("1dof", "2dof")), "1dof: controller reads r − y; 2dof: [r; y]"),
         "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R, N], [integrator_shift]"),
@@ -415,7 +430,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "baseline_at": Key(None, point, "scheduling point of the LTI baseline (default: box centre)"),
         "trim": Key(None, trim, "trim feed-forward u_eq(p): { p = [...], u = [[...], ...] }, interpolated"),
         "observer": Key({}, observer, "observer: Kalman noise { input, state, disturbance, noise }"),
-        "reference_filter": Key(None, reference_filter, "observer: { bandwidth = rad/s, damping } on r"),
+        "reference_filter": Key(None, reference_filter, "observer, loop-shaping (2dof): { bandwidth = rad/s, "
+                                "damping } on r"),
     },
     "verify": {
         "loop": Key(REQUIRED, loop, "how the controller is wired to the plant FMU ([verify.loop])"),
@@ -432,7 +448,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
 #: without [synth] the run ends after validation (identification only).
 OPTIONAL = ("diagnose", "synth", "verify", "export")
 
-BUNDLED = ("adip", "maglev", "airpath")
+BUNDLED = ("adip", "maglev", "airpath", "adip-fast")
 
 #: Table -> keys holding input files, resolved and checked on load.
 INPUT_FILES = (("design", "plant"), ("experiment", "controller"))
@@ -444,7 +460,7 @@ def repository_root() -> Path:
 
 
 def bundled_config(name: str = BUNDLED[0]) -> Path:
-    """Path of a bundled example configuration (``adip``, ``maglev``, ``airpath``)."""
+    """Path of a bundled example configuration (``adip``, ``maglev``, ``airpath``, ``adip-fast``)."""
     if name not in BUNDLED:
         raise DataError(f"no bundled design {name!r}; bundled: {', '.join(BUNDLED)}")
     return Path(str(resources.files("lpvflow.pipeline") / "examples" / f"{name}.toml"))

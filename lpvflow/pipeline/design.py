@@ -11,12 +11,13 @@ interrupted stage had written so far (exit 130).
 Without a [synth] table the run ends after validation; so does a run whose identified model fails
 the ν-gap/b(P, K) gate of the validate stage ([validate] gate, :func:`lpvflow.pipeline.gate.gate_verdict`),
 with the reason as the failure. The robustness stage (:mod:`lpvflow.pipeline.robustness`) reports
-b(Ĝ, K_fb) of the synthesized controller against the ν-gap at the validate points; the verdict does not
-read it. With [diagnose] adopt = true and an adopted
-extension, the adoption stage designs and verifies the identified model too and compares the two
-controllers in closed loop (:func:`lpvflow.pipeline.adoption.adoption`). With [experiment] iterate = N the
-experiment → synth stages first run N rounds, each under the controller the round before designed
-(identification for control, :func:`_run_stages`).
+b(Ĝ, K_fb) of the synthesized controller against the ν-gap at the validate points; with [synth]
+robustness_gate = true a controller whose b is not above the ν-gap at a point ends the run there
+(:func:`lpvflow.pipeline.robustness.robustness_verdict`), else the verdict does not read it. With
+[diagnose] adopt = true and an adopted extension, the adoption stage designs and verifies the identified
+model too and compares the two controllers in closed loop (:func:`lpvflow.pipeline.adoption.adoption`).
+With [experiment] iterate = N the experiment → synth stages first run N rounds, each under the
+controller the round before designed (identification for control, :func:`_run_stages`).
 """
 
 from __future__ import annotations
@@ -78,7 +79,8 @@ SYNTH = Stage("synth", stages.synth, ("synth",),
               {"synth": ALL, "verify": ("loop",), "experiment": ("scheduling",), "design": ("plant",)},
               ("reduce",), _PLANT)
 ROBUSTNESS = Stage("robustness", robustness, ("synth", *VALIDATE.requires),
-                   {"validate": ("scaling",), "identify": ("u", "y", "p", "split", "remove_offsets")},
+                   {"validate": ("scaling",), "synth": ("robustness_gate",),
+                    "identify": ("u", "y", "p", "split", "remove_offsets")},
                    ("reduce", "validate", "synth"))
 VERIFY = Stage("verify", stages.verify, ("design", "verify"), {"design": ("plant",), "verify": ALL},
                ("synth",), _PLANT)
@@ -267,7 +269,7 @@ def _run_pass(
         artifacts_of[stage.name] = record["artifacts"]
         outcome[stage.name] = {"status": status, "seconds": record["seconds"],
                                "outputs": record["outputs"], "artifacts": record["artifacts"]}
-        gate = record["outputs"].get("gate") if stage.name == "validate" else None
+        gate = record["outputs"].get("gate") if stage.name in ("validate", "robustness") else None
         if gate and gate.get("passed") is False:
             log(f"[{i}/{count}] {stage.name}: {gate['reason']}")
             return {"stage": stage.name, "error": gate["reason"]}

@@ -12,7 +12,9 @@ D_u⁻¹ K_fb D_y), it reports
 (:mod:`lpvflow.validate.robust_stability`). Vinnicombe's theorem (*Uncertainty and Feedback: H∞
 loop-shaping and the ν-gap metric*, 2001): K_fb stabilizes every plant G with
 δν(G, Ĝ) < b(Ĝ, K_fb), so b > δν at θ guarantees that the controller frozen at θ stabilizes the plant
-frozen there. The stage reports; it decides nothing (the design's verdict does not read it).
+frozen there. With ``[synth] robustness_gate = true`` it is also a gate (:func:`robustness_verdict`): a
+controller with b ≤ δν at a point ends the design there, as the validate stage's ν-gap gate does; without
+it the stage only reports.
 """
 
 from __future__ import annotations
@@ -65,10 +67,34 @@ def robustness_rows(model: Any, controller: Any, scale: SignalScaling, thetas: l
     return rows
 
 
+def robustness_verdict(outputs: dict, enabled: bool) -> dict:
+    """The robust-stability gate: ``{"passed": bool | None, "reason": str}`` from the stage's ``rows`` and
+    ``guaranteed``. None when off or not evaluated (no ν-gap); False when b(Ĝ, K_fb) ≤ δν at a point, the
+    reason naming the point with the smallest b − δν."""
+    if not enabled:
+        return {"passed": None, "reason": "gate off ([synth] robustness_gate = false)"}
+    if outputs["guaranteed"] is None:
+        return {"passed": None, "reason": "not evaluated: the validate stage computed no ν-gap ([validate] "
+                                          "reference = \"linearization\" or \"local\")"}
+    rows = outputs["rows"]
+    worst = min(rows, key=lambda row: row["b"] - row["nugap"])
+    where = ", ".join(f"{v:.3g}" for v in worst["theta"])
+    if outputs["guaranteed"]:
+        return {"passed": True, "reason": f"b(Ĝ, K_fb) > ν-gap at all {len(rows)} points (closest at θ = "
+                                          f"{where}: b {worst['b']:.3g} > ν-gap {worst['nugap']:.3g})"}
+    failing = sum(not row["b_above_nugap"] for row in rows)
+    return {"passed": False,
+            "reason": f"the controller's robust stability is not guaranteed at {failing} of {len(rows)} "
+                      f"points (worst θ = {where}: b(Ĝ, K_fb) {worst['b']:.3g} ≤ ν-gap "
+                      f"{worst['nugap']:.3g}); "
+                      "[synth] robustness_gate = true stops the design here"}
+
+
 def robustness(ctx: StageContext) -> tuple[dict, list[str]]:
     """The rows of :func:`robustness_rows` at the validate stage's points (``theta``, ``nugap``) for the
     synth stage's controller and the reduced model, in the validate stage's scaling; ``guaranteed`` is
-    whether b > δν at every point (None without a ν-gap) and ``not_guaranteed_at`` the points where not."""
+    whether b > δν at every point (None without a ν-gap), ``not_guaranteed_at`` the points where not and
+    ``gate`` the :func:`robustness_verdict` of ``[synth] robustness_gate``."""
     validate = ctx.outputs["validate"]
     model = load(ctx.path("model.json"))
     est, _ = read_data(ctx)
@@ -81,4 +107,5 @@ def robustness(ctx: StageContext) -> tuple[dict, list[str]]:
     if rows and "nugap" in rows[0]:
         outputs["not_guaranteed_at"] = [row["theta"] for row in rows if not row["b_above_nugap"]]
         outputs["guaranteed"] = not outputs["not_guaranteed_at"]
+    outputs["gate"] = robustness_verdict(outputs, bool(ctx.config["synth"].get("robustness_gate")))
     return outputs, []

@@ -1,24 +1,39 @@
-"""``[synth] method = "loop-shaping"``: H∞ loop-shaping designs (McFarlane & Glover 1990) by LMIs at the
-vertices of the design's polytope, interpolated.
+"""``[synth] method = "loop-shaping"``: H∞ loop-shaping designs (McFarlane & Glover 1990) at the breakpoints
+(vertices) of the design's polytope, in state coordinates the breakpoints share, interpolated.
 
-At every vertex i (a breakpoint of a piecewise polytope, else a box corner) with frozen model G_i:
+At every vertex i with frozen model G_i, in the signal scaling of ``scaling`` (D_y⁻¹ G_i D_u, the scales of
+:class:`lpvflow.validate.scaling.SignalScaling`; the validate stage's scaling makes the shaped loop's b the
+b that the robustness stage compares with the ν-gap):
 
 * W1_i = W1/σ_max(G_i W1)(e^{jω_c Ts}), W1 the integrator-plus-lead weight of
   :func:`lpvflow.synth.loop_shaping.integrator_lead_weight` at the crossover ω_c = ``crossover``
-  (:func:`lpvflow.synth.loop_shaping.crossover_normalized`), W2 = I;
-* K∞_i by :func:`lpvflow.synth.hinf.hinfsyn` on the four-block normalized-coprime-factor plant of the shaped
-  plant Gs_i = W2·G_i·W1_i (one LTI LMI design per vertex, :func:`lpvflow.synth.loop_shaping.loop_shaping`):
-  ‖[I; K∞](I − Gs K∞)⁻¹[I  Gs]‖∞ ≤ γ_i, so b(Gs_i, K∞_i) ≥ 1/γ_i with γ_i → 1/b_opt(Gs_i);
-* the feedback K_i = W1_i·K∞_i·W2 (u = K y, positive feedback as in
+  (:func:`lpvflow.synth.loop_shaping.crossover_normalized`), W2 = I (in the scaled signals);
+* K∞_i the central controller of the shaped plant Gs_i = G_i·W1_i at γ_i = 1.01·γ_opt(Gs_i)
+  (:func:`lpvflow.synth.loop_shaping.central_ncf_controller`: the two NCF Riccati solutions X_i, Z_i of
+  Gs_i), so b(Gs_i, K∞_i) ≥ 1/γ_i. Its state lives in the coordinates of Gs_i's own state [x_W1; x_G]:
+  the weight's states and the model's observable-form states, the same at every breakpoint — which makes
+  Σλ_i K∞_i an interpolation of the gains of one observer structure rather than of realizations chosen
+  by separate solves (Rugh & Shamma 2000, "Research on gain scheduling", Automatica 36(10));
+* the witness: the LMI level of :func:`lpvflow.synth.hinf.hinfsyn` on the four-block NCF plant of Gs_i
+  (:func:`lpvflow.synth.loop_shaping.loop_shaping`) must equal γ_opt(Gs_i) within 1 % — the Riccati
+  controller is the LMI problem's near-optimal solution;
+* the feedback K_i = D_u·W1_i·K∞_i·D_y⁻¹ on the plant's physical signals (u = K y, positive feedback as in
   :mod:`lpvflow.validate.robust_stability`).
 
-The controller is Σλ_i(p)K_i with the plant's own convex coordinates. The vertex controllers are realized in
-the coordinates each LMI solve chose, so between vertices the interpolation is not certified by the LMIs:
-:func:`frozen_margin_check` evaluates the shaped loop b(G(p)·W1(p), K∞(p)) on a grid ten times finer than the
-vertices and requires b ≥ 1/(1.1·γ_i) of the nearest vertex (b = 0 when the frozen loop is unstable); the
-margin b(G(p), K(p)) of the unshaped loop is reported beside it. The mixed-sensitivity ``weights`` of the
-table are not used (the generalized plant is still built from them). The reference enters as
-e = r − y (u = −K e, the 1-DOF loop; a ``2dof`` controller reads [r; y] with the same loop).
+The W1_i share A, B and have D = 0, so Σλ_i(W1_i·K∞_i) = W1(λ)·K∞(λ) exactly: the exported controller
+Σλ_iK_i is the interpolated shaped design. Between vertices it is not certified by the LMIs:
+:func:`frozen_margin_check` evaluates the shaped loop b(G(λ)·W1(λ), K∞(λ)) on a grid ten times finer than
+the vertices and requires b ≥ 1/(1.1·γ), γ the larger level of the two vertices around the point (b = 0
+when the frozen loop is unstable).
+The mixed-sensitivity ``weights`` of the table are not used (the generalized plant is still built from
+them).
+
+Reference (2-DOF, Vinnicombe 2001, §1.5: the feedback gives robustness, the reference path the speed):
+``structure = "1dof"`` reads e = r − y (u = −K e); ``"2dof"`` reads [r; y] and injects the reference after
+K∞, u = D_u·W1·(K∞ D_y⁻¹y − K∞(1) D_y⁻¹r_f) (:func:`controller_matrices`), r_f the reference passed through
+``reference_filter`` (ω²/(s² + 2ζωs + ω²), zero-order hold; none: r_f = r). The feedback part from y is K
+in both, so the robustness stage's b is the design's; K∞(1) is interpolated with the rest (W1's B is
+shared, so the 2dof vertex matrices are affine in K∞_i, K∞_i(1) and W1_i's C).
 """
 
 from __future__ import annotations
@@ -36,27 +51,44 @@ from lpvflow.models import LPVSS
 from lpvflow.synth.certify import design_coordinates
 from lpvflow.synth.controller import LPVController, mix
 from lpvflow.synth.design import Design
-from lpvflow.synth.loop_shaping import crossover_normalized, integrator_lead_weight, loop_shaping
+from lpvflow.synth.loop_shaping import (
+    central_ncf_controller,
+    crossover_normalized,
+    integrator_lead_weight,
+    loop_shaping,
+    shaped_plant,
+)
+from lpvflow.synth.observer import antiwindup_gains, reference_filter, with_reference_filter
 from lpvflow.synth.plant import GeneralizedPlant
 from lpvflow.synth.polytope import vertex_matrices
 from lpvflow.validate.robust_stability import generalized_margin
+from lpvflow.validate.scaling import SignalScaling
 
 #: Frozen-check grid: points per breakpoint interval (ten times finer than the breakpoints).
 FROZEN_PER_SEGMENT = 11
-#: The frozen check requires b(G(p), K(p)) ≥ 1/(MARGIN_FACTOR·γ_i) of the nearest vertex i.
+#: The frozen check requires b(Gs(λ), K∞(λ)) ≥ 1/(MARGIN_FACTOR·γ), γ of :func:`segment_gamma`.
 MARGIN_FACTOR = 1.1
 #: Default crossover as a fraction of the Nyquist frequency π/Ts.
 DEFAULT_CROSSOVER_FRACTION = 0.05
+#: The central controllers' level γ_i = GAMMA_FACTOR·γ_opt(Gs_i).
+GAMMA_FACTOR = 1.01
+#: Relative residual below which a reference channel's steady state is reachable (reference model).
+REACH_TOL = 1e-8
+#: The LMI witness: hinfsyn's γ at every vertex within this fraction of γ_opt(Gs_i).
+WITNESS_TOLERANCE = 0.01
 
 
 @dataclass
 class FrozenMarginCheck:
-    """The interpolated design on a grid ten times finer than the vertices. The shaped loop at λ is
-    Gs(λ) = G(λ)·W1(λ) with K∞(λ) (W1(λ) = Σλ_iW1_i: the W1_i share A, B and D = 0, so
-    Σλ_i(W1_i·K∞_i) = W1(λ)·K∞(λ) exactly, and the shaped loop and the exported loop G(λ), K(λ) have the
-    same closed-loop matrix). ``worst_ratio`` = min over the grid of b(Gs, K∞)·MARGIN_FACTOR·γ_nearest
-    (≥ 1 passes; b = 0 when the frozen loop is unstable), ``worst_at`` its grid index, ``b_min`` the
-    smallest b(Gs, K∞), ``b_plant_min`` the smallest b(G, K) of the unshaped loop (reported, not judged)."""
+    """The interpolated design on a grid ten times finer than the vertices, and the LMI witness at the
+    vertices. The shaped loop at λ is Gs(λ) = G(λ)·W1(λ) with K∞(λ) (scaled signals; W1(λ) = Σλ_iW1_i: the
+    W1_i share A, B and D = 0, so Σλ_i(W1_i·K∞_i) = W1(λ)·K∞(λ) exactly, and the shaped loop and the
+    exported loop G(λ), K(λ) have the same closed-loop matrix). ``worst_ratio`` = min over the grid of
+    b(Gs, K∞)·MARGIN_FACTOR·γ_segment (γ_segment of :func:`segment_gamma`; ≥ 1 passes; b = 0 when the
+    frozen loop is unstable), ``worst_at`` its grid index, ``b_min`` the smallest b(Gs, K∞),
+    ``b_plant_min`` the smallest b(G, K) of the unshaped loop (reported, not judged), ``gammas`` the
+    central controllers' levels γ_i and ``lmi_gammas`` hinfsyn's levels at the vertices (the witness:
+    within WITNESS_TOLERANCE of γ_i/GAMMA_FACTOR = γ_opt)."""
 
     b_min: float
     b_plant_min: float
@@ -64,19 +96,30 @@ class FrozenMarginCheck:
     worst_at: int
     points: int
     gammas: list[float]
+    lmi_gammas: list[float]
+
+    @property
+    def witness_error(self) -> float:
+        """max_i |γ_LMI,i/γ_opt,i − 1|."""
+        return max(abs(lmi * GAMMA_FACTOR / g - 1.0) for lmi, g in zip(self.lmi_gammas, self.gammas,
+                                                                        strict=True))
 
     @property
     def ok(self) -> bool:
-        """Every frozen loop is stable with b(Gs, K∞) ≥ 1/(1.1·γ) of its nearest vertex."""
-        return self.worst_ratio >= 1.0
+        """Every frozen loop is stable with b(Gs, K∞) ≥ 1/(1.1·γ_segment), and the LMI
+        witness agrees with the Riccati optimum within 1 % at every vertex."""
+        return self.worst_ratio >= 1.0 and self.witness_error <= WITNESS_TOLERANCE
 
     def lines(self) -> list[str]:
-        return [f"loop-shaping vertex levels γ_i {min(self.gammas):.4g} … {max(self.gammas):.4g} "
-                f"(b(Gs_i, K∞_i) ≥ 1/γ_i)",
+        return [f"loop-shaping central controllers at γ_i = {GAMMA_FACTOR}·γ_opt(Gs_i): γ_i "
+                f"{min(self.gammas):.4g} … {max(self.gammas):.4g} (b(Gs_i, K∞_i) ≥ 1/γ_i)",
+                f"LMI witness (hinfsyn on the NCF plant of every Gs_i): γ {min(self.lmi_gammas):.4g} … "
+                f"{max(self.lmi_gammas):.4g}, largest deviation from γ_opt {100 * self.witness_error:.2f} % "
+                f"(must be ≤ {100 * WITNESS_TOLERANCE:.0f} %)",
                 f"frozen shaped loops at {self.points} points (10× the vertices): smallest b(Gs, K∞) "
-                f"{self.b_min:.4g}; worst b·{MARGIN_FACTOR}·γ_nearest {self.worst_ratio:.4g} at point "
+                f"{self.b_min:.4g}; worst b·{MARGIN_FACTOR}·γ_segment {self.worst_ratio:.4g} at point "
                 f"{self.worst_at} (must be ≥ 1; b = 0 is an unstable loop)",
-                f"unshaped loops: smallest b(G, K) {self.b_plant_min:.4g} (K = W1·K∞)",
+                f"unshaped loops: smallest b(G, K) {self.b_plant_min:.4g} (K = W1·K∞, scaled signals)",
                 "no LMI certificate between vertices or for a moving scheduling signal: the FMU runs are the "
                 "witness"]
 
@@ -85,74 +128,108 @@ def _matrices(M: control.StateSpace) -> tuple[np.ndarray, ...]:
     return tuple(np.asarray(X, dtype=float) for X in (M.A, M.B, M.C, M.D))
 
 
-def modal_form(K: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
-    """K in real modal coordinates fixed up to nothing, so that controllers of nearby plants realized by
-    different solves get nearby matrices: eigenvalues in ascending (real, imaginary) order, a real mode
-    scaled so its row of B has the norm of its column of C and a positive first nonzero entry, a complex
-    pair σ ± jω as the block [σ ω; −ω σ] rotated and scaled (which commutes with it) so its two rows of B
-    start along [1, 0]ᵀ and have the norm of its two columns of C. Assumes distinct eigenvalues (a
-    diagonalizable K). Interpolating these forms is still not the frozen design between vertices: the
-    check measures what it loses."""
+def shaping_scale(model: LPVSS, table: Mapping[str, float] | None) -> SignalScaling:
+    """D_u, D_y of ``[synth] scaling`` ({signal = scale} naming every model input and output), or the
+    identity without the key.
+
+    Raises:
+        ModelError: a table that misses a model signal or names one the model does not have.
+    """
+    if table is None:
+        return SignalScaling(np.ones(model.nu), np.ones(model.ny))
+    signals = [*model.u_names, *model.y_names]
+    missing, extra = [n for n in signals if n not in table], sorted(set(table) - set(signals))
+    if missing or extra:
+        what = (f"; missing {missing}" if missing else "") + (f"; unknown {extra}" if extra else "")
+        raise ModelError(f"[synth] scaling needs one scale per model input and output {signals}{what}")
+    return SignalScaling(np.array([table[n] for n in model.u_names]),
+                         np.array([table[n] for n in model.y_names]))
+
+
+def physical_feedback(K: tuple[np.ndarray, ...], scale: SignalScaling) -> tuple[np.ndarray, ...]:
+    """D_u·K·diag(D_y⁻¹, …): a controller of the scaled signals (SignalScaling.controller's inverse) on the
+    physical ones; K reads y (ny columns) or [r; y] (2·ny columns, both in the outputs' scale)."""
     A, B, C, D = K
-    values, vectors = np.linalg.eig(A)
-    order = np.lexsort((values.imag, values.real))
-    columns, i = [], 0
-    while i < len(order):
-        lam, v = values[order[i]], vectors[:, order[i]]
-        if abs(lam.imag) > 1e-12 * max(1.0, abs(lam)):
-            columns += [v.real, v.imag]
-            i += 2  # the conjugate follows in the sorted order
-        else:
-            columns.append(v.real)
-            i += 1
-    T = np.column_stack(columns)
-    A, B, C = np.linalg.solve(T, A @ T), np.linalg.solve(T, B), C @ T
-    S = np.eye(A.shape[0])
-    i = 0
-    while i < A.shape[0]:
-        if i + 1 < A.shape[0] and abs(A[i, i + 1]) > 1e-12 * max(1.0, abs(A[i, i])):
-            b = B[i:i + 2]
-            first = b[:, int(np.argmax(np.linalg.norm(b, axis=0) > 1e-12))]
-            angle = np.arctan2(first[1], first[0])
-            R = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
-            S[i:i + 2, i:i + 2] = R * _balance(np.linalg.norm(b), np.linalg.norm(C[:, i:i + 2]))
-            i += 2
-        else:
-            row = B[i]
-            nonzero = row[np.abs(row) > 1e-12 * max(1.0, np.abs(row).max())]
-            sign = np.sign(nonzero[0]) if nonzero.size else 1.0
-            S[i, i] = _balance(np.linalg.norm(row), np.linalg.norm(C[:, i])) * sign
-            i += 1
-    return np.linalg.solve(S, A @ S), np.linalg.solve(S, B), C @ S, D
+    Dy_inv = np.kron(np.eye(B.shape[1] // scale.Dy.shape[0]), np.linalg.inv(scale.Dy))
+    return A, B @ Dy_inv, scale.Du @ C, scale.Du @ D @ Dy_inv
 
 
-def _balance(b: float, c: float) -> float:
-    """The scale s of a mode after which its B row(s) and C column(s) have equal norms, ‖b‖/s = s‖c‖."""
-    return float(np.sqrt(b / c)) if b > 0 and c > 0 else 1.0
+def segment_gamma(gammas: list[float], lam: np.ndarray) -> float:
+    """The largest γ_i of the vertices that λ mixes (λ_i > 0): the level the frozen check holds a point
+    between vertices to."""
+    return max(g for g, li in zip(gammas, lam, strict=True) if li > 1e-12)
 
 
 def frozen_margin_check(model_vertices: list[tuple[np.ndarray, ...]], weights: list[tuple[np.ndarray, ...]],
-                        K_inf: list[tuple[np.ndarray, ...]], gammas: list[float], lams: list[np.ndarray],
-                        Ts: float) -> FrozenMarginCheck:
+                        K_inf: list[tuple[np.ndarray, ...]], gammas: list[float], lmi_gammas: list[float],
+                        lams: list[np.ndarray], Ts: float) -> FrozenMarginCheck:
     """:class:`FrozenMarginCheck` of K∞(λ) = Σλ_iK∞_i on Gs(λ) = G(λ)·W1(λ) and of K(λ) = W1(λ)·K∞(λ) on
-    G(λ) (u = K y) at every λ of ``lams``; the nearest vertex is the one with the largest λ_i."""
+    G(λ) (u = K y) at every λ of ``lams``, each held to :func:`segment_gamma`."""
     b, b_plant = [], []
     for lam in lams:
         G, W1, K = (control.ss(*mix(M, lam), Ts) for M in (model_vertices, weights, K_inf))
         b.append(generalized_margin(G * W1, K))
         b_plant.append(generalized_margin(G, W1 * K))
-    ratio = np.array(b) * MARGIN_FACTOR * np.array([gammas[int(np.argmax(lam))] for lam in lams])
+    ratio = np.array(b) * MARGIN_FACTOR * np.array([segment_gamma(gammas, lam) for lam in lams])
     worst = int(np.argmin(ratio))
-    return FrozenMarginCheck(min(b), min(b_plant), float(ratio[worst]), worst, len(lams), list(gammas))
+    return FrozenMarginCheck(min(b), min(b_plant), float(ratio[worst]), worst, len(lams), list(gammas),
+                             list(lmi_gammas))
 
 
-def controller_matrices(K: tuple[np.ndarray, ...], structure: str) -> tuple[np.ndarray, ...]:
-    """The feedback u = K y as the controller of ``structure``: 1dof reads e = r − y, so u = −K e
-    (B, D negated); 2dof reads [r; y], so u = K(y − r) (B = [−B_K  B_K], D = [−D_K  D_K])."""
-    A, B, C, D = K
+def controller_matrices(K_inf: tuple[np.ndarray, ...], W1: control.StateSpace, structure: str
+                        ) -> tuple[np.ndarray, ...]:
+    """The controller of ``structure`` around the shaped plant's K∞ (scaled signals, u_s = K∞ y_s):
+    1dof reads e = r − y, u = −W1·K∞ e; 2dof reads [r; y] and injects the reference after K∞,
+    u = W1·(K∞ y − K∞(1) r) (Skogestad & Postlethwaite, *Multivariable Feedback Control*, 2nd ed. 2005,
+    §9.4.3: the reference does not pass the controller's lead, so a step does not kick; at DC it is
+    W1·K∞(1)(y − r), the 1dof loop). The feedback from y is W1·K∞ in both."""
+    A, B, C, D = K_inf
     if structure == "2dof":
-        return A, np.hstack([-B, B]), C, np.hstack([-D, D])
-    return A, -B, C, -D
+        dc = C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D
+        two = control.ss(A, np.hstack([np.zeros_like(B), B]), C, np.hstack([-dc, D]), W1.dt)
+        return _matrices(W1 * two)
+    return _matrices(W1 * control.ss(A, -B, C, -D, W1.dt))
+
+
+def reference_model_gains(model_mats: tuple[np.ndarray, ...], scale: SignalScaling, control_weight: float
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """(F, N) of the reference model x_m⁺ = A x_m + B u_m, u_m = F x_m + N r of one frozen model: F the LQ
+    gain of ``control.dlqr(A, B, CᵀD_y⁻²C, ρ D_u⁻²)`` (ρ = ``control_weight``, the outputs and the input in
+    the shaping scale), N = u_ss − F x_ss per reference whose steady state the model can hold
+    ([A − I  B; C  0][x_ss; u_ss] = [0; e_j]; none for a channel it cannot, e.g. the ADIP's pendulum)."""
+    A, B, C, _ = model_mats
+    n, nu, ny = A.shape[0], B.shape[1], C.shape[0]
+    Dy_inv, Du_inv = np.linalg.inv(scale.Dy), np.linalg.inv(scale.Du)
+    Cy = Dy_inv @ C
+    Q = Cy.T @ Cy
+    K, _, _ = control.dlqr(A, B, (Q + Q.T) / 2, control_weight * Du_inv @ Du_inv)
+    F = -np.asarray(K, dtype=float)
+    M = np.block([[A - np.eye(n), B], [C, np.zeros((ny, nu))]])
+    N = np.zeros((nu, ny))
+    for j in range(ny):
+        target = np.r_[np.zeros(n), np.eye(ny)[j]]
+        sol = np.linalg.lstsq(M, target, rcond=None)[0]
+        if np.linalg.norm(M @ sol - target) <= REACH_TOL:
+            N[:, j] = sol[n:] - F @ sol[:n]
+    return F, N
+
+
+def with_reference_model(K_fb: tuple[np.ndarray, ...], model_mats: tuple[np.ndarray, ...], F: np.ndarray,
+                         N: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The 2dof controller u = u_m + K_fb(y − y_m) from [r; y] (u = K_fb y the feedback), (x_m, u_m, y_m)
+    the reference model of :func:`reference_model_gains`: state [x_m; x_K],
+
+        A = [A + BF  0; −B_K C  A_K],  B = [BN  0; 0  B_K],  C = [F − D_K C  C_K],  D = [N  D_K].
+
+    When the plant is the model, y = y_m and the feedback sees no error: the reference model gives the
+    speed, the feedback the robustness (the 2-DOF structure; Vinnicombe 2001, §1.5)."""
+    Ak, Bk, Ck, Dk = K_fb
+    A, B, C, _ = model_mats
+    n, nk = A.shape[0], Ak.shape[0]
+    ny = C.shape[0]
+    Ac = np.block([[A + B @ F, np.zeros((n, nk))], [-Bk @ C, Ak]])
+    Bc = np.block([[B @ N, np.zeros((n, ny))], [np.zeros((nk, ny)), Bk]])
+    return Ac, Bc, np.hstack([F - Dk @ C, Ck]), np.hstack([N, Dk])
 
 
 def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
@@ -162,7 +239,8 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     ``gamma_lower``. ``frozen_model`` is not used: the check runs on the model interpolated like the plant.
 
     Raises:
-        ModelError: a crossover above the weight's usable band, or a model with feed-through.
+        ModelError: a crossover above the weight's usable band, a model with feed-through, a ``scaling``
+            table that does not name the model's signals, or a reference filter on a 1dof controller.
         SynthesisError: from ``hinfsyn`` at a vertex.
     """
     start = time.perf_counter()
@@ -172,26 +250,51 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     if any(np.max(np.abs(D), initial=0.0) > 0 for _, _, _, D in model_vertices):
         raise ModelError("loop-shaping needs a strictly proper model (D = 0): identify it with an input "
                          "delay nk >= 1")
+    filt_settings = settings.get("reference_filter") or {}
+    filt = reference_filter(filt_settings.get("bandwidth"), filt_settings.get("damping", 1.0), model.ny, Ts)
+    if filt is not None and plant.structure != "2dof":
+        raise ModelError('[synth] reference_filter filters the reference a 2dof controller reads: set '
+                         'structure = "2dof" or remove reference_filter')
+    reference = settings.get("reference_model")
+    if reference is not None and plant.structure != "2dof":
+        raise ModelError('[synth] reference_model drives a 2dof controller: set structure = "2dof" or remove '
+                         'reference_model')
+    scale = shaping_scale(model, settings.get("scaling"))
     W1 = integrator_lead_weight(Ts, crossover, model.nu)
     W2 = control.ss([], [], [], np.eye(model.ny), Ts)
     solver = settings.get("solver", "CLARABEL")
-    gammas, weights, K_inf, feedback = [], [], [], []
+    scaled, gammas, lmi_gammas, weights, K_inf, exported = [], [], [], [], [], []
     for mats in model_vertices:
-        G = control.ss(*mats, Ts)
+        G = scale.plant(control.ss(*mats, Ts))
         W1_i = crossover_normalized(G, W1, crossover)
-        shaped = loop_shaping([G], [W1_i], W2, solver=solver)
-        gammas.append(shaped.gamma)
+        K, gamma = central_ncf_controller(shaped_plant(G, W1_i, W2), GAMMA_FACTOR)
+        lmi_gammas.append(loop_shaping([G], [W1_i], W2, solver=solver).gamma)
+        scaled.append(_matrices(G))
+        gammas.append(gamma)
         weights.append(_matrices(W1_i))
-        K_inf.append(modal_form(_matrices(shaped.K_inf[0])))
-        feedback.append(_matrices(W1_i * control.ss(*K_inf[-1], Ts)))
+        K_inf.append(_matrices(K))
+        if reference is None:
+            exported.append(physical_feedback(controller_matrices(_matrices(K), W1_i, plant.structure),
+                                              scale))
+        else:
+            feedback = physical_feedback(_matrices(W1_i * K), scale)
+            exported.append(with_reference_model(feedback, mats, *reference_model_gains(
+                mats, scale, reference["control_weight"])))
     lams = design_coordinates(plant.polytope, plant.basis, FROZEN_PER_SEGMENT)
-    check = frozen_margin_check(model_vertices, weights, K_inf, gammas, lams, Ts)
-    exported = [controller_matrices(K, plant.structure) for K in feedback]
+    check = frozen_margin_check(scaled, weights, K_inf, gammas, lmi_gammas, lams, Ts)
+    if filt is not None:
+        exported = [with_reference_filter(K, filt, model.ny) for K in exported]
     stacks = [np.array([k[m] for k in exported]) for m in range(4)]
     info = {"method": "loop-shaping", "gamma": max(gammas), "vertex_gammas": gammas,
-            "crossover": float(crossover), "b_min": check.b_min,
-            "b_plant_min": check.b_plant_min}
+            "lmi_gammas": lmi_gammas, "crossover": float(crossover), "b_min": check.b_min,
+            "b_plant_min": check.b_plant_min, "scaling": settings.get("scaling"),
+            "reference_filter": None if filt is None else dict(filt_settings),
+            "reference_model": None if reference is None else dict(reference)}
     if plant.polytope.breakpoints is not None:
         info["breakpoints"] = [float(b) for b in plant.polytope.breakpoints]
     controller = LPVController(*stacks, plant.polytope, plant.basis, Ts, info=info, structure=plant.structure)
-    return Design(controller, max(gammas), None, check, plant, time.perf_counter() - start)
+    # with a reference model: its copy of the model is driven by the applied input when the actuator
+    # saturates (x_m⁺ += B(u_a − u), :func:`lpvflow.synth.observer.antiwindup_gains`)
+    gains = None if reference is None else antiwindup_gains([B for _, B, _, _ in model_vertices],
+                                                            controller.order)
+    return Design(controller, max(gammas), None, check, plant, time.perf_counter() - start, gains)

@@ -105,17 +105,19 @@ class FrozenCheck:
                 "no LMI certificate for a moving scheduling signal: the FMU runs are the witness"]
 
 
-def _reference_filter(settings: ObserverSettings, ny: int, Ts: float) -> tuple[np.ndarray, ...] | None:
-    """(A_f, B_f, C_f, D_f) of ω²/(s² + 2ζωs + ω²) on each of the ny references, zero-order hold."""
-    if settings.filter_bandwidth is None:
+def reference_filter(bandwidth: float | None, damping: float, ny: int, Ts: float
+                     ) -> tuple[np.ndarray, ...] | None:
+    """(A_f, B_f, C_f, D_f) of ω²/(s² + 2ζωs + ω²) (ω = ``bandwidth``, ζ = ``damping``) on each of the ny
+    references, zero-order hold; None without a bandwidth."""
+    if bandwidth is None:
         return None
-    w, z = settings.filter_bandwidth, settings.filter_damping
+    w, z = bandwidth, damping
     one = control.ss(control.sample_system(control.tf([w * w], [1.0, 2 * z * w, w * w]), Ts, method="zoh"))
     F = control.append(*[one] * ny) if ny > 1 else one
     return tuple(np.asarray(M, dtype=float) for M in (F.A, F.B, F.C, F.D))
 
 
-def _with_reference_filter(K: tuple[np.ndarray, ...], filt: tuple[np.ndarray, ...], ny: int
+def with_reference_filter(K: tuple[np.ndarray, ...], filt: tuple[np.ndarray, ...], ny: int
                            ) -> tuple[np.ndarray, ...]:
     """K from [r; y] with r = filter(r_raw): state [x_K; x_f],
     A = [Ak  Bk_r C_f; 0  A_f], B = [Bk_r D_f  Bk_y; B_f  0], C = [Ck  Dk_r C_f], D = [Dk_r D_f  Dk_y]."""
@@ -259,9 +261,9 @@ def observer_design(plant: GeneralizedPlant, model: LPVSS, weights: dict, settin
     model_vertices = vertex_matrices(model, plant.polytope)
     K = [_vertex_controller(v, mats, blocks, WB, settings)
          for v, mats in zip(plant.vertices, model_vertices, strict=True)]
-    filt = _reference_filter(settings, model.ny, model.Ts)
+    filt = reference_filter(settings.filter_bandwidth, settings.filter_damping, model.ny, model.Ts)
     if filt is not None:
-        K = [_with_reference_filter(k, filt, model.ny) for k in K]
+        K = [with_reference_filter(k, filt, model.ny) for k in K]
     check = frozen_check(plant, K)
     exported = K if WB is None else [series_input_filter(k, WB) for k in K]
     stacks = [np.array([k[m] for k in exported]) for m in range(4)]

@@ -47,10 +47,10 @@ import numpy as np
 from lpvflow.errors import SynthesisError
 from lpvflow.models import load
 from lpvflow.pipeline.config import bundled_config
-from lpvflow.synth import hinf
 from lpvflow.synth.examples import random_lpv
 from lpvflow.synth.plant import VertexPlant, generalized_plant
 from lpvflow.synth.riccati import riccati_gamma
+from lpvflow.synth.vertex_synthesis import synthesize_vertices
 from tests.adip_cases import TS, adip_vertex
 from tests.hinf_cases import weighted_cases
 
@@ -102,7 +102,7 @@ def maglev_ceiling(points: int = 23) -> dict:
               for p in grid]
     at = synth["baseline_at"][0]
     point = generalized_plant(model, synth["weights"], [[at, at]])
-    lti = hinf.synthesize_vertices(point.vertices, point.Ts).gamma
+    lti = synthesize_vertices(point.vertices, point.Ts).gamma
     worst = int(np.argmax(frozen))
     return {"y2_worst": float(grid[worst]), "frozen_optimum_worst": frozen[worst], "baseline_at": at,
             "lti_gamma": lti, "lti_riccati": riccati_gamma(point.vertices[0], point.Ts),
@@ -113,7 +113,7 @@ def measure(name: str, vertices: list, Ts: float) -> dict:
     row = {"case": name, "vertices": len(vertices), "order": vertices[0].dims[0]}
     start = time.perf_counter()
     try:
-        result = hinf.synthesize_vertices(vertices, Ts)
+        result = synthesize_vertices(vertices, Ts)
     except SynthesisError as exc:
         return row | {"error": f"{exc.category}: {str(exc)[:200]}"}
     seconds = time.perf_counter() - start

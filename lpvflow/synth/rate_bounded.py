@@ -4,7 +4,7 @@ One scheduling signal p(k) in [b₀, b_M] with |p(k+1) − p(k)| ≤ ν per samp
 jump inside the range). The generalized plant is given at breakpoints b₀ < … < b_M and is linear in p
 between them (hat functions λ_i(p): a polytope over two breakpoints, a piecewise polytope — multi-simplex
 — over more, e.g. the thesis' three vertices 0, ±φ_t, §6.3); B2, C2, D12, D21 constant and D22 = 0 as
-for :mod:`lpvflow.synth.hinf`.
+for :mod:`lpvflow.synth.vertex_synthesis`.
 
 **Conditions** (extended bounded-real lemma with a slack, de Oliveira, Geromel & Bernussou 2002, "Extended
 H2 and H∞ norm characterizations and controller parametrizations for discrete-time systems", IJC 75(9);
@@ -103,6 +103,7 @@ from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3, interpolate
 from lpvflow.synth.polytope import hat_coordinates
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
+from lpvflow.synth.vertex_synthesis import synthesize_vertices
 from lpvflow.validate.stability import scaled_margin
 
 #: Points per breakpoint interval of :func:`fine_check` (the issue's "10× finer" than the breakpoints).
@@ -361,10 +362,10 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: Coordinat
 def _common_lyapunov_level(vertices: list[VertexPlant], Ts: float, suboptimality: float, gamma_max: float,
                            solver: str, attempts: list) -> float | None:
     """γ of the polytopic design with one common Lyapunov matrix on the same vertices
-    (:func:`lpvflow.synth.hinf.synthesize_vertices`; its SDPs are appended to ``attempts``), or None when
-    it has no certified result. A constant P̂ is one choice of these LMIs, so the rate-bounded optimum is
-    expected at or below it; it is the first level tried (the level search goes on upwards if it fails)."""
-    from lpvflow.synth.hinf import synthesize_vertices  # hinf imports this module
+    (:func:`lpvflow.synth.vertex_synthesis.synthesize_vertices`; its SDPs are appended to ``attempts``), or
+    None when it has no certified result. A constant P̂ is one choice of these LMIs, so the rate-bounded
+    optimum is expected at or below it; it is the first level tried (the level search goes on upwards if
+    it fails)."""
 
     try:
         result = synthesize_vertices(vertices, Ts, suboptimality, gamma_max, solver)

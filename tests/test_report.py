@@ -105,6 +105,22 @@ def test_the_card_states_spec_gammas_verdict_and_the_largest_held_step(summary):
             "specification; found by bisection to within 2.5°.") in text
 
 
+def test_the_card_states_b_against_the_nugap_from_the_robustness_stage(summary):
+    """The card's robust-stability line: ranges of b and ν-gap, how many points have b > ν-gap, the
+    smallest delay and disk margins — counted from the stage's rows, and marked failed when one point
+    misses."""
+    rows_ = [{"theta": [0.1 * i], "b": 0.08 + 0.01 * i, "nugap": 0.05 - 0.01 * i, "b_above_nugap": True,
+              "delay_margin_samples": 3 + i, "input_disk_margin": 0.4 + 0.05 * i} for i in range(3)]
+    rows_[1]["nugap"], rows_[1]["b_above_nugap"] = 0.2, False
+    summary["stages"]["robustness"] = {"status": "ran", "seconds": 0.1, "artifacts": [],
+                                       "outputs": {"rows": rows_, "guaranteed": False}}
+    card = summary_card(summary, UNITS)
+    text = html.unescape(re.sub(r"<[^>]+>", " ", card))
+    assert ("Robust stability (Vinnicombe, b(Ĝ, K) > ν-gap): b 0.08–0.1 against ν-gap 0.03–0.2; b > ν-gap "
+            "at 2 of 3 validate points; delay margin ≥ 3 samples; input disk margin ≥ 0.40") in text
+    assert '<p class="fail">Robust stability' in card
+
+
 def test_without_units_the_card_says_output_units_and_shows_the_numbers_as_they_are(summary):
     card = summary_card(summary, {}).replace("<wbr>", "")
     assert "arm_angle overshoot (output units)" in card

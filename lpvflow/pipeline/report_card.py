@@ -41,6 +41,7 @@ def summary_card(summary: dict, units: dict[str, str]) -> str:
             parts.append("<h3>Robustness: perturbed plants</h3>"
                          + _comparison_table(perturbed, shown, perturbed=True))
     parts.append(_gamma_line(stages.get("synth", {}).get("outputs", {})))
+    parts.append(_robustness_line(stages.get("robustness", {}).get("outputs", {})))
     if scenarios:
         parts.append(_held_step_line(verify, shown))
     if summary.get("iterations"):
@@ -189,14 +190,40 @@ def _gamma_line(synth: dict) -> str:
     if "gamma" not in synth:
         return ""
     text = f"H∞ γ: LPV controller {synth['gamma']:.4g}"
-    if synth.get("method") == "observer":
+    if synth.get("method") == "loop-shaping":
+        text = (f"H∞ loop shaping: largest level γ_i = {synth['gamma']:.4g} of the shaped plants "
+                "(b(Gs_i, K∞_i) ≥ 1/γ_i; not comparable with a mixed-sensitivity γ)")
+    elif synth.get("method") == "observer":
         text += " (largest frozen closed-loop ‖T_zw‖∞ of the observer design; no LMI bound)"
     elif synth.get("gamma_lower") is not None:
         text += f" (LMI lower bound {synth['gamma_lower']:.4g})"
     if synth.get("baseline_gamma") is not None:
         at = ", ".join(f"{v:.3g}" for v in synth.get("baseline_at") or [])
-        text += f"; LTI baseline {synth['baseline_gamma']:.4g}" + (f" (designed at θ = {at})" if at else "")
+        kind = " (mixed sensitivity)" if synth.get("method") == "loop-shaping" else ""
+        text += (f"; LTI baseline{kind} {synth['baseline_gamma']:.4g}"
+                 + (f" (designed at θ = {at})" if at else ""))
     return f"<p>{html.escape(text)}</p>"
+
+
+def _robustness_line(robustness: dict) -> str:
+    """The robustness stage in one line: b(Ĝ, K_fb) against the ν-gap over the validate points (the range
+    of each, how many points have b > ν-gap), the smallest delay margin and input disk margin."""
+    rows = [r for r in robustness.get("rows", []) if r.get("nugap") is not None]
+    if not rows:
+        return ""
+    held = sum(bool(r["b_above_nugap"]) for r in rows)
+    b = [r["b"] for r in rows]
+    nu = [r["nugap"] for r in rows]
+    text = (f"Robust stability (Vinnicombe, b(Ĝ, K) > ν-gap): b {min(b):.3g}–{max(b):.3g} against ν-gap "
+            f"{min(nu):.3g}–{max(nu):.3g}; b > ν-gap at {held} of {len(rows)} validate points")
+    delays = [r["delay_margin_samples"] for r in rows if r.get("delay_margin_samples") is not None]
+    disks = [r["input_disk_margin"] for r in rows if r.get("input_disk_margin") is not None]
+    if delays:
+        text += f"; delay margin ≥ {min(delays)} samples"
+    if disks:
+        text += f"; input disk margin ≥ {min(disks):.2f}"
+    css = "pass" if held == len(rows) else "fail"
+    return f'<p class="{css}">{html.escape(text)}</p>'
 
 
 def _held_step_line(verify: dict, units: dict[str, DisplayUnit]) -> str:

@@ -196,9 +196,18 @@ def biased(bias: dict, alpha: float, refit_gains: bool) -> bool:
 
 
 def features(u: np.ndarray, p: np.ndarray, lags: int | np.ndarray = FEATURE_LAGS) -> np.ndarray:
-    """Functions of the inputs and scheduling that no output noise can correlate with: for every
-    input uⱼ, lags 0 … ``lags`` (or the lags listed) of uⱼ, uⱼ² − mean, |uⱼ| − mean, uⱼ³ and pₗuⱼ for
-    every scheduling signal; and the lags of every pₗ — each scaled to unit standard deviation."""
+    """Functions of the inputs and scheduling that no white output noise can correlate with: for every
+    input uⱼ, lags 0 … ``lags`` (or the lags listed) of uⱼ, uⱼ² − mean, |uⱼ| − mean, uⱼ³ and
+    pₗ(k−1)·uⱼ for every scheduling signal; and the lags of every pₗ(k−1) — each scaled to unit
+    standard deviation.
+
+    The scheduling enters one sample late: a quasi-LPV scheduling signal is a measured output (the
+    tanks' level, the maglev's upper disk) and carries that output's sensor noise n(k), so a feature
+    in p(k) regresses the noise of e(k) = y(k) − ŷ(k) on itself. With p(k) the tanks FMU with 1 mm of
+    level noise had 3.6 points of its output-error refit's error "explained by the inputs" (the
+    noise level estimated at 0.47 mm); with p(k−1), 0.2 points and 1.1 mm.
+    """
+    p = np.vstack([p[:1], p[:-1]])
     lags = np.arange(lags + 1) if np.isscalar(lags) else np.asarray(lags, int)
     base = []
     for j in range(u.shape[1]):

@@ -1,0 +1,54 @@
+"""Causes of misdiagnosis on the plant bench (tests/diagnosis_fmu_cases.py), each fixed and checked on
+records of seeds other than the ones the cause was found on (benchmarks/README.md, 'Diagnosis on
+plant records')."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lpvflow.validate.diagnose import diagnose
+from lpvflow.validate.noise_analysis import features
+from tests.diagnosis_fmu_cases import PLANTS, make_record
+
+
+def test_adequacy_features_do_not_explain_the_noise_of_a_measured_scheduling_signal():
+    """A quasi-LPV scheduling signal is a measured output, p = s + n with the output's sensor noise
+    n: a regression of n on the features (fitted on one half, applied to the other) must not predict
+    it — the features take p one sample late (with p(k), n was predicted almost exactly)."""
+    rng = np.random.default_rng(7)
+    n_samples = 4000
+    u = rng.normal(size=(n_samples, 1))
+    s = np.convolve(u[:, 0], 0.1 * 0.9 ** np.arange(60))[:n_samples]  # a slow output, noise-free
+    noise = 0.05 * rng.normal(size=n_samples)
+    f = features(u, (s + noise)[:, None], 5)
+    half = n_samples // 2
+    coef = np.linalg.lstsq(f[10:half], noise[10:half], rcond=None)[0]
+    predicted = f[half:] @ coef
+    assert abs(np.corrcoef(predicted, noise[half:])[0, 1]) < 0.1
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_white_level_noise_on_the_tanks_is_output_noise_bias_with_its_level(seed):
+    """Tanks, y = p = the lower level with 1 mm of white sensor noise (on top of the bench's 0.2 mm).
+    The adequacy test regressed the output-error refit's error on features in p(k), i.e. on the noise
+    itself: 3.6 points "input-explained" and the verdict unexplained (seeds 0–3), the level estimated
+    at about half the truth. Now: output_noise_bias, σ within 25 % of √(1² + 0.2²) mm."""
+    record = make_record("tanks", "level sensor noise 1 mm", seed)
+    result = diagnose(record.data, record.structure, record.channels)
+    assert result.cause == "output_noise_bias", (result.cause, result.adequacy)
+    truth = np.hypot(1e-3, PLANTS["tanks"].noise["lower_level"])
+    assert result.noise["level"]["noise_std"][0] == pytest.approx(truth, rel=0.25)
+
+
+@pytest.mark.parametrize("seed", [2, 4])
+def test_white_pressure_noise_on_the_airpath_is_white(seed):
+    """Airpath, 4 kPa of white noise on the manifold pressure, na = nb = 1, poly:2. The noise was read
+    from the refit's error minus what input lags 0–20 explain; the model error of the valve lift
+    (held 50–200 samples) stayed in it and looked coloured: colored_noise (seeds 1, 2). With the
+    adequacy test's regressors (lags to the settling time, the model's own simulation) it is white."""
+    record = make_record("airpath", "pressure sensor noise 4 kPa", seed)
+    result = diagnose(record.data, record.structure, record.channels)
+    assert result.cause == "output_noise_bias", (result.cause, result.noise["noise_model"][0]["ar"])
+    truth = np.hypot(4.0, PLANTS["airpath"].noise["manifold_pressure"])
+    assert result.noise["level"]["noise_std"][0] == pytest.approx(truth, rel=0.25)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +102,33 @@ def test_cycle_finder_finds_a_planted_cycle():
 def test_no_module_of_lpvflow_imports_itself_back():
     """No two files import each other, directly or around a loop, at module level or inside functions."""
     assert cycles(import_graph()) == []
+
+
+# ------------------------------------------------------------------------------------ source hygiene
+#: A docstring or comment citing a file outside the repository: the method notes (``notes_004 §2.3``),
+#: the seed files (``seed 004``) or the issue tracker (``issue 26, item 2``).
+OUTSIDE_REFERENCE = re.compile(r"notes_00|\bseed 00\d|\bissue \d+", re.IGNORECASE)
+
+
+def outside_references(text: str) -> list[str]:
+    """The lines of ``text`` that cite something outside the repository."""
+    return [line.strip() for line in text.splitlines() if OUTSIDE_REFERENCE.search(line)]
+
+
+def test_the_citation_check_finds_planted_references():
+    """The check itself: paper citations pass, a notes file, a seed file or an issue number does not."""
+    fine = "thesis §6.1, eq. (6.3); van Wingerden & Verhaegen (2009), Sec. 5.2; rng seed 1001; issues"
+    assert outside_references(fine) == []
+    for planted in ["(notes_004 §2.3)", "Seed 003 (Mejari et al.)", "(issue 26, item 2)", "see Issue 4"]:
+        assert outside_references(f"{fine}\n    {planted}") == [planted]
+
+
+def test_docstrings_cite_papers_not_files_outside_the_repository():
+    """No lpvflow module cites the method notes, the seed files or an issue number: a reader of the
+    repository has the papers and their sections, not those files."""
+    found = {str(path.relative_to(ROOT)): lines for path in sorted(PACKAGE.rglob("*.py"))
+             if (lines := outside_references(path.read_text(encoding="utf-8")))}
+    assert found == {}
 
 
 # ---------------------------------------------------------------------------------- settings and keys

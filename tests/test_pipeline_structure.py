@@ -131,6 +131,16 @@ def test_docstrings_cite_papers_not_files_outside_the_repository():
     assert found == {}
 
 
+#: The longest a module of lpvflow may be: one that grows past it holds more than one job.
+MAX_MODULE_LINES = 600
+
+
+def test_no_module_of_lpvflow_is_over_600_lines():
+    long = {str(path.relative_to(ROOT)): n for path in sorted(PACKAGE.rglob("*.py"))
+            if (n := len(path.read_text(encoding="utf-8").splitlines())) > MAX_MODULE_LINES}
+    assert long == {}
+
+
 # ---------------------------------------------------------------------------------- settings and keys
 def _recording_stages(ran: list[str]) -> tuple:
     """The design's stages with their work replaced by a record of the run (no files, no FMU)."""
@@ -281,11 +291,11 @@ def test_synth_cli_writes_the_controller_the_design_stage_writes(tmp_path, seed)
 
 # ---------------------------------------------------------------------------------------- parse once
 def test_verify_loop_is_parsed_once_when_the_file_is_read(tmp_path, monkeypatch):
-    import lpvflow.pipeline.config as config_module
+    import lpvflow.pipeline.key_checks as key_checks
 
     calls = []
-    original = config_module.parse_loop
-    monkeypatch.setattr(config_module, "parse_loop", lambda doc: calls.append(doc) or original(doc))
+    original = key_checks.parse_loop
+    monkeypatch.setattr(key_checks, "parse_loop", lambda doc: calls.append(doc) or original(doc))
     path = tmp_path / "design.toml"
     path.write_text(DESIGN.format(plant=ADIP_FMU, out=tmp_path / "out", u_op=0.0))
     config = load_config(path)
@@ -339,13 +349,13 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
     """A whole run (experiment → … → verify on the tanks FMU): the stages read data.csv once, and
     [verify.loop] is parsed once, when the design file is read; the stages get the parsed loop."""
     import lpvflow.data
-    import lpvflow.pipeline.config as config_module
     import lpvflow.pipeline.context as context_module
+    import lpvflow.pipeline.key_checks as key_checks
     import lpvflow.pipeline.report as report_module
     from lpvflow.pipeline.design import run_design
 
     reads, parses, in_report = [], [], [False]
-    original_read, original_parse = lpvflow.data.read_columns, config_module.parse_loop
+    original_read, original_parse = lpvflow.data.read_columns, key_checks.parse_loop
     original_report = report_module.write_report
 
     def read(path, columns=None):
@@ -380,7 +390,7 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
     monkeypatch.setattr(design_module, "STAGES", tuple(watched(stage) for stage in design_module.STAGES))
     monkeypatch.setattr(lpvflow.data, "read_columns", read)
     monkeypatch.setattr(context_module, "read_columns", read)
-    monkeypatch.setattr(config_module, "parse_loop", lambda doc: parses.append(doc) or original_parse(doc))
+    monkeypatch.setattr(key_checks, "parse_loop", lambda doc: parses.append(doc) or original_parse(doc))
     monkeypatch.setattr(report_module, "write_report", report)
     path = tmp_path / "design.toml"
     path.write_text(tanks_head(TANKS, tmp_path / "out") + TANKS_DESIGN.format())

@@ -7,6 +7,7 @@ import ast
 import dataclasses
 import json
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -290,12 +291,21 @@ def test_synth_cli_writes_the_controller_the_design_stage_writes(tmp_path, seed)
 
 
 # ---------------------------------------------------------------------------------------- parse once
+def _spy_everywhere(monkeypatch, function, spy) -> None:
+    """Replace ``function`` by ``spy`` in its own module and in every loaded lpvflow module that imported
+    it by name, so that no caller escapes the count (modules imported later take the spy from its own
+    module)."""
+    for name, module in list(sys.modules.items()):
+        if name.split(".")[0] == "lpvflow" and getattr(module, function.__name__, None) is function:
+            monkeypatch.setattr(module, function.__name__, spy)
+
+
 def test_verify_loop_is_parsed_once_when_the_file_is_read(tmp_path, monkeypatch):
     import lpvflow.pipeline.key_checks as key_checks
 
     calls = []
     original = key_checks.parse_loop
-    monkeypatch.setattr(key_checks, "parse_loop", lambda doc: calls.append(doc) or original(doc))
+    _spy_everywhere(monkeypatch, original, lambda doc: calls.append(doc) or original(doc))
     path = tmp_path / "design.toml"
     path.write_text(DESIGN.format(plant=ADIP_FMU, out=tmp_path / "out", u_op=0.0))
     config = load_config(path)
@@ -349,7 +359,6 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
     """A whole run (experiment → … → verify on the tanks FMU): the stages read data.csv once, and
     [verify.loop] is parsed once, when the design file is read; the stages get the parsed loop."""
     import lpvflow.data
-    import lpvflow.pipeline.context as context_module
     import lpvflow.pipeline.key_checks as key_checks
     import lpvflow.pipeline.report as report_module
     from lpvflow.pipeline.design import run_design
@@ -388,9 +397,8 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
 
     monkeypatch.setattr(TableView, "__getitem__", item)
     monkeypatch.setattr(design_module, "STAGES", tuple(watched(stage) for stage in design_module.STAGES))
-    monkeypatch.setattr(lpvflow.data, "read_columns", read)
-    monkeypatch.setattr(context_module, "read_columns", read)
-    monkeypatch.setattr(key_checks, "parse_loop", lambda doc: parses.append(doc) or original_parse(doc))
+    _spy_everywhere(monkeypatch, original_read, read)
+    _spy_everywhere(monkeypatch, original_parse, lambda doc: parses.append(doc) or original_parse(doc))
     monkeypatch.setattr(report_module, "write_report", report)
     path = tmp_path / "design.toml"
     path.write_text(tanks_head(TANKS, tmp_path / "out") + TANKS_DESIGN.format())

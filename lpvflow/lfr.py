@@ -1,6 +1,7 @@
 """LPV linear fractional representation (LFR): an LTI block in feedback with a known Δ(p).
 
-Seed 003 (Mejari, Piga, Tóth, Bemporad), eq. (1):
+Mejari, Piga, Tóth and Bemporad, "Kernelized Identification of Linear Parameter-Varying Models with
+Linear Fractional Representation", eq. (1):
 
     [x(k+1)]   [A   B1   B2 ] [x(k)]
     [ z(k) ] = [C1  D11  D12] [w(k)],     w(k) = Δ(p(k)) z(k),
@@ -126,7 +127,7 @@ class LPVLFR:
 
     @property
     def is_affine(self) -> bool:
-        """True when D11 = 0: the closed loop is then affine in ψ(p) (seed 003 §IV-B, eq. (22))."""
+        """True when D11 = 0: the closed loop is then affine in ψ(p) (Mejari et al. §IV-B, eq. (22))."""
         return not np.any(self.D11)
 
     # ------------------------------------------------------------------------------- evaluation
@@ -219,7 +220,7 @@ class LPVLFR:
 
     # --------------------------------------------------------------------------- conversions
     def to_lpvss(self) -> LPVSS:
-        """Exact affine :class:`LPVSS` on the same basis; only for D11 = 0 (seed 003 eq. (23)).
+        """Exact affine :class:`LPVSS` on the same basis; only for D11 = 0 (Mejari et al. eq. (23)).
 
         M_l = M_0-part δ_{l0} + (B1 or D21) Δ_l (C1 or D12), since 𝒜(p) = A + Σ_l ψ_l B1 Δ_l C1 etc.
         """

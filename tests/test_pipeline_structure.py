@@ -6,6 +6,8 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
+import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +103,43 @@ def test_cycle_finder_finds_a_planted_cycle():
 def test_no_module_of_lpvflow_imports_itself_back():
     """No two files import each other, directly or around a loop, at module level or inside functions."""
     assert cycles(import_graph()) == []
+
+
+# ------------------------------------------------------------------------------------ source hygiene
+#: A docstring or comment citing a file outside the repository: the method notes (``notes_004 §2.3``),
+#: the seed files (``seed 004``) or the issue tracker (``issue 26, item 2``).
+OUTSIDE_REFERENCE = re.compile(r"notes_00|\bseed 00\d|\bissue \d+", re.IGNORECASE)
+
+
+def outside_references(text: str) -> list[str]:
+    """The lines of ``text`` that cite something outside the repository."""
+    return [line.strip() for line in text.splitlines() if OUTSIDE_REFERENCE.search(line)]
+
+
+def test_the_citation_check_finds_planted_references():
+    """The check itself: paper citations pass, a notes file, a seed file or an issue number does not."""
+    fine = "thesis §6.1, eq. (6.3); van Wingerden & Verhaegen (2009), Sec. 5.2; rng seed 1001; issues"
+    assert outside_references(fine) == []
+    for planted in ["(notes_004 §2.3)", "Seed 003 (Mejari et al.)", "(issue 26, item 2)", "see Issue 4"]:
+        assert outside_references(f"{fine}\n    {planted}") == [planted]
+
+
+def test_docstrings_cite_papers_not_files_outside_the_repository():
+    """No lpvflow module cites the method notes, the seed files or an issue number: a reader of the
+    repository has the papers and their sections, not those files."""
+    found = {str(path.relative_to(ROOT)): lines for path in sorted(PACKAGE.rglob("*.py"))
+             if (lines := outside_references(path.read_text(encoding="utf-8")))}
+    assert found == {}
+
+
+#: The longest a module of lpvflow may be: one that grows past it holds more than one job.
+MAX_MODULE_LINES = 600
+
+
+def test_no_module_of_lpvflow_is_over_600_lines():
+    long = {str(path.relative_to(ROOT)): n for path in sorted(PACKAGE.rglob("*.py"))
+            if (n := len(path.read_text(encoding="utf-8").splitlines())) > MAX_MODULE_LINES}
+    assert long == {}
 
 
 # ---------------------------------------------------------------------------------- settings and keys
@@ -252,12 +291,21 @@ def test_synth_cli_writes_the_controller_the_design_stage_writes(tmp_path, seed)
 
 
 # ---------------------------------------------------------------------------------------- parse once
+def _spy_everywhere(monkeypatch, function, spy) -> None:
+    """Replace ``function`` by ``spy`` in its own module and in every loaded lpvflow module that imported
+    it by name, so that no caller escapes the count (modules imported later take the spy from its own
+    module)."""
+    for name, module in list(sys.modules.items()):
+        if name.split(".")[0] == "lpvflow" and getattr(module, function.__name__, None) is function:
+            monkeypatch.setattr(module, function.__name__, spy)
+
+
 def test_verify_loop_is_parsed_once_when_the_file_is_read(tmp_path, monkeypatch):
-    import lpvflow.pipeline.config as config_module
+    import lpvflow.pipeline.key_checks as key_checks
 
     calls = []
-    original = config_module.parse_loop
-    monkeypatch.setattr(config_module, "parse_loop", lambda doc: calls.append(doc) or original(doc))
+    original = key_checks.parse_loop
+    _spy_everywhere(monkeypatch, original, lambda doc: calls.append(doc) or original(doc))
     path = tmp_path / "design.toml"
     path.write_text(DESIGN.format(plant=ADIP_FMU, out=tmp_path / "out", u_op=0.0))
     config = load_config(path)
@@ -311,13 +359,12 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
     """A whole run (experiment → … → verify on the tanks FMU): the stages read data.csv once, and
     [verify.loop] is parsed once, when the design file is read; the stages get the parsed loop."""
     import lpvflow.data
-    import lpvflow.pipeline.config as config_module
-    import lpvflow.pipeline.context as context_module
+    import lpvflow.pipeline.key_checks as key_checks
     import lpvflow.pipeline.report as report_module
     from lpvflow.pipeline.design import run_design
 
     reads, parses, in_report = [], [], [False]
-    original_read, original_parse = lpvflow.data.read_columns, config_module.parse_loop
+    original_read, original_parse = lpvflow.data.read_columns, key_checks.parse_loop
     original_report = report_module.write_report
 
     def read(path, columns=None):
@@ -350,9 +397,8 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
 
     monkeypatch.setattr(TableView, "__getitem__", item)
     monkeypatch.setattr(design_module, "STAGES", tuple(watched(stage) for stage in design_module.STAGES))
-    monkeypatch.setattr(lpvflow.data, "read_columns", read)
-    monkeypatch.setattr(context_module, "read_columns", read)
-    monkeypatch.setattr(config_module, "parse_loop", lambda doc: parses.append(doc) or original_parse(doc))
+    _spy_everywhere(monkeypatch, original_read, read)
+    _spy_everywhere(monkeypatch, original_parse, lambda doc: parses.append(doc) or original_parse(doc))
     monkeypatch.setattr(report_module, "write_report", report)
     path = tmp_path / "design.toml"
     path.write_text(tanks_head(TANKS, tmp_path / "out") + TANKS_DESIGN.format())

@@ -24,7 +24,7 @@ _BINARY = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
            ast.Pow: operator.pow}
 _UNARY = {ast.USub: operator.neg, ast.UAdd: operator.pos}
 
-#: Default scheduling columns per FMU model name, used when the user names none (issue 4, item 2):
+#: Default scheduling columns per FMU model name, used when the user names none:
 #: computed from recorded signals, as a real experiment would (the FMU's ``diag_scheduling`` is the
 #: noise-free value), and written even when they copy a signal so every plant's CSV has its p column.
 PLANT_DEFAULTS: dict[str, dict[str, str]] = {

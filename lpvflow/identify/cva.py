@@ -1,6 +1,7 @@
-"""LPV canonical variate analysis on the corrected future (Larimore, Cox, Tóth; seed 001, Algorithm 1).
+"""LPV canonical variate analysis on the corrected future (Larimore, Cox, Tóth, Algorithm 1).
 
-Notation of seed 001 with the corrections of notes_001: ρ_t = ψ(p_t) (ψ_0 = 1), ρ⊗x = [ρ_1 x; …; ρ_s x].
+Notation of Larimore, Cox and Tóth, "CVA Identification of Nonlinear Systems with LPV State-Space
+Models of Affine Dependence": ρ_t = ψ(p_t) (ψ_0 = 1), ρ⊗x = [ρ_1 x; …; ρ_s x].
 
 1. LPV-ARX in shifted form, eq. (5) with the "+" sign convention of (13):
 
@@ -10,7 +11,7 @@ Notation of seed 001 with the corrections of notes_001: ρ_t = ψ(p_t) (ψ_0 = 1
    ordered by lag (the order-recursive residuals of §III-A), ℓ chosen by
    AIC(ℓ) = N_e log det Σ̂_ee(ℓ) + 2 n_y m(ℓ), m(ℓ) regressors per output. The b_0 term is left out
    unless ``feedthrough``; when the scheduling contains an output (quasi-LPV) only its ρ_1 = 1 part
-   is kept, since ρ_t⊗u_t would contain y_t (notes_001 §4.1).
+   is kept, since ρ_t⊗u_t would contain y_t (the paper does not discuss this case).
 2. Corrected future, eqs. (13)–(14): ỹ_{t+j} = Σ_{i=1}^{j} a_i(ρ_{t+j−i}⊗ỹ_{t+j−i})
    + Σ_{i=0}^{j} b_i(ρ_{t+j−i}⊗u_{t+j−i}) from zero initial conditions, ȳ = y − ỹ, j = 0 … ℓ.
 3. CVA (§III-D, Theorem 1) between the augmented past p_t = [ρ_{t−1}⊗y_{t−1}; …; ρ_{t−ℓ}⊗y_{t−ℓ};
@@ -205,7 +206,7 @@ def identify_cva(data: Dataset, basis: Basis | str = "affine", *, arx_order: int
 def cva_fit(data: Dataset, basis: Basis | str = "affine", *, arx_order: int | None = None,
             max_arx_order: int = 40, state_order: int | None = None, max_state_order: int = 10,
             feedthrough: bool = False) -> CVAFit:
-    """Algorithm 1 of seed 001 (steps in the module docstring).
+    """Algorithm 1 of Larimore, Cox and Tóth (steps in the module docstring).
 
     Args:
         data: estimation data. A scheduling column identical to an output column is detected as

@@ -1,6 +1,7 @@
 """Kernelized LPV-LFR identification: kernel CCA state estimation, then the LFR matrices.
 
-Seed 003 (Mejari, Piga, Tóth, Bemporad), with the corrections of notes_003.
+Mejari, Piga, Tóth and Bemporad, "Kernelized Identification of Linear Parameter-Varying Models with
+Linear Fractional Representation", with the two corrections stated below.
 
 Stage 1 (§IV-A, eqs. (12)–(19)). For each k with a full past and future window of length d,
 z̄_p(k) = [u(k−d … k−1); y(k−d … k−1)], z̄_f(k) = [u(k … k+d−1); y(k … k+d−1)], and the scheduling
@@ -13,7 +14,7 @@ and the regularised KCCA is the generalized eigenproblem (16)
     [0 K_pp; K_ff 0] [η; κ] = λ blkdiag(γ_f K_ff + I, γ_p K_pp + I) [η; κ].
 
 The paper's eq. (20) (right singular vectors of R⁻¹L) cannot be used literally: R⁻¹L is block
-anti-diagonal, so each singular vector has η or κ identically zero (notes_003 §6.2 item 5). We solve
+anti-diagonal, so each singular vector has η or κ identically zero. We solve
 (16) itself, in the equivalent symmetric-definite form obtained with K_ff = F Fᵀ, K_pp = G Gᵀ
 (symmetric eigendecompositions) and v = Fᵀη, w = Gᵀκ:
 
@@ -29,7 +30,7 @@ Stage 2, general LFR (§IV-B, eq. (21), Algorithm 1): coordinate descent on
         + Σ‖y − C2 x̂ − D21 Δ z − D22 u‖²_Qy,
 
 alternating linear least squares for Θ given Z and for each z(k) given Θ. J has no minimiser
-(z → s z with B1, D21 → B1/s, D21/s lowers it without bound as s → 0, notes_003 §6.2 item 10), so
+(z → s z with B1, D21 → B1/s, D21/s lowers it without bound as s → 0), so
 Z is normalised to unit RMS per channel after every Z step.
 
 Stage 2, affine case D11 = 0 (eqs. (22)–(25)) with Δ(p) = diag(p_1, …, p_np): one least squares
@@ -187,7 +188,7 @@ def _theta_step(x: np.ndarray, u: np.ndarray, y: np.ndarray, w: np.ndarray, z: n
 
 def _z_step(th: _Theta, x: np.ndarray, u: np.ndarray, y: np.ndarray, dl: np.ndarray,
             weights: tuple[float, float, float]) -> np.ndarray:
-    """Step 1.2: z(k) = (G_kᵀ W G_k)⁻¹ G_kᵀ W b_k per sample (notes_003 §3.1)."""
+    """Step 1.2 of Algorithm 1 (§IV-B): z(k) = (G_kᵀ W G_k)⁻¹ G_kᵀ W b_k per sample."""
     qx, qz, qy = weights
     nd = th.D11.shape[0]
     G = np.concatenate([np.sqrt(qx) * th.B1 @ dl, np.sqrt(qz) * (np.eye(nd) - th.D11 @ dl),
@@ -223,7 +224,7 @@ def identify_kcca_lfr(
     weights: tuple[float, float, float] = (100.0, 10.0, 10.0), iterations: int = 250, tol: float = 1e-6,
     init: str = "affine", seed: int = 0,
 ) -> LPVLFR:
-    """LPV-LFR with Δ(p) = diag(p_1, …, p_np) from one dataset (seed 003, Stages 1 and 2).
+    """LPV-LFR with Δ(p) = diag(p_1, …, p_np) from one dataset (Mejari et al., Stages 1 and 2).
 
     Args:
         data: estimation data; every scheduling signal enters Δ once.

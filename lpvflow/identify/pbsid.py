@@ -1,12 +1,15 @@
-"""LPV PBSIDopt: predictor-based subspace identification, primal and kernel forms (seed 004).
+"""LPV PBSIDopt: predictor-based subspace identification, primal and kernel forms.
 
-Model (seed 004 eqs. (1)–(2), innovation form with scheduling μ_k = ψ(p_k), μ_k^(1) = 1):
+J.-W. van Wingerden and M. Verhaegen, "Subspace identification of Bilinear and LPV systems for open-
+and closed-loop data", Automatica 45 (2009) 372–381.
+
+Model (eqs. (1)–(2), innovation form with scheduling μ_k = ψ(p_k), μ_k^(1) = 1):
 
     x_{k+1} = Σ_i μ_k^(i) (A^(i) x_k + B^(i) u_k + K^(i) e_k),     y_k = C x_k + D u_k + e_k.
 
 With the predictor Ã^(i) = A^(i) − K^(i)C uniformly exponentially stable, x_{k+p} ≈ K^p N_k^p z̄_k^p
 (eq. (8)), so y_{k+p} ≈ CK^p Z_k + D u_{k+p} + e_{k+p} is a linear regression (13). Steps
-(Algorithms 1 and 2; indices corrected as in notes_004 §2, helpers in :mod:`pbsid_kernel`):
+(Algorithms 1 and 2, with N̄ = N − p columns for the paper's N − p + 1; helpers in :mod:`pbsid_kernel`):
 
 1. Regression (13): primal, Θ = [CK^p, D] from the rows [Z; U] (q̃ = (r+ℓ)Σ_j m^j of them,
    exponential in p); kernel (dual), α = Y (ZᵀZ + UᵀU + λI)^+ on an N̄×N̄ kernel built in closed form
@@ -16,7 +19,7 @@ With the predictor Ã^(i) = A^(i) − K^(i)C uniformly exponentially stable, x_{
    α S_i (kernel, Lemma 8). f ≤ p is the future window (f = p in the paper).
 3. State (15)–(16): Γ^f K^p Z = 𝒰 Σ Vᵀ, X̂ = Σ_n V_nᵀ; n from the largest gap of log σ if not given.
 4. [C D] = Y [X̂; U]^+, Ê = Y − C X̂ − D U, and
-   [A^(·) B^(·) K^(·)] = X̂_{+} [μ⊙X̂; μ⊙U; μ⊙Ê]^+ (notes_004 §2.7; ⊙ column-wise Kronecker).
+   [A^(·) B^(·) K^(·)] = X̂_{+} [μ⊙X̂; μ⊙U; μ⊙Ê]^+ (Sec. 4.3; ⊙ column-wise Kronecker).
 
 Closed-loop data: nothing assumes u independent of e; the estimate is consistent up to the
 truncation bias when u_{k+p} holds no feedthrough of e_{k+p}, i.e. a strictly causal controller
@@ -28,7 +31,8 @@ scheduling signals with the affine basis — :func:`bilinear_data` does this for
 
 Row selection (Sec. 6, Algorithm 3) for periodic or piecewise-constant scheduling keeps only
 kernel rows that span its row space: ``periodic_rows=True`` selects them greedily, an integer M
-takes the first M rows (the paper's P·(r+ℓ)·p, plus r when D is estimated, notes_004 §3.3).
+takes the first M rows (Sec. 6.1's P·(r+ℓ)·p for period P, plus r when D is estimated: the UᵀU term
+adds up to r dimensions).
 """
 
 from __future__ import annotations
@@ -49,7 +53,7 @@ from lpvflow.identify.pbsid_kernel import (
 )
 from lpvflow.models import LPVSS
 
-#: Past window when none is given: p = 3 did better than p = 5 on noisy data in seed 004 Table 2.
+#: Past window when none is given: p = 3 did better than p = 5 on noisy data in the paper's Table 2.
 DEFAULT_PAST = 3
 #: Singular values below this fraction of the largest are never counted as states by the gap rule.
 ORDER_FLOOR = 1e-3
@@ -104,7 +108,8 @@ def _check(data: Dataset, order: int | None, past: int, future: int, form: str,
         if form != "kernel":
             raise ModelError("periodic_rows selects kernel rows; use form='kernel'")
         if regularization is not None:
-            raise ModelError("periodic_rows replaces regularization (seed 004 Sec. 7.2); pass only one")
+            raise ModelError("periodic_rows replaces regularization (van Wingerden & Verhaegen 2009, "
+                             "Sec. 7.2); pass only one")
         if not isinstance(periodic_rows, bool) and periodic_rows < 1:
             raise ModelError(f"periodic_rows must be True or a row count >= 1, got {periodic_rows}")
     n_cols = data.N - past
@@ -169,7 +174,7 @@ def state_matrix(
 
 
 def _system_matrices(X, Y, U, M, feedthrough):
-    """Least squares of (2) then (1) on the estimated states (notes_004 §2.7)."""
+    """Least squares of (2) then (1) on the estimated states (Sec. 4.3, step 5)."""
     regressor = np.vstack([X, U]) if feedthrough else X
     CD = scipy.linalg.lstsq(regressor.T, Y.T)[0].T
     E = Y - CD @ regressor
@@ -193,7 +198,7 @@ def identify_pbsid(
     basis: Basis | str | None = None, form: str = "primal", regularization: str | float | None = None,
     periodic_rows: bool | int = False, feedthrough: bool = True,
 ) -> LPVSS:
-    """LPV PBSIDopt (seed 004, Algorithms 1–3) from open- or closed-loop data.
+    """LPV PBSIDopt (van Wingerden & Verhaegen 2009, Algorithms 1–3) from open- or closed-loop data.
 
     Args:
         data: estimation data; with a controller in the loop it must be strictly causal.

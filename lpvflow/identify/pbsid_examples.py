@@ -1,7 +1,8 @@
-"""Test systems of seed 004 Sec. 7: the Verdult–Verhaegen 4th-order MIMO LPV benchmark (Sec. 7.1).
+"""Test systems of van Wingerden & Verhaegen (2009) Sec. 7: the Verdult–Verhaegen 4th-order MIMO LPV
+benchmark (Sec. 7.1).
 
 The paper prints no matrices or signals; they are those of the PBSID toolbox example
-``ex20_lpv_mimo.m`` (notes_004 §6.1, marked [EXT] there): n = 4, m = 4, r = 2, ℓ = 3,
+``ex20_lpv_mimo.m`` (I. Houtzager, PBSID toolbox v0.6; not from the paper): n = 4, m = 4, r = 2, ℓ = 3,
 
     μ_k = [1, ρ_k, 0.5 sin(2πk/100) ρ_k, 0.5 cos(2πk/100) ρ_k],   ρ_k ~ U(0, 1) i.i.d.,
     u_k = [filter([0.75 1.05 0.15], 1, η) + filter(butter(2, 0.2), ν);  ξ],   η, ν, ξ ~ N(0, 1),

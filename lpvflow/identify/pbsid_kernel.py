@@ -1,7 +1,7 @@
-"""Data matrices, kernels and regularized solves of LPV PBSIDopt (seed 004, Secs. 2–6).
+"""Data matrices, kernels and regularized solves of LPV PBSIDopt (van Wingerden & Verhaegen 2009, Secs. 2–6).
 
-Notation (notes_004 §2): μ_k ∈ R^m with μ_k^(1) = 1, z_k = [u_kᵀ y_kᵀ]ᵀ ∈ R^{r+ℓ}, past window p,
-N̄ = N − p regression columns (the paper's N − p + 1 is an index slip, notes_004 §2.3). Column c
+Notation (Sec. 2.2): μ_k ∈ R^m with μ_k^(1) = 1, z_k = [u_kᵀ y_kᵀ]ᵀ ∈ R^{r+ℓ}, past window p,
+N̄ = N − p regression columns (the N − p + 1 of (12) and Lemma 8 is an index slip). Column c
 (0-based) of every matrix belongs to the prediction of y at time c + p.
 
 Primal data matrix (12) in Khatri–Rao form (⊙ = column-wise Kronecker, latest μ outermost):
@@ -10,14 +10,14 @@ Primal data matrix (12) in Khatri–Rao form (⊙ = column-wise Kronecker, lates
     M_s = [μ_{s}, …, μ_{N̄−1+s}],  𝒵_s = [z_{s}, …, z_{N̄−1+s}]
 
 so Z has q̃ = (r+ℓ) Σ_{j=1}^{p} m^j rows. Kernel blocks, Theorem 10 read with Hadamard products
-(notes_004 §2.9), for 1 ≤ i ≤ j ≤ p:
+(Sec. 5.2), for 1 ≤ i ≤ j ≤ p:
 
     [(Z^{i,j})ᵀ Z^{1,j}]_{s,t} = Π_{v=0}^{p−j} μ_{s+j−i+v}ᵀ μ_{t+j−1+v} · z_{s+j−i}ᵀ z_{t+j−1}.
 
 The μ-product for j is the one for j + 1 times one more shifted window of G_μ = [μ_k]ᵀ[μ_k], so
 S_i = Σ_{j=i}^{p} (Z^{i,j})ᵀ Z^{1,j} costs O(p) Hadamard products of N̄×N̄ windows (O(p²) for all i).
 
-Regularized solve (Sec. 5.3; the paper gives no formula, notes_004 §2.10): with the kernel
+Regularized solve (Sec. 5.3 names Tikhonov regularization with GCV but gives no formula): with the kernel
 G = ZᵀZ + UᵀU = Q Λ Qᵀ, Tikhonov α_λ = Y (G + λI)⁻¹ is the dual of min ‖Y − Θ[Z; U]‖² + λ‖Θ‖²;
 λ = 0 means the minimum-norm solution (21). Generalized cross-validation picks λ minimising
 

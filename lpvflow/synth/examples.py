@@ -1,13 +1,13 @@
-"""Small synthetic plants with the thesis' weight sets (notes_002 §6.3–6.4), for tests and benchmarks.
+"""Small synthetic plants with the thesis' weight sets (Boonto 2011, §6.2–6.3), for tests and benchmarks.
 
-The thesis' identified models and data are not available (notes_002 §8.2), so these plants only
+The thesis' identified models and data are not published, so these plants only
 resemble them: same sampling time, input/output and scheduling structure, observable-form output
 matrix (C constant, D = 0) and input matrix B(ψ) depending on the scheduling signal. Continuous
 dynamics M ẍ = … are discretized by forward Euler, A = I + Ts·A_c(ψ), which keeps the model affine in ψ.
 
 Weights: the thesis' transfer functions, with two documented changes. (1) The printed W_B has a
-feed-through, which leaves B2 parameter dependent (notes_002 §6.3 [INF]); here W_B is the strictly
-proper z⁻¹·(printed W_B) for the maglev and a first-order strictly proper low-pass for the ADIP.
+feed-through, which leaves B2 parameter dependent (thesis §6.2.3 does not discuss it); here W_B is the
+strictly proper z⁻¹·(printed W_B) for the maglev and a first-order strictly proper low-pass for the ADIP.
 (2) Poles on the unit circle are shifted inside by ε (:mod:`lpvflow.synth.weights`). (3) ADIP: one
 torque cannot hold both angle errors at zero for every reference direction of this 1-DOF loop (the
 thesis used a 2-DOF loop), so W_S on φ2 has its pole at 0.9 instead of the thesis' 0.999; with

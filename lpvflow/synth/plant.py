@@ -1,4 +1,4 @@
-"""Mixed-sensitivity generalized plant at every vertex of the polytope (thesis Fig. 6.6, notes_002 §6.3).
+"""Mixed-sensitivity generalized plant at every vertex of the polytope (Boonto's thesis §6.2, Fig. 6.6).
 
 Signals (1-DOF loop, reference r, control u from the controller, plant input u_p):
 

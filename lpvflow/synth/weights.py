@@ -1,4 +1,4 @@
-"""Discrete-time weighting filters of a mixed-sensitivity design (thesis Sec. 6.2–6.3, notes_002 §6.3–6.4).
+"""Discrete-time weighting filters of a mixed-sensitivity design (Boonto's thesis Sec. 6.2–6.3).
 
 A weight is a diagonal of SISO filters, one per channel, each given in the design TOML either as a
 transfer function in z (coefficients in descending powers of z),
@@ -14,7 +14,7 @@ action, a pole at s = 0, i.e. z = 1. A single entry is used for every channel.
 
 Poles on or outside the unit circle (integrators z = 1, the pole z = −1 of the thesis' ADIP W_K) make
 the generalized plant not stabilizable, so every pole with |z| ≥ 1 − ε is moved radially to
-|z| = 1 − ε (ε = ``integrator_shift``, default 1e-3; the thesis does not say what it did, notes_002 §6.3).
+|z| = 1 − ε (ε = ``integrator_shift``, default 1e-3; the thesis does not say what it did).
 The numerator is kept, so the weight changes only near that pole: an integrator's infinite DC gain
 becomes |num(1)|/ε-ish, finite but large.
 """

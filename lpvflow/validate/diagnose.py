@@ -27,14 +27,15 @@ reversing) is scored as the plant ran.
    the runner-up gives p < 0.05. When other causes reach practically the same gain (within 5 % of it),
    the extension with the fewest added parameters is named (a dead time explained by extra input
    lags is still a dead time); a tie between different causes is ``none``. Otherwise ``none``.
-5. Output noise (open loop; issue 26, item 2). The nominal structure refitted by output error
+5. Output noise (open loop): level, colour and LS bias. The nominal structure refitted by output error
    (extension ``output_noise_bias``, consistent under any output noise independent of the input —
-   seed notes_002 §1.3, OE predictor, and §3.1) is judged on its own terms by :func:`noise_analysis`:
+   Boonto's thesis Sec. 4.2.2, OE predictor, and 4.4.1–4.4.2) is judged on its own terms by
+   :func:`noise_analysis`:
    the noise *level* (:func:`residuals.noise_level`: σ̂ and SNR from the part of the refit's
    simulation error the inputs do not explain),
    its *colour* (AR noise model, BIC order, and the one-step prediction gain of the Box–Jenkins-type
    predictor over the white-noise one on validation data) and the *bias* LS carries
-   (:func:`bias_test`: Wald test of θ_OE − θ_LS, LS bias (4.17)–(4.18) of notes_002 §1.3, and the
+   (:func:`bias_test`: Wald test of θ_OE − θ_LS, LS bias (4.17)–(4.18) of the thesis Sec. 4.3, and the
    change of the frozen frequency response the noise makes, ``noise_bias_change``), and whether the
    simulation error is output noise at all (:func:`prediction_ratio`: an ARX predictor does not
    beat the Box–Jenkins-type one). When LS is biased by output noise (Wald p < ``alpha``,
@@ -50,7 +51,7 @@ reversing) is scored as the plant ran.
    instruments from the model's own loop simulation), and the noise round — every extension refitted
    the same way with its own drive in the loop — runs whenever that refit gains significantly; its
    verdict is ``output_noise_bias`` (no noise model is fitted in the loop).
-6. Adequacy (open loop; issue 26, item 1). Output noise is independent of the inputs, so the
+6. Adequacy (open loop): is the error input-explained? Output noise is independent of the inputs, so the
    simulation error of an adequate model has no part a function of the input history explains
    (:func:`input_explained`, on the nominal model or, after a noise round, its output-error refit).
    When that part is significant (gain ≥ ``min_gain``, p < ``alpha``) and no structural cause was

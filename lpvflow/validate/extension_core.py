@@ -116,7 +116,7 @@ class Candidate:
     description: str
     inputs_added: list[str] = field(default_factory=list)
     #: Structural values the extension chose from the data (a level, a delay per input, a channel):
-    #: each counts as one parameter in the BIC/AIC changes of the ranking (issue 26, item 4).
+    #: each counts as one parameter in the BIC/AIC changes of the ranking.
     choices: int = 0
     #: The input or output map the extended model runs with (None: the model alone); open-loop fits
     #: are scored by its :meth:`~lpvflow.validate.extended_model.ModelMap.simulate_validation`.

@@ -73,7 +73,7 @@ def _mapped_input_fit(ctx: Context, j: int, kind: str, level: float, estimator: 
 def _level_of(ctx: Context, j: int, kind: str, grid: np.ndarray) -> tuple[Fit, float]:
     """Level of the map ``kind`` on input j and its fit: chosen by the LS one-step loss; in the noise
     round (``ctx.estimator == "oe"``) refined by the output-error loss between the LS grid's neighbours
-    of that choice, the unbiased criterion under output noise (issue 26, item 4)."""
+    of that choice, the unbiased criterion under output noise."""
     def loss(level: float, estimator: str = "arx") -> float:
         return _mapped_input_fit(ctx, j, kind, level, estimator).loss
 

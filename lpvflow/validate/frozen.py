@@ -1,4 +1,4 @@
-"""Frozen-point validation of an LPV model over its scheduling box (thesis §6.1, notes_002 §6.2).
+"""Frozen-point validation of an LPV model over its scheduling box (Boonto's thesis §6.1).
 
 For LPV models the ν-gap test is applied to frozen LTI models: at each scheduling point p of a grid
 over the box, δν(G_ref(p), Ĝ(p)) is compared with b(Ĝ(p), K) (criterion (6.4): δν < b). There is

@@ -63,7 +63,8 @@ def bilinear_to_continuous(
     Ac = (Ã+I)⁻¹(Ã−I), Bc = √2 (Ã+I)⁻¹B̃, Cc = √2 C(Ã+I)⁻¹, Dc = D − C(Ã+I)⁻¹B̃.
     The map sends |z| > 1 to Re s > 0 and the unit circle to the imaginary axis (z = −e^{jφ} to
     s = ∞), so pole and zero counts outside the unit disk equal counts in the open right half plane
-    (notes_002 §6.2: "discrete time via s = (z−1)/(z+1)"). Needs −e^{jφ} not to be a pole.
+    (Boonto's thesis Sec. 6.1: the ν-gap in discrete time via s = (z−1)/(z+1)). Needs −e^{jφ} not to
+    be a pole.
     """
     n = A.shape[0]
     turn = np.exp(-1j * rotation) if rotation else 1.0

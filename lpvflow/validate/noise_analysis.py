@@ -58,10 +58,10 @@ def frozen_response(model: LPVIO, p_rows: np.ndarray, n_freq: int = 32) -> np.nd
 
 
 def bias_test(est: Dataset, ls: LPVIO, oe: LPVIO, v: np.ndarray) -> dict:
-    """Does the consistent refit remove a bias of the LS estimate? (issue 26, item 2).
+    """Does the consistent refit remove a bias of the LS estimate?
 
     Under noise inside the ARX model set both estimates are consistent and differ by sampling error;
-    under output noise the LS estimate is biased (notes_002 §1.3, (4.17)–(4.18)). Wald statistic of
+    under output noise the LS estimate is biased (Boonto's thesis Sec. 4.3, (4.17)–(4.18)). Wald statistic of
     the parameter difference d = θ_OE − θ_LS with the sandwich covariance of the output-error
     estimate, V = H⁻¹ M H⁻¹, H = Σ_r J_rᵀJ_r, M = Σ_r σ²_{e,r} J̃_rᵀJ̃_r:
 
@@ -99,7 +99,7 @@ def bias_test(est: Dataset, ls: LPVIO, oe: LPVIO, v: np.ndarray) -> dict:
 
 def noise_analysis(est: Dataset, val: Dataset, nominal: Fit, refit: Fit, alpha: float,
                     min_gain: float, refit_gains: bool) -> dict:
-    """The output noise judged on its own terms (issue 26, item 2): level, colour, prediction, bias.
+    """The output noise judged on its own terms: level, colour, prediction, bias.
 
     * level: :func:`residuals.noise_level` of the output-error refit on estimation data, from the
       part v of its simulation error that the inputs do not explain (:func:`noise_part`);
@@ -228,7 +228,7 @@ def features(u: np.ndarray, p: np.ndarray, lags: int | np.ndarray = FEATURE_LAGS
 
 def input_explained(est: Dataset, val: Dataset, model: LPVIO, y_val: np.ndarray, min_gain: float,
                      alpha: float) -> dict:
-    """Is the simulation error of ``model`` explained by the inputs? (issue 26, item 1).
+    """Is the simulation error of ``model`` explained by the inputs?
 
     Output noise is independent of the inputs, so the simulation error of an adequate model is
     uncorrelated with every function of the input history. The error e = y − ŷ on estimation data is

@@ -1,7 +1,7 @@
 """Vinnicombe's ν-gap metric δν(P1, P2) for continuous- and discrete-time MIMO state-space systems.
 
 Definition (Vinnicombe, "Frequency domain uncertainty and the graph topology", IEEE TAC 38, 1993;
-"Uncertainty and Feedback", 2001, §3.3; thesis eq. (6.3) in notes_002 §6.2):
+"Uncertainty and Feedback", 2001, §3.3; Boonto's thesis §6.1, eq. (6.3)):
 
     δν(P1, P2) = max_ω κ(P1(jω), P2(jω))   if det(I + P2*P1)(jω) ≠ 0 for all ω (incl. ∞) and
                                             wno det(I + P2~P1) + η(P1) − η̃(P2) = 0,
@@ -12,7 +12,7 @@ with the pointwise chordal distance
 of open right-half-plane poles, η̃(P) the number of closed right-half-plane poles, and wno g the
 number of zeros minus poles of g inside the Nyquist D-contour indented into the right half plane
 around imaginary-axis poles. In discrete time the unit circle replaces the imaginary axis and
-|z| > 1 the right half plane (bilinear map s = (z−1)/(z+1), notes_002 §6.2).
+|z| > 1 the right half plane (bilinear map s = (z−1)/(z+1), thesis §6.1).
 
 Winding number by eigenvalues. With H = P2~P1 realized by (A_H, B_H, C_H, D_H), the identity
 det(I + H(s)) = det(sI − A_H + B_H (I + D_H)⁻¹ C_H) / det(sI − A_H) counts zeros and poles exactly.

@@ -99,7 +99,8 @@ def noise_level(y: np.ndarray, y_sim: np.ndarray) -> dict:
     σ̂ = std(y − ŷ), relative level σ̂ / std(ŷ) and SNR = 20 log₁₀(std(ŷ) / σ̂) dB.
 
     Under output noise, y = G(q, p) u + v with the structure right, the output-error estimate is
-    consistent (notes_002 §1.3 and §3.1: the OE predictor uses simulated, not measured, outputs), so
+    consistent (Boonto's thesis Sec. 4.2.2 and 4.4.1–4.4.2: the OE predictor uses simulated, not
+    measured, outputs), so
     y − ŷ → v and this measures the noise itself; with model error left it is an upper bound. The
     earlier ratio of the LS one-step residual to the OE simulation error measured no level: with the
     structure right and any white sensor noise it is ≈ 1 + Σaᵢ² (2.37 at 80 dB SNR).

@@ -9,6 +9,7 @@ import json
 import control
 import numpy as np
 import pytest
+import scipy.linalg
 
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
@@ -242,3 +243,33 @@ def test_reference_model_path_leaves_the_feedback_nothing_to_correct_on_the_mode
     assert ym[-1] == pytest.approx(1.0, abs=1e-3)
     K_y = control.ss(Ac, Bc[:, 1:], Cc, Dc[:, 1:], 0.01)
     assert generalized_margin(G, K_y) == pytest.approx(generalized_margin(G, K), rel=1e-3)
+
+
+def _slow_lightly_damped_plant(rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """A 2×2, 4-state discrete plant as an identified maglev model: two modes with |z| ≈ 0.998 (Ts = 2 ms,
+    ζ ≈ 0.05 at 15–45 rad/s), B of order 1e-4 against C of order 1."""
+    Ts, blocks = 0.002, []
+    for w in rng.uniform(15.0, 45.0, 2):
+        zeta = rng.uniform(0.03, 0.08)
+        blocks.append(np.asarray(control.c2d(control.ss([[0, 1], [-w * w, -2 * zeta * w]], np.eye(2),
+                                                        np.eye(2), 0), Ts).A))
+    A = np.block([[blocks[0], np.zeros((2, 2))], [np.zeros((2, 2)), blocks[1]]])
+    return A, 1e-4 * rng.uniform(0.5, 2.0, (4, 2)), rng.uniform(0.2, 1.0, (2, 4)), np.zeros((2, 2))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_reference_model_gain_is_the_lq_gain_on_a_badly_scaled_model(seed):
+    """The reference model's F on a model with B ~ 1e-4 against C ~ 1 and poles near z = 1 (where slycot's
+    DARE on the unscaled problem fails to order the pencil, or loses digits): the LQ gain of
+    dlqr(A, B, CᵀD_y⁻²C, ρD_u⁻²) from scipy's independent DARE solver, within 1e-6, and A + BF stable."""
+    rng = np.random.default_rng(seed)
+    A, B, C, D = _slow_lightly_damped_plant(rng)
+    scale = SignalScaling(np.array([0.1, 0.1]), np.array([0.002, 0.002]))
+    rho = rng.uniform(0.3, 3.0)
+    F, _ = reference_model_gains((A, B, C, D), scale, rho)
+    Q = C.T @ C / 0.002**2
+    R = rho * np.eye(2) / 0.1**2
+    P = scipy.linalg.solve_discrete_are(A, B, Q, R)
+    F_ref = -np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
+    assert np.linalg.norm(F - F_ref) <= 1e-6 * np.linalg.norm(F_ref)
+    assert np.abs(np.linalg.eigvals(A + B @ F)).max() < 1.0

@@ -9,6 +9,7 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from lpvflow.pipeline.design import verdict_line
@@ -241,3 +242,34 @@ def test_the_nugap_figure_is_drawn_over_the_plant_signal_the_scheduling_comes_fr
     (tmp_path / "validate.json").write_text(json.dumps({"outputs": {
         "theta": thetas, "nugap": [0.05] * 7, "b_P_Kid": [0.2] * 7}}))
     assert GAP_FIGURE in draw_figures(tmp_path, units)
+
+
+def test_the_scenario_table_shows_each_outputs_peak_deviation_as_the_cross_coupling_peak(tmp_path, summary):
+    """Per run and output, the verify record's peak |y − r| lands in its own column in display units: for
+    the output whose reference does not change, the cross-coupling peak (thesis §6.2's comparison)."""
+    rng = np.random.default_rng(5)
+    scenarios = summary["stages"]["verify"]["outputs"]["scenarios"]
+    expected = {}
+    for scenario_record in scenarios:
+        for key in ("controller", "baseline"):
+            outputs = scenario_record[key]["outputs"]
+            if not outputs:
+                continue
+            outputs["pendulum_angle"] = {"settling_time": None, "settled": True, "band": 0.0175,
+                                         "overshoot": None}
+            for name in outputs:
+                outputs[name]["peak_deviation"] = float(rng.uniform(0.001, 0.5))
+                expected[(scenario_record["name"], key, name)] = math.degrees(outputs[name]["peak_deviation"])
+    body = write_report(tmp_path, summary, UNITS).read_text().split("<h2>verify</h2>", 1)[1]
+    table = body.split('<table class="scenarios">', 1)[1].split("</table>", 1)[0]
+    head = [html.unescape(h) for h in re.findall(r"<th>([^<]*)</th>", table)]
+    column = head.index("peak |y − r|")
+    shown = {}
+    for row in re.findall(r"<tr[^>]*>(.*?)</tr>", table):
+        cells = [html.unescape(re.sub(r"<[^>]+>", "", c)) for c in re.findall(r"<td[^>]*>(.*?)</td>", row)]
+        if len(cells) == len(head):
+            key = "controller" if cells[1] == "LPV controller" else "baseline"
+            shown[(cells[0], key, cells[3])] = cells[column]
+    assert expected and set(expected) <= set(shown)
+    for key, text in shown.items():  # a lost run has no metrics: "–"
+        assert text == (f"{expected[key]:.3g}°" if key in expected else "–")

@@ -146,12 +146,13 @@ def key_value_table(rows: list[tuple[str, str]]) -> str:
 
 def scenario_table(scenarios: list[dict], units: dict[str, DisplayUnit], scheduling: list[str]) -> str:
     """One row per scenario and controller: verdict, and per tracked output and actuated input the
-    settling time, overshoot, steady-state error, IAE and peak control, the untracked outputs' largest
-    deviation after settling, the requirements missed, and the scheduling range visited with the time spent
-    outside the controller's design box (:mod:`lpvflow.pipeline.verify`); values in display units (angles
-    in degrees)."""
+    settling time, overshoot, steady-state error, IAE, the peak |y − r| after the reference change (for an
+    output whose reference does not change: its cross-coupling peak) and peak control, the untracked
+    outputs' largest deviation after settling, the requirements missed, and the scheduling range visited
+    with the time spent outside the controller's design box (:mod:`lpvflow.pipeline.verify`); values in
+    display units (angles in degrees)."""
     head = ["scenario", "controller", "stable", "output", "settling [s]", "overshoot", "steady-state error",
-            "IAE", "peak control", "saturated [s]", "after settling", "requirements",
+            "IAE", "peak |y − r|", "peak control", "saturated [s]", "after settling", "requirements",
             "scheduling visited", "reason"]
     body = []
     for scenario in scenarios:
@@ -178,7 +179,8 @@ def scenario_table(scenarios: list[dict], units: dict[str, DisplayUnit], schedul
                 cells = [scenario["name"], CONTROLLERS.get(run["controller"], run["controller"]),
                          "yes" if run["stable"] else "no", output, number_text(m.get("settling_time")),
                          overshoot,
-                         value(m.get("steady_state_error")), iae, controls, saturated, after or "–",
+                         value(m.get("steady_state_error")), iae, value(m.get("peak_deviation")), controls,
+                         saturated, after or "–",
                          requirements, _scheduling_cell(run.get("scheduling"), scheduling),
                          short_reason(run.get("reason", ""))]
                 css = "" if run["stable"] and not missed else ' class="fail"'

@@ -195,15 +195,20 @@ def reference_model_gains(model_mats: tuple[np.ndarray, ...], scale: SignalScali
                           ) -> tuple[np.ndarray, np.ndarray]:
     """(F, N) of the reference model x_m⁺ = A x_m + B u_m, u_m = F x_m + N r of one frozen model: F the LQ
     gain of ``control.dlqr(A, B, CᵀD_y⁻²C, ρ D_u⁻²)`` (ρ = ``control_weight``, the outputs and the input in
-    the shaping scale), N = u_ss − F x_ss per reference whose steady state the model can hold
-    ([A − I  B; C  0][x_ss; u_ss] = [0; e_j]; none for a channel it cannot, e.g. the ADIP's pendulum)."""
+    the shaping scale; solved in a scaled state, below), N = u_ss − F x_ss per reference whose steady state
+    the model can hold ([A − I  B; C  0][x_ss; u_ss] = [0; e_j]; none for a channel it cannot, e.g. the
+    ADIP's pendulum)."""
     A, B, C, _ = model_mats
     n, nu, ny = A.shape[0], B.shape[1], C.shape[0]
     Dy_inv, Du_inv = np.linalg.inv(scale.Dy), np.linalg.inv(scale.Du)
     Cy = Dy_inv @ C
-    Q = Cy.T @ Cy
-    K, _, _ = control.dlqr(A, B, (Q + Q.T) / 2, control_weight * Du_inv @ Du_inv)
-    F = -np.asarray(K, dtype=float)
+    # Solved in the state x = c·z, c² = ‖B D_u‖/(√ρ ‖D_y⁻¹C‖), which balances the Riccati equation's two
+    # terms (an identified model's B can be 1e-4 against C ≈ 1, as the maglev's; slycot then fails to
+    # order the Hamiltonian pencil's eigenvalues near the unit circle); the gain is F = F_z/c.
+    c = np.sqrt(np.linalg.norm(B @ scale.Du, 2) / (np.sqrt(control_weight) * np.linalg.norm(Cy, 2)))
+    Q = (c * Cy).T @ (c * Cy)
+    K, _, _ = control.dlqr(A, B / c, (Q + Q.T) / 2, control_weight * Du_inv @ Du_inv)
+    F = -np.asarray(K, dtype=float) / c
     M = np.block([[A - np.eye(n), B], [C, np.zeros((ny, nu))]])
     N = np.zeros((nu, ny))
     for j in range(ny):

@@ -121,3 +121,21 @@ def test_every_polytope_kind_is_a_class_and_survives_a_controller_file():
             else:
                 psi = basis.eval(p.reshape(1, -1))[0]
                 np.testing.assert_allclose(lam @ poly.psi_vertices, psi, atol=1e-12)
+
+
+def test_a_2dof_plant_without_a_reference_weight_measures_r_itself():
+    """[synth] structure = "2dof" with no weights.R: the reference the controller measures is r itself
+    (W_R = I), the same generalized plant as with an explicit unit W_R (it raised python-control's
+    "could not find signal r" before)."""
+    from lpvflow.synth.plant import generalized_plant
+    from tests.synth_cases import two_state_plant
+
+    weights = {"S": {"num": [0.1, 0.1], "den": [1, -1]}, "K": {"num": [0.01], "den": [1]},
+               "B": {"num": [0, 0.5], "den": [1, -0.5]}}
+    model = two_state_plant()
+    bare = generalized_plant(model, weights, structure="2dof")
+    unit = generalized_plant(model, weights | {"R": {"num": [1], "den": [1]}}, structure="2dof")
+    for a, b in zip(bare.vertices, unit.vertices, strict=True):
+        for name in ("A", "B1", "B2", "C1", "C2", "D11", "D12", "D21", "D22"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert bare.vertices[0].dims[1] == 2 and bare.vertices[0].dims[4] == 2  # w = [r; n], y = [r; y_m]

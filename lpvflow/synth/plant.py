@@ -165,14 +165,15 @@ def augment(G: control.StateSpace, W: dict[str, control.StateSpace], Ts: float, 
         blocks += [_named_ss(WN, "n", "nw", "WN"),
                    control.summing_junction(inputs=["y", "nw"], output="ym", dimension=ny, name="noise")]
     outputs = ["zS", "zK"]
-    if "R" in W:
-        blocks.append(_named_ss(W["R"], "w", "r", "WR"))
+    shaped_reference = "R" in W or two  # a 2-DOF controller measures r: W_R defaults to I so r is a signal
+    if shaped_reference:
+        blocks.append(_named_ss(W.get("R", control.ss([], [], [], np.eye(ny), Ts)), "w", "r", "WR"))
     if "B" in W:
         blocks.append(_named_ss(W["B"], "u", "up", "WB"))
     if "T" in W:
         blocks.append(_named_ss(W["T"], "y", "zT", "WT"))
         outputs.append("zT")
-    exogenous = ["w" if "R" in W else "r"] + (["n"] if two else [])
+    exogenous = ["w" if shaped_reference else "r"] + (["n"] if two else [])
     measured = ["r", "ym"] if two else ["e"]
     return control.interconnect(blocks, inplist=[*exogenous, "u"], outlist=[*outputs, *measured], dt=Ts)
 

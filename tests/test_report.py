@@ -273,3 +273,33 @@ def test_the_scenario_table_shows_each_outputs_peak_deviation_as_the_cross_coupl
     assert expected and set(expected) <= set(shown)
     for key, text in shown.items():  # a lost run has no metrics: "–"
         assert text == (f"{expected[key]:.3g}°" if key in expected else "–")
+
+
+def test_the_robustness_section_tables_the_model_in_the_loop_difference_in_degrees(summary):
+    """The robustness stage's ``trajectory`` rows (radians) as the report's table, one row per scenario in
+    degrees with how each run ended, and the card's robustness line naming each output's largest value
+    and its scenario; random values, a model run that was lost."""
+    from lpvflow.pipeline.report_robustness import trajectory_table
+    from lpvflow.pipeline.report_text import DisplayUnit
+
+    rng = np.random.default_rng(7)
+    names = [s["name"] for s in summary["stages"]["verify"]["outputs"]["scenarios"]]
+    rows_ = [{"scenario": name, "largest_difference": {"arm_angle": float(rng.uniform(0.0, 0.2)),
+                                                       "pendulum_angle": float(rng.uniform(0.0, 0.02))},
+              "plant_failure": None, "model_failure": None} for name in names]
+    rows_[2]["model_failure"] = "unbounded: pendulum_angle left its output_bounds at t = 1.25 s"
+    table = trajectory_table(rows_, {name: DisplayUnit.of(unit) for name, unit in UNITS.items()})
+    assert "largest arm_angle difference [°]" in table and "largest pendulum_angle difference [°]" in table
+    assert rows(table) == [
+        [r["scenario"], f"{math.degrees(r['largest_difference']['arm_angle']):.3g}",
+         f"{math.degrees(r['largest_difference']['pendulum_angle']):.3g}", "ran to the end",
+         "pendulum_angle out of bounds at 1.25 s" if r["model_failure"] else "ran to the end"] for r in rows_]
+    summary["stages"]["robustness"] = {"status": "ran", "seconds": 0.1, "artifacts": [],
+                                       "outputs": {"rows": [], "guaranteed": None, "trajectory": rows_}}
+    text = html.unescape(re.sub(r"<[^>]+>", " ", summary_card(summary, UNITS)))
+    arm = max(rows_, key=lambda r: r["largest_difference"]["arm_angle"])
+    pendulum = max(rows_, key=lambda r: r["largest_difference"]["pendulum_angle"])
+    worst_arm = math.degrees(arm["largest_difference"]["arm_angle"])
+    worst_pendulum = math.degrees(pendulum["largest_difference"]["pendulum_angle"])
+    assert (f"Model vs plant in the loop, largest difference: arm_angle {worst_arm:.3g}° "
+            f"({arm['scenario']}), pendulum_angle {worst_pendulum:.3g}° ({pendulum['scenario']}).") in text

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import control
 import numpy as np
 import pytest
 
@@ -57,8 +58,8 @@ def test_an_exact_model_agrees_and_a_wrong_one_differs_as_the_closed_forms_do(pl
 
 
 def test_model_plant_schedules_on_its_own_output_and_removes_the_trim() -> None:
-    """x(k+1) = (0.5 + 0.4 p) x + B (u − 0.3 p) with p = y: the quasi-LPV recursion, step by step."""
-    plant = ModelPlant(first_order_model(0.5, 0.4), ["y"], trim=lambda p: 0.3 * p)
+    """x(k+1) = (0.5 + 0.4 p) x + B (u − 0.3 y) with p = y: the quasi-LPV recursion, step by step."""
+    plant = ModelPlant(first_order_model(0.5, 0.4), ["y"], trim=lambda y: 0.3 * y)
     rng = np.random.default_rng(0)
     x = 0.0
     for u in rng.uniform(-0.5, 0.5, 50):
@@ -66,6 +67,30 @@ def test_model_plant_schedules_on_its_own_output_and_removes_the_trim() -> None:
         plant.step(np.array([u]), 0.0, TS)
         x = (0.5 + 0.4 * x) * x + B * (u - 0.3 * x)
     assert plant.input_names == ["u"] and plant.output_names == ["y"]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_model_plant_at_rest_holds_its_outputs_around_the_operating_point(seed: int) -> None:
+    """A random stable two-state model affine in p = y, identified around (u₀, y₀) without the trim
+    u_trim(y) = 0.3 y: after rest_at(y_r) it outputs y_r, and the constant input u₀ + u_trim(y_r) + v,
+    v = (y_r − y₀)/G(1) with G(1) the frozen DC gain at p = y_r (python-control), keeps it there."""
+    rng = np.random.default_rng(seed)
+    A0 = rng.standard_normal((2, 2))
+    A0 *= 0.7 / np.max(np.abs(np.linalg.eigvals(A0)))
+    A = np.array([A0, 0.05 * rng.standard_normal((2, 2))])
+    model = LPVSS(A=A, B=[rng.standard_normal((2, 1)), 0.1 * rng.standard_normal((2, 1))],
+                  C=[rng.standard_normal((1, 2)), np.zeros((1, 2))], D=np.zeros((2, 1, 1)), basis=BASIS,
+                  Ts=TS, u_names=["u"], y_names=["y"], p_names=["q"])
+    u0, y0, y_r = rng.uniform(-0.5, 0.5, 3)
+    plant = ModelPlant(model, ["y"], trim=lambda y: 0.3 * y, offsets={"u": [u0], "y": [y0]})
+    assert plant.outputs()[0] == pytest.approx(y0, abs=1e-12)
+    plant.rest_at({"y": y_r})
+    v = (y_r - y0) / float(np.real(control.dcgain(model.frozen(np.array([y_r])))))
+    for _ in range(30):
+        assert plant.outputs()[0] == pytest.approx(y_r, abs=1e-9)
+        plant.step(np.array([u0 + 0.3 * y_r + v]), 0.0, TS)
+    plant.step(np.array([u0 + 0.3 * y_r + v + 0.1]), 0.0, TS)
+    assert abs(plant.outputs()[0] - y_r) > 1e-6  # another input moves it
 
 
 def test_model_plant_refuses_feedthrough_and_a_wrong_number_of_expressions() -> None:

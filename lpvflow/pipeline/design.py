@@ -13,7 +13,9 @@ the ν-gap/b(P, K) gate of the validate stage ([validate] gate, :func:`lpvflow.p
 with the reason as the failure. The robustness stage (:mod:`lpvflow.pipeline.robustness`) reports
 b(Ĝ, K_fb) of the synthesized controller against the ν-gap at the validate points; with [synth]
 robustness_gate = true a controller whose b is not above the ν-gap at a point ends the run there
-(:func:`lpvflow.pipeline.robustness.robustness_verdict`), else the verdict does not read it. With
+(:func:`lpvflow.pipeline.robustness.robustness_verdict`), else the verdict does not read it; it also
+reports the model-in-the-loop against the plant-in-the-loop under that controller on the [verify]
+scenarios (never part of the verdict). With
 [diagnose] adopt = true and an adopted extension, the adoption stage designs and verifies the identified
 model too and compares the two controllers in closed loop (:func:`lpvflow.pipeline.adoption.adoption`).
 With [experiment] iterate = N the experiment → synth stages first run N rounds, each under the
@@ -80,8 +82,9 @@ SYNTH = Stage("synth", stages.synth, ("synth",),
               ("reduce",), _PLANT)
 ROBUSTNESS = Stage("robustness", robustness, ("synth", *VALIDATE.requires),
                    {"validate": ("scaling",), "synth": ("robustness_gate",),
-                    "identify": ("u", "y", "p", "split", "remove_offsets")},
-                   ("reduce", "validate", "synth"))
+                    "identify": (*_SIGNALS, "increments"), "experiment": ("controller", "scheduling"),
+                    "verify": ("loop", "scenario"), "design": ("plant",)},
+                   ("reduce", "validate", "synth"), _PLANT + _CONTROLLER)
 VERIFY = Stage("verify", stages.verify, ("design", "verify"), {"design": ("plant",), "verify": ALL},
                ("synth",), _PLANT)
 ADOPTION = Stage("adoption",

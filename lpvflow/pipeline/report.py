@@ -9,7 +9,7 @@ from pathlib import Path
 from lpvflow.models import atomic_write_text
 from lpvflow.pipeline.report_card import summary_card
 from lpvflow.pipeline.report_figures import GAP_FIGURE, ROBUSTNESS_FIGURE, draw_figures, embed_figure
-from lpvflow.pipeline.report_robustness import robustness_section
+from lpvflow.pipeline.report_robustness import robustness_section, trajectory_table
 from lpvflow.pipeline.report_stages import adoption_table, key_value_table, scenario_table, stage_rows
 from lpvflow.pipeline.report_text import DisplayUnit, controller_ports, signal_units
 
@@ -39,6 +39,8 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
             sections.append(robustness_section(folder, outputs, shown, scheduling))
             if ROBUSTNESS_FIGURE in drawn:
                 sections.append(embed_figure(folder / ROBUSTNESS_FIGURE))
+        if name == "robustness" and outputs.get("trajectory"):
+            sections.append(trajectory_table(outputs["trajectory"], shown))
         for artifact in stage.get("artifacts", []):
             if artifact == "nugap.png" and GAP_FIGURE in drawn:
                 sections.append(embed_figure(folder / GAP_FIGURE))

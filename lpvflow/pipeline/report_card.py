@@ -7,7 +7,7 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-from lpvflow.pipeline.report_text import DisplayUnit, breakable, number_text, short_reason
+from lpvflow.pipeline.report_text import DisplayUnit, breakable, number_text, short_reason, signal_value
 from lpvflow.pipeline.scenarios import run_passed
 
 
@@ -41,7 +41,7 @@ def summary_card(summary: dict, units: dict[str, str]) -> str:
             parts.append("<h3>Robustness: perturbed plants</h3>"
                          + _comparison_table(perturbed, shown, perturbed=True))
     parts.append(_gamma_line(stages.get("synth", {}).get("outputs", {})))
-    parts.append(_robustness_line(stages.get("robustness", {}).get("outputs", {})))
+    parts.append(_robustness_line(stages.get("robustness", {}).get("outputs", {}), shown))
     if scenarios:
         parts.append(_held_step_line(verify, shown))
     if summary.get("iterations"):
@@ -205,12 +205,15 @@ def _gamma_line(synth: dict) -> str:
     return f"<p>{html.escape(text)}</p>"
 
 
-def _robustness_line(robustness: dict) -> str:
+def _robustness_line(robustness: dict, units: dict[str, DisplayUnit]) -> str:
     """The robustness stage in one line: b(Ĝ, K_fb) against the ν-gap over the validate points (the range
-    of each, how many points have b > ν-gap), the smallest delay margin and input disk margin."""
+    of each, how many points have b > ν-gap), the smallest delay margin and input disk margin, and the
+    largest difference between the model-in-the-loop and the plant-in-the-loop runs of each measured
+    output over the verify scenarios (:func:`worst_trajectory_text`, reported, not judged)."""
     rows = [r for r in robustness.get("rows", []) if r.get("nugap") is not None]
+    trajectory = worst_trajectory_text(robustness.get("trajectory") or [], units)
     if not rows:
-        return ""
+        return f"<p>{html.escape(trajectory[:1].upper() + trajectory[1:])}.</p>" if trajectory else ""
     held = sum(bool(r["b_above_nugap"]) for r in rows)
     b = [r["b"] for r in rows]
     nu = [r["nugap"] for r in rows]
@@ -222,8 +225,25 @@ def _robustness_line(robustness: dict) -> str:
         text += f"; delay margin ≥ {min(delays)} samples"
     if disks:
         text += f"; input disk margin ≥ {min(disks):.2f}"
+    if trajectory:
+        text += f"; {trajectory}"
     css = "pass" if held == len(rows) else "fail"
     return f'<p class="{css}">{html.escape(text)}</p>'
+
+
+def worst_trajectory_text(rows: list[dict], units: dict[str, DisplayUnit]) -> str:
+    """The largest model-in-the-loop against plant-in-the-loop difference of each measured output over the
+    scenarios of the robustness stage's ``trajectory`` rows and where, in display units, e.g. "model vs
+    plant in the loop, largest difference: arm_angle 10.4° (arm to -75 deg), pendulum_angle 0.286° (arm
+    to -75 deg)"; "" without rows."""
+    if not rows:
+        return ""
+    worst = []
+    for name in rows[0]["largest_difference"]:
+        row = max(rows, key=lambda r, name=name: r["largest_difference"][name])
+        worst.append(f"{name} {signal_value(name, row['largest_difference'][name], units)} "
+                     f"({row['scenario']})")
+    return f"model vs plant in the loop, largest difference: {', '.join(worst)}"
 
 
 def _held_step_line(verify: dict, units: dict[str, DisplayUnit]) -> str:

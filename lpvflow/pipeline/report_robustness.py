@@ -1,5 +1,6 @@
 """The design report's robustness section: Vinnicombe's robust stability test b > δν and the margins of
-the shipped controller at each frozen point."""
+the shipped controller at each frozen point, and the model-in-the-loop against the plant-in-the-loop
+under that controller on each verify scenario."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import math
 from pathlib import Path
 
 from lpvflow.pipeline.report_figures import physical_axis
-from lpvflow.pipeline.report_text import DisplayUnit, number_text
+from lpvflow.pipeline.report_text import DisplayUnit, number_text, short_reason
 
 
 def robustness_statement(outputs: dict, points: list[str]) -> str:
@@ -56,3 +57,27 @@ def robustness_section(folder: Path, outputs: dict, units: dict[str, DisplayUnit
     css = "pass" if outputs.get("guaranteed") else "fail"
     return (f'<p class="{css}">{html.escape(statement)}</p><table><tr>'
             + "".join(f"<th>{html.escape(h)}</th>" for h in shown) + f"</tr>{body}</table>")
+
+
+def trajectory_table(rows: list[dict], units: dict[str, DisplayUnit]) -> str:
+    """The robustness stage's ``trajectory`` rows: per verify scenario the largest difference of each
+    measured output between the identified model in the loop of the shipped controller and the plant FMU
+    in the same loop, in its display unit, and how each run ended (:mod:`lpvflow.validate.trajectory`)."""
+    names = list(rows[0]["largest_difference"])
+    shown = [units.get(name, DisplayUnit("")) for name in names]
+    head = ["scenario", *(unit.head(f"largest {name} difference") for name, unit in zip(names, shown,
+                                                                                          strict=True)),
+            "plant in the loop", "model in the loop"]
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(cell)}</td>" for cell in [
+            row["scenario"], *(unit.value(row["largest_difference"][name])
+                               for name, unit in zip(names, shown, strict=True)),
+            *(short_reason(row[key]) if row[key] else "ran to the end"
+              for key in ("plant_failure", "model_failure"))]) + "</tr>"
+        for row in rows)
+    return ("<h3>Model in the loop against plant in the loop</h3><p>The shipped controller in the loop "
+            "with the identified model (scheduled from the model's outputs) and with the plant FMU, on "
+            "each verify scenario: the largest difference of each measured output over the samples both "
+            "runs completed. Frozen points (above) say nothing about the moves between them; this is "
+            "reported, not part of the verdict.</p><table><tr>"
+            + "".join(f"<th>{html.escape(h)}</th>" for h in head) + f"</tr>{body}</table>")

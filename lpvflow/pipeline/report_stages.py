@@ -62,6 +62,7 @@ LABELS = {
     ("verify", "passed"): "every scenario passed",
     ("verify", "largest_held_step"): "largest step the LTI baseline holds",
     ("export", "files"): "files exported",
+    ("robustness", "trajectory_note"): "model in the loop against plant in the loop",
 }
 
 
@@ -82,7 +83,8 @@ STRUCTURES = {"1dof": "1-DOF (reads r − y)", "2dof": "2-DOF (reads references 
 
 #: Stage outputs shown as their own table, not in the stage's key/value table.
 SEPARATE_TABLES = {("verify", "scenarios"), ("adoption", "rows"), ("robustness", "rows"),
-                   ("robustness", "guaranteed"), ("robustness", "not_guaranteed_at")}
+                   ("robustness", "guaranteed"), ("robustness", "not_guaranteed_at"),
+                   ("robustness", "trajectory")}
 
 
 def stage_rows(stage: str, outputs: dict, units: dict[str, DisplayUnit],

@@ -15,6 +15,11 @@ loop-shaping and the ν-gap metric*, 2001): K_fb stabilizes every plant G with
 frozen there. With ``[synth] robustness_gate = true`` it is also a gate (:func:`robustness_verdict`): a
 controller with b ≤ δν at a point ends the design there, as the validate stage's ν-gap gate does; without
 it the stage only reports.
+
+Frozen points say nothing about the moves between them. With ``[verify]`` scenarios the stage also runs
+the model in the loop of the same controller against the plant FMU in that loop on every scenario and
+reports the largest difference of each measured output (:mod:`lpvflow.pipeline.trajectory_validation`);
+that is never part of the gate.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from lpvflow.models import load
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.coordinates import read_data
 from lpvflow.pipeline.frozen_references import signal_scaling
+from lpvflow.pipeline.trajectory_validation import trajectory_validation
 from lpvflow.validate.robust_stability import delay_margin_samples, generalized_margin, input_disk_margin
 from lpvflow.validate.scaling import SignalScaling
 
@@ -94,18 +100,22 @@ def robustness(ctx: StageContext) -> tuple[dict, list[str]]:
     """The rows of :func:`robustness_rows` at the validate stage's points (``theta``, ``nugap``) for the
     synth stage's controller and the reduced model, in the validate stage's scaling; ``guaranteed`` is
     whether b > δν at every point (None without a ν-gap), ``not_guaranteed_at`` the points where not and
-    ``gate`` the :func:`robustness_verdict` of ``[synth] robustness_gate``."""
+    ``gate`` the :func:`robustness_verdict` of ``[synth] robustness_gate``. With ``[verify]`` scenarios
+    and a plant FMU, also the model-in-the-loop against the plant-in-the-loop under the same controller
+    on each scenario (:func:`~lpvflow.pipeline.trajectory_validation.trajectory_validation`: ``trajectory``
+    or ``trajectory_note``), reported only."""
     validate = ctx.outputs["validate"]
-    model = load(ctx.path("model.json"))
+    model, controller = load(ctx.path("model.json")), load(ctx.path("controller.json"))
     est, _ = read_data(ctx)
     scale = signal_scaling(ctx.config["validate"]["scaling"], est, model)
     with warnings.catch_warnings():  # the validate stage's points, which it checked against the box
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        rows = robustness_rows(model, load(ctx.path("controller.json")), scale, validate.get("theta") or [],
-                               validate.get("nugap"))
+        rows = robustness_rows(model, controller, scale, validate.get("theta") or [], validate.get("nugap"))
     outputs: dict[str, Any] = {"rows": rows, "guaranteed": None}
     if rows and "nugap" in rows[0]:
         outputs["not_guaranteed_at"] = [row["theta"] for row in rows if not row["b_above_nugap"]]
         outputs["guaranteed"] = not outputs["not_guaranteed_at"]
+    if ctx.config["verify"] is not None and ctx.config["design"]["plant"]:
+        outputs |= trajectory_validation(ctx, model, controller)
     outputs["gate"] = robustness_verdict(outputs, bool(ctx.config["synth"].get("robustness_gate")))
     return outputs, []

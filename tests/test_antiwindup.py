@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.linalg
 
 from lpvflow.basis import Basis
 from lpvflow.loop.fmu_controller import FmuController
@@ -67,6 +68,24 @@ def load_copy(K: LPVController) -> LPVController:
 def test_observer_gains_stabilise_every_vertex(adip_controller: LPVController) -> None:
     L = observer_gains(adip_controller.Ak, adip_controller.Ck)
     for A, C, Li in zip(adip_controller.Ak, adip_controller.Ck, L, strict=True):
+        assert np.max(np.abs(np.linalg.eigvals(A - Li @ C))) < 1.0
+
+
+def test_observer_gains_stabilise_controllers_with_an_integrator_and_an_unstable_pole() -> None:
+    """Random 20-state controllers like a loop-shaping one (a pole at z = 1, one at 1.03, a lightly damped
+    pair at 0.994, the rest random inside the unit circle, a large output row; seed 3): every vertex
+    observer A − LC is stable."""
+    rng = np.random.default_rng(3)
+    Ak, Ck = [], []
+    for _ in range(4):
+        poles = np.concatenate([[1.0, 1.03], rng.uniform(-0.9, 0.99, 16)])
+        rotation = np.array([[np.cos(0.01), -np.sin(0.01)], [np.sin(0.01), np.cos(0.01)]])
+        blocks = [np.diag(poles), 0.994 * rotation]
+        T = rng.standard_normal((20, 20))
+        Ak.append(np.linalg.solve(T, scipy.linalg.block_diag(*blocks) @ T))
+        Ck.append(100 * rng.standard_normal((1, 20)))
+    L = observer_gains(np.array(Ak), np.array(Ck))
+    for A, C, Li in zip(Ak, Ck, L, strict=True):
         assert np.max(np.abs(np.linalg.eigvals(A - Li @ C))) < 1.0
 
 

@@ -116,15 +116,17 @@ STRUCTURES = ("1dof", "2dof")
 
 def observer_gains(Ak: np.ndarray, Ck: np.ndarray) -> np.ndarray:
     """L_i with A_i − L_iC_i stable: the steady-state Kalman (predictor) gains of (A_i, C_i) with unit
-    process and measurement covariances in the controller's own state coordinates
-    (``scipy.linalg.solve_discrete_are`` on the dual system), L_i = A_iPC_iᵀ(C_iPC_iᵀ + I)⁻¹."""
-    import scipy.linalg
+    process and measurement covariances in the controller's own state coordinates,
+    L_i = A_iPC_iᵀ(C_iPC_iᵀ + I)⁻¹, P from the dual discrete Riccati equation by SLICOT SB02OD
+    (``control.dare``; scipy's ``solve_discrete_are`` gave up — "Reordering of (A, B) failed" — on a
+    loop-shaping controller with an integrator and an unstable pole)."""
+    import control
 
     gains = []
     for A, C in zip(Ak, Ck, strict=True):
         n, nu = A.shape[0], C.shape[0]
-        P = scipy.linalg.solve_discrete_are(A.T, C.T, np.eye(n), np.eye(nu))
-        gains.append(A @ P @ C.T @ np.linalg.inv(C @ P @ C.T + np.eye(nu)))
+        _, _, G = control.dare(A.T, C.T, np.eye(n), np.eye(nu))  # G = (I + CPCᵀ)⁻¹CPAᵀ = Lᵀ
+        gains.append(np.asarray(G).T)
     return np.array(gains)
 
 

@@ -1,6 +1,7 @@
 """The bundled default ADIP design end to end (what `make design` runs): the scheduled loop-shaping
 controller's b(Ĝ, K_fb) against the ν-gap at the nine gate points, by a frequency-grid formula independent of
-lpvflow's margin code, and the arm steps it holds on the plant FMU while the LTI baseline loses them."""
+lpvflow's margin code, and the arm steps it holds on the plant FMU; the LTI baseline is the same loop-shaping
+design at 0° and loses the larger ones."""
 
 from __future__ import annotations
 
@@ -55,16 +56,20 @@ def test_b_of_the_shipped_feedback_exceeds_one_and_a_half_nugaps_at_every_gate_p
     assert summary["stages"]["synth"]["outputs"]["certificate_ok"] is True
 
 
-def test_the_design_holds_its_steps_and_the_lti_baseline_loses_them(robust_run):
+def test_the_design_holds_its_steps_and_the_lti_baseline_loses_the_large_ones(robust_run):
+    """The scheduled controller holds all eight steps; the same loop-shaping design frozen at 0° (the LTI
+    baseline: same weights, reference path and tuning) loses the pendulum at ±70° and ±75°, and the
+    largest step it keeps bounded lies below 70°."""
     summary, _ = robust_run
     assert summary["failed"] is None and summary["verdict"]["pass"] is True
     scenarios = summary["stages"]["verify"]["outputs"]["scenarios"]
     assert len(scenarios) == 8  # ±30°, ±60°, ±70°, ±75°
     for s in scenarios:
         assert s["controller"]["stable"] and not s["controller"].get("requirements_failed"), s["name"]
-        assert not s["baseline"]["stable"], s["name"]
+        if any(angle in s["name"] for angle in ("70", "75")):
+            assert not s["baseline"]["stable"], s["name"]
     held = summary["stages"]["verify"]["outputs"]["largest_held_step"]
-    assert held["lpv"] == pytest.approx(np.deg2rad(75.0), rel=1e-3) and held["baseline"] < np.deg2rad(30.0)
+    assert held["lpv"] == pytest.approx(np.deg2rad(75.0), rel=1e-3) and held["baseline"] < np.deg2rad(70.0)
 
 
 def test_the_model_in_the_loop_is_reported_per_scenario_and_matches_a_numpy_loop(robust_run):

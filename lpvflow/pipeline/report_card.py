@@ -199,7 +199,7 @@ def _gamma_line(synth: dict) -> str:
         text += f" (LMI lower bound {synth['gamma_lower']:.4g})"
     if synth.get("baseline_gamma") is not None:
         at = ", ".join(f"{v:.3g}" for v in synth.get("baseline_at") or [])
-        kind = " (mixed sensitivity)" if synth.get("method") == "loop-shaping" else ""
+        kind = " (the same loop shaping at one point)" if synth.get("method") == "loop-shaping" else ""
         text += (f"; LTI baseline{kind} {synth['baseline_gamma']:.4g}"
                  + (f" (designed at θ = {at})" if at else ""))
     return f"<p>{html.escape(text)}</p>"

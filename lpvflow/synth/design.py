@@ -60,7 +60,8 @@ class Design:
 def synthesize_design(model: LPVSS, settings: Mapping[str, Any], box: list | None = None) -> Design:
     """The controller of a ``[synth]`` table: the design function its ``method`` names in
     :data:`lpvflow.synth.methods.SYNTHESIS_METHODS`, with the table's trim; ``box`` overrides the table's
-    box (the LTI baseline's degenerate box, always designed by :func:`design_common`)."""
+    box (the LTI baseline's degenerate box: designed by the method itself when its ``point_design`` says
+    so, else by :func:`design_common`)."""
     weights, structure = settings["weights"], settings["structure"]
     point = box is not None
     plant = generalized_plant(model, weights, settings["box"] if box is None else box, structure,
@@ -70,13 +71,14 @@ def synthesize_design(model: LPVSS, settings: Mapping[str, Any], box: list | Non
     # design's own plant (the model's box corners lie off the curve the signals follow)
     tied = settings["breakpoints"] is not None and model.basis.n_p > 1
     frozen_model = None if not point and (settings["vertex_weights"] or tied) else model
-    if point:
+    if settings["method"] not in SYNTHESIS_METHODS:
+        raise DataError(f"[synth] method = {settings['method']!r} is unknown; use one of "
+                        f"{', '.join(SYNTHESIS_METHODS)}")
+    method = SYNTHESIS_METHODS[settings["method"]]
+    if point and not method.point_design:
         design = design_common(model, plant, settings, frozen_model)
     else:
-        if settings["method"] not in SYNTHESIS_METHODS:
-            raise DataError(f"[synth] method = {settings['method']!r} is unknown; use one of "
-                            f"{', '.join(SYNTHESIS_METHODS)}")
-        design = SYNTHESIS_METHODS[settings["method"]].design_function()(model, plant, settings, frozen_model)
+        design = method.design_function()(model, plant, settings, frozen_model)
     design.controller.trim = trim(settings, design.controller)
     return design
 

@@ -13,8 +13,9 @@ of ``[synth] method`` and their description) and the design's synth stage all re
   reading a design file does not import the solvers);
 * its ``[synth]`` keys in the schema and ``docs/design_file.md``, if it has keys of its own.
 
-``docs/synthesis_methods.md`` walks through adding one. The LTI baseline of the design stage is always
-the common-Lyapunov design at one frozen point, whatever the method.
+``docs/synthesis_methods.md`` walks through adding one. The LTI baseline of the design stage is the
+method itself designed at one frozen point when its ``point_design`` says it can be (loop shaping), else
+the common-Lyapunov design there.
 """
 
 from __future__ import annotations
@@ -28,12 +29,15 @@ from dataclasses import dataclass
 class SynthesisMethod:
     """One synthesis method: ``summary`` (one line, shown by ``lpvflow synth`` and in the schema's key
     description), ``keys`` (numeric ``[synth]`` keys only this method reads, printed with their values),
-    ``entry`` (``"module:function"`` of its design function) and ``gamma_is`` (what the γ it reports is)."""
+    ``entry`` (``"module:function"`` of its design function), ``gamma_is`` (what the γ it reports is) and
+    ``point_design`` (the design stage's LTI baseline is this method at one frozen point, not the
+    common-Lyapunov design there)."""
 
     summary: str
     entry: str
     keys: tuple[str, ...] = ()
     gamma_is: str = "certified level"
+    point_design: bool = False
 
     def design_function(self) -> Callable:
         """The design function named by ``entry``."""
@@ -52,5 +56,5 @@ SYNTHESIS_METHODS: dict[str, SynthesisMethod] = {
                                 gamma_is="largest frozen closed-loop norm"),
     "loop-shaping": SynthesisMethod("H∞ loop shaping: LMI designs of the shaped plant at the breakpoints, "
                                     "interpolated", "lpvflow.synth.loop_shaping_design:design",
-                                    ("crossover",), gamma_is="largest breakpoint level"),
+                                    ("crossover",), gamma_is="largest breakpoint level", point_design=True),
 }

@@ -26,11 +26,13 @@ linearizations with the interpolated controller on 121 points (python-control), 
 with the Lyapunov breakpoints at the controller's, 2 LMI points per interval: its certified γ, or where it
 fails.
 
-Run:  .venv/bin/python benchmarks/bench_rate_bounded.py   → benchmarks/results/rate_bounded.json
+Run:  .venv/bin/python benchmarks/bench_rate_bounded.py [--limit SECONDS]
+      → benchmarks/results/rate_bounded.json
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import multiprocessing
 import os
@@ -83,16 +85,16 @@ def _run(seed: int, states: int, breakpoints: int, out) -> None:
                    "largest_sdp": max(solves), "ratio": seconds / max(solves)})
 
 
-def measure(name: str, seed: int, states: int, breakpoints: int) -> dict:
+def measure(name: str, seed: int, states: int, breakpoints: int, limit: float = LIMIT) -> dict:
     row = {"case": name, "seed": seed, "breakpoints": breakpoints, "order": states + 2, "rate_bound": RATE}
     out = multiprocessing.Queue()
     child = multiprocessing.Process(target=_run, args=(seed, states, breakpoints, out))
     child.start()
-    child.join(LIMIT)
+    child.join(limit)
     if child.is_alive():
         child.terminate()
         child.join()
-        return row | {"error": f"not finished in {LIMIT:.0f} s", "seconds": LIMIT}
+        return row | {"error": f"not finished in {limit:.0f} s", "seconds": limit}
     return row | out.get()
 
 
@@ -150,7 +152,9 @@ def adip_interpolated(rate_bound: float) -> dict:
 
 
 def main() -> None:
-    rows = [measure(*case) for case in CASES]
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--limit", type=float, default=LIMIT, help=f"seconds per case (default {LIMIT:g})")
+    rows = [measure(*case, limit=parser.parse_args().limit) for case in CASES]
     adip = [adip_margin(0.006), adip_margin(0.0006)]
     interpolated = adip_interpolated(0.0006)
     OUT.write_text(json.dumps({"rows": rows, "adip": adip, "adip_interpolated": interpolated}, indent=1,

@@ -138,7 +138,7 @@ class Coordinates:
         return Coordinates(self.T, 1.0, self.du, self.dy)
 
 
-def plain_coordinates(cayleys: list[VertexPlant]) -> Coordinates:
+def initial_coordinates(cayleys: list[VertexPlant]) -> Coordinates:
     """Coordinates that need no SDP: the state transform of :func:`lqg_balancing` at the mean of the
     vertices (identity when it does not exist), then ω₀ = the largest ‖A_c‖₂ and D_u, D_y giving every
     column of [B2; D12] and every row of [C2 D21] unit norm at the first vertex (the whole column and row:

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.linalg
 
 from lpvflow.errors import SynthesisError
-from lpvflow.synth.bilinear import Coordinates, balancing_transform, plain_coordinates
+from lpvflow.synth.bilinear import Coordinates, balancing_transform, initial_coordinates
 from lpvflow.synth.plant import VertexPlant
 from lpvflow.synth.sdp import SolveReport, solve
 
@@ -158,7 +158,7 @@ class Preconditioned:
 def preconditioned(cayleys: list[VertexPlant], gamma_max: float, solver: str) -> Preconditioned:
     """Steps 2–4 on the Cayley images of the vertices (raises SynthesisError when the eliminated LMIs are
     infeasible with γ ≤ gamma_max)."""
-    coords = plain_coordinates(cayleys)
+    coords = initial_coordinates(cayleys)
     verts = [coords.apply(vc) for vc in cayleys]
     current = estimate(verts, gamma_max, solver)
     attempts = list(current.report.attempts)

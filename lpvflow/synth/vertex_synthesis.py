@@ -16,7 +16,7 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
    (PBH rank test at every mode with |z| ≥ 1) and no pole at z = −1 (where the bilinear map of step 2 does
    not exist); otherwise no controller of any kind exists, and the error names the mode.
 2. **Coordinates.** Every LMI is posed on the bilinear (Cayley) image of each vertex, in the coordinates
-   of :func:`lpvflow.synth.bilinear.plain_coordinates` (no SDP: the LQG-balanced state of the mean vertex,
+   of :func:`lpvflow.synth.bilinear.initial_coordinates` (no SDP: the LQG-balanced state of the mean vertex,
    a frequency scale and u/y scalings), so the state basis the plant was given in does not matter.
 3. **Estimate** by the eliminated continuous conditions (Gahinet & Apkarian 1994, Thm. 4.3), per vertex
    with its own null-space bases N_R,i of [B2_iᵀ D12_iᵀ] and N_S,i of [C2_i D21_i]:

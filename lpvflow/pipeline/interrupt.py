@@ -37,14 +37,18 @@ def _on_sigint(signum: int, frame: FrameType | None) -> None:
 @contextmanager
 def recorded() -> Iterator[None]:
     """While inside, SIGINT raises KeyboardInterrupt as usual (once) and is recorded. Leaving restores the
-    previous handler (in-process use, e.g. tests calling the CLI, is unaffected) unless a Ctrl-C came:
-    then the process is ending with 130, and a signal still pending must not raise once more outside."""
+    previous SIGINT handler and unraisable hook (in-process use, e.g. tests calling the CLI, is unaffected)
+    unless a Ctrl-C came: then the process is ending with 130, a signal still pending must not raise once
+    more outside, and finalizers the interrupt broke must not print tracebacks at exit."""
     previous, hook = signal.signal(signal.SIGINT, _on_sigint), sys.unraisablehook
 
     def quiet(unraisable: sys.UnraisableHookArgs) -> None:
-        """Where Python drops an exception (a ctypes callback, a finalizer) it prints it with a traceback;
-        our KeyboardInterrupt is not lost (it is recorded), so it is dropped silently."""
-        if not (unraisable.exc_type is KeyboardInterrupt and _Request.seen):
+        """Where Python drops an exception (a ctypes callback, a finalizer) it prints it with a traceback.
+        Once a Ctrl-C came, every such exception is its consequence — our KeyboardInterrupt itself (it is
+        recorded, not lost) or the finalizer of an object the interrupt left half-built (pyparsing's
+        ``Forward.__del__`` after an interrupted import: "'Forward' object has no attribute 'expr'") —
+        and the run is ending with 130, so it is dropped silently."""
+        if not _Request.seen:
             hook(unraisable)
 
     _Request.seen = False
@@ -52,8 +56,8 @@ def recorded() -> Iterator[None]:
     try:
         yield
     finally:
-        sys.unraisablehook = hook
         if not _Request.seen:
+            sys.unraisablehook = hook
             signal.signal(signal.SIGINT, previous)
 
 

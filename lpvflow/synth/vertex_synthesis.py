@@ -349,10 +349,10 @@ def _scales_in(level: _LevelProblem, T: np.ndarray) -> list[np.ndarray]:
     """|diag| of each vertex matrix of ``level`` at its solution, written in the coordinates x = T x̃
     (x̃-rows: T⁻¹ on the R-side block, Tᵀ on the S-side block, w and z unchanged), floored at 1e-9 of the
     largest entry."""
-    n = T.shape[0]
+    n, T_inv = T.shape[0], np.linalg.inv(T)
     out = []
     for M in level.matrices:
-        W = scipy.linalg.block_diag(np.linalg.inv(T), T.T, np.eye(M.shape[0] - 2 * n))
+        W = scipy.linalg.block_diag(T_inv, T.T, np.eye(M.shape[0] - 2 * n))
         d = np.abs(np.diag(W @ M.value @ W.T))
         out.append(np.maximum(d, 1e-9 * d.max()))
     return out

@@ -162,3 +162,42 @@ def test_static_system_lpr_vs_static_arx():
     bfr_lpr = bfr(fresh.y, lpr.to_ss().simulate(fresh.u, fresh.p))[0]
     assert bfr_static > 99.99
     assert 50 < bfr_lpr < 80  # a real, measurable structural error, not a numerical one
+
+
+def test_several_records_are_one_problem_whose_lags_stay_inside_each_record():
+    """Records of different lengths, each starting from its own rest, at random seeds: the merged estimate
+    recovers the noise-free coefficients; gluing the same records into one dataset does not (the rows
+    whose lags reach back across the seam mix two experiments)."""
+    true = siso_lpr()
+    rng = np.random.default_rng(12)
+    for _ in range(3):
+        records = [data_from(true, int(n), int(seed)) for n, seed in zip(rng.integers(200, 600, size=3),
+                                                                         rng.integers(0, 10**6, size=3),
+                                                                         strict=True)]
+        merged = identify_arx(records, 2, 2, 1, "poly:2")
+        np.testing.assert_allclose(merged.A, true.A, atol=1e-8)
+        np.testing.assert_allclose(merged.B, true.B, atol=1e-8)
+        glued = Dataset(*(np.concatenate([getattr(r, name) for r in records]) for name in ("u", "y", "p")),
+                        true.Ts)
+        assert np.max(np.abs(identify_arx(glued, 2, 2, 1, "poly:2").A - true.A)) > 1e-6
+        assert merged.basis.p_min[0] == min(r.p.min() for r in records)
+        assert merged.basis.p_max[0] == max(r.p.max() for r in records)
+
+
+def test_one_record_in_a_list_is_that_record():
+    d = data_from(siso_lpr(), 400, 13, noise=0.05)
+    single, listed = identify_arx(d, 2, 2, 1, "poly:2"), identify_arx([d], 2, 2, 1, "poly:2")
+    np.testing.assert_array_equal(single.A, listed.A)
+    np.testing.assert_array_equal(single.B, listed.B)
+    np.testing.assert_array_equal(single.noise_cov, listed.noise_cov)
+
+
+def test_records_of_other_signals_or_too_short_are_data_errors():
+    d = data_from(siso_lpr(), 300, 14)
+    other_Ts = Dataset(d.u, d.y, d.p, 0.02)
+    with pytest.raises(DataError, match="differ in their signals or Ts"):
+        identify_arx([d, other_Ts], 2, 2, 1, "poly:2")
+    with pytest.raises(DataError, match="too few"):
+        identify_arx([data_from(siso_lpr(), 2, 15), d], 2, 2, 1, "poly:2")
+    with pytest.raises(DataError, match="too few"):
+        identify_arx([data_from(siso_lpr(), 8, s) for s in (16, 17)], 2, 2, 1, "poly:2")

@@ -5,6 +5,7 @@ bundled ADIP identification itself (experiment → identify → reduce → valid
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -90,6 +91,8 @@ def test_bundled_adip_identification_covers_75_degrees_and_passes_the_gate(tmp_p
     monkeypatch.chdir(repository_root())
     text = bundled_config("adip").read_text()
     text = text[: text.index("\n[synth]\n")]  # up to the [synth] table header
+    # round 0 only (no controller designed yet): the iterate keys and rounds = "all" removed
+    text = re.sub(r'^(iterate.*|rounds = "all")$', "", text, flags=re.M)
     text = text.replace('name = "adip"', f'name = "adip"\noutput_dir = "{tmp_path}"')
     (tmp_path / "adip.toml").write_text(text)
     summary = run_design(tmp_path / "adip.toml", log=lambda _: None)

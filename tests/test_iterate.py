@@ -7,9 +7,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from lpvflow import load
+from lpvflow.data import Dataset, read_columns
 from lpvflow.errors import DataError
+from lpvflow.identify.arx import identify_arx
 from lpvflow.pipeline.config import check_table
 from lpvflow.pipeline.design import run_design
 from tests.design_files import adip_identification
@@ -117,3 +121,47 @@ def test_iterate_needs_synth_and_an_excitation(adip, tmp_path):
     assert not (tmp_path / "iterated").exists()
     with pytest.raises(DataError, match=r"\[experiment\] iterate"):
         check_table("experiment", {"duration": 1.0, "iterate": -1}, "design.toml")
+
+
+def test_all_rounds_estimate_from_every_record_and_later_rounds_take_their_own_signals(adip, tmp_path):
+    """``[identify] rounds = "all"`` with ``iterate_excitation``: the final round records under the designed
+    controller with its own excitation (half the rms of round 0's), and its model is the least-squares
+    LPV-ARX of the estimation parts of both records as one problem (rebuilt here from the two data.csv)."""
+    path = write(tmp_path, adip, **{"iterate = 1\n": 'iterate = 1\niterate_excitation = { voltage = '
+                                    '"multisine:f_lo=0.05,f_hi=20,rms=0.05" }\n',
+                                    'p = ["sin_arm"]\n': 'p = ["sin_arm"]\nrounds = "all"\n'})
+    summary = run_design(path, log=lambda line: None)
+    assert summary["failed"] is None, summary["failed"]
+    folder = tmp_path / "iterated"
+    records = [read_columns(where / "data.csv") for where in (folder / "iteration_0", folder)]
+    rms = [float(np.sqrt(np.mean(r["voltage_excitation"] ** 2))) for r in records]
+    assert rms == [pytest.approx(0.1, rel=1e-3), pytest.approx(0.05, rel=1e-3)]
+    parts = [Dataset.from_columns(r, "data.csv", ["voltage"], ["arm_angle", "pendulum_angle"], ["sin_arm"],
+                                  time="auto").split(0.7)[0] for r in records]
+    assert summary["stages"]["identify"]["outputs"]["estimation_records"] == [part.N for part in parts]
+    expected = identify_arx(parts, 2, 2, 1, "affine").to_ss()
+    model = load(folder / "model_full.json")
+    for p in np.random.default_rng(18).uniform(model.basis.p_min, model.basis.p_max, size=(4, 1)):
+        for got, want in zip(model.matrices(p), expected.matrices(p), strict=True):
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+
+
+def test_keys_of_the_rounds_need_iterate_and_an_estimator_for_several_records(adip, tmp_path):
+    once = {"iterate = 1\n": "iterate = 0\n"}
+    for extra, what in (('iterate_setpoint = { arm_angle = "const:value=0.1" }\n', "iterate_setpoint"),
+                        ('iterate_excitation = { voltage = "const:value=0.1" }\n', "iterate_excitation")):
+        with pytest.raises(DataError, match=rf"\[experiment\] {what} applies to the rounds"):
+            run_design(write(tmp_path, adip, **{"iterate = 1\n": "iterate = 0\n" + extra}))
+    all_rounds = {'p = ["sin_arm"]\n': 'p = ["sin_arm"]\nrounds = "all"\n'}
+    with pytest.raises(DataError, match=r'\[identify\] rounds = "all" applies to the rounds'):
+        run_design(write(tmp_path, adip, **once, **all_rounds))
+    with pytest.raises(DataError, match="which method 'oe' does not; use \"lpr-arx\""):
+        run_design(write(tmp_path, adip, **all_rounds,
+                         **{'rounds = "all"\n': 'rounds = "all"\nmethod = "oe"\n'}))
+    with pytest.raises(DataError, match="with remove_offsets"):
+        run_design(write(tmp_path, adip, **all_rounds,
+                         **{'rounds = "all"\n': 'rounds = "all"\nremove_offsets = true\n'}))
+    with pytest.raises(DataError, match="is not an input of the plant FMU"):
+        run_design(write(tmp_path, adip, **{"iterate = 1\n": 'iterate = 1\niterate_excitation = '
+                                            '{ torque = "const:value=0.1" }\n'}))
+    assert not (tmp_path / "iterated").exists()

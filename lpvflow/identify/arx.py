@@ -15,10 +15,16 @@ Example 3.1). The least-squares problem min ‖Y − Φθ‖² (thesis (3.6)–(
 chunked Householder QR of [Φ | Y] (tall-skinny QR): the R factor of every block of rows is
 stacked on the next block, so memory stays at one chunk of regressor rows whatever N is, and the
 result equals the QR solution of the full problem. Optional ridge adds √λ·I rows.
+
+Several records of the same plant (e.g. the experiments of successive identification-for-control
+rounds) are one least-squares problem whose rows are each record's regressor rows: the lags never
+reach across from one record into another (Ljung, *System Identification*, 2nd ed., §14.3, "merging
+experiments").
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,38 +89,41 @@ def fill_regressor(out: np.ndarray, cols: list[RegressorColumn], y: np.ndarray, 
         np.multiply(sig, psi[t0 : t0 + (k1 - k0), col.psi], out=out[:, idx])
 
 
-def _tsqr(cols: list[RegressorColumn], outputs: list[int], data: Dataset, basis: Basis, first: int,
+def _tsqr(cols: list[RegressorColumn], outputs: list[int], records: Sequence[Dataset], basis: Basis,
           max_lag: int, shifted: bool, ridge: float) -> np.ndarray:
-    """Upper-triangular R of [Φ | Y_outputs] (with √ridge·I on top), accumulated chunk by chunk."""
+    """Upper-triangular R of [Φ | Y_outputs] (with √ridge·I on top), accumulated chunk by chunk over the
+    rows k ≥ max_lag of every record."""
     n, m = len(cols), len(cols) + len(outputs)
     R = np.zeros((0, m))
     if ridge > 0:
         R = np.zeros((n, m))
         R[:, :n] = np.sqrt(ridge) * np.eye(n)
     buf = np.empty((CHUNK_ROWS + m, m), order="F")
-    for k0 in range(first, data.N, CHUNK_ROWS):
-        k1 = min(k0 + CHUNK_ROWS, data.N)
-        rows = k1 - k0
-        w0 = k0 - max_lag
-        psi = basis.eval(data.p[w0:k1], check_range=False)
-        top = len(R)
-        buf[:top] = R
-        block = buf[top : top + rows]
-        fill_regressor(block[:, :n], cols, data.y, data.u, psi, k0, k1, w0, shifted)
-        block[:, n:] = data.y[k0:k1, outputs]
-        R = scipy.linalg.qr(buf[: top + rows], mode="r", overwrite_a=True, check_finite=False)[0][:m]
-        R = np.triu(R)
+    for data in records:
+        for k0 in range(max_lag, data.N, CHUNK_ROWS):
+            k1 = min(k0 + CHUNK_ROWS, data.N)
+            rows = k1 - k0
+            w0 = k0 - max_lag
+            psi = basis.eval(data.p[w0:k1], check_range=False)
+            top = len(R)
+            buf[:top] = R
+            block = buf[top : top + rows]
+            fill_regressor(block[:, :n], cols, data.y, data.u, psi, k0, k1, w0, shifted)
+            block[:, n:] = data.y[k0:k1, outputs]
+            R = scipy.linalg.qr(buf[: top + rows], mode="r", overwrite_a=True, check_finite=False)[0][:m]
+            R = np.triu(R)
     return R
 
 
 def identify_arx(
-    data: Dataset, na: int | np.ndarray, nb: int | np.ndarray, nk: int | np.ndarray,
+    data: Dataset | Sequence[Dataset], na: int | np.ndarray, nb: int | np.ndarray, nk: int | np.ndarray,
     basis: Basis | str = "affine", form: str = "shifted", ridge: float = 0.0,
 ) -> LPVIO:
-    """Least-squares LPV-ARX (LPR/shifted form by default) from one dataset.
+    """Least-squares LPV-ARX (LPR/shifted form by default) from one dataset or several records.
 
     Args:
-        data: the estimation data.
+        data: the estimation data, or several records with the same signals and Ts (one problem; the
+            lags stay inside each record, module docstring).
         na: lags of y_c in equation r, a whole number or an (ny, ny) matrix.
         nb, nk: number of input lags and input delay, whole numbers or (ny, nu) matrices.
         basis: a :class:`Basis` or a spec string (``affine``, ``poly:2``, ``spline:0.2,0.5``).
@@ -129,11 +138,18 @@ def identify_arx(
         raise DataError(f"form must be 'shifted' or 'static', got {form!r}")
     if not ridge >= 0:
         raise DataError(f"ridge must be >= 0, got {ridge}")
+    records = [data] if isinstance(data, Dataset) else list(data)
+    data = records[0]
+    for other in records[1:]:
+        if (other.u_names, other.y_names, other.p_names, other.Ts) != (data.u_names, data.y_names,
+                                                                      data.p_names, data.Ts):
+            raise DataError("the records differ in their signals or Ts; give records of the same signals "
+                            "sampled alike")
     ny, nu = data.y.shape[1], data.u.shape[1]
     basis = Basis.from_spec(basis, data.p.shape[1]) if isinstance(basis, str) else basis
     if basis.n_p != data.p.shape[1]:
         raise DataError(f"the basis is for {basis.n_p} scheduling signal(s), the data has {data.p.shape[1]}")
-    basis = basis.with_range(data.p)
+    basis = basis.with_range(np.concatenate([record.p for record in records]))
     na = order_matrix("na", na, (ny, ny), 0)
     nb = order_matrix("nb", nb, (ny, nu), 0)
     nk = order_matrix("nk", nk, (ny, nu), 0)
@@ -144,12 +160,17 @@ def identify_arx(
     n_max = max(len(c) for c in row_cols)
     if n_max == 0:
         raise DataError("the model has no parameters: raise na or nb")
-    data.require_samples(max_lag + n_max, f"{n_max} parameters per output with lags up to {max_lag}")
+    for record in records:
+        record.require_samples(max_lag, f"lags up to {max_lag}")
+    n_eff = sum(record.N - max_lag for record in records)
+    if n_eff <= n_max:
+        raise DataError(f"{n_eff} regressor rows are too few for {n_max} parameters per output with lags "
+                        f"up to {max_lag} (needs more than {n_max}): record longer data or lower the "
+                        "orders/basis degree")
 
     groups: dict[tuple, list[int]] = {}
     for r, cols in enumerate(row_cols):
         groups.setdefault(tuple(cols), []).append(r)
-    n_eff = data.N - max_lag
     A = np.zeros((na.max(initial=0), n_psi, ny, ny))
     B = np.zeros((max(int((nk + nb - 1).max(initial=0)), 0) + 1, n_psi, ny, nu))
     noise_cov = np.zeros((ny, ny))
@@ -157,7 +178,7 @@ def identify_arx(
     for cols_key, outputs in groups.items():
         cols = list(cols_key)
         n = len(cols)
-        R = _tsqr(cols, outputs, data, basis, max_lag, max_lag, shifted, ridge)
+        R = _tsqr(cols, outputs, records, basis, max_lag, shifted, ridge)
         Rp, Z, T = R[:n, :n], R[:n, n:], R[n:, n:]
         s = np.linalg.svd(Rp, compute_uv=False)
         if s[-1] <= RANK_TOL * s[0]:
@@ -182,7 +203,7 @@ def identify_arx(
     io = LPVIO(A, B, basis, data.Ts, form=form, na=na, nb=nb, nk=nk, u_names=data.u_names,
                y_names=data.y_names, p_names=data.p_names, param_cov=param_cov)
     if len(groups) > 1:  # cross-covariances between separately solved outputs: one-step residuals
-        e = prediction_residuals(io, data)
+        e = np.concatenate([prediction_residuals(io, record) for record in records])
         noise_cov = e.T @ e / len(e)
     io.noise_cov = noise_cov
     return io

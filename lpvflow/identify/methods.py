@@ -10,11 +10,14 @@ estimator: its module under :mod:`lpvflow.identify`, one entry here (and in :fun
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.identify.arx import identify_arx
+from lpvflow.identify.spline_sls import free_knot_count
 from lpvflow.lfr import LPVLFR
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import LPVSS
@@ -29,12 +32,15 @@ IO_METHODS = {
 SS_METHODS = ("pbsid", "cva", "kcca-lfr", "kcca-lfr-affine")
 METHODS = sorted([*IO_METHODS, *SS_METHODS])
 
+#: The methods that estimate from several records at once (:func:`lpvflow.identify.arx.identify_arx`).
+MULTI_RECORD_METHODS = ("lpr-arx", "static-arx")
+
 #: The methods whose model has a state-space realization (``[identify] method``): static-arx has none.
 STATE_SPACE_METHODS = tuple(m for m in METHODS if m != "static-arx")
 
 
 def estimate(
-    data: Dataset,
+    data: Dataset | Sequence[Dataset],
     method: str = "lpr-arx",
     na: int | np.ndarray = 2,
     nb: int | np.ndarray = 2,
@@ -52,9 +58,19 @@ def estimate(
     :class:`LPVLFR` for kcca-lfr[-affine]. ``excitation`` is the external excitation two-step needs (one
     value per sample), ``nc`` the armax noise order (default na), ``past`` the pbsid past window and
     ``order`` the state order of the state-space and LFR methods (default: their own choice; 2 for LFR).
+    Several records (a sequence of datasets) are one estimation problem for the methods in
+    :data:`MULTI_RECORD_METHODS`.
     """
     if method not in METHODS:
         raise DataError(f"method {method!r} is unknown; use one of {', '.join(METHODS)}")
+    if not isinstance(data, Dataset):
+        records = list(data)
+        if len(records) > 1 and (method not in MULTI_RECORD_METHODS or free_knot_count(basis) is not None):
+            raise DataError(f"method {method!r} estimates from one record; several records need "
+                            f"{' or '.join(MULTI_RECORD_METHODS)} with a fixed basis")
+        if len(records) > 1:
+            return identify_arx(records, na, nb, nk, basis, form=IO_METHODS[method][1], ridge=ridge)
+        data = records[0]
     if method in SS_METHODS:
         if method == "pbsid":
             from lpvflow.identify.pbsid import identify_pbsid
@@ -68,8 +84,6 @@ def estimate(
         from lpvflow.identify.kcca_lfr import identify_kcca_lfr
 
         return identify_kcca_lfr(data, order or 2, affine=method == "kcca-lfr-affine")
-    from lpvflow.identify.spline_sls import free_knot_count
-
     kind, form = IO_METHODS[method]
     n_knots = free_knot_count(basis)
     if kind == "two-step":

@@ -86,6 +86,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
                      "sensor white-noise standard deviation per plant output, ≥ 0"),
         "iterate": Key(0, integer(0), "identification for control: after synth, rerun experiment → synth "
                        "this many times with the just-designed controller as experiment controller"),
+        "iterate_setpoint": Key({}, mapping(signal_spec, '"SPEC"'),
+                                "set-points of the iterate rounds 1…N (default: setpoint)"),
+        "iterate_excitation": Key({}, mapping(signal_spec, '"SPEC"'),
+                                  "excitation of the iterate rounds 1…N (default: excitation)"),
     },
     "identify": {
         "u": Key(REQUIRED, names(), "input columns"),
@@ -111,6 +115,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                            "trim u_op(θ(k)) (the model's input is then u − u_op)"),
         "increments": Key([], names(empty=True), "outputs identified through their increments y(k) − y(k−1) "
                           "and integrated back in the model"),
+        "rounds": Key("last", string(("last", "all")), "with [experiment] iterate: estimate from the "
+                      "last round's record (last) or from the estimation parts of every round's (all)"),
     },
     "diagnose": {
         "adopt": Key(False, boolean, "let the diagnosed extension replace the identified model"),

@@ -4,6 +4,7 @@ offsets, the experiment controller's trim removed, outputs as increments."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -11,6 +12,10 @@ from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.pipeline.context import StageContext
+
+#: The ``[identify]`` entry the design adds for ``rounds = "all"`` (not a design-file key): the records of
+#: the earlier identification-for-control rounds, :func:`lpvflow.pipeline.design.earlier_record`.
+EARLIER_RECORDS = "earlier_records"
 
 
 def read_data(ctx: StageContext, model_signals: bool = False) -> tuple[Dataset, Dataset]:
@@ -23,6 +28,22 @@ def read_data(ctx: StageContext, model_signals: bool = False) -> tuple[Dataset, 
     if not cfg["remove_offsets"]:
         return est, val
     return without_offsets(est, est), without_offsets(val, est)
+
+
+def estimation_records(ctx: StageContext) -> list[Dataset]:
+    """The estimation data of the identify stage in the model's signals: this record's estimation part
+    (:func:`read_data`) after, with ``[identify] rounds = "all"``, the estimation part of every earlier
+    round's record (:data:`EARLIER_RECORDS`), each in the signals of :func:`model_coordinates` with the trim
+    of the controller it was recorded under. The records stay apart (one least-squares problem whose lags
+    never cross from one record into the next, :func:`lpvflow.identify.arx.identify_arx`)."""
+    cfg = ctx.config["identify"]
+    earlier = cfg[EARLIER_RECORDS] if EARLIER_RECORDS in cfg else []
+    records = []
+    for record in earlier:
+        view = StageContext(Path(record["data"]).parent,
+                            {"identify": cfg, "experiment": {"controller": record["controller"]}})
+        records.append(read_data(view, model_signals=True)[0])
+    return [*records, read_data(ctx, model_signals=True)[0]]
 
 
 def model_coordinates(ctx: StageContext, data: Dataset) -> Dataset:

@@ -32,12 +32,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lpvflow.errors import DataError, LpvflowError
+from lpvflow.experiment.plant import sha256_of
 from lpvflow.models import atomic_write_json, report_header
 from lpvflow.pipeline import cache, interrupt, stages
 from lpvflow.pipeline.adoption import StageFunction, adoption
 from lpvflow.pipeline.cli_paths import writable_folder
 from lpvflow.pipeline.config import INPUT_FILES, Config, load_config
-from lpvflow.pipeline.context import StageContext
+from lpvflow.pipeline.context import DATA_FILE, StageContext
+from lpvflow.pipeline.coordinates import EARLIER_RECORDS
 from lpvflow.pipeline.robustness import robustness
 from lpvflow.pipeline.settings import ALL, Reads, StageSettings, union
 
@@ -120,10 +122,27 @@ def run_design(config_path: str | Path, log: Callable[[str], None] = print, root
 def check_iterate(config: Config) -> None:
     """One DataError line when ``[experiment] iterate`` cannot run: the rounds need a ``[synth]`` table (the
     controller each round designs), and that controller drives the model inputs, so their signals must be
-    ``[experiment] excitation``, not open-loop ``inputs``."""
-    rounds = config["experiment"]["iterate"]
+    ``[experiment] excitation``, not open-loop ``inputs``; ``[identify] rounds = "all"`` estimates from
+    several records (:data:`~lpvflow.identify.methods.MULTI_RECORD_METHODS`) without offsets (one operating
+    point per record would be several models). The keys of the rounds need ``iterate``."""
+    from lpvflow.identify.methods import MULTI_RECORD_METHODS
+
+    experiment, identify = config["experiment"], config["identify"]
+    rounds = experiment["iterate"]
     if not rounds:
+        given = [f"[experiment] {key}" for key in ("iterate_setpoint", "iterate_excitation")
+                 if experiment[key]]
+        given += ['[identify] rounds = "all"'] if identify["rounds"] == "all" else []
+        if given:
+            raise DataError(f"{given[0]} applies to the rounds of [experiment] iterate, which is 0; set "
+                            "iterate or remove it")
         return
+    if identify["rounds"] == "all" and identify["method"] not in MULTI_RECORD_METHODS:
+        raise DataError(f'[identify] rounds = "all" estimates from several records, which method '
+                        f'{identify["method"]!r} does not; use "lpr-arx"')
+    if identify["rounds"] == "all" and identify["remove_offsets"]:
+        raise DataError('[identify] rounds = "all" with remove_offsets: each record has its own means; '
+                        "remove one of them")
     if config["synth"] is None:
         raise DataError(f"[experiment] iterate = {rounds} needs a [synth] table: each round runs the "
                         "experiment under the controller the round before designed")
@@ -152,21 +171,24 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
     summary: dict = report_header("design") | {"name": config["design"]["name"], "config": config_path,
                                                "stages": {}}
     controller, failed, rounds = config["experiment"]["controller"], None, []
+    earlier: list[dict] = []
     round_stages = tuple(stage for stage in STAGES if stage.name in ROUND_STAGES)
     for n in range(config["experiment"]["iterate"]):
         sub = folder / f"iteration_{n}"
         sub.mkdir(exist_ok=True)
         outcome: dict = {}
-        failed = _run_pass(round_stages, _round_config(config, controller), sub, outcome,
+        failed = _run_pass(round_stages, _round_config(config, controller, n, earlier), sub, outcome,
                            lambda line, n=n: log(f"iteration {n}: {line}"))
         rounds.append(_round_numbers(n, sub.name, controller, outcome))
         if failed:
             failed["stage"] = f"{failed['stage']} (iteration {n})"
             summary["stages"] = {name: _in_subfolder(record, sub.name) for name, record in outcome.items()}
             break
+        earlier.append(earlier_record(sub, controller))
         controller = str(sub / "controller.json")
     if failed is None:
-        failed = _run_pass(STAGES, _round_config(config, controller), folder, summary["stages"], log)
+        failed = _run_pass(STAGES, _round_config(config, controller, len(earlier), earlier), folder,
+                           summary["stages"], log)
         if rounds:
             rounds.append(_round_numbers(len(rounds), ".", controller, summary["stages"]))
     if rounds:
@@ -196,10 +218,29 @@ def _in_subfolder(record: dict, sub: str) -> dict:
     return record | {"artifacts": [f"{sub}/{artifact}" for artifact in record["artifacts"]]}
 
 
-def _round_config(config: Config, controller: str | None) -> Config:
-    """``config`` with ``controller`` as the ``[experiment] controller`` and ``iterate`` set to 0 in the
-    stages' view, so a round's cache keys do not depend on how many rounds follow it."""
-    return {**config, "experiment": {**config["experiment"], "controller": controller, "iterate": 0}}
+def _round_config(config: Config, controller: str | None, n: int, earlier: list[dict]) -> Config:
+    """``config`` as round ``n`` sees it: ``controller`` as the ``[experiment] controller``, from round 1 on
+    the ``iterate_setpoint`` / ``iterate_excitation`` (when given) as its set-points and excitation, and
+    ``iterate`` set to 0 in the stages' view, so a round's cache keys do not depend on how many rounds
+    follow it; with ``[identify] rounds = "all"`` the earlier rounds' records (:func:`earlier_record`) as
+    ``[identify]`` :data:`~lpvflow.pipeline.coordinates.EARLIER_RECORDS`."""
+    experiment = {**config["experiment"], "controller": controller, "iterate": 0}
+    if n > 0:
+        experiment |= {key: experiment[f"iterate_{key}"] or experiment[key]
+                       for key in ("setpoint", "excitation")}
+    identify = config["identify"]
+    if identify["rounds"] == "all":
+        identify = {**identify, EARLIER_RECORDS: list(earlier)}
+    return {**config, "experiment": experiment, "identify": identify}
+
+
+def earlier_record(sub: Path, controller: str | None) -> dict:
+    """A finished round's record for the rounds after it: its ``data.csv`` (path and SHA-256, so a stage
+    reading it reruns when it changes) and the experiment controller it was recorded under (whose trim
+    ``[identify] remove_trim`` takes out of it)."""
+    data = sub / DATA_FILE
+    return {"data": str(data), "sha256": sha256_of(data), "controller": controller,
+            "controller_sha256": sha256_of(controller) if controller else None}
 
 
 def _round_numbers(n: int, folder: str, controller: str | None, outcome: dict) -> dict:

@@ -30,7 +30,7 @@ from lpvflow.pipeline.antiwindup import antiwindup
 from lpvflow.pipeline.cli_identify import plot_fit
 from lpvflow.pipeline.context import DATA_FILE, StageContext
 from lpvflow.pipeline.controller_design import design_controller
-from lpvflow.pipeline.coordinates import read_data, without_offsets
+from lpvflow.pipeline.coordinates import estimation_records, read_data, without_offsets
 from lpvflow.pipeline.export import export_controller
 from lpvflow.pipeline.frozen_references import (
     fmu_reference,
@@ -74,13 +74,16 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     (``LPVIO.to_ss``), pbsid and cva as estimated, an LFR converted when its dependence is affine
     (kcca-lfr-affine). IO models get the one-step-ahead equation-error residuals on the validation part
     (BFR, Ljung–Box p-value, residuals.png); state-space models do not (their fit is the validate stage's).
-    Two-step takes the external excitation from the column ``[identify] excitation`` (default: the
+    With ``[identify] rounds = "all"`` the estimation data are every round's estimation part
+    (:func:`~lpvflow.pipeline.coordinates.estimation_records`). Two-step takes the external excitation
+    from the column ``[identify] excitation`` (default: the
     experiment's ``<input>_excitation`` column of the first input). The estimator sees the signals of
     :func:`model_coordinates` (the residuals are theirs: an output in ``increments`` has its increments'
     residuals); outputs in ``increments`` are integrated back into the saved model."""
     cfg = ctx.config["identify"]
     method = cfg["method"]  # the schema refuses static-arx: no state-space realization
     est, val = read_data(ctx, model_signals=True)
+    records = estimation_records(ctx)
     excitation = None
     if method == "two-step":
         column = cfg["excitation"] or f"{cfg['u'][0]}_excitation"
@@ -90,12 +93,14 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
                             "the data lack; set [identify] excitation to a column of data.csv")
         excitation = table[column][: est.N]
     try:
-        model = estimate(prefiltered(est, cfg["prefilter"]), method, cfg["na"], cfg["nb"], cfg["nk"],
-                         cfg["basis"], ridge=cfg["ridge"], nc=cfg["nc"], excitation=excitation,
-                         past=cfg["past"], order=cfg["order"])
+        model = estimate([prefiltered(record, cfg["prefilter"]) for record in records], method, cfg["na"],
+                         cfg["nb"], cfg["nk"], cfg["basis"], ridge=cfg["ridge"], nc=cfg["nc"],
+                         excitation=excitation, past=cfg["past"], order=cfg["order"])
     except LpvflowError as exc:
         raise DataError(f"[identify] method = {method!r}: {exc}") from None
     outputs: dict[str, Any] = {"method": method}
+    if len(records) > 1:
+        outputs["estimation_records"] = [record.N for record in records]
     artifacts = ["model_full.json"]
     if method in IO_METHODS:
         ss, units = model.to_ss(), fmu_units(ctx.config["design"]["plant"])

@@ -124,6 +124,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "grid": Key(7, integer(2), "frozen scheduling points checked"),
         "reference": Key("none", string(("none", "linearization", "local")), "frozen FMU reference"),
         "operating_point": Key({}, mapping(number(), "number"), "FMU start values for the linearization"),
+        "hold": Key({}, mapping(number(), "number"), "FMU outputs held at these values in the reference's "
+                    "equilibria (pins them when the plant has more inputs than scheduling signals)"),
         "scaling": Key("data", scaling, "signal scaling of the ν-gap: data, none or { signal = scale }"),
         "points": Key([], points, "frozen scheduling points checked instead of the grid"),
         "gate": Key(True, boolean, "stop the design after validate when the model fails the ν-gap test"),

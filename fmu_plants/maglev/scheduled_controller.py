@@ -20,7 +20,7 @@ curve), sample it with a zero-order hold at Ts = 2 ms and design an H∞ loop-sh
 (McFarlane & Glover 1990) in the scaling 0.1 A per coil, 2 mm per disk (the design's ``[validate]
 scaling``) with the weight W1 of ``lpvflow.synth.loop_shaping.integrator_lead_weight`` (integral action,
 lead at the crossover) normalized to cross 1 at 20 rad/s, central controller at 1.01·γ_opt. Its
-b(G, K) in that scaling is 0.14–0.18 on the gate points 7.5–8.6 cm (at 5 rad/s it would be 0.01).
+b(G, K) in that scaling is 0.14–0.19 on the gate points 7.5–8.6 cm (0.01–0.02 at a 5 rad/s crossover).
 
 The controller u = u*(y2) + K(y2)(y − ȳ) (K in positive feedback), ȳ = (1.5 cm, y2) with the upper disk's
 set-point in place of its entry, is written as ``lpvflow/gridded-controller`` JSON

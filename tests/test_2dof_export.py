@@ -196,7 +196,7 @@ def test_2dof_fmu_ports_are_references_measurements_and_scheduling_with_units(tm
                       ("pendulum_angle", "rad"), ("sin_arm", None)]
     outputs = [(v.name, v.unit) for v in description.modelVariables if v.causality == "output"]
     assert outputs == [("voltage", "V")]
-    assert "2-DOF, controller input w = [y_ref; y]" in description.description
+    assert "2-DOF, controller input w = [y_ref − y_op; y − y_op]" in description.description
     assert "piecewise over sin_arm with breakpoints b = [-0.6, 0, 0.6]" in description.description
     assert "u_eq(sin_arm)" in description.description
 

@@ -152,3 +152,30 @@ def test_bad_fmu_reference_inputs_raise_one_line(tanks, tmp_path):
         assert "\n" not in str(info.value)
         with pytest.raises(DataError, match="entries"):
             linearize(np.array([0.1, 0.2]))
+
+
+def test_held_outputs_pin_an_underdetermined_equilibrium():
+    """The maglev has two coil currents and one scheduling signal (the upper disk): the equilibrium at a
+    scheduling value is one of a curve. ``hold`` pins the lower disk; the currents are then the unique
+    holding currents of fmu_plants/reference_models.py (random points, seeded). Without it the search
+    leaves the lower disk elsewhere."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "fmu_plants"))
+    import reference_models as rm
+
+    params = rm.default_parameters("maglev")
+    start = {"lower_disk_position": 0.015, "upper_disk_position": 0.08, "lower_coil_current": 0.927,
+             "upper_coil_current": -0.045}
+    rng = np.random.default_rng(36)
+    fmu = built_fmu("maglev")
+    for upper, lower in zip(rng.uniform(0.074, 0.087, 3), rng.uniform(0.012, 0.018, 3), strict=True):
+        with FmuOperatingPoints(fmu, 0.002, ["upper_disk_position"], start=start,
+                                hold={"lower_disk_position": lower}) as held:
+            point = held.equilibrium(np.array([upper]))
+        np.testing.assert_allclose(point.x[:2], [lower, upper], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(point.u, rm.maglev_equilibrium_currents(lower, upper, params), rtol=1e-6)
+    with FmuOperatingPoints(fmu, 0.002, ["upper_disk_position"], start=start) as free:
+        assert abs(free.equilibrium(np.array([0.075])).x[0] - 0.015) > 0.003
+    with pytest.raises(DataError, match="held outputs lower_disk_speed are not outputs"):
+        FmuOperatingPoints(fmu, 0.002, ["upper_disk_position"], hold={"lower_disk_speed": 0.0})

@@ -76,11 +76,14 @@ def _margin_on_grid(G: control.StateSpace, K: tuple[np.ndarray, ...], W1: contro
     return 1.0 / worst
 
 
-@pytest.mark.parametrize("seed", [None, 3])
-def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, seed):
+@pytest.mark.parametrize(("seed", "integral_ratio"), [(None, None), (3, None), (5, 1.5)])
+def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, seed, integral_ratio):
+    """integral_ratio: W1's integral corner at crossover/ratio (default 10), which the Riccati optimum
+    computed here with the same W1 must then match."""
     model = two_state_plant() if seed is None else _random_plant(seed)
     model.save(tmp_path / "model.json")
-    (tmp_path / "design.toml").write_text(DESIGN)
+    given = "" if integral_ratio is None else f"integral_ratio = {integral_ratio}\n"
+    (tmp_path / "design.toml").write_text(DESIGN + given)
     out = tmp_path / "K.json"
     # exit 1 only when the frozen check between breakpoints fails; the controller is written either way
     rc = main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
@@ -89,7 +92,7 @@ def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, see
     info = json.loads(out.read_text())["info"]
     gammas, lmi_gammas = info["vertex_gammas"], info["lmi_gammas"]
     assert controller.info["method"] == "loop-shaping" and controller.info["crossover"] == CROSSOVER
-    W1 = integrator_lead_weight(model.Ts, CROSSOVER)
+    W1 = integrator_lead_weight(model.Ts, CROSSOVER, integral_ratio=integral_ratio or 10.0)
     for i, p in enumerate(BREAKPOINTS):
         G = model.frozen(np.array([p]))
         W1_i = crossover_normalized(G, W1, CROSSOVER)

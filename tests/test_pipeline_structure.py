@@ -454,3 +454,56 @@ def test_the_model_in_the_loop_reproduces_an_lti_experiment_with_set_points(tmp_
     y_sim = closed_loop_simulation(model, data, StageContext(tmp_path, config))
     assert np.ptp(data.y) > 0.3
     np.testing.assert_allclose(y_sim, data.y, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [3, 7])
+def test_the_model_in_the_loop_with_offsets_feeds_the_controller_plant_coordinates(tmp_path, seed):
+    """With ``remove_offsets`` the model works in deviations from the estimation data's means (u₀, y₀);
+    in the validate stage's closed-loop simulation the controller must read y₀ + y_model (its operating
+    point y_op is in plant units) and the model get u − u₀. Compared with the same loop written out here;
+    the loop with the controller reading the deviations differs (the check can fail)."""
+
+    from lpvflow.experiment import LtiController, run_experiment
+    from lpvflow.experiment.record import write_record
+    from lpvflow.pipeline.coordinates import read_data
+    from lpvflow.pipeline.model_loop import closed_loop_simulation
+    from tests.test_experiment_run import StateSpacePlant, stabilising_controller, unstable_plant
+
+    G = unstable_plant()
+    rng = np.random.default_rng(seed)
+    y_op, u_op = rng.uniform(1.0, 2.0, 1), rng.uniform(-0.5, 0.5, 1)
+    K = LtiController.from_statespace(stabilising_controller(), y_op=y_op, u_op=u_op)
+    path = tmp_path / "K.json"
+    path.write_text(json.dumps(K.to_dict()))
+    record = run_experiment(StateSpacePlant(G, u0=[0.0, 0.0]), G.dt, 3.0, controller=K,
+                            excitation={"u0": "multisine:f_lo=1,f_hi=10,rms=0.1"},
+                            scheduling_columns={"p": "y0"}, seed=seed, progress=False)
+    write_record(record, tmp_path / "data.csv")
+    zero = np.zeros((G.nstates, G.nstates))
+    model = LPVSS(np.stack([G.A, zero]), np.stack([G.B, 0 * G.B]), np.stack([G.C, 0 * G.C]),
+                  np.zeros((2, 1, 2)), Basis("affine", 1, p_min=(-1.0,), p_max=(3.0,)), G.dt,
+                  u_names=["u0", "u1"], y_names=["y0"], p_names=["p"])
+    config = {"experiment": {"controller": str(path), "scheduling": {"p": "y0"}},
+              "identify": {"u": ["u0", "u1"], "y": ["y0"], "p": ["p"], "split": 0.7, "remove_offsets": True,
+                           "remove_trim": False, "increments": []}}
+    ctx = StageContext(tmp_path, config)
+    val = read_data(ctx)[1]
+    y_sim = closed_loop_simulation(model, val, ctx)
+    offsets = read_data(ctx, model_signals=True)[0].offsets
+    u0, y0 = np.array(offsets["u"]), np.array(offsets["y"])
+    excitation = ctx.columns()["u0_excitation"][-val.N:]
+
+    def loop(read_offset: np.ndarray) -> np.ndarray:
+        x, xc, out = np.zeros(G.nstates), np.zeros(K.A.shape[0]), []
+        for e in excitation:
+            y = G.C @ x
+            out.append(y.copy())
+            dy = read_offset + y - K.y_op
+            u = np.array([(K.u_op + K.C @ xc + K.D @ dy)[0] + e, 0.0])
+            xc = K.A @ xc + K.B @ dy
+            x = G.A @ x + G.B @ (u - u0)
+        return np.array(out)
+
+    assert abs(y0[0]) > 0.1  # the data are not centred on 0
+    np.testing.assert_allclose(y_sim, loop(y0), atol=1e-9)
+    assert np.max(np.abs(loop(np.zeros(1)) - loop(y0))) > 0.1

@@ -32,8 +32,9 @@ A :class:`~lpvflow.experiment.synthesized.SynthesizedController` (an ``lpvflow/l
 ``lpvflow synth`` or the design pipeline, wired by its ``info["signals"]``) runs the law of
 :mod:`lpvflow.pipeline.verify` (its module docstring): the set-points of the outputs it reads are its
 references r (the outputs' operating points where none is given; multisine, prbs and triangle centred
-on them), w = r − y (1-DOF) or [r; y] (2-DOF), the scheduling p(k) its expressions of the measured plant
-outputs, and u_K(k) = u_op + u_eq(p) + C(p) xc + D(p) w (clipped to its anti-windup range) + r_e(k)
+on them), w = r − y (1-DOF) or [r − y_op; y − y_op] (2-DOF, y_op the outputs' operating points), the
+scheduling p(k) its expressions of the measured plant outputs, and
+u_K(k) = u_op + u_eq(p) + C(p) xc + D(p) w (clipped to its anti-windup range) + r_e(k)
 with the excitation r_e recorded as ``<input>_excitation``, the set-points as ``<output>_setpoint``.
 
 Every kind runs through the closed-loop engine (:func:`lpvflow.loop.engine.close_loop`) as a

@@ -9,8 +9,8 @@ scheduling signals (``scheduling``, each an expression of plant outputs, e.g. ``
 law is the one :mod:`lpvflow.pipeline.verify` runs:
 
     p(k) = the scheduling expressions of the measured plant outputs y_m(k),
-    w(k) = r(k) − y(k) (``"1dof"``) or [r(k); y(k)] (``"2dof"``), y the outputs read, r their set-points
-           (y_op where none is given),
+    w(k) = r(k) − y(k) (``"1dof"``) or [r(k) − y_op; y(k) − y_op] (``"2dof"``), y the outputs read, r
+           their set-points (y_op where none is given) (:meth:`LPVController.input_of`),
     v(k) = u_eq(p(k)) + C(λ) x(k) + D(λ) w(k)   (:meth:`LPVController.step`, which advances x),
     u(k) = u_op + v_a(k) + e(k),
 

@@ -19,8 +19,9 @@ class FmuController:
     Inputs are told apart by their description: ``scheduling …`` are p, ``measured …`` the outputs y and
     the others (``reference …``) the references r, in modelDescription order. The FMU reads r and y on
     separate ports whatever the structure of the controller inside (a 1-DOF one forms r − y itself), so
-    the loop hands it w = [r; y] (``structure = "2dof"``): per sample r(k), y(k) and p(k) are set, u(k)
-    read, then ``fmi2DoStep(t_k, Ts)``. An FMU without measured ports (written before they existed) reads
+    the loop hands it w = [r; y] (``structure = "2dof"``) in plant units (a 2-DOF controller inside takes
+    its operating point off both itself): per sample r(k), y(k) and p(k) are set, u(k) read, then
+    ``fmi2DoStep(t_k, Ts)``. An FMU without measured ports (written before they existed) reads
     e = r − y on its reference ports (``structure = "1dof"``). The FMU's outputs include its operating
     point and trim feed-forward, so ``u_offset`` is zero and the loop adds no operating point of its own.
     The FMU does not record the scheduling box it was designed on (``design_box`` None).
@@ -63,6 +64,10 @@ class FmuController:
         self._slave.enterInitializationMode()
         self._slave.exitInitializationMode()
         self._time = 0.0
+
+    def input_of(self, r: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """w = [r; y] for an FMU with measured ports, else e = r − y (class docstring)."""
+        return np.concatenate([r, y]) if self.structure == "2dof" else r - y
 
     def step(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
         """u(k) for the input w(k) ([r; y], or e for an FMU without measured ports) at p(k); then one step."""

@@ -17,7 +17,8 @@ Adapters (:func:`as_loop_controller`): an ``lpvflow/lti-controller`` (:class:`Lt
 D (y − ȳ), xc⁺ = A xc + B (y − ȳ), ȳ = r, y_op where r is NaN), a gridded controller (:class:`GriddedLaw`:
 the same at θ = its scheduling expression of the measurements and set-points, matrices and operating
 points interpolated in θ) and a synthesized LPV controller wired by its port record
-(:class:`SynthesizedLaw`: u = u_op + u_eq(p) + K(p) w with w = r − y or [r; y], anti-windup applied).
+(:class:`SynthesizedLaw`: u = u_op + u_eq(p) + K(p) w with w = r − y or [r − y_op; y − y_op], anti-windup
+applied).
 """
 
 from __future__ import annotations

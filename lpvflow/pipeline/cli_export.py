@@ -12,7 +12,7 @@ from lpvflow.pipeline.export import FORMATS, export_controller, load_lpv_control
 def run(args: argparse.Namespace) -> int:
     controller = load_lpv_controller(args.controller)
     path = export_controller(controller, Path(args.output), args.format)
-    inputs = "[r; y]" if controller.structure == "2dof" else "r − y"
+    inputs = "[r − y_op; y − y_op]" if controller.structure == "2dof" else "r − y"
     trim = ", trim feed-forward" if controller.trim is not None else ""
     print(
         f"wrote {path} ({args.format}: {controller.structure}, {controller.order} states, {controller.n_in} "
@@ -25,7 +25,8 @@ def run(args: argparse.Namespace) -> int:
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = (
         "fmu: inputs <output>_ref and <output> per measured output and the scheduling signals by name "
-        "(the same ports for a 1-DOF controller, which forms r − y, and a 2-DOF one, which reads [r; y]), "
+        "(the same ports for a 1-DOF controller, which forms r − y, and a 2-DOF one, which reads "
+        "[r − y_op; y − y_op]), "
         "outputs the actuated inputs by name (with their operating point and trim feed-forward u_eq(p)), "
         "units and descriptions, step = Ts, binary and sources inside, validated with fmpy; mat: Ak (n,n,N), "
         "Bk, Ck, Dk, psi_vertices, polytope, breakpoints, interpolation rule, basis, Ts, structure, trim_p, "

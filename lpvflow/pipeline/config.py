@@ -130,6 +130,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "grid": Key(7, integer(2), "frozen scheduling points checked"),
         "reference": Key("none", string(("none", "linearization", "local")), "frozen FMU reference"),
         "operating_point": Key({}, mapping(number(), "number"), "FMU start values for the linearization"),
+        "hold": Key({}, mapping(number(), "number"), "FMU outputs held at these values in the reference's "
+                    "equilibria (pins them when the plant has more inputs than scheduling signals)"),
         "scaling": Key("data", scaling, "signal scaling of the ν-gap: data, none or { signal = scale }"),
         "points": Key([], points, "frozen scheduling points checked instead of the grid"),
         "gate": Key(True, boolean, "stop the design after validate when the model fails the ν-gap test"),
@@ -141,6 +143,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),
         "crossover": Key(None, number(0.0, open_low=True),
                          "loop-shaping: crossover of the shaped loop, rad/s (default: π/(20·Ts))"),
+        "integral_ratio": Key(10.0, number(0.0, open_low=True),
+                              "loop-shaping: crossover / integral corner of W1 (> 0)"),
         "scaling": Key(None, mapping(number(0.0, open_low=True), "scale > 0"),
                        "loop-shaping: { signal = scale } for every model input and output: the loop is "
                        "shaped in D_y⁻¹·G·D_u (default: none)"),

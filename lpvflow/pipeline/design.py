@@ -76,7 +76,7 @@ DIAGNOSE = Stage("diagnose", stages.diagnose, ("diagnose", "identify"),
                   "experiment": ("controller", "scheduling")}, ("identify",), _CONTROLLER)
 REDUCE = Stage("reduce", stages.reduce_model, ("reduce",), {"reduce": ALL}, ("identify", "diagnose"))
 VALIDATE = Stage("validate", stages.validate, ("validate", "identify", "experiment"),
-                 {"validate": ALL, "identify": _SIGNALS,
+                 {"validate": ALL, "identify": (*_SIGNALS, "increments"),
                   "experiment": ("controller", "scheduling", "parameters"), "design": ("plant",)},
                  ("reduce",), _PLANT + _CONTROLLER)
 SYNTH = Stage("synth", stages.synth, ("synth",),

@@ -11,7 +11,9 @@ Controllers without that record get ``y1``, ``p1``, ``u1``….
 FMU (:func:`export_fmu`): fixed communication step = the controller's Ts. The ports are the same for
 both controller structures (:mod:`lpvflow.synth.controller`); the C engine
 (``controller_fmu/controller_fmu.c``) forms the controller input w = y_ref − y (``"1dof"``) or
-w = [y_ref; y] (``"2dof"``), evaluates the convex coordinates λ(p) of the design polytope exactly as
+w = [y_ref − y_op; y − y_op] (``"2dof"``, y_op the measured outputs' operating point, as
+:meth:`lpvflow.synth.controller.LPVController.input_of`), evaluates the convex coordinates λ(p) of
+the design polytope exactly as
 :meth:`lpvflow.synth.polytope.Polytope.coordinates_at` (of ψ(p), or the hat functions of the first
 scheduling signal for a ``"piecewise"`` polytope; the rule is spelled out in the FMU's description,
 :func:`interpolation_rule`), and
@@ -34,8 +36,9 @@ unless term-box), ``basis`` (struct: kind, n_p, degree, cross, exponents (n_psi,
 term_names, p_min, p_max), ``Ts``; per role (``measured``, ``reference``, ``scheduling``,
 ``actuated``) the cell arrays ``<role>_names``, ``<role>_units``, ``<role>_descriptions``, and
 ``scheduling_expressions``, ``y_operating_point``, ``u_operating_point`` (the operating point added to
-u), ``structure`` (``"1dof"``: the controller input is reference − measured; ``"2dof"``: [reference;
-measured], in the order of ``reference_names`` then ``measured_names``), ``trim_p`` (M,) and ``trim_u``
+u), ``structure`` (``"1dof"``: the controller input is reference − measured; ``"2dof"``: [reference −
+y_operating_point; measured − y_operating_point], in the order of ``reference_names`` then
+``measured_names``), ``trim_p`` (M,) and ``trim_u``
 (M, nu) (the trim table, u_eq(p) = interp1(trim_p, trim_u, clamp(p_1)); empty without one),
 ``breakpoints`` (N, piecewise only, else empty), and ``format``/``version``; with anti-windup
 (:mod:`lpvflow.synth.controller`) also ``antiwindup_L``
@@ -407,7 +410,8 @@ def _model_description(
             f"      {real}\n    </ScalarVariable>"
         )
     template = Template((TEMPLATE_DIR / "modelDescription.xml.in").read_text())
-    law = ("2-DOF, controller input w = [y_ref; y]" if controller.structure == "2dof"
+    law = ("2-DOF, controller input w = [y_ref − y_op; y − y_op] (y_op the start values of y)"
+           if controller.structure == "2dof"
            else "1-DOF, controller input w = y_ref − y")
     trim = trim_rule(controller, signals)
     description = (

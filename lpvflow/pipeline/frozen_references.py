@@ -91,7 +91,9 @@ def fmu_reference(ctx: StageContext, model: LPVSS):
 
     Scheduling expressions: the experiment's definition of each model scheduling column (e.g.
     ``sin_arm = "sin(arm_angle)"``), else the column name itself (a plant signal). The FMU gets the
-    experiment's parameters except the measurement-noise effect (finite differences need exact outputs)."""
+    experiment's parameters except the measurement-noise effect (finite differences need exact outputs).
+    ``[validate] hold`` pins outputs at given values in the equilibria (more inputs than scheduling
+    signals leave them free otherwise)."""
     cfg = ctx.config["validate"]
     kind = cfg["reference"]
     if kind == "none":
@@ -104,7 +106,7 @@ def fmu_reference(ctx: StageContext, model: LPVSS):
     parameters = {name: value for name, value in ctx.config["experiment"]["parameters"].items()
                   if not name.startswith("effect_noise")}
     reference = classes[kind](ctx.config["design"]["plant"], model.Ts, expressions,
-                              start=cfg["operating_point"], parameters=parameters)
+                              start=cfg["operating_point"], parameters=parameters, hold=cfg["hold"])
     try:
         return SelectedChannels(reference, model.u_names, model.y_names)
     except DataError as exc:

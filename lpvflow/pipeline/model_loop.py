@@ -17,6 +17,7 @@ from lpvflow.loop.engine import ModelPlant, close_loop
 from lpvflow.loop.protocol import as_loop_controller
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.context import StageContext
+from lpvflow.pipeline.coordinates import read_data
 
 
 def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np.ndarray:
@@ -30,9 +31,11 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     (``<output>_setpoint``) and excitation (``<input>_excitation``); so does an LPV controller
     (:class:`~lpvflow.experiment.synthesized.SynthesizedController`: references from the recorded set-points,
     else its operating points, scheduling from the simulated outputs). With ``[identify] remove_trim`` the
-    model's input is the controller's output without its trim u_op (:func:`model_coordinates`). The
-    loop is :func:`lpvflow.loop.engine.close_loop` with the model as the plant
-    (:class:`lpvflow.loop.engine.ModelPlant`) and the controller's protocol object
+    model's input is the controller's output without its trim u_op (:func:`model_coordinates`). With
+    ``[identify] remove_offsets`` the model works in deviations from the estimation data's means (u₀, y₀)
+    (``data.offsets``): the controller and the scheduling read y₀ + y_model, the model gets u − u₀, and
+    the deviations are returned (as ``data.y``). The loop is :func:`lpvflow.loop.engine.close_loop` with
+    the model as the plant (:class:`lpvflow.loop.engine.ModelPlant`) and the controller's protocol object
     (:func:`lpvflow.loop.protocol.as_loop_controller`).
     """
     cfg = ctx.config["experiment"]
@@ -56,7 +59,8 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
                                   for name in K.inputs])
     expressions = [scheduling_expression(name, cfg["scheduling"], data.y_names) for name in data.p_names]
     expressions = [compile_expression(expression, data.y_names) for expression in expressions]
-    plant = ModelPlant(model, lambda y: np.array([value_of(y) for value_of in expressions]), data.p[0])
+    u0, y0 = model_offsets(ctx, model) if data.offsets else (np.zeros(model.nu), np.zeros(model.ny))
+    plant = ModelPlant(model, lambda y: np.array([value_of(y0 + y) for value_of in expressions]), data.p[0])
     u_index = [data.u_names.index(name) for name in K.outputs]
     with_trim = not ctx.config["identify"]["remove_trim"]
     y_sim = np.zeros_like(data.y)
@@ -64,18 +68,26 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     def actuate(k: int, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
         u = np.zeros(model.nu)
         u[u_index] = u_c + excitation[k] - (0.0 if with_trim else K.trim(p))
-        return u
+        return u - u0
 
     def record(k: int, y: np.ndarray, p: np.ndarray, u_c: np.ndarray, u: np.ndarray) -> None:
-        y_sim[k] = y
+        y_sim[k] = y - y0
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        failure = close_loop(K, plant, data.N, references, actuate=actuate, record=record)
+        failure = close_loop(K, plant, data.N, references, measure=lambda k, y: y0 + y, actuate=actuate,
+                             record=record)
     if failure:
         raise DataError(f"the identified model's closed loop {failure}: it does not describe the plant "
                         "under the identification controller")
     return y_sim
+
+
+def model_offsets(ctx: StageContext, model: LPVSS) -> tuple[np.ndarray, np.ndarray]:
+    """(u₀, y₀): the means of the estimation data in the signals the model is identified in
+    (:func:`lpvflow.pipeline.coordinates.read_data`), which ``[identify] remove_offsets`` took off."""
+    offsets = read_data(ctx, model_signals=True)[0].offsets
+    return np.asarray(offsets["u"], dtype=float), np.asarray(offsets["y"], dtype=float)
 
 
 def check_wiring(K, u_names: list[str], y_names: list[str], where: str) -> None:

@@ -89,6 +89,7 @@ def check_signals(config: Mapping[str, Any], description: Any) -> None:
 def _check_validate(validate: Mapping[str, Any], identify: Mapping[str, Any], variables: list[str]) -> None:
     _unknown("[validate] operating_point", validate["operating_point"], variables,
              "a variable of the plant FMU")
+    _unknown("[validate] hold", validate["hold"], variables, "a variable of the plant FMU")
     if isinstance(validate["scaling"], dict):
         signals = [*identify["u"], *identify["y"]]
         _unknown("[validate] scaling", validate["scaling"], signals, "a model input or output")

@@ -266,6 +266,8 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     centre = scheduling_box(model, cfg["box"]).mean(axis=1).tolist()
     at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre
     baseline = synthesize_design(model, cfg, box=[[v, v] for v in at])
+    # the same port record: a 2-DOF baseline reads r and y relative to the same operating point
+    baseline.controller.info["signals"] = design.controller.info["signals"]
     baseline.controller.antiwindup = antiwindup(baseline.controller, loop, design.controller.info["signals"])
     baseline.controller.save(ctx.path("baseline.json"))
     return ({"method": cfg["method"], "structure": cfg["structure"], "gamma": design.gamma,

@@ -6,7 +6,8 @@ and the scenario file are described in :mod:`lpvflow.pipeline.scenarios`. Sampli
 experiment runner): read y(k) at t_k, form u(k), hold it from t_k to t_k + Ts.
 
 Controllers: an :class:`~lpvflow.synth.controller.LPVController` (u = u_eq(p) + K(p) w with w = r − y
-for ``structure = "1dof"``, w = [r; y] for ``"2dof"``, u_eq the controller's trim feed-forward); a discrete
+for ``structure = "1dof"``, w = [r − y_op; y − y_op] for ``"2dof"``, y_op its recorded operating point of
+the measured outputs, u_eq the controller's trim feed-forward); a discrete
 ``control.StateSpace`` (1-DOF, no scheduling); an ``lpvflow/lti-controller`` file
 (:class:`~lpvflow.experiment.controller.LtiController`, 1-DOF), run with its own operating input u_op and
 its y_op replaced by the reference: u = u_op + C xc + D (y − r), xc⁺ = A xc + B (y − r); or an exported
@@ -73,6 +74,10 @@ class _FixedLaw:
     def reset(self) -> None:
         self.x = np.zeros(self.A.shape[0])
 
+    def input_of(self, r: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """e = r − y."""
+        return r - y
+
     def step(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
         w = self.sign * e
         u = self.C @ self.x + self.D @ w
@@ -90,7 +95,8 @@ Baseline = LPVController | control.StateSpace | LtiController | FmuController
 
 def _law(controller: Baseline, loop: Loop) -> LPVController | _FixedLaw | FmuController:
     """The controller as an object with Ts, n_in, n_out, structure, n_p (None: not scheduled), design_box
-    (None: none recorded), reset(), step(w, p) -> u − u_op and feedforward(p) (the trim u_eq(p))."""
+    (None: none recorded), reset(), input_of(r, y) -> w, step(w, p) -> u − u_op and feedforward(p) (the
+    trim u_eq(p))."""
     if isinstance(controller, LPVController | FmuController):
         return controller
     if isinstance(controller, control.StateSpace):
@@ -229,7 +235,9 @@ def plant_parameters(plant_fmu: str | Path, loop: Loop, scenario: Scenario) -> d
 class _LoopLaw:
     """A verified controller in the loop protocol (:mod:`lpvflow.loop.protocol`): it reads the loop's
     ``measured`` outputs, drives its ``actuated`` inputs, is scheduled by the loop's expressions of the
-    plant signals and commands u = u_op + law(w, p), w = [r; y] for a 2-DOF input, r − y otherwise."""
+    plant signals and commands u = u_op + law(w, p), w = law.input_of(r, y) (r − y for a 1-DOF input,
+    [r − y_op; y − y_op] for a 2-DOF LPV controller, [r; y] for a controller FMU, which subtracts its
+    operating point itself)."""
 
     def __init__(self, law: LPVController | _FixedLaw | FmuController, loop: Loop, u_op: np.ndarray) -> None:
         self.law, self.Ts, self.u_op = law, law.Ts, u_op
@@ -244,8 +252,7 @@ class _LoopLaw:
         self.law.reset()
 
     def step(self, r: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray:
-        w = np.concatenate([r, y]) if self.law.structure == "2dof" else r - y
-        return self.u_op + self.law.step(w, p)
+        return self.u_op + self.law.step(self.law.input_of(r, y), p)
 
     def trim(self, p: np.ndarray) -> np.ndarray:
         return self.u_op + self.law.feedforward(p)

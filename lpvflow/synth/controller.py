@@ -9,8 +9,11 @@
 controller input, by :attr:`LPVController.structure`:
 
 * ``"1dof"``: w = e = r − y (ny inputs), the tracking error of the measured outputs;
-* ``"2dof"``: w = [r; y] (2·ny inputs), the references (one per measured output, in the measured
-  outputs' order), then the measurements.
+* ``"2dof"``: w = [r − y_op; y − y_op] (2·ny inputs), the references (one per measured output, in the
+  measured outputs' order), then the measurements, both relative to the measured outputs' operating
+  point y_op (:attr:`LPVController.y_operating_point`): the controller was designed on a model in
+  deviations from it, so the operating point itself does not enter as a step. (1-DOF: r − y is the same
+  either way.)
 
 u_eq(p) is the optional trim feed-forward (:class:`Trim`; zero without one): per input the linear
 interpolation of a table over the first scheduling signal, clamped at its ends. Saved as JSON with
@@ -140,8 +143,8 @@ def mix(K_vertices: Sequence[tuple[np.ndarray, ...]], lam: Sequence[float]) -> t
 class LPVController:
     """Vertex matrices Ak (N, n, n), Bk (N, n, nw), Ck (N, nu, n), Dk (N, nu, nw) on a polytope.
 
-    ``structure`` is ``"1dof"`` (w = r − y, nw = ny) or ``"2dof"`` (w = [r; y], nw = 2·ny); ``trim`` the
-    optional feed-forward u_eq(p) added to the output (module docstring).
+    ``structure`` is ``"1dof"`` (w = r − y, nw = ny) or ``"2dof"`` (w = [r − y_op; y − y_op],
+    nw = 2·ny); ``trim`` the optional feed-forward u_eq(p) added to the output (module docstring).
     """
 
     Ak: np.ndarray
@@ -207,11 +210,23 @@ class LPVController:
         """ny, the number of measured outputs (and of references) the controller reads."""
         return self.n_in // 2 if self.structure == "2dof" else self.n_in
 
+    @property
+    def y_operating_point(self) -> np.ndarray:
+        """(ny,) y_op, the measured outputs' operating points of the port record ``info["signals"]``
+        (:mod:`lpvflow.pipeline.ports`; zero without one)."""
+        measured = (self.info.get("signals") or {}).get("measured") or []
+        if len(measured) != self.n_measured:
+            return np.zeros(self.n_measured)
+        return np.array([float(port.get("operating_point", 0.0)) for port in measured])
+
     def input_of(self, r: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """The controller input w from references r (ny,) and measurements y (ny,): r − y (1dof) or
-        [r; y] (2dof)."""
+        """The controller input w from references r (ny,) and measurements y (ny,), both in plant units:
+        r − y (1dof) or [r − y_op; y − y_op] (2dof, :attr:`y_operating_point`)."""
         r, y = (np.asarray(v, dtype=float).reshape(self.n_measured) for v in (r, y))
-        return np.concatenate([r, y]) if self.structure == "2dof" else r - y
+        if self.structure != "2dof":
+            return r - y
+        y_op = self.y_operating_point
+        return np.concatenate([r - y_op, y - y_op])
 
     def feedforward(self, p: np.ndarray) -> np.ndarray:
         """u_eq(p) (:class:`Trim`), zero without a trim table."""

@@ -6,7 +6,8 @@ At every vertex i with frozen model G_i, in the signal scaling of ``scaling`` (D
 b that the robustness stage compares with the ν-gap):
 
 * W1_i = W1/σ_max(G_i W1)(e^{jω_c Ts}), W1 the integrator-plus-lead weight of
-  :func:`lpvflow.synth.loop_shaping.integrator_lead_weight` at the crossover ω_c = ``crossover``
+  :func:`lpvflow.synth.loop_shaping.integrator_lead_weight` at the crossover ω_c = ``crossover``, its
+  integral corner at ω_c/``integral_ratio`` (default 10)
   (:func:`lpvflow.synth.loop_shaping.crossover_normalized`), W2 = I (in the scaled signals);
 * K∞_i the central controller of the shaped plant Gs_i = G_i·W1_i at γ_i = 1.01·γ_opt(Gs_i)
   (:func:`lpvflow.synth.loop_shaping.central_ncf_controller`: the two NCF Riccati solutions X_i, Z_i of
@@ -70,6 +71,8 @@ FROZEN_PER_SEGMENT = 11
 MARGIN_FACTOR = 1.1
 #: Default crossover as a fraction of the Nyquist frequency π/Ts.
 DEFAULT_CROSSOVER_FRACTION = 0.05
+#: Default ratio crossover / integral corner of W1 (``[synth] integral_ratio``).
+DEFAULT_INTEGRAL_RATIO = 10.0
 #: The central controllers' level γ_i = GAMMA_FACTOR·γ_opt(Gs_i).
 GAMMA_FACTOR = 1.01
 #: Relative residual below which a reference channel's steady state is reachable (reference model).
@@ -265,7 +268,8 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
         raise ModelError('[synth] reference_model drives a 2dof controller: set structure = "2dof" or remove '
                          'reference_model')
     scale = shaping_scale(model, settings.get("scaling"))
-    W1 = integrator_lead_weight(Ts, crossover, model.nu)
+    W1 = integrator_lead_weight(Ts, crossover, model.nu,
+                                integral_ratio=settings.get("integral_ratio") or DEFAULT_INTEGRAL_RATIO)
     W2 = control.ss([], [], [], np.eye(model.ny), Ts)
     solver = settings.get("solver", "CLARABEL")
     scaled, gammas, lmi_gammas, weights, K_inf, exported = [], [], [], [], [], []

@@ -56,5 +56,6 @@ SYNTHESIS_METHODS: dict[str, SynthesisMethod] = {
                                 gamma_is="largest frozen closed-loop norm"),
     "loop-shaping": SynthesisMethod("H∞ loop shaping: LMI designs of the shaped plant at the breakpoints, "
                                     "interpolated", "lpvflow.synth.loop_shaping_design:design",
-                                    ("crossover",), gamma_is="largest breakpoint level", point_design=True),
+                                    ("crossover", "integral_ratio"), gamma_is="largest breakpoint level",
+                                    point_design=True),
 }

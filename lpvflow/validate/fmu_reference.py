@@ -24,7 +24,9 @@ Equilibrium at p: unknowns z = (x, u), equations f(x, u) = 0 and s(x, u) = p, s 
 expressions (arithmetic on input and output names, `lpvflow.experiment.scheduling`), solved by
 `scipy.optimize.least_squares` from the `start` values (the FMU's start values where not given)
 and, later, from the equilibrium found at the nearest p. Accepted when ‖f‖∞·Ts ≤ 10⁻⁹ (1 + ‖x‖∞)
-and |s − p| ≤ 10⁻⁹ (1 + |p|). With more inputs than scheduling signals the solution is one of many.
+and |s − p| ≤ 10⁻⁹ (1 + |p|). With more inputs than scheduling signals the solution is one of many:
+``hold`` (output name → value) adds the equations y_j(x, u) = value, pinning the equilibrium (e.g. a
+two-disk levitation scheduled on the upper disk, with its lower disk held where the controller keeps it).
 """
 
 from __future__ import annotations
@@ -71,12 +73,14 @@ class FmuOperatingPoints:
         scheduling_expressions: str | Sequence[str],
         start: Mapping[str, float] | None = None,
         parameters: Mapping[str, float] | None = None,
+        hold: Mapping[str, float] | None = None,
     ) -> None:
         if not (np.isfinite(Ts) and Ts > 0):
             raise DataError(f"sampling time Ts = {Ts} must be a positive number of seconds")
         self.fmu, self.Ts = Path(fmu), float(Ts)
         self.expressions = [scheduling_expressions] if isinstance(scheduling_expressions, str) \
             else list(scheduling_expressions)
+        self.hold = {name: float(value) for name, value in (hold or {}).items()}
         self.plant: FmuPlant = open_fmu(self.fmu)
         try:
             self._setup(start or {}, parameters or {})
@@ -99,6 +103,10 @@ class FmuOperatingPoints:
             raise ModelError(f"{plant.name}: no states exposed (x0_<s> parameters with diag_state_<s> and "
                              "diag_der_<s> outputs); this FMU cannot be linearized here")
         self.signal_names = list(plant.input_names) + all_outputs
+        unknown_held = sorted(set(self.hold) - set(all_outputs))
+        if unknown_held:
+            raise DataError(f"{plant.name}: held outputs {', '.join(unknown_held)} are not outputs of the "
+                            f"FMU; its outputs: {', '.join(all_outputs)}")
         unknown = sorted(set(start) - set(self.states) - set(plant.input_names))
         if unknown:
             raise DataError(f"{plant.name}: start values for unknown names {', '.join(unknown)}; "
@@ -112,19 +120,21 @@ class FmuOperatingPoints:
         return len(self.plant.input_names)
 
     def evaluate(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(ẋ, measured y, scheduling s) of the FMU initialised at state x with input u."""
+        """(ẋ, measured y, s) of the FMU initialised at state x with input u: s the scheduling expressions,
+        then the held outputs (``hold``)."""
         plant = self.plant
         plant.set_parameters({f"x0_{s}": float(v) for s, v in zip(self.states, x, strict=True)})
         y = plant.reset(inputs=np.asarray(u, dtype=float))
         current = np.concatenate([np.asarray(u, dtype=float), plant.get(self.signal_names[self.n_inputs:])])
         values = {name: value.reshape(1) for name, value in zip(self.signal_names, current, strict=True)}
-        s = np.array([float(scheduling.evaluate(e, values)[0]) for e in self.expressions])
+        s = np.array([float(scheduling.evaluate(e, values)[0]) for e in self.expressions]
+                     + [float(values[name][0]) for name in self.hold])
         return plant.get([f"diag_der_{s}" for s in self.states]), y, s
 
     def equilibrium(self, p: np.ndarray) -> OperatingPoint:
-        """The equilibrium with scheduling value p: one solved before at exactly p (validate asks for it for
-        the plant and again for the experiment controller), else solved from the nearest solved point, else
-        from the start values."""
+        """The equilibrium with scheduling value p (and the held outputs at their values): one solved before
+        at exactly p (validate asks for it for the plant and again for the experiment controller), else
+        solved from the nearest solved point, else from the start values."""
         p = np.atleast_1d(np.asarray(p, dtype=float))
         if p.shape != (len(self.expressions),):
             raise DataError(f"scheduling value {p.tolist()} has {p.size} entries; the FMU reference has "
@@ -133,6 +143,7 @@ class FmuOperatingPoints:
             if np.array_equal(point.p, p):
                 return point
         n = len(self.states)
+        target = np.concatenate([p, list(self.hold.values())])
         starts = [self.start]
         if self._solved:
             nearest = min(self._solved, key=lambda op: float(np.linalg.norm(op.p - p)))
@@ -140,7 +151,7 @@ class FmuOperatingPoints:
 
         def residual(z: np.ndarray) -> np.ndarray:
             dx, _, s = self.evaluate(z[:n], z[n:])
-            return np.concatenate([dx * self.Ts, s - p])
+            return np.concatenate([dx * self.Ts, s - target])
 
         for z0 in starts:
             # Round-off entries (an equilibrium at 0 solved as 1e-22) would make least_squares' first trust
@@ -151,13 +162,14 @@ class FmuOperatingPoints:
             x, u = solution.x[:n], solution.x[n:]
             dx, y, s = self.evaluate(x, u)
             ok = (np.max(np.abs(dx)) * self.Ts <= EQUILIBRIUM_TOL * (1 + np.max(np.abs(x)))
-                  and np.all(np.abs(s - p) <= EQUILIBRIUM_TOL * (1 + np.abs(p))))
+                  and np.all(np.abs(s - target) <= EQUILIBRIUM_TOL * (1 + np.abs(target))))
             if ok:
                 break
         if not ok:
             raise ModelError(
                 f"{self.plant.name}: no equilibrium with scheduling {p.tolist()} found from the start values "
-                f"(residual |dx/dt| {np.max(np.abs(dx)):.3g}, scheduling error {np.max(np.abs(s - p)):.3g}); "
+                f"(residual |dx/dt| {np.max(np.abs(dx)):.3g}, scheduling/held-output error "
+                f"{np.max(np.abs(s - target)):.3g}); "
                 "give start values near it for the states and inputs (--fmu-start NAME=VALUE)"
             )
         point = OperatingPoint(p, x, u, y)
@@ -257,6 +269,7 @@ class FmuLocalModels(FmuOperatingPoints):
         scheduling_expressions: str | Sequence[str],
         start: Mapping[str, float] | None = None,
         parameters: Mapping[str, float] | None = None,
+        hold: Mapping[str, float] | None = None,
         *,
         na: int = 2,
         nb: int = 2,
@@ -266,7 +279,7 @@ class FmuLocalModels(FmuOperatingPoints):
         order: int = 8,
         seed: int = 0,
     ) -> None:
-        super().__init__(fmu, Ts, scheduling_expressions, start, parameters)
+        super().__init__(fmu, Ts, scheduling_expressions, start, parameters, hold)
         if min(na, nb) < 0 or nb < 1 or nk < 0 or not amplitude > 0 or clock < 1:
             self.close()
             raise DataError(f"local ARX needs na >= 0, nb >= 1, nk >= 0, amplitude > 0 and clock >= 1; got "

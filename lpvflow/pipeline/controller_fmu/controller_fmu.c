@@ -5,8 +5,9 @@
  * point U_OP and the trim table of u_eq(p) (HAS_TRIM). With the inputs y_ref (references), y (measured
  * outputs) and p (scheduling) set at time t_k:
  *
- *   w(k)   = y_ref(k) - y(k)        (1-DOF, STRUCTURE_2DOF = 0)
- *          = [y_ref(k); y(k)]       (2-DOF, STRUCTURE_2DOF = 1)
+ *   w(k)   = y_ref(k) - y(k)                    (1-DOF, STRUCTURE_2DOF = 0)
+ *          = [y_ref(k) - Y_OP; y(k) - Y_OP]     (2-DOF, STRUCTURE_2DOF = 1; Y_OP the measured outputs'
+ *                                                operating point, around which the controller was designed)
  *   lambda = convex coordinates of p in the polytope (as lpvflow.synth.polytope.Polytope.coordinates_at)
  *   u_eq   = per output, linear interpolation of TRIM_U over TRIM_P in p_1, clamped at the ends (np.interp)
  *   u(k)     = U_OP + u_eq(p) + sum_i lambda_i (Ck_i x(k) + Dk_i w(k))   returned by fmi2GetReal at t_k
@@ -143,10 +144,10 @@ static void frozen(const Instance *in, double *A, double *B, double *C, double *
     interpolate(DK, N_OUT, N_IN, lambda, D);
 }
 
-/* controller input w: y_ref - y (1-DOF) or [y_ref; y] (2-DOF, the two blocks are contiguous) */
+/* controller input w: y_ref - y (1-DOF) or [y_ref - Y_OP; y - Y_OP] (2-DOF, the two blocks are contiguous) */
 static void controller_input(const Instance *in, double *w) {
 #if STRUCTURE_2DOF
-    for (int i = 0; i < N_IN; ++i) w[i] = in->r[VR_REF + i];
+    for (int i = 0; i < N_IN; ++i) w[i] = in->r[VR_REF + i] - Y_OP[i % N_MEAS];
 #else
     for (int i = 0; i < N_IN; ++i) w[i] = in->r[VR_REF + i] - in->r[VR_Y + i];
 #endif

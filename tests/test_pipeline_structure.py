@@ -105,6 +105,39 @@ def test_no_module_of_lpvflow_imports_itself_back():
     assert cycles(import_graph()) == []
 
 
+#: The one place that branches on a controller class: ``run_fmu_experiment`` wires a user's plain
+#: LPVController object by its port record (a method on LPVController would import the experiment and,
+#: through the port record, the pipeline from synth: a cycle).
+CONTROLLER_TYPE_TESTS_ALLOWED = {("lpvflow/experiment/fmu_experiment.py", "LPVController")}
+
+
+def controller_type_tests(tree: ast.AST) -> list[str]:
+    """The controller class names ``isinstance`` tests in ``tree`` (``X | Y`` and tuples split)."""
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "isinstance" \
+                and len(node.args) == 2:
+            found += [n.id for n in ast.walk(node.args[1]) if isinstance(n, ast.Name)
+                      and (n.id.endswith("Controller") or n.id.startswith("Synthesized"))]
+    return found
+
+
+def test_the_controller_check_finds_planted_branches():
+    planted = "if isinstance(K, LtiController | GriddedController): pass\nisinstance(x, (int, FmuController))"
+    assert controller_type_tests(ast.parse(planted)) == ["LtiController", "GriddedController",
+                                                         "FmuController"]
+    assert controller_type_tests(ast.parse("isinstance(x, str | Path)")) == []
+
+
+def test_no_module_branches_on_a_controller_class():
+    """Every controller kind gives the loops what they need through its methods (the loop protocol,
+    ``loop_law``, ``verification_law``, ``scheduled``, ``n_p``, ``frozen``, ``close``) and the one loader
+    takes the kinds its caller runs: no isinstance on a controller class, except the one coercion above."""
+    found = {(str(path.relative_to(ROOT)), name) for path in sorted(PACKAGE.rglob("*.py"))
+             for name in controller_type_tests(ast.parse(path.read_text(encoding="utf-8")))}
+    assert found == CONTROLLER_TYPE_TESTS_ALLOWED
+
+
 # ------------------------------------------------------------------------------------ source hygiene
 #: A docstring or comment citing a file outside the repository: the method notes (``notes_004 §2.3``),
 #: the seed files (``seed 004``) or the issue tracker (``issue 26, item 2``).

@@ -10,7 +10,6 @@ import numpy as np
 
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
-from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.context import StageContext
@@ -55,7 +54,7 @@ def frozen_experiment_controller(
         return None, None, None
     K = load_experiment_controller(path)
     check_wiring(K, model.u_names, model.y_names, "[validate] b(Ĝ(θ), K_id)")
-    if isinstance(K, LtiController):  # a constant trim has no feedback
+    if not K.scheduled:  # the same law at every θ; a constant trim has no feedback
         return K.negative_feedback(model.y_names, model.u_names), None, None
     if reference is None:
         return None, ("b(Ĝ(θ), K_id) needs the operating point of the scheduled experiment controller at "

@@ -10,11 +10,9 @@ import numpy as np
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
-from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.experiment.scheduling import compile_expression
 from lpvflow.loop.engine import ModelPlant, close_loop
-from lpvflow.loop.protocol import as_loop_controller
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.context import StageContext
 
@@ -33,7 +31,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     model's input is the controller's output without its trim u_op (:func:`model_coordinates`). The
     loop is :func:`lpvflow.loop.engine.close_loop` with the model as the plant
     (:class:`lpvflow.loop.engine.ModelPlant`) and the controller's protocol object
-    (:func:`lpvflow.loop.protocol.as_loop_controller`).
+    (``loop_law()``).
     """
     cfg = ctx.config["experiment"]
     if not cfg["controller"]:
@@ -42,7 +40,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
             return model.simulate(data.u, data.p)
     experiment_controller = load_experiment_controller(cfg["controller"])
     check_wiring(experiment_controller, data.u_names, data.y_names, "[validate] closed-loop fit")
-    K = as_loop_controller(experiment_controller)
+    K = experiment_controller.loop_law()
     table = ctx.columns()
     start = len(table["time"]) - data.N
 
@@ -50,10 +48,8 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
         return table[column][start:] if column in table else np.full(data.N, default)
 
     excitation = np.column_stack([recorded(f"{name}_excitation", 0.0) for name in K.outputs])
-    # an LTI controller's set-points are in its recorded excitation (lpvflow.experiment.run): it holds y_op
-    tracked = not isinstance(experiment_controller, LtiController)
-    references = np.column_stack([recorded(f"{name}_setpoint", np.nan) if tracked else np.full(data.N, np.nan)
-                                  for name in K.inputs])
+    # the recorded set-points as K took them in the experiment (an LTI law's are in the excitation)
+    references = K.references_of(np.column_stack([recorded(f"{name}_setpoint", np.nan) for name in K.inputs]))
     expressions = [scheduling_expression(name, cfg["scheduling"], data.y_names) for name in data.p_names]
     expressions = [compile_expression(expression, data.y_names) for expression in expressions]
     plant = ModelPlant(model, lambda y: np.array([value_of(y) for value_of in expressions]), data.p[0])

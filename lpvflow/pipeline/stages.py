@@ -16,7 +16,6 @@ import numpy as np
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.errors import DataError, LpvflowError
-from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.fmu_experiment import run_fmu_experiment
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.identify.methods import IO_METHODS, estimate
@@ -148,7 +147,7 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
         raise DataError(f"[diagnose] candidate column(s) {missing} are not in the experiment data")
     structure = Structure(ident["na"], ident["nb"], ident["nk"], ident["basis"])
     controller = load_experiment_controller(experiment["controller"]) if experiment["controller"] else None
-    if controller is not None and not isinstance(controller, LtiController):
+    if controller is not None and controller.scheduled:
         raise DataError("[diagnose] simulates the identification loop with an lpvflow/lti-controller only; "
                         f"the [experiment] controller is a scheduled one ({controller.to_dict()['format']})")
     result = run_diagnosis(data, structure, {c: table[c] for c in cfg["candidates"]}, split=cfg["split"],

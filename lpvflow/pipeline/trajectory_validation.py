@@ -23,7 +23,6 @@ from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.errors import LpvflowError
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.fmu import check_fmu
-from lpvflow.loop.protocol import as_loop_controller
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.coordinates import read_data
@@ -38,7 +37,7 @@ def experiment_trim(path: str, model: LPVSS) -> Callable[[np.ndarray], np.ndarra
     :func:`lpvflow.pipeline.coordinates.controller_trim` removed it from the identification data."""
     K = load_experiment_controller(path)
     check_wiring(K, model.u_names, model.y_names, "[identify] remove_trim in the model-in-the-loop runs")
-    law = as_loop_controller(K)
+    law = K.loop_law()
     schedule = law.scheduling(model.y_names)
     read = [model.y_names.index(name) for name in law.inputs]
     driven = [model.u_names.index(name) for name in law.outputs]

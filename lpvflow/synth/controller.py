@@ -213,6 +213,14 @@ class LPVController:
         r, y = (np.asarray(v, dtype=float).reshape(self.n_measured) for v in (r, y))
         return np.concatenate([r, y]) if self.structure == "2dof" else r - y
 
+    def verification_law(self, measured: Sequence[str], actuated: Sequence[str]) -> LPVController:
+        """The law verification steps (:class:`lpvflow.loop.protocol.VerificationLaw`): itself, wired by
+        the loop's ``measured`` and ``actuated`` signals."""
+        return self
+
+    def close(self) -> None:
+        """Nothing to release (the controller holds no instance or file)."""
+
     def feedforward(self, p: np.ndarray) -> np.ndarray:
         """u_eq(p) (:class:`Trim`), zero without a trim table."""
         return np.zeros(self.n_out) if self.trim is None else self.trim.value(p)

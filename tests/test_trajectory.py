@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from lpvflow.errors import ModelError
+from lpvflow.loop.model_plant import ModelPlant
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
-from lpvflow.validate.trajectory import ModelPlant, trajectory_agreement
+from lpvflow.validate.trajectory import trajectory_agreement
 from tests.test_verify import BASIS, TS, B, _constant, _gain
 
 LOOP = Loop(("y",), ("u",), ("y",))

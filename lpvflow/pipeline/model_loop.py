@@ -11,10 +11,13 @@ from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.experiment.loader import load_experiment_controller
-from lpvflow.experiment.scheduling import compile_expression
-from lpvflow.loop.engine import ModelPlant, close_loop
+from lpvflow.loop.engine import close_loop
+from lpvflow.loop.model_plant import ModelPlant
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.context import StageContext
+
+#: A simulated output this large ends the model's loop: it diverges.
+_DIVERGED = 1e12
 
 
 def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np.ndarray:
@@ -30,7 +33,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     else its operating points, scheduling from the simulated outputs). With ``[identify] remove_trim`` the
     model's input is the controller's output without its trim u_op (:func:`model_coordinates`). The
     loop is :func:`lpvflow.loop.engine.close_loop` with the model as the plant
-    (:class:`lpvflow.loop.engine.ModelPlant`) and the controller's protocol object
+    (:class:`lpvflow.loop.model_plant.ModelPlant`) and the controller's protocol object
     (``loop_law()``).
     """
     cfg = ctx.config["experiment"]
@@ -50,9 +53,8 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     excitation = np.column_stack([recorded(f"{name}_excitation", 0.0) for name in K.outputs])
     # the recorded set-points as K took them in the experiment (an LTI law's are in the excitation)
     references = K.references_of(np.column_stack([recorded(f"{name}_setpoint", np.nan) for name in K.inputs]))
-    expressions = [scheduling_expression(name, cfg["scheduling"], data.y_names) for name in data.p_names]
-    expressions = [compile_expression(expression, data.y_names) for expression in expressions]
-    plant = ModelPlant(model, lambda y: np.array([value_of(y) for value_of in expressions]), data.p[0])
+    plant = ModelPlant(model, [scheduling_expression(name, cfg["scheduling"], data.y_names)
+                               for name in data.p_names])
     u_index = [data.u_names.index(name) for name in K.outputs]
     with_trim = not ctx.config["identify"]["remove_trim"]
     y_sim = np.zeros_like(data.y)
@@ -62,12 +64,15 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
         u[u_index] = u_c + excitation[k] - (0.0 if with_trim else K.trim(p))
         return u
 
+    def stop(k: int, y: np.ndarray) -> str | None:
+        return None if np.all(np.abs(y) < _DIVERGED) else f"diverges at sample {k}"
+
     def record(k: int, y: np.ndarray, p: np.ndarray, u_c: np.ndarray, u: np.ndarray) -> None:
         y_sim[k] = y
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        failure = close_loop(K, plant, data.N, references, actuate=actuate, record=record)
+        failure = close_loop(K, plant, data.N, references, actuate=actuate, stop=stop, record=record)
     if failure:
         raise DataError(f"the identified model's closed loop {failure}: it does not describe the plant "
                         "under the identification controller")

@@ -23,11 +23,12 @@ from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.errors import LpvflowError
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.fmu import check_fmu
+from lpvflow.loop.model_plant import ModelPlant
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.coordinates import read_data
 from lpvflow.pipeline.model_loop import check_wiring, scheduling_expression
-from lpvflow.validate.trajectory import ModelPlant, trajectory_agreement
+from lpvflow.validate.trajectory import trajectory_agreement
 
 
 def experiment_trim(path: str, model: LPVSS) -> Callable[[np.ndarray], np.ndarray]:
@@ -51,7 +52,7 @@ def experiment_trim(path: str, model: LPVSS) -> Callable[[np.ndarray], np.ndarra
 
 
 def model_plant_factory(ctx: StageContext, model: LPVSS) -> Callable[[], ModelPlant]:
-    """Fresh :class:`~lpvflow.validate.trajectory.ModelPlant` runs of ``model`` in its identification
+    """Fresh :class:`~lpvflow.loop.model_plant.ModelPlant` runs of ``model`` in its identification
     signals (module docstring), its inputs' start values those of the plant FMU."""
     identify, experiment = ctx.config["identify"], ctx.config["experiment"]
     expressions = [scheduling_expression(name, experiment["scheduling"], model.y_names)

@@ -487,3 +487,45 @@ def test_the_model_in_the_loop_reproduces_an_lti_experiment_with_set_points(tmp_
     y_sim = closed_loop_simulation(model, data, StageContext(tmp_path, config))
     assert np.ptp(data.y) > 0.3
     np.testing.assert_allclose(y_sim, data.y, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [3, 8])
+def test_the_model_in_the_loop_runs_around_the_operating_point_it_was_identified_at(tmp_path, seed):
+    """With ``remove_offsets`` the model describes deviations from (u₀, y₀); the validate stage's
+    closed-loop fit runs it as the plant y₀ + y fed u − u₀ under the experiment controller (which reads
+    and drives the plant's signals), the input the controller does not drive at its recorded values, and
+    returns deviations: on the exact model of a plant started at rest at (u₀, y₀) it reproduces the
+    record."""
+    from lpvflow.data import Dataset
+    from lpvflow.experiment import LtiController, run_experiment
+    from lpvflow.experiment.record import write_record
+    from lpvflow.pipeline.model_loop import closed_loop_simulation
+    from tests.test_experiment_run import StateSpacePlant, stabilising_controller, unstable_plant
+
+    G = unstable_plant()
+    rng = np.random.default_rng(seed)
+    u0 = rng.uniform(-1.0, 1.0, 2)
+    x0 = np.linalg.solve(np.eye(G.nstates) - G.A, G.B @ u0)  # the plant at rest at (u0, y0)
+    y0 = G.C @ x0
+    K = LtiController.from_statespace(stabilising_controller(), y_op=y0, u_op=u0[:1])
+    path = tmp_path / "K.json"
+    path.write_text(json.dumps(K.to_dict()))
+    plant = StateSpacePlant(G, u0=u0)
+    plant.x = x0.copy()
+    record = run_experiment(plant, G.dt, 3.0, inputs={"u1": "multisine:f_lo=1,f_hi=10,rms=0.2"},
+                            controller=K, excitation={"u0": "multisine:f_lo=1,f_hi=10,rms=0.1"},
+                            scheduling_columns={"p": "y0"}, seed=seed, progress=False)
+    write_record(record, tmp_path / "data.csv")
+    zero = np.zeros((G.nstates, G.nstates))
+    model = LPVSS(np.stack([G.A, zero]), np.stack([G.B, 0 * G.B]), np.stack([G.C, 0 * G.C]),
+                  np.zeros((2, 1, 2)), Basis("affine", 1, p_min=(-5.0,), p_max=(5.0,)), G.dt,
+                  u_names=["u0", "u1"], y_names=["y0"], p_names=["p"])
+    measured = Dataset.read(tmp_path / "data.csv", ["u0", "u1"], ["y0"], ["p"])
+    offsets = {"u": u0.tolist(), "y": y0.tolist()}
+    data = dataclasses.replace(measured, u=measured.u - u0, y=measured.y - y0, offsets=offsets)
+    config = {"experiment": {"controller": str(path), "scheduling": {"p": "y0"}},
+              "identify": {"remove_trim": False}}
+    ctx = StageContext(tmp_path, config, {"identify": {"offsets": offsets}})
+    y_sim = closed_loop_simulation(model, data, ctx)
+    assert np.ptp(data.y) > 0.05 and np.all(np.abs(y0) > 0.0)
+    np.testing.assert_allclose(y_sim, data.y, atol=1e-9)

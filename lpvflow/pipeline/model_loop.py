@@ -31,7 +31,10 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     (``<output>_setpoint``) and excitation (``<input>_excitation``); so does an LPV controller
     (:class:`~lpvflow.experiment.synthesized.SynthesizedController`: references from the recorded set-points,
     else its operating points, scheduling from the simulated outputs). With ``[identify] remove_trim`` the
-    model's input is the controller's output without its trim u_op (:func:`model_coordinates`). The
+    model's input is the controller's output without its trim u_op (:func:`model_coordinates`). With
+    ``[identify] remove_offsets`` ``data`` and the returned outputs are deviations from the identify stage's
+    operating point (u₀, y₀) and the model runs as the plant y₀ + y, fed u − u₀; the inputs the controller
+    does not drive take their recorded values. The
     loop is :func:`lpvflow.loop.engine.close_loop` with the model as the plant
     (:class:`lpvflow.loop.model_plant.ModelPlant`) and the controller's protocol object
     (``loop_law()``).
@@ -53,14 +56,20 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     excitation = np.column_stack([recorded(f"{name}_excitation", 0.0) for name in K.outputs])
     # the recorded set-points as K took them in the experiment (an LTI law's are in the excitation)
     references = K.references_of(np.column_stack([recorded(f"{name}_setpoint", np.nan) for name in K.inputs]))
+    # the operating point the model works around (the identify stage's record; empty without
+    # remove_offsets): the loop runs in the plant's signals, data and fit in the deviations from it
+    offsets = ctx.outputs.get("identify", {}).get("offsets") or {}
+    u0, y0 = (np.asarray(offsets.get(s, np.zeros(n)), dtype=float) for s, n in (("u", model.nu),
+                                                                               ("y", len(data.y_names))))
     plant = ModelPlant(model, [scheduling_expression(name, cfg["scheduling"], data.y_names)
-                               for name in data.p_names])
+                               for name in data.p_names], offsets=offsets)
     u_index = [data.u_names.index(name) for name in K.outputs]
+    u_recorded = data.u + u0  # the inputs K does not drive, as recorded, in the plant's signals
     with_trim = not ctx.config["identify"]["remove_trim"]
     y_sim = np.zeros_like(data.y)
 
     def actuate(k: int, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
-        u = np.zeros(model.nu)
+        u = u_recorded[k].copy()
         u[u_index] = u_c + excitation[k] - (0.0 if with_trim else K.trim(p))
         return u
 
@@ -68,7 +77,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
         return None if np.all(np.abs(y) < _DIVERGED) else f"diverges at sample {k}"
 
     def record(k: int, y: np.ndarray, p: np.ndarray, u_c: np.ndarray, u: np.ndarray) -> None:
-        y_sim[k] = y
+        y_sim[k] = y - y0
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SchedulingRangeWarning)

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from itertools import pairwise
 
 import control
 import numpy as np
@@ -35,7 +34,7 @@ from lpvflow.synth.bilinear import certificate_margin, closed_loop
 from lpvflow.synth.controller import mix
 from lpvflow.synth.hinf import HinfResult
 from lpvflow.synth.plant import VertexPlant, augment, interpolate
-from lpvflow.synth.polytope import Polytope, hat_coordinates
+from lpvflow.synth.polytope import Polytope, box_grid
 from lpvflow.synth.rate_bounded import ScheduledResult, fine_check
 from lpvflow.validate.norms import hinf_norm
 from lpvflow.validate.stability import quadratic_stability
@@ -46,13 +45,6 @@ def vertex_margins(result: HinfResult) -> list[float]:
     numbers."""
     return [certificate_margin(v, K, result.lyapunov_factor, result.gamma)
             for v, K in zip(result.vertices, result.K_vertices, strict=True)]
-
-
-def scheduling_grid(box: np.ndarray, per_axis: int) -> np.ndarray:
-    """(per_axis^{n_p}, n_p) grid of the scheduling box; a degenerate axis (lo = hi, an LTI design's point)
-    contributes one value, not per_axis copies of it."""
-    axes = [np.linspace(lo, hi, per_axis if hi > lo else 1) for lo, hi in box]
-    return np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(box), -1).T
 
 
 def frozen_hinf_norms(controller_at: Callable[[np.ndarray], tuple[np.ndarray, ...]], model: LPVSS,
@@ -90,13 +82,8 @@ def interpolated_hinf_norms(vertices: list[VertexPlant], K_vertices: list[tuple[
 
 
 def design_coordinates(polytope: Polytope, basis: Basis, per_axis: int) -> list[np.ndarray]:
-    """λ on a grid of the design: ``per_axis`` points per breakpoint interval of a piecewise polytope
-    (along its first signal), else λ(p) on a ``per_axis`` grid of the box."""
-    if polytope.kind == "piecewise":
-        b = polytope.breakpoints
-        t = np.unique(np.concatenate([np.linspace(lo, hi, per_axis) for lo, hi in pairwise(b)]))
-        return [hat_coordinates(b, ti) for ti in t]
-    return [polytope.coordinates_at(basis, p) for p in scheduling_grid(polytope.box, per_axis)]
+    """λ(p) at the polytope's own grid of the design (:meth:`Polytope.design_points`)."""
+    return [polytope.coordinates_at(basis, p) for p in polytope.design_points(per_axis)]
 
 
 def vertex_interpolation(result: HinfResult) -> Callable[[np.ndarray], tuple[np.ndarray, ...]]:
@@ -170,7 +157,7 @@ def certify(result: HinfResult, model: LPVSS | None, weights: dict, per_axis: in
         lams = design_coordinates(poly, result.plant.basis, per_axis)
         norms = interpolated_hinf_norms(result.vertices, result.K_vertices, lams, result.plant.Ts)
     else:
-        grid = scheduling_grid(poly.box, per_axis)
+        grid = box_grid(poly.box, per_axis)
         norms = frozen_hinf_norms(vertex_interpolation(result), model, weights, grid, result.plant.structure)
     peak, final, growth = switching_simulation(result)
     margin = min(vertex_margins(result))
@@ -211,7 +198,7 @@ def certify_rate_bounded(result: ScheduledResult, model: LPVSS | None, weights: 
     4. :func:`rate_bounded_walk`."""
     margin, _ = fine_check(result)
     b = result.schedule.breakpoints
-    grid = scheduling_grid(np.array([[b[0], b[-1]]]), per_axis)
+    grid = box_grid(np.array([[b[0], b[-1]]]), per_axis)
 
     def controller_at(p: np.ndarray) -> tuple[np.ndarray, ...]:
         return result.controller_at(float(np.asarray(p).reshape(-1)[0]))

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from lpvflow.pipeline.cli import main
-from tests.test_cli_errors import DESIGN, TANKS
+from tests.test_cli_errors import TANKS, design_text
 from tests.test_cli_validate import true_system
 from tests.test_export import _adip_lpv_controller
 from tests.test_load_all import SCENARIO
@@ -61,7 +61,7 @@ def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "lti.json").write_bytes((ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json").read_bytes())
     (d / "scenario.toml").write_text(SCENARIO)
     (d / "synth.toml").write_text(SYNTH)
-    (d / "design.toml").write_text(DESIGN.format(plant=TANKS, out=d / "out"))
+    (d / "design.toml").write_text(design_text(TANKS, d / "out"))
     (d / "out" / "tanks").mkdir(parents=True)
     (d / "out" / "tanks" / "report.html").write_text("previous good report")
     text = data.read_bytes()

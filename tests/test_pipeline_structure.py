@@ -21,7 +21,7 @@ from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.config import INPUT_FILES, SCHEMA, load_config
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.settings import ALL, StageSettings, TableView, UndeclaredSetting
-from tests.design_files import tanks_head
+from tests.design_files import tanks_head, tanks_synth
 
 PACKAGE = Path(lpvflow.__file__).resolve().parent
 ROOT = PACKAGE.parent
@@ -367,24 +367,17 @@ order = 2
 
 [validate]
 grid = 3
-
-[synth]
-box = [[0.05, 0.18]]
-weights.S = {{ bandwidth = 0.2, hf_gain = 0.5 }}
-weights.K = {{ num = [0.01], den = [1] }}
-weights.B = {{ num = [0, 0.5], den = [1, -0.5] }}
-weights.integrator_shift = 1e-4
-
+""" + tanks_synth() + """
 [verify.loop]
 measured = ["lower_level"]
 actuated = ["pump_voltage"]
 u_operating_point = [6.76]
-actuator_limits = {{ pump_voltage = [0.0, 13.0] }}
+actuator_limits = { pump_voltage = [0.0, 13.0] }
 
 [[verify.scenario]]
 name = "level 8 -> 12 cm"
 duration = 300.0
-reference = {{ lower_level = {{ initial = 0.08, steps = [[50.0, 0.04]] }} }}
+reference = { lower_level = { initial = 0.08, steps = [[50.0, 0.04]] } }
 """
 
 
@@ -434,7 +427,7 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
     _spy_everywhere(monkeypatch, original_parse, lambda doc: parses.append(doc) or original_parse(doc))
     monkeypatch.setattr(report_module, "write_report", report)
     path = tmp_path / "design.toml"
-    path.write_text(tanks_head(TANKS, tmp_path / "out") + TANKS_DESIGN.format())
+    path.write_text(tanks_head(TANKS, tmp_path / "out") + TANKS_DESIGN)
     summary = run_design(path, log=lambda _: None)
     ran = {name for name, stage in summary["stages"].items() if stage["status"] == "ran"}
     assert {"identify", "validate", "synth", "verify"} <= ran, summary["failed"]

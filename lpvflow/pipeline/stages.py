@@ -28,7 +28,7 @@ from lpvflow.pipeline.adoption import adoption_refusal
 from lpvflow.pipeline.antiwindup import antiwindup
 from lpvflow.pipeline.cli_identify import plot_fit
 from lpvflow.pipeline.context import DATA_FILE, StageContext
-from lpvflow.pipeline.controller_design import design_controller
+from lpvflow.pipeline.controller_design import design_controller, extrapolation_note
 from lpvflow.pipeline.coordinates import read_data, without_offsets
 from lpvflow.pipeline.export import export_controller
 from lpvflow.pipeline.frozen_references import (
@@ -266,7 +266,7 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
              "gamma_lower": design.gamma_lower, "baseline_gamma": baseline.gamma, "baseline_at": at,
              "certificate": design.certificate.lines(), "certificate_ok": bool(design.certificate.ok),
              "solve_seconds": design.seconds, "order": design.controller.order,
-             "polytope": design.plant.polytope.kind},
+             "polytope": design.plant.polytope.kind, "box_note": extrapolation_note(model, cfg["box"])},
             ["controller.json", "baseline.json"])
 
 

@@ -1,7 +1,8 @@
 """Design-file text shared by the tests that run the pipeline on the ADIP FMU (tests/test_iterate.py,
 tests/test_ident_experiment.py, tests/test_experiment_lpv_controller.py) and on the tanks FMU
-(tests/test_design.py, tests/test_pipeline_structure.py, tests/test_robustness.py, tests/test_cli_errors.py
-and through it tests/test_bad_input.py and tests/test_interrupt.py)."""
+(tests/test_design.py, tests/test_pipeline_structure.py, tests/test_robustness.py,
+tests/test_trajectory_validation.py, tests/test_cli_errors.py and through it tests/test_bad_input.py and
+tests/test_interrupt.py)."""
 
 
 def adip_identification(grid: int, gate: str = "gate = false", remove_trim: bool = False) -> str:

@@ -12,7 +12,9 @@ u_trim the trim the model was identified without (``[identify] remove_trim``; ze
 C at p(k) instead of p(k+1) is exact for the observable-form realizations lpvflow identifies (C
 independent of p). Strictly proper models only (D = 0, as identified with an input delay): y(k) must not
 depend on u(k), which the loop computes from y(k). A diverging model gives non-finite outputs (no
-overflow warning); the loop's stopping rule ends the run.
+overflow warning); the loop's stopping rule ends the run. The model runs wherever the loop takes its
+scheduling, inside or outside the range it was identified on, without a range warning: the loop's record
+holds the scheduling it reached (a verification run's coverage says where it left a box).
 """
 
 from __future__ import annotations
@@ -76,7 +78,7 @@ class ModelPlant:
         y = self._y0.copy()
         rows = [self.output_names.index(name) for name in outputs]
         y[rows] = [outputs[name] for name in outputs]
-        A, B, C, _ = self.model.matrices(self.schedule(y))
+        A, B, C, _ = self.model.matrices(self.schedule(y), check_range=False)
         nx = self.model.nx
         lhs = np.block([[A - np.eye(nx), B], [C[rows], np.zeros((len(rows), B.shape[1]))]])
         rhs = np.concatenate([np.zeros(nx), (y - self._y0)[rows]])
@@ -85,7 +87,7 @@ class ModelPlant:
 
     def step(self, u: np.ndarray, t: float, Ts: float) -> None:
         p = self.schedule(self._y)
-        A, B, C, _ = self.model.matrices(p)
+        A, B, C, _ = self.model.matrices(p, check_range=False)
         trim = self._trim(self._y) if self._trim is not None else 0.0
         u_model = np.asarray(u, dtype=float) - self._u0 - trim
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging model ends its run (non-finite y)

@@ -79,9 +79,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     def record(k: int, y: np.ndarray, p: np.ndarray, u_c: np.ndarray, u: np.ndarray) -> None:
         y_sim[k] = y - y0
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SchedulingRangeWarning)
-        failure = close_loop(K, plant, data.N, references, actuate=actuate, stop=stop, record=record)
+    failure = close_loop(K, plant, data.N, references, actuate=actuate, stop=stop, record=record)
     if failure:
         raise DataError(f"the identified model's closed loop {failure}: it does not describe the plant "
                         "under the identification controller")

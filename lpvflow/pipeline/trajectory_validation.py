@@ -13,13 +13,11 @@ controller is verified on, where the plant is far from them.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.errors import LpvflowError
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.fmu import check_fmu
@@ -73,10 +71,8 @@ def trajectory_validation(ctx: StageContext, model: LPVSS, controller: Any) -> d
     verify = ctx.config["verify"]
     try:
         make = model_plant_factory(ctx, model)
-        with warnings.catch_warnings():  # the moves leave the model's box: the runs say how far
-            warnings.simplefilter("ignore", SchedulingRangeWarning)
-            rows = trajectory_agreement(controller, ctx.config["design"]["plant"], make, verify["scenario"],
-                                        verify["loop"])
+        rows = trajectory_agreement(controller, ctx.config["design"]["plant"], make, verify["scenario"],
+                                    verify["loop"])
     except LpvflowError as exc:
         return {"trajectory_note": f"the model-in-the-loop runs were not made: {exc}"}
     return {"trajectory": [row.to_dict() for row in rows]}

@@ -454,6 +454,14 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
 
 
 # ------------------------------------------------------------------------------ one loop engine
+def _exact_model(G, reach: float) -> LPVSS:
+    """The LTI plant G (inputs u0, u1, output y0) as an LPVSS scheduled on p, identified on ±reach."""
+    zero = np.zeros((G.nstates, G.nstates))
+    return LPVSS(np.stack([G.A, zero]), np.stack([G.B, 0 * G.B]), np.stack([G.C, 0 * G.C]),
+                 np.zeros((2, 1, 2)), Basis("affine", 1, p_min=(-reach,), p_max=(reach,)), G.dt,
+                 u_names=["u0", "u1"], y_names=["y0"], p_names=["p"])
+
+
 @pytest.mark.parametrize("seed", [2, 5])
 def test_the_model_in_the_loop_reproduces_an_lti_experiment_with_set_points(tmp_path, seed):
     """On an exact model the validate stage's closed-loop simulation (the loop engine with the model as
@@ -479,10 +487,7 @@ def test_the_model_in_the_loop_reproduces_an_lti_experiment_with_set_points(tmp_
                             excitation={"u0": "multisine:f_lo=1,f_hi=10,rms=0.1"},
                             scheduling_columns={"p": "y0"}, seed=seed, progress=False)
     write_record(record, tmp_path / "data.csv")
-    zero = np.zeros((G.nstates, G.nstates))
-    model = LPVSS(np.stack([G.A, zero]), np.stack([G.B, 0 * G.B]), np.stack([G.C, 0 * G.C]),
-                  np.zeros((2, 1, 2)), Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,)), G.dt,
-                  u_names=["u0", "u1"], y_names=["y0"], p_names=["p"])
+    model = _exact_model(G, 1.0)
     data = Dataset.read(tmp_path / "data.csv", ["u0", "u1"], ["y0"], ["p"])
     config = {"experiment": {"controller": str(path), "scheduling": {"p": "y0"}},
               "identify": {"remove_trim": False}}
@@ -518,10 +523,7 @@ def test_the_model_in_the_loop_runs_around_the_operating_point_it_was_identified
                             controller=K, excitation={"u0": "multisine:f_lo=1,f_hi=10,rms=0.1"},
                             scheduling_columns={"p": "y0"}, seed=seed, progress=False)
     write_record(record, tmp_path / "data.csv")
-    zero = np.zeros((G.nstates, G.nstates))
-    model = LPVSS(np.stack([G.A, zero]), np.stack([G.B, 0 * G.B]), np.stack([G.C, 0 * G.C]),
-                  np.zeros((2, 1, 2)), Basis("affine", 1, p_min=(-5.0,), p_max=(5.0,)), G.dt,
-                  u_names=["u0", "u1"], y_names=["y0"], p_names=["p"])
+    model = _exact_model(G, 5.0)
     measured = Dataset.read(tmp_path / "data.csv", ["u0", "u1"], ["y0"], ["p"])
     offsets = {"u": u0.tolist(), "y": y0.tolist()}
     data = dataclasses.replace(measured, u=measured.u - u0, y=measured.y - y0, offsets=offsets)

@@ -63,7 +63,7 @@ from lpvflow.experiment.plant import Plant
 from lpvflow.experiment.specs import SignalSpec, generate, parse_spec
 from lpvflow.experiment.synthesized import SynthesizedController
 from lpvflow.loop.engine import close_loop
-from lpvflow.loop.protocol import OpenLoop
+from lpvflow.loop.protocol import OpenLoop, check_names
 
 #: Tolerance on the controller Ts matching the experiment Ts.
 _STEP_TOLERANCE = 1e-9
@@ -111,15 +111,6 @@ def _as_specs(signals: Mapping[str, str | SignalSpec] | None) -> dict[str, Signa
             for name, spec in (signals or {}).items()}
 
 
-def _check_names(kind: str, names: list[str] | tuple[str, ...], available: list[str], model: str) -> None:
-    unknown = [n for n in names if n not in available]
-    if unknown:
-        raise ModelError(
-            f"{kind} {', '.join(map(repr, unknown))} not in FMU {model}; "
-            f"it has {', '.join(available) or 'none'}"
-        )
-
-
 def run_experiment(
     plant: Plant,
     Ts: float,
@@ -151,9 +142,9 @@ def run_experiment(
     input_specs, excitation_specs = _as_specs(inputs), _as_specs(excitation)
     setpoint_specs = _as_specs(setpoint)
     model = plant.model_name
-    _check_names("input", list(input_specs), plant.input_names, model)
-    _check_names("excitation input", list(excitation_specs), plant.input_names, model)
-    _check_names("set-point output", list(setpoint_specs), plant.output_names, model)
+    check_names("input", list(input_specs), plant.input_names, model)
+    check_names("excitation input", list(excitation_specs), plant.input_names, model)
+    check_names("set-point output", list(setpoint_specs), plant.output_names, model)
     sensors = _sensor_model(quantization, noise, plant.output_names, model)
     if controller is None and (excitation_specs or setpoint_specs):
         what = "an excitation is added to a controller output" if excitation_specs else \
@@ -271,8 +262,8 @@ def _sensor_model(
 ):
     """``make(n, seed)`` returning ``measure(k, y)``: y with each sensor's noise and quantization applied."""
     quantization, noise = dict(quantization or {}), dict(noise or {})
-    _check_names("quantized output", list(quantization), outputs, model)
-    _check_names("noisy output", list(noise), outputs, model)
+    check_names("quantized output", list(quantization), outputs, model)
+    check_names("noisy output", list(noise), outputs, model)
     for kind, table, strict in (("quantization step", quantization, True), ("noise standard deviation",
                                                                             noise, False)):
         for name, value in table.items():

@@ -135,15 +135,19 @@ def _held(r: np.ndarray, operating: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(r), operating, r)
 
 
+def check_names(kind: str, names: Sequence[str], available: Sequence[str], model: str) -> None:
+    """One ModelError line when the plant ``model`` lacks one of the ``kind`` signals ``names``."""
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        raise ModelError(f"{kind} {', '.join(map(repr, unknown))} not in FMU {model}; "
+                         f"it has {', '.join(available) or 'none'}")
+
+
 def check_signals(K: LoopController, output_names: Sequence[str], input_names: Sequence[str],
                   model: str) -> None:
     """One ModelError line when the plant ``model`` lacks an output K reads or an input K drives."""
-    for kind, names, available in (("controller input (plant output)", K.inputs, output_names),
-                                   ("controller output (plant input)", K.outputs, input_names)):
-        unknown = [n for n in names if n not in available]
-        if unknown:
-            raise ModelError(f"{kind} {', '.join(map(repr, unknown))} not in FMU {model}; "
-                             f"it has {', '.join(available) or 'none'}")
+    check_names("controller input (plant output)", K.inputs, output_names, model)
+    check_names("controller output (plant input)", K.outputs, input_names, model)
 
 
 class _TrackingSetpoints:

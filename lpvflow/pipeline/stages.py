@@ -216,8 +216,7 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
             warnings.simplefilter("ignore", SchedulingRangeWarning)
             rows = []
             if K is not None or reference is not None:
-                frozen_K = K is not None and not hasattr(K, "A")  # a gridded K_id: p ↦ K_id(θ(p))
-                scaled_K = (lambda p: scale.controller(K(p))) if frozen_K else scale.controller(K)
+                scaled_K = None if K is None else (lambda p: scale.controller(K(p)))  # K: p ↦ K_id(θ(p))
                 rows = compare_frozen(scale.model(model), scale.plant_at(compared), cfg["grid"], scaled_K,
                                       box=box, points=points or None)
             if reference is not None:

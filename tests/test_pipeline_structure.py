@@ -349,6 +349,41 @@ def test_verify_loop_is_parsed_once_when_the_file_is_read(tmp_path, monkeypatch)
     assert StageSettings(config, design_module.SYNTH.reads)["verify"]["loop"] is loop  # handed on as parsed
 
 
+def toy_design(model, plant, settings, frozen_model):
+    """A synthesis method's design function (docs/synthesis_methods.md, place 1): the common design,
+    marked as this method's."""
+    from lpvflow.synth.design import design_common
+
+    design = design_common(model, plant, settings, frozen_model)
+    design.controller.info["designed_by"] = "toy"
+    return design
+
+
+def test_a_synthesis_method_is_a_design_function_and_one_registry_line(tmp_path, capsys, monkeypatch):
+    """docs/synthesis_methods.md: adding a method is one module (here :func:`toy_design`), one line in
+    SYNTHESIS_METHODS and its docs; the schema accepts the name and ``lpvflow synth`` runs it, prints its
+    summary and writes its controller with nothing else changed."""
+    from lpvflow.synth.methods import SYNTHESIS_METHODS, SynthesisMethod
+
+    monkeypatch.setitem(SYNTHESIS_METHODS, "toy", SynthesisMethod("a toy: the common design, marked",
+                                                                   f"{__name__}:toy_design"))
+    rng = np.random.default_rng(4)
+    A = np.stack([np.diag(rng.uniform(0.3, 0.8, 2)), 0.05 * rng.standard_normal((2, 2))])
+    B, C = rng.standard_normal((2, 1)), rng.standard_normal((1, 2))  # B, C constant: A alone varies with p
+    model = LPVSS(A, np.stack([B, 0 * B]), np.stack([C, 0 * C]), np.zeros((2, 1, 1)),
+                  Basis("affine", 1, p_min=(0.0,), p_max=(1.0,)), 0.1, u_names=["u"], y_names=["y"],
+                  p_names=["p"])
+    model.save(tmp_path / "model.json")
+    (tmp_path / "synth.toml").write_text('[synth]\nmethod = "toy"\nweights.S = { bandwidth = 0.5, '
+                                         'hf_gain = 0.5 }\nweights.K = { num = [0.1], den = [1] }\n')
+    status = main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "synth.toml"),
+                   "-o", str(tmp_path / "k.json")])
+    out, err = capsys.readouterr()
+    assert status == 0, err
+    assert out.startswith("a toy: the common design, marked, polytope box with 2 vertices")
+    assert lpvflow.load(tmp_path / "k.json").info["designed_by"] == "toy"
+
+
 def test_synthesis_error_is_one_of_lpvflows_error_types():
     """The class the solvers raise is lpvflow.errors.SynthesisError (lpvflow.synth.sdp re-exports it)."""
     from lpvflow.errors import ModelError, SynthesisError

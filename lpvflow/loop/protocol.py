@@ -92,6 +92,7 @@ class VerificationLaw(Protocol):
     n_out: int
     n_p: int | None
     design_box: np.ndarray | None
+    u_offset: np.ndarray | None
 
     def reset(self) -> None: ...
 

@@ -224,7 +224,7 @@ def _run(
     d_out = _sampled(scenario.output_disturbance, loop.measured, t, (0.0,) * len(loop.measured))
     d_in = _sampled(scenario.input_disturbance, loop.actuated, t, (0.0,) * len(loop.actuated))
     u_op = loop.u_operating_point or tuple(plant.start_value(name) for name in loop.actuated)
-    u_op = np.asarray(law.u_offset if getattr(law, "u_offset", None) is not None else u_op, dtype=float)
+    u_op = np.asarray(law.u_offset if law.u_offset is not None else u_op, dtype=float)
     lo = np.array([loop.actuator_limits.get(name, (-np.inf, np.inf))[0] for name in loop.actuated])
     hi = np.array([loop.actuator_limits.get(name, (-np.inf, np.inf))[1] for name in loop.actuated])
     inputs = _sampled(

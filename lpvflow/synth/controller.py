@@ -156,6 +156,9 @@ class LPVController:
     structure: str = "1dof"
     trim: Trim | None = None
 
+    #: No operating input of its own: a loop adds its own (:class:`lpvflow.loop.protocol.VerificationLaw`).
+    u_offset = None
+
     def __post_init__(self) -> None:
         mats = (self.Ak, self.Bk, self.Ck, self.Dk)
         self.Ak, self.Bk, self.Ck, self.Dk = (np.asarray(M, dtype=float) for M in mats)

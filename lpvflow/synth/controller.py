@@ -216,14 +216,6 @@ class LPVController:
         r, y = (np.asarray(v, dtype=float).reshape(self.n_measured) for v in (r, y))
         return np.concatenate([r, y]) if self.structure == "2dof" else r - y
 
-    def verification_law(self, measured: Sequence[str], actuated: Sequence[str]) -> LPVController:
-        """The law verification steps (:class:`lpvflow.loop.protocol.VerificationLaw`): itself, wired by
-        the loop's ``measured`` and ``actuated`` signals."""
-        return self
-
-    def close(self) -> None:
-        """Nothing to release (the controller holds no instance or file)."""
-
     def feedforward(self, p: np.ndarray) -> np.ndarray:
         """u_eq(p) (:class:`Trim`), zero without a trim table."""
         return np.zeros(self.n_out) if self.trim is None else self.trim.value(p)
@@ -235,6 +227,14 @@ class LPVController:
     def coordinates(self, p: np.ndarray) -> np.ndarray:
         """λ(p) for one scheduling point p (n_p,) (:meth:`Polytope.coordinates_at`)."""
         return self.polytope.coordinates_at(self.basis, p)
+
+    def verification_law(self, measured: Sequence[str], actuated: Sequence[str]) -> LPVController:
+        """The law verification steps (:class:`lpvflow.loop.protocol.VerificationLaw`): itself, wired by
+        the loop's ``measured`` and ``actuated`` signals."""
+        return self
+
+    def close(self) -> None:
+        """Nothing to release (the controller holds no instance or file)."""
 
     def matrices(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(A, B, C, D) of the controller frozen at p: Σ λ_i(p) M_i (the trim u_eq(p) is not part of them)."""

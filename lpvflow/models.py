@@ -207,16 +207,20 @@ class LPVSS:
     def ny(self) -> int:
         return self.C.shape[1]
 
-    def matrices(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(A, B, C, D) frozen at one scheduling point p (n_p,)."""
-        psi = self.basis.eval(np.atleast_1d(np.asarray(p, dtype=float)).reshape(1, -1))[0]
+    def matrices(self, p: np.ndarray, *, check_range: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, C, D) frozen at one scheduling point p (n_p,); a SchedulingRangeWarning outside the
+        identified range unless ``check_range`` is False (a caller that reports the range itself)."""
+        p = np.atleast_1d(np.asarray(p, dtype=float)).reshape(1, -1)
+        psi = self.basis.eval(p, check_range=check_range)[0]
         return tuple(np.tensordot(psi, M, axes=1) for M in (self.A, self.B, self.C, self.D))
 
-    def frozen(self, p: np.ndarray) -> control.StateSpace:
-        """The LTI model at constant scheduling p, as a discrete python-control StateSpace (dt = Ts)."""
+    def frozen(self, p: np.ndarray, *, check_range: bool = True) -> control.StateSpace:
+        """The LTI model at constant scheduling p, as a discrete python-control StateSpace (dt = Ts);
+        ``check_range`` as in :meth:`matrices`."""
         import control
 
-        A, B, C, D = self.matrices(p)
+        A, B, C, D = self.matrices(p, check_range=check_range)
         return control.ss(A, B, C, D, self.Ts, inputs=self.u_names, outputs=self.y_names)
 
     def simulate(

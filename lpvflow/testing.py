@@ -18,8 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from lpvflow.errors import DataError
-from lpvflow.loop.fmu_controller import FmuController
-from lpvflow.loop.loader import load_controller_file
+from lpvflow.loop.loader import VERIFY_KINDS, load_controller_file
 from lpvflow.pipeline.config import load_scenarios
 from lpvflow.pipeline.scenarios import Loop, Scenario
 from lpvflow.pipeline.verify import Baseline, Verification, run_verification
@@ -49,11 +48,12 @@ def assert_closed_loop(
         loop, scenarios = loop or parsed.loop, parsed.scenarios
     if loop is None:
         raise DataError("no loop wiring: give a scenario file with a [verify.loop] table or pass loop=")
-    law = load_controller_file(controller) if isinstance(controller, str | Path) else controller
+    law = load_controller_file(controller, VERIFY_KINDS, "verify") if isinstance(controller, str | Path) \
+        else controller
     try:
         verification = run_verification(law, plant_fmu, scenarios, loop)
     finally:
-        if isinstance(law, FmuController) and law is not controller:
+        if law is not controller:  # loaded here: release what it holds (an FMU instance)
             law.close()
     failures = [f"scenario {result.scenario.name!r}: {problem}"
                 for result in verification.results for problem in _problems(result.metrics[0])]

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from lpvflow.pipeline.cli import main
-from tests.test_cli_errors import DESIGN, TANKS
+from tests.test_cli_errors import TANKS, design_text
 from tests.test_cli_validate import true_system
 from tests.test_export import _adip_lpv_controller
 from tests.test_load_all import SCENARIO
@@ -61,7 +61,7 @@ def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "lti.json").write_bytes((ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json").read_bytes())
     (d / "scenario.toml").write_text(SCENARIO)
     (d / "synth.toml").write_text(SYNTH)
-    (d / "design.toml").write_text(DESIGN.format(plant=TANKS, out=d / "out"))
+    (d / "design.toml").write_text(design_text(TANKS, d / "out"))
     (d / "out" / "tanks").mkdir(parents=True)
     (d / "out" / "tanks" / "report.html").write_text("previous good report")
     text = data.read_bytes()
@@ -185,7 +185,7 @@ CASES: dict[str, tuple[str, str]] = {
     "validate zero grid": ("validate {d}/model.json {d}/data.csv --u volt --y level --p theta --grid 0",
                            "grid"),
     "validate data as controller": ("validate {d}/model.json {d}/data.csv --u volt --y level --p theta "
-                                    "--controller {d}/data.csv", "is not a lpvflow JSON file"),
+                                    "--controller {d}/data.csv", "is not valid JSON"),
     "validate controller of another plant": ("validate {d}/model.json {d}/data.csv --u volt --y level "
                                              "--p theta --controller {d}/k.json", "controller"),
     "validate missing reference": ("validate {d}/model.json {d}/data.csv --u volt --y level --p theta "
@@ -255,7 +255,7 @@ CASES: dict[str, tuple[str, str]] = {
     "export json named txt": ("export {d}/k.json --format json -o {d}/k2.txt", "does not end in .json"),
     "export a model": ("export {d}/model.json --format json -o {d}/k2.json", "has format 'lpvflow/lpvss'"),
     "export an LTI controller": ("export {d}/lti.json --format json -o {d}/k2.json",
-                                 "not an lpvflow/lpv-controller"),
+                                 "export runs 'lpvflow/lpv-controller' controllers"),
     "export over the controller": ("export {d}/k.json --format json -o {d}/k.json",
                                    "would overwrite the input file"),
     "export unknown format": ("export {d}/k.json --format pdf -o {d}/k.pdf", "invalid choice: 'pdf'"),

@@ -25,27 +25,13 @@ from lpvflow.pipeline import cli_export, design
 from lpvflow.pipeline.cache import folder_lock
 from lpvflow.pipeline.cli import main, package_version
 from lpvflow.pipeline.config import SCHEMA
+from tests.design_files import tanks_head
 
 ROOT = Path(__file__).resolve().parents[1]
 TANKS = ROOT / "fmu_plants" / "build" / "tanks.fmu"
 
-DESIGN = """
-[design]
-name = "tanks"
-plant = "{plant}"
-output_dir = "{out}"
-
-[experiment]
-Ts = 1.0
-duration = 100.0
-inputs = {{ pump_voltage = "levels:lo=4,hi=11,min_hold=5,max_hold=40" }}
-scheduling = {{ level = "lower_level" }}
-
-[identify]
-u = ["pump_voltage"]
-y = ["lower_level"]
-p = ["level"]
-na = 2
+#: The rest of the design after the shared tanks head (100 s of data: fast, not a good model).
+DESIGN_TAIL = """na = 2
 split = 0.6
 
 [reduce]
@@ -56,8 +42,8 @@ grid = 3
 [synth]
 method = "common"
 box = [[0.05, 0.2]]
-weights.S = {{ bandwidth = 0.05, hf_gain = 0.5 }}
-weights.K = {{ num = [0.1], den = [1] }}
+weights.S = { bandwidth = 0.05, hf_gain = 0.5 }
+weights.K = { num = [0.1], den = [1] }
 
 [verify.loop]
 measured = ["lower_level"]
@@ -67,11 +53,17 @@ scheduling = ["lower_level"]
 [[verify.scenario]]
 name = "step"
 duration = 50.0
-reference = {{ lower_level = {{ steps = [[1.0, 0.01]] }} }}
+reference = { lower_level = { steps = [[1.0, 0.01]] } }
 
 [export]
 formats = ["json"]
 """
+
+
+def design_text(plant: object, out: object) -> str:
+    """A valid tanks design writing into ``out``: the shared head (:func:`tests.design_files.tanks_head`,
+    100 s of data, seed 0) and :data:`DESIGN_TAIL`."""
+    return tanks_head(plant, out, duration=100.0, seed=0) + DESIGN_TAIL
 
 
 def run_cli(capsys: pytest.CaptureFixture, *argv: object) -> tuple[int, str]:
@@ -92,7 +84,7 @@ def one_line(err: str, *fragments: str) -> None:
 def design_file(tmp_path: Path) -> Path:
     """A valid design; its folder already holds a previous run's report."""
     path = tmp_path / "design.toml"
-    path.write_text(DESIGN.format(plant=TANKS, out=tmp_path / "out"))
+    path.write_text(design_text(TANKS, tmp_path / "out"))
     folder = tmp_path / "out" / "tanks"
     folder.mkdir(parents=True)
     (folder / "report.html").write_text("previous good report")

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from lpvflow.pipeline.cache import LOCK_NAME, folder_lock
-from tests.test_cli_errors import DESIGN, TANKS
+from tests.test_cli_errors import TANKS, design_text
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Stages of the design whose start line may precede the signal (export and the report are too short to
@@ -28,7 +28,7 @@ STAGES = ("experiment", "identify", "reduce", "validate", "synth", "verify")
 
 def design_file(folder: Path) -> Path:
     path = folder / "design.toml"
-    text = DESIGN.format(plant=TANKS, out=folder / "out")
+    text = design_text(TANKS, folder / "out")
     path.write_text(text.replace("weights.K = { num = [0.1], den = [1] }",
                                  "weights.K = { num = [0.1], den = [1] }\n"
                                  "weights.B = { num = [0, 0.3], den = [1, -0.7] }"))

@@ -8,6 +8,7 @@ import dataclasses
 import json
 import re
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.config import INPUT_FILES, SCHEMA, load_config
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.settings import ALL, StageSettings, TableView, UndeclaredSetting
-from tests.design_files import tanks_head
+from tests.design_files import tanks_head, tanks_synth
 
 PACKAGE = Path(lpvflow.__file__).resolve().parent
 ROOT = PACKAGE.parent
@@ -103,6 +104,39 @@ def test_cycle_finder_finds_a_planted_cycle():
 def test_no_module_of_lpvflow_imports_itself_back():
     """No two files import each other, directly or around a loop, at module level or inside functions."""
     assert cycles(import_graph()) == []
+
+
+#: The one place that branches on a controller class: ``run_fmu_experiment`` wires a user's plain
+#: LPVController object by its port record (a method on LPVController would import the experiment and,
+#: through the port record, the pipeline from synth: a cycle).
+CONTROLLER_TYPE_TESTS_ALLOWED = {("lpvflow/experiment/fmu_experiment.py", "LPVController")}
+
+
+def controller_type_tests(tree: ast.AST) -> list[str]:
+    """The controller class names ``isinstance`` tests in ``tree`` (``X | Y`` and tuples split)."""
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "isinstance" \
+                and len(node.args) == 2:
+            found += [n.id for n in ast.walk(node.args[1]) if isinstance(n, ast.Name)
+                      and (n.id.endswith("Controller") or n.id.startswith("Synthesized"))]
+    return found
+
+
+def test_the_controller_check_finds_planted_branches():
+    planted = "if isinstance(K, LtiController | GriddedController): pass\nisinstance(x, (int, FmuController))"
+    assert controller_type_tests(ast.parse(planted)) == ["LtiController", "GriddedController",
+                                                         "FmuController"]
+    assert controller_type_tests(ast.parse("isinstance(x, str | Path)")) == []
+
+
+def test_no_module_branches_on_a_controller_class():
+    """Every controller kind gives the loops what they need through its methods (the loop protocol,
+    ``loop_law``, ``verification_law``, ``scheduled``, ``n_p``, ``frozen``, ``close``) and the one loader
+    takes the kinds its caller runs: no isinstance on a controller class, except the one coercion above."""
+    found = {(str(path.relative_to(ROOT)), name) for path in sorted(PACKAGE.rglob("*.py"))
+             for name in controller_type_tests(ast.parse(path.read_text(encoding="utf-8")))}
+    assert found == CONTROLLER_TYPE_TESTS_ALLOWED
 
 
 # ------------------------------------------------------------------------------------ source hygiene
@@ -315,6 +349,41 @@ def test_verify_loop_is_parsed_once_when_the_file_is_read(tmp_path, monkeypatch)
     assert StageSettings(config, design_module.SYNTH.reads)["verify"]["loop"] is loop  # handed on as parsed
 
 
+def toy_design(model, plant, settings, frozen_model):
+    """A synthesis method's design function (docs/synthesis_methods.md, place 1): the common design,
+    marked as this method's."""
+    from lpvflow.synth.design import design_common
+
+    design = design_common(model, plant, settings, frozen_model)
+    design.controller.info["designed_by"] = "toy"
+    return design
+
+
+def test_a_synthesis_method_is_a_design_function_and_one_registry_line(tmp_path, capsys, monkeypatch):
+    """docs/synthesis_methods.md: adding a method is one module (here :func:`toy_design`), one line in
+    SYNTHESIS_METHODS and its docs; the schema accepts the name and ``lpvflow synth`` runs it, prints its
+    summary and writes its controller with nothing else changed."""
+    from lpvflow.synth.methods import SYNTHESIS_METHODS, SynthesisMethod
+
+    monkeypatch.setitem(SYNTHESIS_METHODS, "toy", SynthesisMethod("a toy: the common design, marked",
+                                                                   f"{__name__}:toy_design"))
+    rng = np.random.default_rng(4)
+    A = np.stack([np.diag(rng.uniform(0.3, 0.8, 2)), 0.05 * rng.standard_normal((2, 2))])
+    B, C = rng.standard_normal((2, 1)), rng.standard_normal((1, 2))  # B, C constant: A alone varies with p
+    model = LPVSS(A, np.stack([B, 0 * B]), np.stack([C, 0 * C]), np.zeros((2, 1, 1)),
+                  Basis("affine", 1, p_min=(0.0,), p_max=(1.0,)), 0.1, u_names=["u"], y_names=["y"],
+                  p_names=["p"])
+    model.save(tmp_path / "model.json")
+    (tmp_path / "synth.toml").write_text('[synth]\nmethod = "toy"\nweights.S = { bandwidth = 0.5, '
+                                         'hf_gain = 0.5 }\nweights.K = { num = [0.1], den = [1] }\n')
+    status = main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "synth.toml"),
+                   "-o", str(tmp_path / "k.json")])
+    out, err = capsys.readouterr()
+    assert status == 0, err
+    assert out.startswith("a toy: the common design, marked, polytope box with 2 vertices")
+    assert lpvflow.load(tmp_path / "k.json").info["designed_by"] == "toy"
+
+
 def test_synthesis_error_is_one_of_lpvflows_error_types():
     """The class the solvers raise is lpvflow.errors.SynthesisError (lpvflow.synth.sdp re-exports it)."""
     from lpvflow.errors import ModelError, SynthesisError
@@ -334,30 +403,24 @@ order = 2
 
 [validate]
 grid = 3
-
-[synth]
-box = [[0.05, 0.18]]
-weights.S = {{ bandwidth = 0.2, hf_gain = 0.5 }}
-weights.K = {{ num = [0.01], den = [1] }}
-weights.B = {{ num = [0, 0.5], den = [1, -0.5] }}
-weights.integrator_shift = 1e-4
-
+""" + tanks_synth() + """
 [verify.loop]
 measured = ["lower_level"]
 actuated = ["pump_voltage"]
 u_operating_point = [6.76]
-actuator_limits = {{ pump_voltage = [0.0, 13.0] }}
+actuator_limits = { pump_voltage = [0.0, 13.0] }
 
 [[verify.scenario]]
 name = "level 8 -> 12 cm"
 duration = 300.0
-reference = {{ lower_level = {{ initial = 0.08, steps = [[50.0, 0.04]] }} }}
+reference = { lower_level = { initial = 0.08, steps = [[50.0, 0.04]] } }
 """
 
 
 def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, monkeypatch):
     """A whole run (experiment → … → verify on the tanks FMU): the stages read data.csv once, and
-    [verify.loop] is parsed once, when the design file is read; the stages get the parsed loop."""
+    [verify.loop] is parsed once, when the design file is read; the stages get the parsed loop; no Python
+    warning escapes."""
     import lpvflow.data
     import lpvflow.pipeline.key_checks as key_checks
     import lpvflow.pipeline.report as report_module
@@ -401,8 +464,15 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
     _spy_everywhere(monkeypatch, original_parse, lambda doc: parses.append(doc) or original_parse(doc))
     monkeypatch.setattr(report_module, "write_report", report)
     path = tmp_path / "design.toml"
-    path.write_text(tanks_head(TANKS, tmp_path / "out") + TANKS_DESIGN.format())
-    summary = run_design(path, log=lambda _: None)
+    path.write_text(tanks_head(TANKS, tmp_path / "out") + TANKS_DESIGN)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        summary = run_design(path, log=lambda _: None)
+    # no Python warning escapes the run; the box reaching past the identified range (0.18 against the
+    # record's 0.1798) is said in the synth stage's words instead of a SchedulingRangeWarning
+    assert [str(w.message) for w in caught] == []
+    note = summary["stages"]["synth"]["outputs"]["box_note"]
+    assert note.startswith("reaches past the identified range: level [0.05, 0.18] against [0, 0.1"), note
     ran = {name for name, stage in summary["stages"].items() if stage["status"] == "ran"}
     assert {"identify", "validate", "synth", "verify"} <= ran, summary["failed"]
     assert len(reads) == 1 and reads[0] is None  # every column, once, for every stage after the experiment
@@ -419,6 +489,14 @@ def test_one_design_run_reads_the_data_once_and_parses_the_loop_once(tmp_path, m
 
 
 # ------------------------------------------------------------------------------ one loop engine
+def _exact_model(G, reach: float) -> LPVSS:
+    """The LTI plant G (inputs u0, u1, output y0) as an LPVSS scheduled on p, identified on ±reach."""
+    zero = np.zeros((G.nstates, G.nstates))
+    return LPVSS(np.stack([G.A, zero]), np.stack([G.B, 0 * G.B]), np.stack([G.C, 0 * G.C]),
+                 np.zeros((2, 1, 2)), Basis("affine", 1, p_min=(-reach,), p_max=(reach,)), G.dt,
+                 u_names=["u0", "u1"], y_names=["y0"], p_names=["p"])
+
+
 @pytest.mark.parametrize("seed", [2, 5])
 def test_the_model_in_the_loop_reproduces_an_lti_experiment_with_set_points(tmp_path, seed):
     """On an exact model the validate stage's closed-loop simulation (the loop engine with the model as
@@ -444,10 +522,7 @@ def test_the_model_in_the_loop_reproduces_an_lti_experiment_with_set_points(tmp_
                             excitation={"u0": "multisine:f_lo=1,f_hi=10,rms=0.1"},
                             scheduling_columns={"p": "y0"}, seed=seed, progress=False)
     write_record(record, tmp_path / "data.csv")
-    zero = np.zeros((G.nstates, G.nstates))
-    model = LPVSS(np.stack([G.A, zero]), np.stack([G.B, 0 * G.B]), np.stack([G.C, 0 * G.C]),
-                  np.zeros((2, 1, 2)), Basis("affine", 1, p_min=(-1.0,), p_max=(1.0,)), G.dt,
-                  u_names=["u0", "u1"], y_names=["y0"], p_names=["p"])
+    model = _exact_model(G, 1.0)
     data = Dataset.read(tmp_path / "data.csv", ["u0", "u1"], ["y0"], ["p"])
     config = {"experiment": {"controller": str(path), "scheduling": {"p": "y0"}},
               "identify": {"remove_trim": False}}
@@ -507,3 +582,42 @@ def test_the_model_in_the_loop_with_offsets_feeds_the_controller_plant_coordinat
     assert abs(y0[0]) > 0.1  # the data are not centred on 0
     np.testing.assert_allclose(y_sim, loop(y0), atol=1e-9)
     assert np.max(np.abs(loop(np.zeros(1)) - loop(y0))) > 0.1
+
+
+@pytest.mark.parametrize("seed", [3, 8])
+def test_the_model_in_the_loop_runs_around_the_operating_point_it_was_identified_at(tmp_path, seed):
+    """With ``remove_offsets`` the model describes deviations from (u₀, y₀); the validate stage's
+    closed-loop fit runs it as the plant y₀ + y fed u − u₀ under the experiment controller (which reads
+    and drives the plant's signals), the input the controller does not drive at its recorded values, and
+    returns deviations: on the exact model of a plant started at rest at (u₀, y₀) it reproduces the
+    record."""
+    from lpvflow.data import Dataset
+    from lpvflow.experiment import LtiController, run_experiment
+    from lpvflow.experiment.record import write_record
+    from lpvflow.pipeline.model_loop import closed_loop_simulation
+    from tests.test_experiment_run import StateSpacePlant, stabilising_controller, unstable_plant
+
+    G = unstable_plant()
+    rng = np.random.default_rng(seed)
+    u0 = rng.uniform(-1.0, 1.0, 2)
+    x0 = np.linalg.solve(np.eye(G.nstates) - G.A, G.B @ u0)  # the plant at rest at (u0, y0)
+    y0 = G.C @ x0
+    K = LtiController.from_statespace(stabilising_controller(), y_op=y0, u_op=u0[:1])
+    path = tmp_path / "K.json"
+    path.write_text(json.dumps(K.to_dict()))
+    plant = StateSpacePlant(G, u0=u0)
+    plant.x = x0.copy()
+    record = run_experiment(plant, G.dt, 3.0, inputs={"u1": "multisine:f_lo=1,f_hi=10,rms=0.2"},
+                            controller=K, excitation={"u0": "multisine:f_lo=1,f_hi=10,rms=0.1"},
+                            scheduling_columns={"p": "y0"}, seed=seed, progress=False)
+    write_record(record, tmp_path / "data.csv")
+    model = _exact_model(G, 5.0)
+    measured = Dataset.read(tmp_path / "data.csv", ["u0", "u1"], ["y0"], ["p"])
+    offsets = {"u": u0.tolist(), "y": y0.tolist()}
+    data = dataclasses.replace(measured, u=measured.u - u0, y=measured.y - y0, offsets=offsets)
+    config = {"experiment": {"controller": str(path), "scheduling": {"p": "y0"}},
+              "identify": {"remove_trim": False}}
+    ctx = StageContext(tmp_path, config, {"identify": {"offsets": offsets}})
+    y_sim = closed_loop_simulation(model, data, ctx)
+    assert np.ptp(data.y) > 0.05 and np.all(np.abs(y0) > 0.0)
+    np.testing.assert_allclose(y_sim, data.y, atol=1e-9)

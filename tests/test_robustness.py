@@ -23,7 +23,7 @@ from lpvflow.synth.controller import LPVController
 from lpvflow.synth.loop_shaping import central_ncf_controller
 from lpvflow.synth.polytope import PointPolytope
 from lpvflow.validate.robust_stability import generalized_margin
-from tests.design_files import tanks_head
+from tests.design_files import tanks_head, tanks_synth
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -122,14 +122,6 @@ order = 2
 grid = 3
 reference = "linearization"
 scaling = {{ pump_voltage = {u_scale}, lower_level = {y_scale} }}
-
-[synth]
-method = "common"
-box = [[0.05, 0.18]]
-weights.S = {{ bandwidth = 0.2, hf_gain = 0.5 }}
-weights.K = {{ num = [0.01], den = [1] }}
-weights.B = {{ num = [0, 0.5], den = [1, -0.5] }}
-weights.integrator_shift = 1e-4
 """
 
 
@@ -143,7 +135,7 @@ def test_design_reports_b_of_its_controller_against_the_nugap_without_changing_t
     u_scale, y_scale = 2.0, 0.05
     path = tmp_path / "design.toml"
     path.write_text(tanks_head(ROOT / "fmu_plants" / "build" / "tanks.fmu", tmp_path / "out")
-                    + TANKS.format(u_scale=u_scale, y_scale=y_scale))
+                    + TANKS.format(u_scale=u_scale, y_scale=y_scale) + tanks_synth('method = "common"'))
     summary = run_design(path, log=lambda _: None)
     folder = tmp_path / "out" / "tanks"
     assert summary["verdict"]["pass"] is True
@@ -185,7 +177,7 @@ def test_robustness_gate_stops_a_design_whose_b_is_below_the_nugap_naming_the_po
     u_scale, y_scale = 2.0, 0.05
     path = tmp_path / "design.toml"
     path.write_text(tanks_head(ROOT / "fmu_plants" / "build" / "tanks.fmu", tmp_path / "out")
-                    + TANKS.format(u_scale=u_scale, y_scale=y_scale)
+                    + TANKS.format(u_scale=u_scale, y_scale=y_scale) + tanks_synth('method = "common"')
                     + f"robustness_gate = {str(gate).lower()}\n")
     status = main(["design", str(path)])
     captured = capsys.readouterr()

@@ -139,3 +139,32 @@ def test_a_2dof_plant_without_a_reference_weight_measures_r_itself():
         for name in ("A", "B1", "B2", "C1", "C2", "D11", "D12", "D21", "D22"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     assert bare.vertices[0].dims[1] == 2 and bare.vertices[0].dims[4] == 2  # w = [r; n], y = [r; y_m]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_each_polytope_kind_gives_its_own_design_grid_and_hat_breakpoints(seed):
+    """The behaviour the certificate and the rate-bounded design ask of a polytope (no test of its kind's
+    name): a piecewise polytope's design grid holds every breakpoint, where λ is that vertex's unit
+    vector, and its λ is the hat functions of its breakpoints; a box over one signal is the segment of its
+    two ends (λ the hats of [lo, hi]); a box over two signals has no breakpoints and grids the box."""
+    from lpvflow.synth.polytope import hat_coordinates, piecewise_polytope
+
+    rng = np.random.default_rng(seed)
+    lo, hi = np.sort(rng.uniform(-3.0, 3.0, 2)) + np.array([0.0, 0.5])
+    model = _model(Basis("affine", 1, p_min=(lo,), p_max=(hi,)), seed)
+    inner = np.sort(rng.uniform(lo, hi, 3))
+    piecewise = piecewise_polytope(model, None, np.concatenate([[lo], inner, [hi]]))
+    points = piecewise.design_points(7)[:, 0]
+    for i, b in enumerate(piecewise.vertex_breakpoints):
+        assert np.min(np.abs(points - b)) < 1e-12
+        np.testing.assert_allclose(piecewise.coordinates_of_p(model, [b]), np.eye(5)[i], atol=1e-12)
+    segment = polytope_of(model)
+    np.testing.assert_array_equal(segment.vertex_breakpoints, [lo, hi])
+    for p in rng.uniform(lo, hi, 10):
+        np.testing.assert_allclose(segment.coordinates_of_p(model, [p]),
+                                   hat_coordinates(segment.vertex_breakpoints, p), atol=1e-12)
+        np.testing.assert_allclose(piecewise.coordinates_of_p(model, [p]),
+                                   hat_coordinates(piecewise.vertex_breakpoints, p), atol=1e-12)
+    box = polytope_of(_model(Basis("affine", 2, p_min=(lo, -1.0), p_max=(hi, 1.0)), seed))
+    assert box.vertex_breakpoints is None
+    assert box.design_points(4).shape == (16, 2)

@@ -22,7 +22,7 @@ from lpvflow.pipeline.design import ROBUSTNESS, run_design
 from lpvflow.pipeline.settings import StageSettings
 from lpvflow.pipeline.trajectory_validation import trajectory_validation
 from lpvflow.pipeline.verify import simulate_loop
-from tests.design_files import tanks_head
+from tests.design_files import tanks_head, tanks_synth
 from tests.test_robustness import TANKS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,7 +55,8 @@ def design(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path, Path]:
     two level moves above: its summary, design folder and design file."""
     root = tmp_path_factory.mktemp("trajectory_design")
     path = root / "design.toml"
-    path.write_text(tanks_head(PLANT, root / "out") + TANKS.format(u_scale=2.0, y_scale=0.05) + VERIFY)
+    path.write_text(tanks_head(PLANT, root / "out") + TANKS.format(u_scale=2.0, y_scale=0.05)
+                    + tanks_synth('method = "common"') + VERIFY)
     summary = run_design(path, log=lambda _: None)
     return summary, root / "out" / "tanks", path
 

@@ -10,7 +10,7 @@ File format ``lpvflow/lti-controller`` version 1 (JSON): ``Ts``, matrices ``A``,
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lpvflow.errors import DataError, ModelError
+from lpvflow.loop.protocol import FixedLaw, GriddedLaw, LtiLaw
 
 if TYPE_CHECKING:  # python-control takes ~1 s to import; the controller law needs only numpy
     import control
@@ -39,6 +40,11 @@ class LtiController:
     outputs: tuple[str, ...]
     y_op: np.ndarray
     u_op: np.ndarray
+
+    #: The law is the same at every operating point (no scheduling, a constant trim u_op).
+    scheduled = False
+    #: Scheduled on no signal.
+    n_p = None
 
     def __post_init__(self) -> None:
         n, ny, nu = self.A.shape[0], len(self.inputs), len(self.outputs)
@@ -80,6 +86,28 @@ class LtiController:
             y_op=np.zeros(len(inputs)) if y_op is None else np.asarray(y_op, float).reshape(-1),
             u_op=np.zeros(len(outputs)) if u_op is None else np.asarray(u_op, float).reshape(-1),
         )
+
+    def loop_law(self) -> LtiLaw:
+        """The controller in the loop protocol (:class:`lpvflow.loop.protocol.LtiLaw`)."""
+        return LtiLaw(self)
+
+    def verification_law(self, measured: Sequence[str], actuated: Sequence[str]) -> FixedLaw:
+        """The law verification steps in a loop that measures ``measured`` and drives ``actuated``
+        (:class:`lpvflow.loop.protocol.FixedLaw` on y − r, its own u_op); one ModelError line when they
+        are not the signals it reads and drives."""
+        if tuple(self.inputs) != tuple(measured) or tuple(self.outputs) != tuple(actuated):
+            raise ModelError(f"the LTI controller reads {list(self.inputs)} and drives "
+                             f"{list(self.outputs)}; the loop measures {list(measured)} and drives "
+                             f"{list(actuated)}: they must match")
+        return FixedLaw(self.A, self.B, self.C, self.D, self.Ts, -1.0, self.u_op)
+
+    def close(self) -> None:
+        """Nothing to release (the controller holds no instance or file)."""
+
+    def frozen(self, p: np.ndarray) -> control.StateSpace:
+        """The law on e = r − y (its operating points dropped), the same at every p: K in u = −K y over
+        its own signals (:meth:`negative_feedback`), as :meth:`LPVController.frozen` of a 1-DOF law."""
+        return self.negative_feedback()
 
     def trim_along(self, columns: Mapping[str, np.ndarray], n: int) -> np.ndarray:
         """(n, nu) trim of the first n samples of a record: the constant u_op (``columns`` unused)."""
@@ -211,6 +239,9 @@ class GriddedController:
     scheduling: str
     description: str = ""
 
+    #: The law depends on θ (matrices and trim interpolated on the grid).
+    scheduled = True
+
     def __post_init__(self) -> None:
         G = len(self.grid)
         if G < 1 or self.grid.ndim != 1 or not np.all(np.diff(self.grid) > 0):
@@ -241,6 +272,10 @@ class GriddedController:
     @property
     def order(self) -> int:
         return self.A.shape[1]
+
+    def loop_law(self) -> GriddedLaw:
+        """The controller in the loop protocol (:class:`lpvflow.loop.protocol.GriddedLaw`)."""
+        return GriddedLaw(self)
 
     @property
     def scheduling_names(self) -> list[str]:

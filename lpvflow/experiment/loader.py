@@ -1,28 +1,24 @@
 """The controllers an experiment (and the design's stages) can run, read through the one controller
-loader (:func:`lpvflow.loop.loader.load_controller_file`)."""
+loader (:func:`lpvflow.loop.loader.load_controller_file`): an ``lpvflow/lpv-controller`` is read wired
+to the plant signals by its ``info["signals"]`` (:mod:`lpvflow.experiment.synthesized`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from lpvflow.errors import ModelError
 from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.experiment.synthesized import SynthesizedController
-from lpvflow.loop.loader import load_controller_file
-from lpvflow.synth.controller import LPVController
+from lpvflow.loop.loader import JSON_KINDS, LPV_FORMAT, READERS, load_controller_file, lpv_controller
 
 #: Controllers an experiment can run.
 ExperimentController = LtiController | GriddedController | SynthesizedController
 
 
+def _wired(doc: dict, source: str) -> SynthesizedController:
+    return SynthesizedController.from_controller(lpv_controller(doc, source), source)
+
+
 def load_experiment_controller(path: str | Path) -> ExperimentController:
     """An ``lpvflow/lti-controller``, ``lpvflow/gridded-controller`` or ``lpvflow/lpv-controller`` JSON
-    file (the last wired by its ``info["signals"]``, :mod:`lpvflow.experiment.synthesized`)."""
-    controller = load_controller_file(path)
-    if isinstance(controller, LPVController):
-        return SynthesizedController.from_controller(controller, f"controller file {path}")
-    if not isinstance(controller, LtiController | GriddedController):
-        raise ModelError(f"controller file {path} is a controller FMU; an experiment runs the JSON "
-                         "controller files (lpvflow/lti-controller, lpvflow/gridded-controller, "
-                         "lpvflow/lpv-controller)")
-    return controller
+    file (module docstring)."""
+    return load_controller_file(path, JSON_KINDS, "an experiment", {**READERS, LPV_FORMAT: _wired})

@@ -64,7 +64,7 @@ from lpvflow.experiment.plant import Plant
 from lpvflow.experiment.specs import SignalSpec, generate, parse_spec
 from lpvflow.experiment.synthesized import SynthesizedController
 from lpvflow.loop.engine import close_loop
-from lpvflow.loop.protocol import OpenLoop, as_loop_controller
+from lpvflow.loop.protocol import OpenLoop, check_names
 
 #: Tolerance on the controller Ts matching the experiment Ts.
 _STEP_TOLERANCE = 1e-9
@@ -112,24 +112,6 @@ def _as_specs(signals: Mapping[str, str | SignalSpec] | None) -> dict[str, Signa
             for name, spec in (signals or {}).items()}
 
 
-def _check_names(kind: str, names: list[str] | tuple[str, ...], available: list[str], model: str) -> None:
-    unknown = [n for n in names if n not in available]
-    if unknown:
-        raise ModelError(
-            f"{kind} {', '.join(map(repr, unknown))} not in FMU {model}; "
-            f"it has {', '.join(available) or 'none'}"
-        )
-
-
-def _check_finite(y: np.ndarray, start: int, stop: int, names: list[str], Ts: float) -> None:
-    """Raise at the first non-finite output in rows start..stop-1 (checked per block, not per step)."""
-    bad = ~np.isfinite(y[start:stop])
-    if bad.any():
-        k, j = np.argwhere(bad)[0]
-        t = (start + k) * Ts
-        raise ModelError(f"plant output {names[j]} is non-finite at t={t:g} s; the run diverged")
-
-
 def run_experiment(
     plant: Plant,
     Ts: float,
@@ -161,19 +143,17 @@ def run_experiment(
     input_specs, excitation_specs = _as_specs(inputs), _as_specs(excitation)
     setpoint_specs = _as_specs(setpoint)
     model = plant.model_name
-    _check_names("input", list(input_specs), plant.input_names, model)
-    _check_names("excitation input", list(excitation_specs), plant.input_names, model)
-    _check_names("set-point output", list(setpoint_specs), plant.output_names, model)
+    check_names("input", list(input_specs), plant.input_names, model)
+    check_names("excitation input", list(excitation_specs), plant.input_names, model)
+    check_names("set-point output", list(setpoint_specs), plant.output_names, model)
     sensors = _sensor_model(quantization, noise, plant.output_names, model)
     if controller is None and (excitation_specs or setpoint_specs):
         what = "an excitation is added to a controller output" if excitation_specs else \
             "a set-point is what a controller tracks"
         raise DataError(f"{what}; give a controller (or use --input for an open-loop signal)")
-    if isinstance(controller, SynthesizedController):
-        controller.check_plant(plant.output_names, plant.input_names, model)
+    K = OpenLoop() if controller is None else controller.loop_law()
+    K.check_plant(plant.output_names, plant.input_names, model)
     if controller is not None:
-        _check_names("controller input (plant output)", controller.inputs, plant.output_names, model)
-        _check_names("controller output (plant input)", controller.outputs, plant.input_names, model)
         if abs(controller.Ts - Ts) > _STEP_TOLERANCE * Ts:
             raise ModelError(f"controller Ts={controller.Ts:g} s differs from the experiment Ts={Ts:g} s")
         both = sorted(set(controller.outputs) & set(input_specs))
@@ -194,33 +174,23 @@ def run_experiment(
         u_open[:, j] = operating if spec is None else generate(spec, n, Ts, signal_rng(seed, name), operating)
     r = {name: generate(spec, n, Ts, signal_rng(seed, "excitation:" + name), 0.0)
          for name, spec in excitation_specs.items()}
-    s: dict[str, np.ndarray] = {}
-    if isinstance(controller, GriddedController):
-        s = {name: generate(spec, n, Ts, signal_rng(seed, "setpoint:" + name), 0.0)
-             for name, spec in setpoint_specs.items()}
-    elif controller is not None and setpoint_specs:
-        y_op = dict(zip(controller.inputs, controller.y_op, strict=True))
-        s = {name: generate(spec, n, Ts, signal_rng(seed, "setpoint:" + name), y_op[name])
-             for name, spec in setpoint_specs.items()}
-    if isinstance(controller, LtiController) and setpoint_specs:
-        shift = np.column_stack([y_op[name] - s[name] if name in s else np.zeros(n)
-                                 for name in controller.inputs])
-        r_s = controller.response(shift)
-        r = {name: r.get(name, 0.0) + r_s[:, j] for j, name in enumerate(controller.outputs)}
+    origin = dict(zip(K.inputs, K.setpoint_origin, strict=True))
+    s = {name: generate(spec, n, Ts, signal_rng(seed, "setpoint:" + name), origin[name])
+         for name, spec in setpoint_specs.items()}
+    # the set-points of the outputs K reads (NaN: none given) as K takes them: its references, or a
+    # command added to its output (module docstring of lpvflow.loop.protocol)
+    setpoints = np.column_stack([s.get(name, np.full(n, np.nan)) for name in K.inputs]) if K.inputs \
+        else np.zeros((n, 0))
+    references = K.references_of(setpoints)
+    added = K.setpoint_command(setpoints) if setpoint_specs else None
+    if added is not None:
+        r = {name: r.get(name, 0.0) + added[:, j] for j, name in enumerate(K.outputs)}
 
     y = np.empty((n, len(plant.output_names)))
     u = u_open.copy()
     measure = sensors(n, seed)
-    K = OpenLoop() if controller is None else as_loop_controller(controller)
-    # the references of the outputs K reads: their set-points (NaN: K's operating point); an LTI
-    # controller's set-points are already in r (above)
-    references = np.full((n, len(K.inputs)), np.nan)
-    if not isinstance(controller, LtiController):
-        for j, name in enumerate(K.inputs):
-            references[:, j] = s.get(name, references[:, j])
     u_index = [plant.input_names.index(name) for name in K.outputs]
     r_matrix = np.column_stack([r.get(name, np.zeros(n)) for name in K.outputs]) if K.outputs else None
-    synthesized = isinstance(controller, SynthesizedController)
     show = None if progress is None else not progress
     bar = tqdm(total=n, unit="step", desc=f"experiment {model}", disable=show)
 
@@ -228,9 +198,10 @@ def run_experiment(
         y[k] = measure(k, y_plant)
         return y[k]
 
-    def stop(k: int, y_k: np.ndarray) -> None:  # the LPV controller's scheduling needs finite outputs
-        if synthesized and not np.all(np.isfinite(y_k)):
-            _check_finite(y, k, k + 1, plant.output_names, Ts)
+    def stop(k: int, y_k: np.ndarray) -> None:  # the scheduling and the law need finite outputs
+        if not np.all(np.isfinite(y_k)):
+            bad = plant.output_names[int(np.argmin(np.isfinite(y_k)))]
+            raise ModelError(f"plant output {bad} is non-finite at t={k * Ts:g} s; the run diverged")
 
     def actuate(k: int, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
         if r_matrix is not None:
@@ -239,7 +210,6 @@ def run_experiment(
 
     def record(k: int, y_k: np.ndarray, p: np.ndarray, u_c: np.ndarray, u_k: np.ndarray | None) -> None:
         if k % 1000 == 999 or k == n - 1:
-            _check_finite(y, k - k % 1000, k + 1, plant.output_names, Ts)
             bar.update(k + 1 - bar.n)
 
     try:
@@ -293,8 +263,8 @@ def _sensor_model(
 ):
     """``make(n, seed)`` returning ``measure(k, y)``: y with each sensor's noise and quantization applied."""
     quantization, noise = dict(quantization or {}), dict(noise or {})
-    _check_names("quantized output", list(quantization), outputs, model)
-    _check_names("noisy output", list(noise), outputs, model)
+    check_names("quantized output", list(quantization), outputs, model)
+    check_names("noisy output", list(noise), outputs, model)
     for kind, table, strict in (("quantization step", quantization, True), ("noise standard deviation",
                                                                             noise, False)):
         for name, value in table.items():

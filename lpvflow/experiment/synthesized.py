@@ -30,6 +30,7 @@ import numpy as np
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.scheduling import compile_expression, evaluate
+from lpvflow.loop.protocol import SynthesizedLaw
 
 if TYPE_CHECKING:  # python-control (imported by lpvflow.synth) takes ~1 s; loaded only with a controller
     from lpvflow.synth.controller import LPVController
@@ -57,6 +58,9 @@ class SynthesizedController:
     y_op: np.ndarray
     u_op: np.ndarray
 
+    #: The law depends on p (an LPV controller with its trim u_eq(p)).
+    scheduled = True
+
     @classmethod
     def from_controller(cls, law: LPVController, source: str = "controller") -> SynthesizedController:
         """Wire ``law`` by its ``info["signals"]``; one DataError line when it has no such record (an
@@ -77,6 +81,10 @@ class SynthesizedController:
     @property
     def Ts(self) -> float:
         return self.law.Ts
+
+    def loop_law(self) -> SynthesizedLaw:
+        """The controller in the loop protocol (:class:`lpvflow.loop.protocol.SynthesizedLaw`)."""
+        return SynthesizedLaw(self)
 
     def to_dict(self) -> dict:
         """The controller's ``lpvflow/lpv-controller`` document (its signal record included)."""

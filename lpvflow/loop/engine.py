@@ -1,5 +1,6 @@
 """The one closed-loop engine: a controller of the protocol (:mod:`lpvflow.loop.protocol`) and a plant
-(an FMU, :class:`lpvflow.experiment.plant.Plant`, or an identified model, :class:`ModelPlant`) stepped
+(an FMU, :class:`lpvflow.experiment.plant.Plant`, or an identified model,
+:class:`lpvflow.loop.model_plant.ModelPlant`) stepped
 together at the controller's Ts. The experiment, the model-in-the-loop validation, verification and the
 diagnosis (an input-output model in the identification loop, :mod:`lpvflow.validate.closed_loop`) all
 close their loops here; what differs between them (sensor models and disturbances on the measurement,
@@ -17,9 +18,8 @@ from typing import Protocol
 
 import numpy as np
 
-from lpvflow.errors import DataError, LpvflowError
+from lpvflow.errors import LpvflowError
 from lpvflow.loop.protocol import LoopController
-from lpvflow.models import LPVSS
 
 
 class LoopPlant(Protocol):
@@ -31,31 +31,6 @@ class LoopPlant(Protocol):
     def outputs(self) -> np.ndarray: ...
 
     def step(self, u: np.ndarray, t: float, dt: float) -> None: ...
-
-
-class ModelPlant:
-    """An identified LPVSS as a plant: y(k) = C x(k) (C at p(k−1): exact for the observable-form
-    realizations, whose C does not depend on p), p(k) from ``schedule`` of y(k), x(k+1) = A(p(k)) x(k) +
-    B(p(k)) u(k); a state beyond 1e12 is one DataError line (the model's loop diverges)."""
-
-    def __init__(self, model: LPVSS, schedule: Callable[[np.ndarray], np.ndarray], p0: np.ndarray) -> None:
-        self.model, self.schedule = model, schedule
-        self.input_names, self.output_names = list(model.u_names), list(model.y_names)
-        self.x = np.zeros(model.nx)
-        self._C = model.matrices(p0)[2]
-        self._k = 0
-
-    def outputs(self) -> np.ndarray:
-        return self._C @ self.x
-
-    def step(self, u: np.ndarray, t: float, dt: float) -> None:
-        p = self.schedule(self.outputs())
-        A, B, self._C, _ = self.model.matrices(p)
-        self.x = A @ self.x + B @ u
-        if not np.all(np.abs(self.x) < 1e12):
-            raise DataError(f"the identified model's closed loop diverges at sample {self._k}: it does not "
-                            "describe the plant under the identification controller")
-        self._k += 1
 
 
 def close_loop(

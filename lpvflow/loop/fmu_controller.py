@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +57,11 @@ class FmuController:
         )
         self._slave.instantiate()
         self._time = 0.0
+
+    def verification_law(self, measured: Sequence[str], actuated: Sequence[str]) -> FmuController:
+        """The law verification steps (:class:`lpvflow.loop.protocol.VerificationLaw`): itself, its ports
+        taking the loop's ``measured`` and ``actuated`` signals in modelDescription order."""
+        return self
 
     def reset(self) -> None:
         if self._time > 0.0:

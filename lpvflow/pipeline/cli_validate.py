@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 from pathlib import Path
 
@@ -27,13 +26,12 @@ import numpy as np
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment.controller import FORMAT as LTI_CONTROLLER_FORMAT
-from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.scheduling import parse_assignment
+from lpvflow.loop.loader import LPV_FORMAT, load_controller_file
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import LPVSS, atomic_write_json, load, report_header
 from lpvflow.pipeline.cli_identify import add_data_arguments, simulate_any
 from lpvflow.pipeline.cli_paths import check_paths, declare
-from lpvflow.synth.controller import LPVController
 from lpvflow.validate.fmu_reference import FmuLinearization, FmuLocalModels
 from lpvflow.validate.frozen import compare_frozen, scheduling_grid
 from lpvflow.validate.metrics import fit_report
@@ -80,8 +78,8 @@ def run_validate(args: argparse.Namespace) -> int:
     fit = fit_report(data.y, simulate_any(model, data), data.y_names)
     frozen_model = _frozen_model(model)
     controller, controller_note = _load_loop_controller(args.controller)
-    if isinstance(controller, LPVController) and controller.basis.n_p != frozen_model.basis.n_p:
-        raise ModelError(f"the controller is scheduled on {controller.basis.n_p} signal(s), the model on "
+    if controller is not None and controller.n_p not in (None, frozen_model.basis.n_p):
+        raise ModelError(f"the controller is scheduled on {controller.n_p} signal(s), the model on "
                          f"{frozen_model.basis.n_p}; give a controller designed for this model")
     reference, reference_note = _reference(args, frozen_model)
     try:
@@ -154,23 +152,12 @@ def _box(model: LPVSS) -> np.ndarray:
 
 
 def _load_loop_controller(path: str | None) -> tuple[object, str | None]:
-    """The controller K of the loop u = −K y: an LTI StateSpace or an LPVController (module docstring)."""
+    """The controller K of the loop u = −K y, an LTI or LPV controller frozen at each point (``frozen(p)``
+    on e = r − y, module docstring), and a note saying so."""
     if path is None:
         return None, None
-    try:
-        kind = json.loads(Path(path).read_text()).get("format")
-    except FileNotFoundError:
-        raise ModelError(f"controller file {path} does not exist") from None
-    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-        raise ModelError(f"controller file {path} is not a lpvflow JSON file") from None
-    if kind == LTI_CONTROLLER_FORMAT:
-        K = load_controller(path).negative_feedback()
-        return K, f"{path} (lpvflow/lti-controller u = K (y - y_op); used as -K in u = -K y)"
-    controller = load(path)
-    if not isinstance(controller, LPVController):
-        raise ModelError(f"{path} holds no controller (format {kind!r}); give an lpvflow/lti-controller "
-                         "or lpvflow/lpv-controller file")
-    return controller, f"{path} (lpvflow/lpv-controller on e = r - y; frozen K(theta) in u = -K y)"
+    controller = load_controller_file(path, (LTI_CONTROLLER_FORMAT, LPV_FORMAT), "validate --controller")
+    return controller, f"{path} (its law on e = r - y frozen at theta: K(theta) in u = -K y)"
 
 
 def _reference(args: argparse.Namespace, model: LPVSS) -> tuple[object, str | None]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lpvflow.loop.loader import load_controller_file
+from lpvflow.loop.loader import VERIFY_KINDS, load_controller_file
 from lpvflow.models import atomic_write_json
 from lpvflow.pipeline.cli_paths import declare
 from lpvflow.pipeline.config import load_scenarios
@@ -30,8 +30,8 @@ def _summary(name: str, metrics: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     scenario_file = load_scenarios(args.scenario)
-    controller = load_controller_file(args.controller)
-    baseline = load_controller_file(args.baseline) if args.baseline else None
+    controller = load_controller_file(args.controller, VERIFY_KINDS, "verify")
+    baseline = load_controller_file(args.baseline, VERIFY_KINDS, "verify") if args.baseline else None
     verification = run_verification(
         controller, args.plant, scenario_file.scenarios, scenario_file.loop, baseline
     )

@@ -137,7 +137,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gate": Key(True, boolean, "stop the design after validate when the model fails the ν-gap test"),
     },
     "synth": {
-        "method": Key("common", string(tuple(SYNTHESIS_METHODS)),
+        "method": Key("common", string(SYNTHESIS_METHODS.keys()),
                       "; ".join(f"{name}: {m.summary}" for name, m in SYNTHESIS_METHODS.items())),
         "rate_bound": Key(None, number(0.0, open_low=True),
                           "rate-bounded: largest |p(k+1) − p(k)| per sample (default: any rate)"),

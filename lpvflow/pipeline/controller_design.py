@@ -15,6 +15,7 @@ from lpvflow.pipeline.antiwindup import antiwindup
 from lpvflow.pipeline.ports import design_signals
 from lpvflow.pipeline.scenarios import Loop
 from lpvflow.synth.design import Design, synthesize_design
+from lpvflow.synth.polytope import scheduling_box
 
 
 def design_controller(
@@ -33,3 +34,22 @@ def design_controller(
     controller.info["certificate"] = fields | {"ok": bool(check.ok)}
     controller.antiwindup = antiwindup(controller, loop, signals, design.antiwindup_gains)
     return design
+
+
+def extrapolation_note(model: LPVSS, box: list | None) -> str:
+    """In words, where the ``[synth]`` box reaches past the scheduling range the model was identified on
+    (the model is extrapolated there: the design's vertex models and its frozen checks use it as it is),
+    or that it does not. The tolerance is the range warning's (1e-9 of the range)."""
+    design_box = scheduling_box(model, box)
+    if model.basis.p_min is None:
+        return "the model records no identified range"
+    beyond = []
+    for name, (lo, hi), low, high in zip(model.p_names, design_box, model.basis.p_min, model.basis.p_max,
+                                         strict=True):
+        span = max(high - low, 1e-12)
+        if lo < low - 1e-9 * span or hi > high + 1e-9 * span:
+            beyond.append(f"{name} [{lo:.4g}, {hi:.4g}] against [{low:.4g}, {high:.4g}]")
+    if not beyond:
+        return "within the identified range"
+    return (f"reaches past the identified range: {'; '.join(beyond)}; the model is extrapolated there "
+            "(vertex models and frozen checks)")

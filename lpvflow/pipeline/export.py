@@ -68,7 +68,7 @@ import scipy.io
 from fmpy.validation import validate_fmu
 
 from lpvflow.errors import DataError, ModelError
-from lpvflow.loop.loader import load_controller_file
+from lpvflow.loop.loader import LPV_FORMAT, load_controller_file
 from lpvflow.models import user_mode
 from lpvflow.pipeline.ports import ControllerSignals, Port, controller_signals
 from lpvflow.synth.controller import LPVController
@@ -110,10 +110,7 @@ def trim_rule(controller: LPVController, signals: ControllerSignals) -> str:
 def load_lpv_controller(path: str | Path) -> LPVController:
     """The ``lpvflow/lpv-controller`` of a JSON file (:func:`lpvflow.loop.loader.load_controller_file`);
     any other file is one ModelError line."""
-    controller = load_controller_file(path)
-    if not isinstance(controller, LPVController):
-        raise ModelError(f"{path} is a {type(controller).__name__}, not an lpvflow/lpv-controller file")
-    return controller
+    return load_controller_file(path, (LPV_FORMAT,), "export")
 
 
 def _atomic_replace(path: Path, write: callable, suffix: str) -> Path:

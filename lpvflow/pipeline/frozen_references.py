@@ -10,7 +10,6 @@ import numpy as np
 
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
-from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.context import StageContext
@@ -37,8 +36,8 @@ def signal_scaling(setting: str | dict, est: Dataset, model: LPVSS):
 def frozen_experiment_controller(
     ctx: StageContext, model: LPVSS, reference
 ) -> tuple[object, str | None, object]:
-    """K_id for b(Ĝ(θ), K_id), in negative feedback over the model's signals, a note (or None), and the
-    trim's feedback (or None).
+    """K_id for b(Ĝ(θ), K_id) as p ↦ K_id(θ(p)) in negative feedback over the model's signals (or None),
+    a note (or None), and the trim's feedback (or None).
 
     An LTI experiment controller is the same at every θ. A scheduled one (gridded or LPV) is linearized
     (:meth:`~lpvflow.experiment.controller.GriddedController.operating_laws`,
@@ -55,8 +54,9 @@ def frozen_experiment_controller(
         return None, None, None
     K = load_experiment_controller(path)
     check_wiring(K, model.u_names, model.y_names, "[validate] b(Ĝ(θ), K_id)")
-    if isinstance(K, LtiController):  # a constant trim has no feedback
-        return K.negative_feedback(model.y_names, model.u_names), None, None
+    if not K.scheduled:  # the same law at every θ; a constant trim has no feedback
+        fixed = K.negative_feedback(model.y_names, model.u_names)
+        return (lambda p: fixed), None, None
     if reference is None:
         return None, ("b(Ĝ(θ), K_id) needs the operating point of the scheduled experiment controller at "
                       "each θ; set [validate] reference = \"linearization\" to compute it"), None

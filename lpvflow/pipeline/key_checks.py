@@ -8,7 +8,7 @@ a one-line description.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import Any
 
@@ -66,8 +66,9 @@ def number(low: float = -math.inf, high: float = math.inf, *, open_low: bool = F
     return check
 
 
-def string(choices: tuple[str, ...] = (), upper: bool = False) -> Check:
-    """A non-empty string; with ``choices``, one of them (``upper``: compared in upper case)."""
+def string(choices: Collection[str] = (), upper: bool = False) -> Check:
+    """A non-empty string; with ``choices``, one of them (``upper``: compared in upper case); a live view
+    (a registry's keys) is read at each check."""
     def check(value: Any, where: str) -> str:
         if not isinstance(value, str) or not value:
             raise _fail(where, value, "a non-empty string" + (f": one of {', '.join(choices)}"

@@ -10,14 +10,14 @@ import numpy as np
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
-from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.loader import load_experiment_controller
-from lpvflow.experiment.scheduling import compile_expression
-from lpvflow.loop.engine import ModelPlant, close_loop
-from lpvflow.loop.protocol import as_loop_controller
+from lpvflow.loop.engine import close_loop
+from lpvflow.loop.model_plant import ModelPlant
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.context import StageContext
-from lpvflow.pipeline.coordinates import read_data
+
+#: A simulated output this large ends the model's loop: it diverges.
+_DIVERGED = 1e12
 
 
 def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np.ndarray:
@@ -32,11 +32,12 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     (:class:`~lpvflow.experiment.synthesized.SynthesizedController`: references from the recorded set-points,
     else its operating points, scheduling from the simulated outputs). With ``[identify] remove_trim`` the
     model's input is the controller's output without its trim u_op (:func:`model_coordinates`). With
-    ``[identify] remove_offsets`` the model works in deviations from the estimation data's means (u₀, y₀)
-    (``data.offsets``): the controller and the scheduling read y₀ + y_model, the model gets u − u₀, and
-    the deviations are returned (as ``data.y``). The loop is :func:`lpvflow.loop.engine.close_loop` with
-    the model as the plant (:class:`lpvflow.loop.engine.ModelPlant`) and the controller's protocol object
-    (:func:`lpvflow.loop.protocol.as_loop_controller`).
+    ``[identify] remove_offsets`` ``data`` and the returned outputs are deviations from the identify stage's
+    operating point (u₀, y₀) and the model runs as the plant y₀ + y, fed u − u₀; the inputs the controller
+    does not drive take their recorded values. The
+    loop is :func:`lpvflow.loop.engine.close_loop` with the model as the plant
+    (:class:`lpvflow.loop.model_plant.ModelPlant`) and the controller's protocol object
+    (``loop_law()``).
     """
     cfg = ctx.config["experiment"]
     if not cfg["controller"]:
@@ -45,7 +46,7 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
             return model.simulate(data.u, data.p)
     experiment_controller = load_experiment_controller(cfg["controller"])
     check_wiring(experiment_controller, data.u_names, data.y_names, "[validate] closed-loop fit")
-    K = as_loop_controller(experiment_controller)
+    K = experiment_controller.loop_law()
     table = ctx.columns()
     start = len(table["time"]) - data.N
 
@@ -53,41 +54,36 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
         return table[column][start:] if column in table else np.full(data.N, default)
 
     excitation = np.column_stack([recorded(f"{name}_excitation", 0.0) for name in K.outputs])
-    # an LTI controller's set-points are in its recorded excitation (lpvflow.experiment.run): it holds y_op
-    tracked = not isinstance(experiment_controller, LtiController)
-    references = np.column_stack([recorded(f"{name}_setpoint", np.nan) if tracked else np.full(data.N, np.nan)
-                                  for name in K.inputs])
-    expressions = [scheduling_expression(name, cfg["scheduling"], data.y_names) for name in data.p_names]
-    expressions = [compile_expression(expression, data.y_names) for expression in expressions]
-    u0, y0 = model_offsets(ctx, model) if data.offsets else (np.zeros(model.nu), np.zeros(model.ny))
-    plant = ModelPlant(model, lambda y: np.array([value_of(y0 + y) for value_of in expressions]), data.p[0])
+    # the recorded set-points as K took them in the experiment (an LTI law's are in the excitation)
+    references = K.references_of(np.column_stack([recorded(f"{name}_setpoint", np.nan) for name in K.inputs]))
+    # the operating point the model works around (the identify stage's record; empty without
+    # remove_offsets): the loop runs in the plant's signals, data and fit in the deviations from it
+    offsets = ctx.outputs.get("identify", {}).get("offsets") or {}
+    u0, y0 = (np.asarray(offsets.get(s, np.zeros(n)), dtype=float) for s, n in (("u", model.nu),
+                                                                               ("y", len(data.y_names))))
+    plant = ModelPlant(model, [scheduling_expression(name, cfg["scheduling"], data.y_names)
+                               for name in data.p_names], offsets=offsets)
     u_index = [data.u_names.index(name) for name in K.outputs]
+    u_recorded = data.u + u0  # the inputs K does not drive, as recorded, in the plant's signals
     with_trim = not ctx.config["identify"]["remove_trim"]
     y_sim = np.zeros_like(data.y)
 
     def actuate(k: int, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
-        u = np.zeros(model.nu)
+        u = u_recorded[k].copy()
         u[u_index] = u_c + excitation[k] - (0.0 if with_trim else K.trim(p))
-        return u - u0
+        return u
+
+    def stop(k: int, y: np.ndarray) -> str | None:
+        return None if np.all(np.abs(y) < _DIVERGED) else f"diverges at sample {k}"
 
     def record(k: int, y: np.ndarray, p: np.ndarray, u_c: np.ndarray, u: np.ndarray) -> None:
         y_sim[k] = y - y0
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SchedulingRangeWarning)
-        failure = close_loop(K, plant, data.N, references, measure=lambda k, y: y0 + y, actuate=actuate,
-                             record=record)
+    failure = close_loop(K, plant, data.N, references, actuate=actuate, stop=stop, record=record)
     if failure:
         raise DataError(f"the identified model's closed loop {failure}: it does not describe the plant "
                         "under the identification controller")
     return y_sim
-
-
-def model_offsets(ctx: StageContext, model: LPVSS) -> tuple[np.ndarray, np.ndarray]:
-    """(u₀, y₀): the means of the estimation data in the signals the model is identified in
-    (:func:`lpvflow.pipeline.coordinates.read_data`), which ``[identify] remove_offsets`` took off."""
-    offsets = read_data(ctx, model_signals=True)[0].offsets
-    return np.asarray(offsets["u"], dtype=float), np.asarray(offsets["y"], dtype=float)
 
 
 def check_wiring(K, u_names: list[str], y_names: list[str], where: str) -> None:

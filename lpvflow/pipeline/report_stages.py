@@ -56,6 +56,7 @@ LABELS = {
     ("synth", "solve_seconds"): "synthesis time",
     ("synth", "order"): "controller order (states)",
     ("synth", "polytope"): "scheduling polytope",
+    ("synth", "box_note"): "design box against the identified scheduling range",
     ("verify", "plant"): "plant FMU",
     ("verify", "loop"): "closed loop",
     ("verify", "stable"): "every run of the LPV controller stable",

@@ -16,7 +16,6 @@ import numpy as np
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.errors import DataError, LpvflowError
-from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.fmu_experiment import run_fmu_experiment
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.identify.methods import IO_METHODS, estimate
@@ -29,7 +28,7 @@ from lpvflow.pipeline.adoption import adoption_refusal
 from lpvflow.pipeline.antiwindup import antiwindup
 from lpvflow.pipeline.cli_identify import plot_fit
 from lpvflow.pipeline.context import DATA_FILE, StageContext
-from lpvflow.pipeline.controller_design import design_controller
+from lpvflow.pipeline.controller_design import design_controller, extrapolation_note
 from lpvflow.pipeline.coordinates import estimation_records, read_data, without_offsets
 from lpvflow.pipeline.export import export_controller
 from lpvflow.pipeline.frozen_references import (
@@ -153,7 +152,7 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
         raise DataError(f"[diagnose] candidate column(s) {missing} are not in the experiment data")
     structure = Structure(ident["na"], ident["nb"], ident["nk"], ident["basis"])
     controller = load_experiment_controller(experiment["controller"]) if experiment["controller"] else None
-    if controller is not None and not isinstance(controller, LtiController):
+    if controller is not None and controller.scheduled:
         raise DataError("[diagnose] simulates the identification loop with an lpvflow/lti-controller only; "
                         f"the [experiment] controller is a scheduled one ({controller.to_dict()['format']})")
     result = run_diagnosis(data, structure, {c: table[c] for c in cfg["candidates"]}, split=cfg["split"],
@@ -222,8 +221,7 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
             warnings.simplefilter("ignore", SchedulingRangeWarning)
             rows = []
             if K is not None or reference is not None:
-                frozen_K = K is not None and not hasattr(K, "A")  # a gridded K_id: p ↦ K_id(θ(p))
-                scaled_K = (lambda p: scale.controller(K(p))) if frozen_K else scale.controller(K)
+                scaled_K = None if K is None else (lambda p: scale.controller(K(p)))  # K: p ↦ K_id(θ(p))
                 rows = compare_frozen(scale.model(model), scale.plant_at(compared), cfg["grid"], scaled_K,
                                       box=box, points=points or None)
             if reference is not None:
@@ -274,7 +272,7 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
              "gamma_lower": design.gamma_lower, "baseline_gamma": baseline.gamma, "baseline_at": at,
              "certificate": design.certificate.lines(), "certificate_ok": bool(design.certificate.ok),
              "solve_seconds": design.seconds, "order": design.controller.order,
-             "polytope": design.plant.polytope.kind},
+             "polytope": design.plant.polytope.kind, "box_note": extrapolation_note(model, cfg["box"])},
             ["controller.json", "baseline.json"])
 
 

@@ -13,22 +13,20 @@ controller is verified on, where the plant is far from them.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.errors import LpvflowError
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.fmu import check_fmu
-from lpvflow.loop.protocol import as_loop_controller
+from lpvflow.loop.model_plant import ModelPlant
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.coordinates import read_data
 from lpvflow.pipeline.model_loop import check_wiring, scheduling_expression
-from lpvflow.validate.trajectory import ModelPlant, trajectory_agreement
+from lpvflow.validate.trajectory import trajectory_agreement
 
 
 def experiment_trim(path: str, model: LPVSS) -> Callable[[np.ndarray], np.ndarray]:
@@ -38,7 +36,7 @@ def experiment_trim(path: str, model: LPVSS) -> Callable[[np.ndarray], np.ndarra
     :func:`lpvflow.pipeline.coordinates.controller_trim` removed it from the identification data."""
     K = load_experiment_controller(path)
     check_wiring(K, model.u_names, model.y_names, "[identify] remove_trim in the model-in-the-loop runs")
-    law = as_loop_controller(K)
+    law = K.loop_law()
     schedule = law.scheduling(model.y_names)
     read = [model.y_names.index(name) for name in law.inputs]
     driven = [model.u_names.index(name) for name in law.outputs]
@@ -52,7 +50,7 @@ def experiment_trim(path: str, model: LPVSS) -> Callable[[np.ndarray], np.ndarra
 
 
 def model_plant_factory(ctx: StageContext, model: LPVSS) -> Callable[[], ModelPlant]:
-    """Fresh :class:`~lpvflow.validate.trajectory.ModelPlant` runs of ``model`` in its identification
+    """Fresh :class:`~lpvflow.loop.model_plant.ModelPlant` runs of ``model`` in its identification
     signals (module docstring), its inputs' start values those of the plant FMU."""
     identify, experiment = ctx.config["identify"], ctx.config["experiment"]
     expressions = [scheduling_expression(name, experiment["scheduling"], model.y_names)
@@ -73,10 +71,8 @@ def trajectory_validation(ctx: StageContext, model: LPVSS, controller: Any) -> d
     verify = ctx.config["verify"]
     try:
         make = model_plant_factory(ctx, model)
-        with warnings.catch_warnings():  # the moves leave the model's box: the runs say how far
-            warnings.simplefilter("ignore", SchedulingRangeWarning)
-            rows = trajectory_agreement(controller, ctx.config["design"]["plant"], make, verify["scenario"],
-                                        verify["loop"])
+        rows = trajectory_agreement(controller, ctx.config["design"]["plant"], make, verify["scenario"],
+                                    verify["loop"])
     except LpvflowError as exc:
         return {"trajectory_note": f"the model-in-the-loop runs were not made: {exc}"}
     return {"trajectory": [row.to_dict() for row in rows]}

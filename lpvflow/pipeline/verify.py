@@ -39,6 +39,7 @@ from lpvflow.experiment.run import step_count
 from lpvflow.fmu import check_fmu
 from lpvflow.loop.engine import close_loop
 from lpvflow.loop.fmu_controller import FmuController
+from lpvflow.loop.protocol import FixedLaw, VerificationLaw
 from lpvflow.models import report_header, user_mode
 from lpvflow.pipeline.loop_metrics import ClosedLoopRun, run_metrics, tracked_outputs
 from lpvflow.pipeline.scenarios import Loop, Scenario, Signal, run_passed
@@ -47,76 +48,19 @@ from lpvflow.synth.controller import LPVController
 _TS_TOLERANCE = 1e-9
 
 
-# ------------------------------------------------------------------------------------------ laws
-class _FixedLaw:
-    """LTI law u = C x + D (s·e), x⁺ = A x + B (s·e), with s = +1 (e = r − y) or −1 (y − r); 1-DOF, not
-    scheduled (no n_p, no design box)."""
-
-    structure = "1dof"
-    n_p = None
-    design_box = None
-
-    def __init__(
-        self,
-        A: np.ndarray,
-        B: np.ndarray,
-        C: np.ndarray,
-        D: np.ndarray,
-        Ts: float,
-        sign: float,
-        u_offset: np.ndarray | None = None,
-    ) -> None:
-        self.A, self.B, self.C, self.D = (np.atleast_2d(np.asarray(M, dtype=float)) for M in (A, B, C, D))
-        self.Ts, self.sign, self.u_offset = float(Ts), sign, u_offset
-        self.n_in, self.n_out = self.D.shape[1], self.D.shape[0]
-        self.reset()
-
-    def reset(self) -> None:
-        self.x = np.zeros(self.A.shape[0])
-
-    def input_of(self, r: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """e = r − y."""
-        return r - y
-
-    def step(self, e: np.ndarray, p: np.ndarray) -> np.ndarray:
-        w = self.sign * e
-        u = self.C @ self.x + self.D @ w
-        self.x = self.A @ self.x + self.B @ w
-        return u
-
-    def feedforward(self, p: np.ndarray) -> np.ndarray:
-        """No trim apart from the operating point: zero."""
-        return np.zeros(self.n_out)
-
-
 #: Controllers the loop can run.
 Baseline = LPVController | control.StateSpace | LtiController | FmuController
 
 
-def _law(controller: Baseline, loop: Loop) -> LPVController | _FixedLaw | FmuController:
-    """The controller as an object with Ts, n_in, n_out, structure, n_p (None: not scheduled), design_box
-    (None: none recorded), reset(), input_of(r, y) -> w, step(w, p) -> u − u_op and feedforward(p) (the
-    trim u_eq(p))."""
-    if isinstance(controller, LPVController | FmuController):
-        return controller
+def _law(controller: Baseline, loop: Loop) -> VerificationLaw:
+    """The controller as a verification law (:class:`~lpvflow.loop.protocol.VerificationLaw`):
+    a discrete StateSpace reads e = r − y; the controller classes give their own
+    (``verification_law``)."""
     if isinstance(controller, control.StateSpace):
         if not controller.isdtime(strict=True):
             raise ModelError("the baseline StateSpace is continuous; discretise it at the controller's Ts")
-        return _FixedLaw(controller.A, controller.B, controller.C, controller.D, float(controller.dt), 1.0)
-    if isinstance(controller, LtiController):
-        if tuple(controller.inputs) != loop.measured or tuple(controller.outputs) != loop.actuated:
-            raise ModelError(
-                f"the LTI controller reads {list(controller.inputs)} and drives "
-                f"{list(controller.outputs)}; the loop measures {list(loop.measured)} and "
-                f"drives {list(loop.actuated)}: they must match"
-            )
-        return _FixedLaw(
-            controller.A, controller.B, controller.C, controller.D, controller.Ts, -1.0, controller.u_op
-        )
-    raise ModelError(
-        f"cannot run a {type(controller).__name__} in the loop; give an LPVController, a "
-        "discrete control.StateSpace or an lpvflow/lti-controller file"
-    )
+        return FixedLaw(controller.A, controller.B, controller.C, controller.D, float(controller.dt), 1.0)
+    return controller.verification_law(loop.measured, loop.actuated)
 
 
 def _sampled(
@@ -239,7 +183,7 @@ class _LoopLaw:
     [r − y_op; y − y_op] for a 2-DOF LPV controller, [r; y] for a controller FMU, which subtracts its
     operating point itself)."""
 
-    def __init__(self, law: LPVController | _FixedLaw | FmuController, loop: Loop, u_op: np.ndarray) -> None:
+    def __init__(self, law: VerificationLaw, loop: Loop, u_op: np.ndarray) -> None:
         self.law, self.Ts, self.u_op = law, law.Ts, u_op
         self.inputs, self.outputs = tuple(loop.measured), tuple(loop.actuated)
         self._schedule = _scheduling_function(loop)
@@ -259,7 +203,7 @@ class _LoopLaw:
 
 
 def _run(
-    law: LPVController | _FixedLaw | FmuController,
+    law: VerificationLaw,
     plant: Plant,
     scenario: Scenario,
     loop: Loop,
@@ -282,7 +226,7 @@ def _run(
     d_out = _sampled(scenario.output_disturbance, loop.measured, t, (0.0,) * len(loop.measured))
     d_in = _sampled(scenario.input_disturbance, loop.actuated, t, (0.0,) * len(loop.actuated))
     u_op = loop.u_operating_point or tuple(plant.start_value(name) for name in loop.actuated)
-    u_op = np.asarray(law.u_offset if getattr(law, "u_offset", None) is not None else u_op, dtype=float)
+    u_op = np.asarray(law.u_offset if law.u_offset is not None else u_op, dtype=float)
     lo = np.array([loop.actuator_limits.get(name, (-np.inf, np.inf))[0] for name in loop.actuated])
     hi = np.array([loop.actuator_limits.get(name, (-np.inf, np.inf))[1] for name in loop.actuated])
     inputs = _sampled(

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from itertools import pairwise
 
 import control
 import numpy as np
@@ -35,7 +34,7 @@ from lpvflow.synth.bilinear import certificate_margin, closed_loop
 from lpvflow.synth.controller import mix
 from lpvflow.synth.hinf import HinfResult
 from lpvflow.synth.plant import VertexPlant, augment, interpolate
-from lpvflow.synth.polytope import Polytope, hat_coordinates
+from lpvflow.synth.polytope import Polytope, box_grid
 from lpvflow.synth.rate_bounded import ScheduledResult, fine_check
 from lpvflow.validate.norms import hinf_norm
 from lpvflow.validate.stability import quadratic_stability
@@ -48,19 +47,14 @@ def vertex_margins(result: HinfResult) -> list[float]:
             for v, K in zip(result.vertices, result.K_vertices, strict=True)]
 
 
-def scheduling_grid(box: np.ndarray, per_axis: int) -> np.ndarray:
-    """(per_axis^{n_p}, n_p) grid of the scheduling box; a degenerate axis (lo = hi, an LTI design's point)
-    contributes one value, not per_axis copies of it."""
-    axes = [np.linspace(lo, hi, per_axis if hi > lo else 1) for lo, hi in box]
-    return np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(box), -1).T
-
-
 def frozen_hinf_norms(controller_at: Callable[[np.ndarray], tuple[np.ndarray, ...]], model: LPVSS,
                       weights: dict, grid: np.ndarray, structure: str = "1dof") -> np.ndarray:
     """‖T_zw‖_∞ of the frozen closed loop at every grid point (python-control lft,
     :func:`lpvflow.validate.norms.hinf_norm`):
     ``controller_at(p)`` gives (Ak, Bk, Ck, Dk) from the measured signals to u before W_B (augment puts
-    W_B in the plant)."""
+    W_B in the plant). The grid is the design's box, which may reach past the model's identified range
+    as the design does (the synth stage reports where: :func:`lpvflow.pipeline.controller_design.
+    extrapolation_note`), so the model is evaluated there without a range warning."""
     from lpvflow.synth.plant import weight_systems
 
     W = weight_systems(weights, model.ny, model.nu, model.Ts)
@@ -68,7 +62,7 @@ def frozen_hinf_norms(controller_at: Callable[[np.ndarray], tuple[np.ndarray, ..
     ny = 2 * model.ny if structure == "2dof" else model.ny
     norms = []
     for p in grid:
-        P = augment(model.frozen(p), W, model.Ts, structure)
+        P = augment(model.frozen(p, check_range=False), W, model.Ts, structure)
         K = control.ss(*controller_at(p), model.Ts)
         norms.append(hinf_norm(P.lft(K, nu, ny)))
     return np.array(norms)
@@ -90,13 +84,8 @@ def interpolated_hinf_norms(vertices: list[VertexPlant], K_vertices: list[tuple[
 
 
 def design_coordinates(polytope: Polytope, basis: Basis, per_axis: int) -> list[np.ndarray]:
-    """λ on a grid of the design: ``per_axis`` points per breakpoint interval of a piecewise polytope
-    (along its first signal), else λ(p) on a ``per_axis`` grid of the box."""
-    if polytope.kind == "piecewise":
-        b = polytope.breakpoints
-        t = np.unique(np.concatenate([np.linspace(lo, hi, per_axis) for lo, hi in pairwise(b)]))
-        return [hat_coordinates(b, ti) for ti in t]
-    return [polytope.coordinates_at(basis, p) for p in scheduling_grid(polytope.box, per_axis)]
+    """λ(p) at the polytope's own grid of the design (:meth:`Polytope.design_points`)."""
+    return [polytope.coordinates_at(basis, p) for p in polytope.design_points(per_axis)]
 
 
 def vertex_interpolation(result: HinfResult) -> Callable[[np.ndarray], tuple[np.ndarray, ...]]:
@@ -170,7 +159,7 @@ def certify(result: HinfResult, model: LPVSS | None, weights: dict, per_axis: in
         lams = design_coordinates(poly, result.plant.basis, per_axis)
         norms = interpolated_hinf_norms(result.vertices, result.K_vertices, lams, result.plant.Ts)
     else:
-        grid = scheduling_grid(poly.box, per_axis)
+        grid = box_grid(poly.box, per_axis)
         norms = frozen_hinf_norms(vertex_interpolation(result), model, weights, grid, result.plant.structure)
     peak, final, growth = switching_simulation(result)
     margin = min(vertex_margins(result))
@@ -211,7 +200,7 @@ def certify_rate_bounded(result: ScheduledResult, model: LPVSS | None, weights: 
     4. :func:`rate_bounded_walk`."""
     margin, _ = fine_check(result)
     b = result.schedule.breakpoints
-    grid = scheduling_grid(np.array([[b[0], b[-1]]]), per_axis)
+    grid = box_grid(np.array([[b[0], b[-1]]]), per_axis)
 
     def controller_at(p: np.ndarray) -> tuple[np.ndarray, ...]:
         return result.controller_at(float(np.asarray(p).reshape(-1)[0]))

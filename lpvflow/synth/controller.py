@@ -159,6 +159,9 @@ class LPVController:
     structure: str = "1dof"
     trim: Trim | None = None
 
+    #: No operating input of its own: a loop adds its own (:class:`lpvflow.loop.protocol.VerificationLaw`).
+    u_offset = None
+
     def __post_init__(self) -> None:
         mats = (self.Ak, self.Bk, self.Ck, self.Dk)
         self.Ak, self.Bk, self.Ck, self.Dk = (np.asarray(M, dtype=float) for M in mats)
@@ -239,6 +242,14 @@ class LPVController:
     def coordinates(self, p: np.ndarray) -> np.ndarray:
         """λ(p) for one scheduling point p (n_p,) (:meth:`Polytope.coordinates_at`)."""
         return self.polytope.coordinates_at(self.basis, p)
+
+    def verification_law(self, measured: Sequence[str], actuated: Sequence[str]) -> LPVController:
+        """The law verification steps (:class:`lpvflow.loop.protocol.VerificationLaw`): itself, wired by
+        the loop's ``measured`` and ``actuated`` signals."""
+        return self
+
+    def close(self) -> None:
+        """Nothing to release (the controller holds no instance or file)."""
 
     def matrices(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(A, B, C, D) of the controller frozen at p: Σ λ_i(p) M_i (the trim u_eq(p) is not part of them)."""

@@ -253,7 +253,7 @@ def observer_design(plant: GeneralizedPlant, model: LPVSS, weights: dict, settin
     if plant.structure != "2dof":
         raise ModelError('the observer design reads references and measurements separately: set [synth] '
                          'structure = "2dof"')
-    if plant.polytope.kind != "piecewise":
+    if plant.polytope.breakpoints is None:
         raise ModelError("the observer design interpolates frozen designs between breakpoints: give [synth] "
                          f"breakpoints (this design's polytope is {plant.polytope.kind!r})")
     blocks = state_blocks(model, weights, plant.structure)

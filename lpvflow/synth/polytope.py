@@ -31,6 +31,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import ClassVar
 
 import numpy as np
@@ -94,6 +95,18 @@ class Polytope(ABC):
         """Convex coordinates of the scheduling point p (n_p,) for ``model``'s basis."""
         return self.coordinates_at(model.basis, p)
 
+    @property
+    def vertex_breakpoints(self) -> np.ndarray | None:
+        """The values b_0 < … < b_{N−1} of the one scheduling signal at the vertices when λ(p) is the hat
+        functions of p between them (each λ_i linear between neighbouring vertices); None when λ is not
+        of that form."""
+        return None
+
+    def design_points(self, per_axis: int) -> np.ndarray:
+        """(n, n_p) scheduling points covering the design, where its certificate checks are evaluated:
+        the ``per_axis`` grid of the box (:func:`box_grid`)."""
+        return box_grid(self.box, per_axis)
+
     @abstractmethod
     def tables(self) -> dict[str, np.ndarray]:
         """The numbers an exported controller needs besides ψ(p) to compute λ (name → array)."""
@@ -101,6 +114,13 @@ class Polytope(ABC):
     @abstractmethod
     def rule(self, psi: str, names: Sequence[str]) -> str:
         """How λ(p) is computed, in words (``psi``: ψ(p) in words, ``names``: the scheduling signals)."""
+
+
+def box_grid(box: np.ndarray, per_axis: int) -> np.ndarray:
+    """(per_axis^{n_p}, n_p) grid of the scheduling box; a degenerate axis (lo = hi, an LTI design's point)
+    contributes one value, not per_axis copies of it."""
+    axes = [np.linspace(lo, hi, per_axis if hi > lo else 1) for lo, hi in box]
+    return np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(box), -1).T
 
 
 def _multilinear(bounds: np.ndarray, psi: np.ndarray) -> np.ndarray:
@@ -125,6 +145,11 @@ class BoxPolytope(Polytope):
     """``"box"``: ψ affine in p, the corners of the scheduling box, multilinear coordinates."""
 
     kind = "box"
+
+    @property
+    def vertex_breakpoints(self) -> np.ndarray | None:
+        """A box over one signal is the segment [lo, hi]: its two ends (λ linear in p); None for more."""
+        return self.box[0] if len(self.box) == 1 else None
 
     def coordinates(self, psi: np.ndarray) -> np.ndarray:
         return _multilinear(self.box, psi)
@@ -234,6 +259,10 @@ class PiecewisePolytope(Polytope):
     def expected_vertices(self) -> int:
         return len(self.breakpoints)
 
+    @property
+    def vertex_breakpoints(self) -> np.ndarray:
+        return self.breakpoints
+
     def coordinates(self, psi: np.ndarray) -> np.ndarray:
         raise ModelError("a piecewise polytope's coordinates are those of the scheduling point p "
                          "(coordinates_at), not of ψ")
@@ -247,6 +276,11 @@ class PiecewisePolytope(Polytope):
 
     def tables(self) -> dict[str, np.ndarray]:
         return {"breakpoints": np.asarray(self.breakpoints, dtype=float)}
+
+    def design_points(self, per_axis: int) -> np.ndarray:
+        """(n, 1): ``per_axis`` values of the first signal per breakpoint interval (the ends shared)."""
+        b = self.breakpoints
+        return np.unique(np.concatenate([np.linspace(lo, hi, per_axis) for lo, hi in pairwise(b)]))[:, None]
 
     def rule(self, psi: str, names: Sequence[str]) -> str:
         b = ", ".join(f"{v:g}" for v in self.breakpoints)

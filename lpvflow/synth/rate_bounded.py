@@ -496,11 +496,8 @@ def synthesize_rate_bounded(plant: GeneralizedPlant, rate_bound: float | None, s
     is a segment (``"box"``) or piecewise (``"piecewise"``), and the implementable :class:`LPVController`
     (vertex controllers at the breakpoints, W_B in series, the plant's λ(p) and structure)."""
     poly = plant.polytope
-    if poly.kind == "piecewise":
-        breakpoints = poly.breakpoints
-    elif poly.kind == "box" and len(poly.box) == 1:
-        breakpoints = poly.box[0]
-    else:
+    breakpoints = poly.vertex_breakpoints
+    if breakpoints is None:
         raise ModelError(f"the rate-bounded design needs one scheduling signal and an affine basis or "
                          f"breakpoints; this design's polytope is {poly.kind!r} over {len(poly.box)} signals")
     result = synthesize_scheduled(plant.vertices, breakpoints, plant.Ts, rate_bound=rate_bound,

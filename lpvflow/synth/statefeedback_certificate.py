@@ -14,9 +14,9 @@ import numpy as np
 
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
-from lpvflow.synth.certify import scheduling_grid
 from lpvflow.synth.lmi_statefeedback import SFVertex, StateFeedbackResult, vertex_lmi_max_eig
 from lpvflow.synth.plant import VertexPlant, augment, weight_systems
+from lpvflow.synth.polytope import box_grid
 from lpvflow.validate.stability import check_common_lyapunov, quadratic_stability
 
 
@@ -92,7 +92,7 @@ def _frozen(result: StateFeedbackResult, model: LPVSS | None, weights: dict | No
     W = weight_systems(weights, model.ny, model.nu, model.Ts)
     _, nw, _, nz = result.vertices[0].dims
     out = []
-    for p in scheduling_grid(result.polytope.box, per_axis):
+    for p in box_grid(result.polytope.box, per_axis):
         v = VertexPlant.from_ss(augment(model.frozen(p), W, model.Ts), nw=nw, nz=nz)
         out.append((SFVertex(v.A, v.B1, v.B2, v.C1, v.D11, v.D12), result.gain_at(p)))
     return out

@@ -46,6 +46,19 @@ def estimation_records(ctx: StageContext) -> list[Dataset]:
     return [*records, read_data(ctx, model_signals=True)[0]]
 
 
+def two_step_excitation(ctx: StageContext, n: int) -> np.ndarray:
+    """The external excitation the two-step estimator needs, the first ``n`` samples of the column
+    ``[identify] excitation`` of data.csv (default: the experiment's ``<input>_excitation`` column of the
+    first input); a missing column is one DataError line."""
+    cfg = ctx.config["identify"]
+    column = cfg["excitation"] or f"{cfg['u'][0]}_excitation"
+    table = ctx.columns()
+    if column not in table:
+        raise DataError(f"[identify] method = \"two-step\" needs the excitation column {column!r}, which "
+                        "the data lack; set [identify] excitation to a column of data.csv")
+    return table[column][:n]
+
+
 def model_coordinates(ctx: StageContext, data: Dataset) -> Dataset:
     """The whole record ``data`` in the signals the model is identified in.
 

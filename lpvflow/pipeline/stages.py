@@ -29,7 +29,7 @@ from lpvflow.pipeline.antiwindup import antiwindup
 from lpvflow.pipeline.cli_identify import plot_fit
 from lpvflow.pipeline.context import DATA_FILE, StageContext
 from lpvflow.pipeline.controller_design import design_controller, extrapolation_note
-from lpvflow.pipeline.coordinates import estimation_records, read_data, without_offsets
+from lpvflow.pipeline.coordinates import estimation_records, read_data, two_step_excitation, without_offsets
 from lpvflow.pipeline.export import export_controller
 from lpvflow.pipeline.frozen_references import (
     fmu_reference,
@@ -53,14 +53,15 @@ from lpvflow.validate.plots import bode_overlay, gap_margin_plot
 
 
 def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
-    """Identification experiment on the plant FMU (closed loop when a controller is given)."""
+    """Identification experiment on the plant FMU (closed loop when a controller is given; a record leaving
+    its design box is an error, ``run_fmu_experiment(within_design_box=True)``)."""
     cfg = ctx.config["experiment"]
     record = run_fmu_experiment(
         ctx.config["design"]["plant"], cfg["Ts"], cfg["duration"], inputs=cfg["inputs"] or None,
         controller=cfg["controller"], excitation=cfg["excitation"] or None,
         parameters=cfg["parameters"] or None, scheduling_columns=cfg["scheduling"] or None,
         seed=cfg["seed"], output=ctx.path(DATA_FILE), progress=None, setpoint=cfg["setpoint"] or None,
-        quantization=cfg["quantization"] or None, noise=cfg["noise"] or None,
+        quantization=cfg["quantization"] or None, noise=cfg["noise"] or None, within_design_box=True,
     )
     ranges = {name: [float(np.min(v)), float(np.max(v))]
               for name, v in record.columns.items() if name != "time"}
@@ -75,22 +76,14 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     (BFR, Ljung–Box p-value, residuals.png); state-space models do not (their fit is the validate stage's).
     With ``[identify] rounds = "all"`` the estimation data are every round's estimation part
     (:func:`~lpvflow.pipeline.coordinates.estimation_records`). Two-step takes the external excitation
-    from the column ``[identify] excitation`` (default: the
-    experiment's ``<input>_excitation`` column of the first input). The estimator sees the signals of
+    of :func:`~lpvflow.pipeline.coordinates.two_step_excitation`. The estimator sees the signals of
     :func:`model_coordinates` (the residuals are theirs: an output in ``increments`` has its increments'
     residuals); outputs in ``increments`` are integrated back into the saved model."""
     cfg = ctx.config["identify"]
     method = cfg["method"]  # the schema refuses static-arx: no state-space realization
     est, val = read_data(ctx, model_signals=True)
     records = estimation_records(ctx)
-    excitation = None
-    if method == "two-step":
-        column = cfg["excitation"] or f"{cfg['u'][0]}_excitation"
-        table = ctx.columns()
-        if column not in table:
-            raise DataError(f"[identify] method = \"two-step\" needs the excitation column {column!r}, which "
-                            "the data lack; set [identify] excitation to a column of data.csv")
-        excitation = table[column][: est.N]
+    excitation = two_step_excitation(ctx, est.N) if method == "two-step" else None
     try:
         model = estimate([prefiltered(record, cfg["prefilter"]) for record in records], method, cfg["na"],
                          cfg["nb"], cfg["nk"], cfg["basis"], ridge=cfg["ridge"], nc=cfg["nc"],

@@ -273,3 +273,26 @@ def test_cli_experiment_takes_an_lpv_controller(adip, tmp_path, capsys):
                  "--setpoint", "arm_angle=const:value=0.2", "-o", str(out)]) == 0
     assert "arm_angle_setpoint" in capsys.readouterr().out
     assert json.loads((tmp_path / "run.csv.json").read_text())["controller"]["structure"] == "1dof"
+
+
+def test_a_record_leaving_the_controllers_design_box_is_named(adip, tmp_path):
+    """An LPV controller outside the box it was designed on extrapolates: ``design_box_exit`` names the
+    first sample where the record's scheduling leaves the box, on a record made up here and on the FMU
+    (arm held at 0.8 rad, sin 0.72 > the box's 0.6); ``run_fmu_experiment(within_design_box=True)`` makes
+    that one DataError line after writing the record, and without the flag the same run is a record."""
+    K = SynthesizedController.from_controller(limited("2dof"))
+    time = np.arange(200) * 0.005
+    arm = np.where(time < 0.5, 0.3, 0.7)  # sin 0.30 inside [-0.6, 0.6], sin 0.64 outside from t = 0.5 s
+    assert K.design_box_exit(time, {"arm_angle": 0.3 + 0 * time, "pendulum_angle": 0 * time}) is None
+    note = K.design_box_exit(time, {"arm_angle": arm, "pendulum_angle": 0 * time})
+    assert "at t = 0.5 s" in note and "sin(arm_angle) = 0.6442 in [-0.6, 0.6]" in note
+    assert "100 of 200 samples" in note
+    run = dict(setpoint={"arm_angle": "const:value=0.8"}, parameters={"x0_pendulum_angle": 0.0}, seed=1,
+               progress=False)
+    record = run_fmu_experiment(adip, None, 3.0, controller=limited("2dof"), **run)
+    assert np.max(np.sin(record.columns["arm_angle"])) > 0.6
+    out = tmp_path / "data.csv"
+    with pytest.raises(DataError, match=r"left the scheduling box the controller was designed on at t = "):
+        run_fmu_experiment(adip, None, 3.0, controller=limited("2dof"), output=out, within_design_box=True,
+                           **run)
+    assert out.exists()

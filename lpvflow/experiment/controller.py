@@ -91,6 +91,10 @@ class LtiController:
         """The controller in the loop protocol (:class:`lpvflow.loop.protocol.LtiLaw`)."""
         return LtiLaw(self)
 
+    def design_box_exit(self, time: np.ndarray, columns: Mapping[str, np.ndarray]) -> str | None:
+        """None: an LTI controller has no scheduling box (see the synthesized controller's)."""
+        return None
+
     def verification_law(self, measured: Sequence[str], actuated: Sequence[str]) -> FixedLaw:
         """The law verification steps in a loop that measures ``measured`` and drives ``actuated``
         (:class:`lpvflow.loop.protocol.FixedLaw` on y − r, its own u_op); one ModelError line when they
@@ -276,6 +280,10 @@ class GriddedController:
     def loop_law(self) -> GriddedLaw:
         """The controller in the loop protocol (:class:`lpvflow.loop.protocol.GriddedLaw`)."""
         return GriddedLaw(self)
+
+    def design_box_exit(self, time: np.ndarray, columns: Mapping[str, np.ndarray]) -> str | None:
+        """None: a gridded controller holds its end gains beyond its grid and records no design box."""
+        return None
 
     @property
     def scheduling_names(self) -> list[str]:

@@ -90,6 +90,27 @@ class SynthesizedController:
         """The controller's ``lpvflow/lpv-controller`` document (its signal record included)."""
         return self.law.to_dict()
 
+    def design_box_exit(self, time: np.ndarray, columns: Mapping[str, np.ndarray]) -> str | None:
+        """Where a record made under this controller leaves the scheduling box the law was designed on
+        (its polytope's design box, p(k) from the scheduling expressions of the record's ``columns``), in
+        words, or None when it stays inside (or the law was designed at one point). Outside its box the law
+        extrapolates its vertex matrices: a loop that got there has left what the design vouches for."""
+        box = self.law.design_box
+        if box is None:
+            return None
+        n = len(time)
+        p = np.column_stack([np.broadcast_to(evaluate(expression, columns), (n,))
+                             for expression in self.scheduling])
+        slack = 1e-9 * np.maximum(box[:, 1] - box[:, 0], 1.0)
+        outside = np.any((p < box[:, 0] - slack) | (p > box[:, 1] + slack), axis=1)
+        if not outside.any():
+            return None
+        k = int(np.argmax(outside))
+        where = ", ".join(f"{e} = {v:.4g} in [{lo:.4g}, {hi:.4g}]"
+                          for e, v, (lo, hi) in zip(self.scheduling, p[k], box, strict=True))
+        return (f"left the scheduling box the controller was designed on at t = {time[k]:.4g} s ({where}) "
+                f"and was outside it for {int(outside.sum())} of {n} samples")
+
     def check_plant(self, output_names: Sequence[str], input_names: Sequence[str], model: str) -> None:
         """One DataError line when the plant lacks an output the controller reads or its scheduling uses,
         or an input it drives."""

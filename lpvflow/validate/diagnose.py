@@ -155,6 +155,8 @@ class Diagnosis:
     untested: list[str] = field(default_factory=list)  # extensions that could not be fitted (reasons below)
     unchanged: list[str] = field(default_factory=list)  # tried: the data chose the modelled structure
     untested_reasons: dict[str, str] = field(default_factory=dict)
+    #: cause → why the data cannot determine it (stated, never guessed: it cannot be the verdict)
+    not_identifiable: dict[str, str] = field(default_factory=dict)
     winner: Candidate | None = field(default=None, repr=False)
     nominal_y_val: np.ndarray | None = field(default=None, repr=False)
     error_spectrum: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
@@ -492,6 +494,7 @@ def diagnose(
         simulation="open loop" if loop is None else "closed loop",
         loop_scheduling=dict(loop.scheduling) if loop is not None else {},
         untested=list(untested_reasons), untested_reasons=untested_reasons,
+        not_identifiable=dict(ctx.not_identifiable),
         unchanged=[c for c in tried if c not in candidates and c not in untested_reasons],
         nominal_y_val=nominal.y_val,
         error_spectrum=residuals.error_spectrum(val.y[:, 0] - nominal.y_val[:, 0], val.Ts),

@@ -50,6 +50,11 @@ def scalar(values: list):
 
 
 def summary(result: Diagnosis, winner: Candidate | None) -> str:
+    """The verdict in one line, followed by what the data cannot determine (``not_identifiable``)."""
+    return "; ".join([_verdict_line(result, winner), *result.not_identifiable.values()])
+
+
+def _verdict_line(result: Diagnosis, winner: Candidate | None) -> str:
     before, after = np.mean(result.bfr_before), np.mean(result.bfr_after)
     if result.cause == AMBIGUOUS:
         a, b = result.parameters["candidates"]

@@ -265,7 +265,7 @@ def cost(n: int = 20_000) -> dict:
         finally:
             extensions.EXTENSIONS.update(original)
         out[label] = {"total_s": total, "lpr_arx_fit_s": t_arx, "ratio": total / t_arx, "cause": result.cause,
-                      "noise_round": bool(result.refit_ranking), "per_extension_s": per}
+                      "noise_round": result.noise_round, "per_extension_s": per}
         print(f"N = {n}, {label}: {total:.2f} s = {total / t_arx:.0f} × one LPR-ARX fit ({t_arx:.3f} s); "
               f"cause {result.cause}", flush=True)
     return out

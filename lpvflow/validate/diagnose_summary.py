@@ -92,6 +92,6 @@ def _verdict_line(result: Diagnosis, winner: Candidate | None) -> str:
     elif result.cause == NOISE and result.noise is not None:
         text += (f"; white output noise (SNR {np.mean(result.parameters['snr_db']):.1f} dB) biases least "
                  "squares: refit by output error or IV")
-    elif result.refit_ranking:
+    elif result.noise_round:
         text += "; output noise biases least squares, so every model was refitted by output error"
     return text

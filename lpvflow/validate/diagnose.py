@@ -274,7 +274,34 @@ def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[s
     if others and residuals.block_signed_rank(losses[others[0]["cause"]], losses[top])[1] >= 0.05:
         # not clearly better than the runner-up: a tie when the runner-up gains significantly too
         return AMBIGUOUS if {top, others[0]["cause"]} <= strong_causes else "none"
+    return _structure_first(top, others, candidates, losses, significant_causes)
+
+
+#: Extensions that change the user's structure, not the plant's physics: orders, basis, scheduling
+#: variable, and the equation constant of ``offset`` (a sensor offset is physical).
+STRUCTURAL = ("model_order", "scheduling_dependence", "scheduling_variable", "offset")
+
+
+def _structure_first(top: str, others: list[dict], candidates: dict[str, Candidate],
+                     losses: dict[str, np.ndarray], significant_causes: set[str]) -> str:
+    """``top``, unless it is a physical fault that does not clearly beat (block test p < 0.05) every
+    structural fix with a positive gain: then the best such structural fix when it is significant
+    (the user's structure is what is inadequate), else ``none``. A physical fault is named only when
+    it explains more than a change of the structure the user chose (otherwise the misfit of an
+    approximate structure is named as a dead zone or friction)."""
+    if _is_structural(top, candidates):
+        return top
+    for row in others:
+        cause = row["cause"]
+        if not _is_structural(cause, candidates):
+            continue
+        if residuals.block_signed_rank(losses[cause], losses[top])[1] >= 0.05:
+            return cause if cause in significant_causes else "none"
     return top
+
+
+def _is_structural(cause: str, candidates: dict[str, Candidate]) -> bool:
+    return cause in STRUCTURAL and candidates[cause].parameters.get("kind") != "sensor"
 
 
 def _noise_round(candidates: dict[str, Candidate], ctx: Context, noisy: dict | None,

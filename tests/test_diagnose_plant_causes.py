@@ -84,3 +84,34 @@ def test_a_sensor_offset_the_data_determine_is_named_small_or_large():
         assert result.not_identifiable == {}
         assert result.cause == "offset", (seed, offset, result.ranking)
         assert result.parameters["output_offset"] == pytest.approx(offset, rel=0.2)
+
+
+def test_a_physical_fault_is_named_only_when_it_beats_every_structural_fix():
+    """Structure first: friction on top of the ranking is named only when its squared simulation errors
+    are clearly smaller (block test) than those of every structural fix with a positive gain; when a
+    change of order does as well, the order is named (or none when the order is not significant).
+    A sensor offset is physical, an equation constant structural. Random losses, fixed seed."""
+    from types import SimpleNamespace
+
+    from lpvflow.validate.diagnose import _structure_first
+
+    rng = np.random.default_rng(35)
+    kind = {"friction": {}, "model_order": {}, "offset": {"kind": "sensor"}}
+    candidates = {c: SimpleNamespace(parameters=p) for c, p in kind.items()}
+    for _ in range(5):
+        base = rng.exponential(size=2000)
+        tied = base * rng.uniform(0.95, 1.05, size=2000)
+        clearly_worse = 3 * base
+        others = [{"cause": "model_order", "bfr_gain": 4.0}]
+        losses = {"friction": base, "model_order": tied}
+        assert _structure_first("friction", others, candidates, losses, {"friction", "model_order"}) \
+            == "model_order"
+        assert _structure_first("friction", others, candidates, losses, {"friction"}) == "none"
+        losses["model_order"] = clearly_worse
+        assert _structure_first("friction", others, candidates, losses, {"friction", "model_order"}) \
+            == "friction"
+        # a sensor offset is not a structural fix: friction stays named against it
+        losses = {"friction": base, "offset": tied}
+        offset_row = [{"cause": "offset", "bfr_gain": 4.0}]
+        named = _structure_first("friction", offset_row, candidates, losses, {"friction", "offset"})
+        assert named == "friction"

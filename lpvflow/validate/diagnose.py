@@ -27,6 +27,11 @@ reversing) is scored as the plant ran.
    the runner-up gives p < 0.05. When other causes reach practically the same gain (within 5 % of it),
    the extension with the fewest added parameters is named (a dead time explained by extra input
    lags is still a dead time); a tie between different causes is ``none``. Otherwise ``none``.
+   Structure first (:func:`_structure_first`): a physical fault is named only when it also clearly
+   beats every structural fix (orders, basis, scheduling variable, equation constant) that gains.
+   A parameter the data cannot determine (a sensor offset whose likelihood-ratio set is unbounded,
+   :func:`~lpvflow.validate.extensions_structural._sensor_offset`) is stated in ``not_identifiable``
+   instead of a guess (the sensor-offset variant is then not offered).
 5. Output noise (open loop): level, colour and LS bias. The nominal structure refitted by output error
    (extension ``output_noise_bias``, consistent under any output noise independent of the input —
    Boonto's thesis Sec. 4.2.2, OE predictor, and 4.4.1–4.4.2) is judged on its own terms by

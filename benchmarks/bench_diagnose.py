@@ -265,26 +265,31 @@ def cost(n: int = 20_000) -> dict:
         finally:
             extensions.EXTENSIONS.update(original)
         out[label] = {"total_s": total, "lpr_arx_fit_s": t_arx, "ratio": total / t_arx, "cause": result.cause,
-                      "noise_round": bool(result.refit_ranking), "per_extension_s": per}
+                      "noise_round": result.noise_round, "per_extension_s": per}
         print(f"N = {n}, {label}: {total:.2f} s = {total / t_arx:.0f} × one LPR-ARX fit ({t_arx:.3f} s); "
               f"cause {result.cause}", flush=True)
     return out
 
 
-def plant_records(seeds: tuple[int, ...], clean_seeds: tuple[int, ...]) -> dict:
+def plant_records(seeds: tuple[int, ...], clean_seeds: tuple[int, ...], plants: list[str] | None = None,
+                  effects: list[str] | None = None) -> dict:
     """The plant bench of tests/diagnosis_fmu_cases.py: every record diagnosed as the user would (the
     nominal structure, the controller of closed-loop records); per record the verdict, its outcome
-    (:func:`~tests.diagnosis_fmu_cases.outcome`) and the seconds of the diagnosis; rates per kind."""
+    (:func:`~tests.diagnosis_fmu_cases.outcome`) and the seconds of the diagnosis; rates per kind.
+    ``plants``/``effects``: only the records of these plants / whose effect name contains one of these."""
     from tests.diagnosis_fmu_cases import bench_records, make_record, outcome
 
     rows = []
     for plant, effect, seed in bench_records(seeds, clean_seeds):
+        if (plants and plant not in plants) or (effects and not any(e in effect for e in effects)):
+            continue
         record = make_record(plant, effect, seed)
         start = time.perf_counter()
         try:
             result = diagnose(record.data, record.structure, record.channels, controller=record.controller,
                               scheduling=record.scheduling)
-            cause, verdict = result.cause, outcome(record, result.cause, result.parameters)
+            cause = result.cause
+            verdict = outcome(record, result.cause, result.parameters, result.not_identifiable)
         except LpvflowError as exc:
             cause, verdict = f"error: {exc}", "error"
         seconds = time.perf_counter() - start
@@ -296,6 +301,8 @@ def plant_records(seeds: tuple[int, ...], clean_seeds: tuple[int, ...]) -> dict:
              "clean": lambda r: r["expected"] == "none",
              "out of vocabulary": lambda r: r["expected"] == "unexplained"}
     rates = {kind: {"right": sum(r["outcome"] == "right" for r in rows if pick(r)),
+                    "stated_not_identifiable": sum(r["outcome"] == "not identifiable (stated)"
+                                                   for r in rows if pick(r)),
                     "records": sum(1 for r in rows if pick(r))} for kind, pick in kinds.items()}
     worst = max(rows, key=lambda r: r["seconds"])
     return {"seeds": list(seeds), "clean_seeds": list(clean_seeds), "rates": rates,
@@ -308,18 +315,30 @@ def main() -> None:
     parser.add_argument("--records", type=int, metavar="SEEDS",
                         help="the plant bench (tests/diagnosis_fmu_cases.py) at seeds 0 … SEEDS−1 and clean "
                              "seeds 0 … 4 → results/diagnose_fmu_records.json")
+    parser.add_argument("--record-seeds", metavar="LIST",
+                        help="with --plant/--effect: the plant bench at these seeds (e.g. 5,6: held out)")
+    parser.add_argument("--clean-seeds", metavar="LIST", default="",
+                        help="clean-record seeds of a --record-seeds run (default none)")
+    parser.add_argument("--plant", action="append", help="plant bench: only this plant (repeatable)")
+    parser.add_argument("--effect", action="append",
+                        help="plant bench: only effects whose name contains this (repeatable)")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--fmu-seeds", type=int, default=5)
     parser.add_argument("--fmu-only", metavar="PREFIX",
                         help="only the FMU cases whose label starts with PREFIX (e.g. adip) → "
                              "results/diagnose_fmu_PREFIX.json")
     args = parser.parse_args()
-    if args.records:
-        results = plant_records(tuple(range(args.records)), tuple(range(5)))
-        out = Path(__file__).parent / "results" / "diagnose_fmu_records.json"
-        out.write_text(json.dumps(results, indent=1))
+    if args.records or args.record_seeds:
+        partial = bool(args.record_seeds or args.plant or args.effect)
+        seeds = _seeds(args.record_seeds) if args.record_seeds else tuple(range(args.records))
+        clean = _seeds(args.clean_seeds) if args.record_seeds else tuple(range(5))
+        results = plant_records(seeds, clean, args.plant, args.effect)
+        if not partial:  # a selection is printed, never written over the full bench's results
+            out = Path(__file__).parent / "results" / "diagnose_fmu_records.json"
+            out.write_text(json.dumps(results, indent=1))
         for kind, row in results["rates"].items():
-            print(f"{kind}: {row['right']}/{row['records']} right")
+            print(f"{kind}: {row['right']}/{row['records']} right, "
+                  f"{row['stated_not_identifiable']} stated not identifiable")
         print(f"worst diagnosis: {results['worst']['seconds']:.1f} s ({results['worst']['record']}, "
               f"N = {results['worst']['samples']})")
         return
@@ -342,6 +361,10 @@ def main() -> None:
               + ", ".join(f"{k} {v}" for k, v in sorted(row["named"].items()))
               + f" | {'' if rng is None else f'{rng[0]:.3g}–{rng[1]:.3g}'} | {row['seconds_per_run']:.1f} |")
     _print_fmu_table(results)
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    return tuple(int(s) for s in text.split(",") if s)
 
 
 def _print_fmu_table(results: dict) -> None:

@@ -33,6 +33,7 @@ sensor noise from it, the wrappers' dropout times from ``numpy.random.default_rn
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -313,12 +314,14 @@ def within(value, truth, rel: float = 0.2) -> bool:
     return bool(np.all(np.abs(value - truth) <= rel * np.abs(truth)))
 
 
-def outcome(record: Record, cause: str, parameters: dict) -> str:
-    """'right', 'false alarm', 'unexplained as expected', or what went wrong."""
+def outcome(record: Record, cause: str, parameters: dict,
+            not_identifiable: Mapping[str, str] | None = None) -> str:
+    """'right', 'false alarm', 'not identifiable (stated)' (the diagnosis says the data cannot determine
+    the expected cause, ``Diagnosis.not_identifiable``), or what went wrong."""
     if record.expected == "none":
         return "right" if cause in ("none", "output_noise_bias", "colored_noise") else "false alarm"
     if cause != record.expected:
-        return "wrong"
+        return "not identifiable (stated)" if record.expected in (not_identifiable or {}) else "wrong"
     if record.check is None:
         return "right"
     name, truth = record.check

@@ -33,7 +33,8 @@ VERDICTS = {
     "backlash": "play in an actuator (width reported)",
     "sensor_saturation": "a clipping sensor",
     "friction": "Coulomb friction against the motion of an output (level in input units)",
-    "offset": "a constant bias: an equation constant, or a sensor offset when it is identifiable",
+    "offset": "a constant bias: an equation constant, or a sensor offset when the data determine it "
+              "(when they do not, the summary says so: not_identifiable in the JSON)",
     "output_noise_bias": "white output noise biases least squares: refit the same structure by OE/IV "
                          "(noise level reported)",
     "colored_noise": "coloured output noise biases least squares (AR noise model and spectrum reported)",

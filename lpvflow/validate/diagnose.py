@@ -27,6 +27,11 @@ reversing) is scored as the plant ran.
    the runner-up gives p < 0.05. When other causes reach practically the same gain (within 5 % of it),
    the extension with the fewest added parameters is named (a dead time explained by extra input
    lags is still a dead time); a tie between different causes is ``none``. Otherwise ``none``.
+   Structure first (:func:`_structure_first`): a physical fault is named only when it also clearly
+   beats every structural fix (orders, basis, scheduling variable, equation constant) that gains.
+   A parameter the data cannot determine (a sensor offset whose likelihood-ratio set is unbounded,
+   :func:`~lpvflow.validate.extensions_structural._sensor_offset`) is stated in ``not_identifiable``
+   instead of a guess (the sensor-offset variant is then not offered).
 5. Output noise (open loop): level, colour and LS bias. The nominal structure refitted by output error
    (extension ``output_noise_bias``, consistent under any output noise independent of the input —
    Boonto's thesis Sec. 4.2.2, OE predictor, and 4.4.1–4.4.2) is judged on its own terms by
@@ -40,9 +45,9 @@ reversing) is scored as the plant ran.
    simulation error is output noise at all (:func:`prediction_ratio`: an ARX predictor does not
    beat the Box–Jenkins-type one). When LS is biased by output noise (Wald p < ``alpha``,
    noise_bias_change ≥ MATERIAL_CHANGE, ρ ≥ OUTPUT_NOISE_RATIO), step 4 would compare biased fits:
-   every extension is refitted by output error — its level or delay then chosen by the output-error
-   loss — and scored against the output-error refit of the nominal structure (``refit_ranking``);
-   only causes significant among the LS fits can be named there (open loop). A structural cause that still
+   every extension significant among the LS fits (open loop; :func:`_noise_round`) is refitted by
+   output error — its level or delay then chosen by the output-error loss — and scored against the
+   output-error refit of the nominal structure (``refit_ranking``). A structural cause that still
    gains is named; otherwise
    ``colored_noise`` (biased, and the AR noise model predicts significantly better than white
    noise; the AR coefficients and spectrum are its parameters) or ``output_noise_bias`` (biased,
@@ -148,6 +153,7 @@ class Diagnosis:
     summary: str
     where: dict
     refit_ranking: list[dict] = field(default_factory=list)  # the noise round (_choose), else empty
+    noise_round: bool = False  # the extensions were refitted consistently (module docstring, step 5)
     noise: dict | None = None  # noise_analysis; None in closed loop or without an OE refit
     adequacy: dict | None = None  # input_explained of the final model; None in closed loop
     simulation: str = "open loop"  # or "closed loop": in the identification loop (module docstring)
@@ -155,6 +161,8 @@ class Diagnosis:
     untested: list[str] = field(default_factory=list)  # extensions that could not be fitted (reasons below)
     unchanged: list[str] = field(default_factory=list)  # tried: the data chose the modelled structure
     untested_reasons: dict[str, str] = field(default_factory=dict)
+    #: cause → why the data cannot determine it (stated, never guessed: it cannot be the verdict)
+    not_identifiable: dict[str, str] = field(default_factory=dict)
     winner: Candidate | None = field(default=None, repr=False)
     nominal_y_val: np.ndarray | None = field(default=None, repr=False)
     error_spectrum: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
@@ -271,20 +279,61 @@ def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[s
     if others and residuals.block_signed_rank(losses[others[0]["cause"]], losses[top])[1] >= 0.05:
         # not clearly better than the runner-up: a tie when the runner-up gains significantly too
         return AMBIGUOUS if {top, others[0]["cause"]} <= strong_causes else "none"
+    return _structure_first(top, others, candidates, losses, significant_causes)
+
+
+#: Extensions that change the user's structure, not the plant's physics: orders, basis, scheduling
+#: variable, and the equation constant of ``offset`` (a sensor offset is physical).
+STRUCTURAL = ("model_order", "scheduling_dependence", "scheduling_variable", "offset")
+
+
+def _structure_first(top: str, others: list[dict], candidates: dict[str, Candidate],
+                     losses: dict[str, np.ndarray], significant_causes: set[str]) -> str:
+    """``top``, unless it is a physical fault that does not clearly beat (block test p < 0.05) every
+    structural fix with a positive gain: then the best such structural fix when it is significant
+    (the user's structure is what is inadequate), else ``none``. A physical fault is named only when
+    it explains more than a change of the structure the user chose (otherwise the misfit of an
+    approximate structure is named as a dead zone or friction)."""
+    if _is_structural(top, candidates):
+        return top
+    for row in others:
+        cause = row["cause"]
+        if not _is_structural(cause, candidates):
+            continue
+        if residuals.block_signed_rank(losses[cause], losses[top])[1] >= 0.05:
+            return cause if cause in significant_causes else "none"
     return top
 
 
+def _is_structural(cause: str, candidates: dict[str, Candidate]) -> bool:
+    return cause in STRUCTURAL and candidates[cause].parameters.get("kind") != "sensor"
+
+
 def _noise_round(candidates: dict[str, Candidate], ctx: Context, noisy: dict | None,
-                 noise: dict | None) -> dict[str, Candidate] | None:
-    """Every extension refitted consistently (module docstring, step 5), or None when the round does
+                 noise: dict | None, ranked: list[dict]) -> dict[str, Candidate] | None:
+    """The extensions refitted consistently (module docstring, step 5), or None when the round does
     not run: open loop when the LS estimate of the nominal structure is materially biased
-    (:func:`biased`), closed loop when the closed-loop IV refit gains significantly."""
+    (:func:`biased`), closed loop when the closed-loop IV refit gains significantly.
+
+    Open loop, only the causes significant among the LS fits are refitted. Output noise makes LS
+    comparisons *favour* extensions (the extra parameters absorb part of the bias), it does not hide
+    a real effect; an extension that gains only between output-error refits is the refits
+    redistributing a model error — neither a cause nor evidence against one. Synthetic plant with an
+    unmodelled pole at 0.7 under 30 dB equation noise (seed 1000): the missing order gains 4.6 points
+    among LS fits and 1.3 among output-error refits, where friction — not significant among LS fits
+    (p = 0.004) — gained 1.6. The output-error refits are most of a diagnosis' cost (maglev FMU, two
+    outputs: 22 of 24 s refitting every extension). Not in closed loop: on the ADIP, 0.1 mrad of sensor
+    noise drops the LS loop simulation to 13/40 % and no LS extension gains, while friction refitted
+    by closed-loop IV gains 7.4 points.
+    """
     if ctx.loop is not None:
         significant = noisy is not None and noisy["significant"]
         return _refits_in_loop(candidates, ctx.est, ctx.loop) if significant else None
     if noise is None or not noise["biased"]:
         return None
-    return _refits_by_output_error(candidates, _oe_context(ctx, candidates))
+    gained = {r["cause"] for r in ranked if r["significant"]}
+    return _refits_by_output_error({c: cand for c, cand in candidates.items() if c in gained},
+                                   _oe_context(ctx, candidates))
 
 
 def _oe_context(ctx: Context, candidates: dict[str, Candidate]) -> Context:
@@ -310,24 +359,6 @@ def _confirmed_by_output_error(cause: str, candidates: dict[str, Candidate], ctx
         return cause
     row = _rank(ctx.est, ctx.val, candidates[NOISE].fit, refit, min_gain, alpha)[0][0]
     return cause if row["bfr_gain"] >= min_gain and row["p_value"] < CONFIRM_ALPHA else "none"
-
-
-def _only_where_ls_gained(refit_ranked: list[dict], ranked: list[dict]) -> None:
-    """Rule out, in the open-loop noise round, the causes that were not significant among the LS fits.
-
-    Output noise makes LS comparisons *favour* extensions (the extra parameters absorb part of the
-    bias), it does not hide a real effect; an extension that gains only between output-error refits
-    is the refits redistributing a model error. Synthetic plant with an unmodelled pole at 0.7 under
-    30 dB equation noise (seed 1000): the missing order gains 4.6 points among LS fits and 1.3 among
-    output-error refits, where friction — not significant among LS fits (p = 0.004) — gained 1.6.
-    Not in closed loop: on the ADIP, 0.1 mrad of sensor noise drops the LS loop simulation to
-    13/40 % and no LS extension gains, while friction refitted by closed-loop IV gains 7.4 points.
-    """
-    gained = {r["cause"] for r in ranked if r["significant"]}
-    for r in refit_ranked:
-        if r["cause"] not in gained and r["significant"]:
-            r["significant"] = False
-            r["ruled_out"] = "not significant among the least-squares fits"
 
 
 def _noise_verdict(noisy: dict | None, noise: dict | None) -> str:
@@ -362,10 +393,10 @@ def _judge_noise(ctx: Context, candidates: dict[str, Candidate], noisy: dict | N
 
 def _decide(ctx: Context, candidates: dict[str, Candidate], ranked: list[dict], losses: dict,
             noisy: dict | None, noise: dict | None, min_gain: float,
-            alpha: float) -> tuple[str, dict[str, Candidate], list[dict]]:
+            alpha: float) -> tuple[str, dict[str, Candidate], list[dict] | None]:
     """The verdict before the adequacy test (module docstring, steps 4–5): (cause, the candidates it
-    names from, the noise round's ranking — empty when the round did not run)."""
-    refits = _noise_round(candidates, ctx, noisy, noise)
+    names from, the noise round's ranking — None when the round did not run)."""
+    refits = _noise_round(candidates, ctx, noisy, noise, ranked)
     if refits is None:
         cause = _choose(ranked, candidates, losses)
         suspect = (noise is not None and noise["bias"]["p_value"] < alpha
@@ -373,12 +404,10 @@ def _decide(ctx: Context, candidates: dict[str, Candidate], ranked: list[dict], 
                    and noise["bias"]["noise_bias_change"] >= NOTICEABLE_CHANGE)
         if suspect and cause in candidates:
             cause = _confirmed_by_output_error(cause, candidates, ctx, min_gain, alpha)
-        return _delay_before_order(cause, candidates, ranked, ctx, min_gain, alpha), candidates, []
+        return _delay_before_order(cause, candidates, ranked, ctx, min_gain, alpha), candidates, None
     # The noise round (module docstring, step 5; docstring of _choose): every extension refitted
     # consistently, scored against the consistent refit of the nominal structure.
     refit_ranked, refit_losses = _rank(ctx.est, ctx.val, candidates[NOISE].fit, refits, min_gain, alpha)
-    if ctx.loop is None:
-        _only_where_ls_gained(refit_ranked, ranked)
     cause = _choose(refit_ranked, refits, refit_losses)
     if cause == "none":
         return _noise_verdict(noisy, noise), candidates, refit_ranked
@@ -476,8 +505,9 @@ def diagnose(
     noisy = next((r for r in ranked if r["cause"] == NOISE), None)
     noise = _judge_noise(ctx, candidates, noisy, min_gain, alpha)
     cause, pool, refit_ranked = _decide(ctx, candidates, ranked, losses, noisy, noise, min_gain, alpha)
-    used = refit_ranked or ranked
-    final = candidates[NOISE].fit if refit_ranked else nominal
+    noise_round = refit_ranked is not None
+    used = refit_ranked if noise_round else ranked
+    final = candidates[NOISE].fit if noise_round else nominal
     cause, adequacy = _final_verdict(ctx, cause, final, pool, used, min_gain, alpha)
     _refuse_diverged(cause, nominal, candidates)
     winner = pool.get(NOISE if cause == "colored_noise" else cause)
@@ -487,11 +517,13 @@ def diagnose(
         vaf_before=vaf(val.y, nominal.y_val).tolist(), vaf_after=vaf(val.y, after).tolist(),
         cause=cause, parameters=verdict_parameters(cause, winner, noise, adequacy, used),
         evidence=evidence(est, prediction_residuals(nominal.model, est), split_channels),
-        ranking=ranked, refit_ranking=refit_ranked, noise=noise, adequacy=adequacy, summary="",
+        ranking=ranked, refit_ranking=refit_ranked or [], noise_round=noise_round, noise=noise,
+        adequacy=adequacy, summary="",
         where=where(val, val.y - nominal.y_val), winner=winner,
         simulation="open loop" if loop is None else "closed loop",
         loop_scheduling=dict(loop.scheduling) if loop is not None else {},
         untested=list(untested_reasons), untested_reasons=untested_reasons,
+        not_identifiable=dict(ctx.not_identifiable),
         unchanged=[c for c in tried if c not in candidates and c not in untested_reasons],
         nominal_y_val=nominal.y_val,
         error_spectrum=residuals.error_spectrum(val.y[:, 0] - nominal.y_val[:, 0], val.Ts),

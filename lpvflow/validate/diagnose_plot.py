@@ -55,14 +55,14 @@ def plot_diagnosis(result: Diagnosis, data: Dataset, path: str, split: float = 0
 
 
 def _ranking(ax, result: Diagnosis) -> None:
-    ranking = result.refit_ranking or result.ranking
+    ranking = result.refit_ranking if result.noise_round else result.ranking
     colours = ["tab:red" if r["cause"] == result.cause else "tab:green" if r["significant"] else "tab:gray"
                for r in ranking]
     gains = np.array([r["bfr_gain"] for r in ranking])
     floor = -max(5.0, 0.25 * gains.max(initial=0))  # very negative gains would squash the scale
     ax.barh([r["cause"] for r in ranking], np.maximum(gains, floor), color=colours)
     ax.invert_yaxis()
-    which = "noise round (consistent refits)" if result.refit_ranking else "least-squares fits"
+    which = "noise round (consistent refits)" if result.noise_round else "least-squares fits"
     ax.set(xlabel=f"validation BFR gain [points], {which}", title=f"verdict: {result.cause}")
 
 

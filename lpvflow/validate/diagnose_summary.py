@@ -50,6 +50,11 @@ def scalar(values: list):
 
 
 def summary(result: Diagnosis, winner: Candidate | None) -> str:
+    """The verdict in one line, followed by what the data cannot determine (``not_identifiable``)."""
+    return "; ".join([_verdict_line(result, winner), *result.not_identifiable.values()])
+
+
+def _verdict_line(result: Diagnosis, winner: Candidate | None) -> str:
     before, after = np.mean(result.bfr_before), np.mean(result.bfr_after)
     if result.cause == AMBIGUOUS:
         a, b = result.parameters["candidates"]
@@ -87,6 +92,6 @@ def summary(result: Diagnosis, winner: Candidate | None) -> str:
     elif result.cause == NOISE and result.noise is not None:
         text += (f"; white output noise (SNR {np.mean(result.parameters['snr_db']):.1f} dB) biases least "
                  "squares: refit by output error or IV")
-    elif result.refit_ranking:
+    elif result.noise_round:
         text += "; output noise biases least squares, so every model was refitted by output error"
     return text

@@ -134,6 +134,8 @@ class Context:
     channels: dict[str, tuple[np.ndarray, np.ndarray]]  # name → (estimation, validation) values
     loop: Loop | None = None  # closed-loop data: the identification loop the models are simulated in
     estimator: str = "arx"  # "oe": every variant refined by output error (diagnose's noise round)
+    #: cause → why the data cannot determine its parameter (an extension states it instead of guessing)
+    not_identifiable: dict[str, str] = field(default_factory=dict)
 
     @property
     def ny(self) -> int:

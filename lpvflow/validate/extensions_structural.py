@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import replace
+from functools import cache
 
 import numpy as np
+import scipy.stats
 
 from lpvflow.basis import Basis, SchedulingRangeWarning
 from lpvflow.errors import LpvflowError
@@ -199,14 +201,32 @@ def offset(ctx: Context) -> Candidate | None:
                      list(names), model_map=model_map)
 
 
+#: Quantile of χ²(1) bounding the likelihood-ratio confidence set of a sensor offset
+#: (:func:`_sensor_offset`): 1 − 10⁻³, the diagnosis' default significance level.
+OFFSET_CONFIDENCE = scipy.stats.chi2.ppf(1 - 1e-3, 1)
+#: Offsets of the search grid as fractions of the output's extent, on either side of zero: small
+#: offsets (1 cm on a 20 cm level) are on the grid, not only offsets of the output's own size.
+OFFSET_FRACTIONS = np.geomspace(1e-3, 1.0, 10)
+
+
 def _sensor_offset(ctx: Context) -> tuple[Fit, float] | None:
     """A constant sensor offset o (SISO, open loop): the structure fitted to y − o, simulated + o.
 
     In a shifted LPV model an equation constant c acts on the output as c / A(1, ψ), which varies
     with the scheduling; a sensor offset is the same o at every scheduling value. o is chosen like
-    a level (:func:`search_level` on the LS loss over the output's 2–98 % quantiles; in the noise
-    round refined by the output-error loss). Synthetic 0.5 offset, seed 1001: the equation constant
-    gained 3.0 points with block p = 0.007 (transients at every scheduling step).
+    a level (:func:`search_level` on the LS loss V(o) = log det of the one-step residual covariance
+    over 0 and ±s·OFFSET_FRACTIONS, s the 98 % quantile of |y|; in the noise round refined by the
+    output-error loss). Synthetic 0.5 offset, seed 1001: the equation constant gained 3.0 points
+    with block p = 0.007 (transients at every scheduling step).
+
+    Practical identifiability (profile likelihood: Raue et al., Bioinformatics 25(15), 2009, Sec. 2):
+    the likelihood-ratio confidence set {o : n_eff·(V(o) − V(ô)) ≤ χ²₁(1 − 10⁻³)} must be bounded
+    inside the searched range. When it reaches an end of the range, the data do not determine o and
+    None is returned with the statement in ``ctx.not_identifiable["offset"]`` — typically when the
+    scheduling signal is the measured output itself: the offset then shifts p too, a polynomial in
+    p + o is one in p, and what remains (an equation constant A(1, ψ)·o) the static gain's scheduling
+    dependence absorbs (tanks FMU, level as output and scheduling, poly:3: the set spans −19 … +2 cm
+    with or without a 1 cm offset; synthetic plant, offset 0.5: n_eff·ΔV ≈ 3000 at o = 0).
     """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
@@ -217,8 +237,27 @@ def _sensor_offset(ctx: Context) -> tuple[Fit, float] | None:
         return fit(est, val, na, nb, nk, basis, ctx.structure.form,
                    lambda m: sensor.simulate_validation(m, ctx.est, ctx.val), estimator)
 
+    @cache
+    def loss(o: float) -> float:
+        try:
+            return trial(o).loss
+        except LpvflowError:
+            return np.inf
+
+    extent = float(np.quantile(np.abs(ctx.est.y), 0.98))
+    grid = np.r_[-extent * OFFSET_FRACTIONS[::-1], 0.0, extent * OFFSET_FRACTIONS]
     try:
-        level = search_level(lambda o: trial(o).loss, np.quantile(ctx.est.y, np.linspace(0.02, 0.98, 15)))
+        level = search_level(loss, grid)
+        n_eff = ctx.est.N - ctx.nominal.model.max_lag
+        losses = np.array([loss(o) for o in grid])
+        inside = grid[n_eff * (losses - min(loss(level), losses.min())) <= OFFSET_CONFIDENCE]
+        if grid[0] in inside or grid[-1] in inside:
+            ctx.not_identifiable["offset"] = (
+                f"a sensor offset on {ctx.est.y_names[0]} is not identifiable from these data: every offset "
+                f"from {min(inside):.4g} to {max(inside):.4g} fits equally well (likelihood-ratio "
+                f"confidence set at 10⁻³ reaches the searched range ±{extent:.4g})"
+                + (" — the scheduling signal is this measured output" if _schedules_on_output(ctx) else ""))
+            return None
         if ctx.estimator == "oe":
             step = 0.1 * float(np.std(ctx.est.y))
             bracket = np.array([level - step, level, level + step])
@@ -228,6 +267,11 @@ def _sensor_offset(ctx: Context) -> tuple[Fit, float] | None:
         return None
     result.reference = ctx.val.y
     return result, level
+
+
+def _schedules_on_output(ctx: Context) -> bool:
+    """A scheduling column equal to the (single) measured output (it carries the offset too)."""
+    return any(np.array_equal(ctx.est.p[:, j], ctx.est.y[:, 0]) for j in range(ctx.est.p.shape[1]))
 
 
 def offset_parameters(model: LPVIO, p: np.ndarray, nu: int, trend: bool) -> dict:

@@ -33,9 +33,9 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     else its operating points, scheduling from the simulated outputs). With ``[identify] remove_trim`` the
     model's input is the controller's output without its trim u_op (:func:`model_coordinates`). With
     ``[identify] remove_offsets`` ``data`` and the returned outputs are deviations from the identify stage's
-    operating point (u₀, y₀) and the model runs as the plant y₀ + y, fed u − u₀; the inputs the controller
-    does not drive take their recorded values. The
-    loop is :func:`lpvflow.loop.engine.close_loop` with the model as the plant
+    operating point (u₀, y₀) = ``data.offsets`` and the model runs as the plant y₀ + y, fed u − u₀; the
+    inputs the controller does not drive take their recorded values. The loop is
+    :func:`lpvflow.loop.engine.close_loop` with the model as the plant
     (:class:`lpvflow.loop.model_plant.ModelPlant`) and the controller's protocol object
     (``loop_law()``).
     """
@@ -56,9 +56,9 @@ def closed_loop_simulation(model: LPVSS, data: Dataset, ctx: StageContext) -> np
     excitation = np.column_stack([recorded(f"{name}_excitation", 0.0) for name in K.outputs])
     # the recorded set-points as K took them in the experiment (an LTI law's are in the excitation)
     references = K.references_of(np.column_stack([recorded(f"{name}_setpoint", np.nan) for name in K.inputs]))
-    # the operating point the model works around (the identify stage's record; empty without
-    # remove_offsets): the loop runs in the plant's signals, data and fit in the deviations from it
-    offsets = ctx.outputs.get("identify", {}).get("offsets") or {}
+    # the operating point the model works around (what remove_offsets took off the data, data.offsets; empty
+    # without it): the loop runs in the plant's signals, data and fit in the deviations from it
+    offsets = data.offsets or {}
     u0, y0 = (np.asarray(offsets.get(s, np.zeros(n)), dtype=float) for s, n in (("u", model.nu),
                                                                                ("y", len(data.y_names))))
     plant = ModelPlant(model, [scheduling_expression(name, cfg["scheduling"], data.y_names)

@@ -112,6 +112,8 @@ def test_the_stage_reports_the_difference_of_the_model_and_the_plant_in_the_loop
         expected = np.max(np.abs(on_plant.outputs[:, 0] - y_model))
         assert row["largest_difference"]["lower_level"] == pytest.approx(expected, abs=1e-9)
         assert 2e-4 < expected < 0.01, expected
+        step = np.max(np.abs(np.diff(on_plant.outputs[:, 0])))  # the plant run's fastest move per sample
+        assert row["largest_step"]["lower_level"] == pytest.approx(step, abs=1e-12) and step > 0
         assert row["plant_failure"] is None and row["model_failure"] is None
 
 

@@ -1,11 +1,14 @@
 """The robustness stage's moving-parameter line (lpvflow.pipeline.rate_certificate, report_robustness)."""
 
+import json
 import math
+from types import SimpleNamespace
 
+import control
 import numpy as np
 import pytest
 
-from lpvflow.pipeline.rate_certificate import scheduling_signal
+from lpvflow.pipeline.rate_certificate import rate_certificate, scheduling_signal
 from lpvflow.pipeline.report_robustness import rate_statement
 from lpvflow.pipeline.report_text import DisplayUnit
 
@@ -42,3 +45,38 @@ def test_the_rate_line_converts_per_sample_to_display_units_per_second(seed):
     assert rate_statement({"rate_certificate_note": "not assessed: why"}, units) == \
         "moving scheduling: not assessed: why"
     assert rate_statement({}, units) == ""
+
+
+def scalar_design(tmp_path, gain: float):
+    """A one-state plant x⁺ = a(y)x + u, y = x, scheduled by sin(y) on breakpoints, under u = −gain·y."""
+    (tmp_path / "experiment.json").write_text(json.dumps({"outputs": {"ranges": {"y": [-1.0, 1.0]}}}))
+    ctx = SimpleNamespace(config={"experiment": {"scheduling": {"sin_y": "sin(y)"}}},
+                          path=lambda name: tmp_path / name)
+    model = SimpleNamespace(p_names=["sin_y"], y_names=["y"], Ts=0.01,
+                            frozen=lambda p: control.ss([[0.9 + 0.3 * p[0]]], [[1.0]], [[1.0]], [[0.0]],
+                                                        0.01))
+    breakpoints = np.array([-1.2, -0.5, 0.0, 0.5, 1.2])
+    controller = SimpleNamespace(polytope=SimpleNamespace(
+        kind="piecewise", psi_vertices=[[1.0, np.sin(b)] for b in breakpoints]))
+    rows = [{"scenario": "a move", "largest_step": {"y": 0.02}}, {"scenario": "a faster move",
+                                                                  "largest_step": {"y": 0.05}}]
+    static = control.ss(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[-gain]], 0.01)
+    out = rate_certificate(ctx, model, controller, rows, lambda p: static)
+    return out, breakpoints
+
+
+def test_a_loop_stable_at_every_frozen_point_of_a_scalar_plant_is_certified_at_any_rate(tmp_path):
+    # 𝒜(y) = 0.9 + 0.3 sin(y) − 0.5 ∈ [0.15, 0.65]: V = x² decreases whatever y does
+    out, breakpoints = scalar_design(tmp_path, 0.5)
+    cert = out["rate_certificate"]
+    assert cert["signal"] == "y" and cert["peak_scenario"] == "a faster move"
+    assert cert["peak_per_sample"] == 0.05
+    assert cert["breakpoints"] == pytest.approx(breakpoints, abs=1e-4)  # from sin, on the widened range
+    assert cert["rates"][:3] == pytest.approx([0.05 / 16, 0.05 / 4, 0.05]) and cert["rates"][3] is None
+    assert cert["certified"] == [True] * 4 and cert["largest"] is None
+
+
+def test_an_unstable_frozen_loop_is_a_note_not_a_crash(tmp_path):
+    # 0.9 + 0.3 sin(y) − 0.1 > 1 for y > 0.73
+    out, _ = scalar_design(tmp_path, 0.1)
+    assert list(out) == ["rate_certificate_note"] and "is unstable" in out["rate_certificate_note"]

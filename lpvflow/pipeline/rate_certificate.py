@@ -23,7 +23,7 @@ import control
 import numpy as np
 
 from lpvflow.basis import SchedulingRangeWarning
-from lpvflow.errors import DataError
+from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment.scheduling import evaluate
 from lpvflow.pipeline.context import StageContext
 from lpvflow.validate.scheduled_stability import largest_certified_rate
@@ -70,7 +70,10 @@ def rate_certificate(ctx: StageContext, model: Any, controller: Any, trajectory:
     start = time.perf_counter()
     with warnings.catch_warnings():  # the controller's breakpoints may reach past the model's box
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        ladder = largest_certified_rate(_loop(model, feedback, theta), breakpoints, rates)
+        try:
+            ladder = largest_certified_rate(_loop(model, feedback, theta), breakpoints, rates)
+        except ModelError as exc:  # e.g. a frozen loop between the breakpoints that is unstable
+            return {"rate_certificate_note": f"not assessed: {exc}"}
     return {"rate_certificate": {
         "signal": signal, "peak_per_sample": peak, "peak_scenario": fastest["scenario"],
         "Ts": float(model.Ts),

@@ -167,7 +167,8 @@ def scheduled_stability(loop_at: Callable[[float], np.ndarray], breakpoints: Seq
                                solver)
         blocks.append(block)
         if block is None or block.margin <= 0:
-            where = "" if block is None else f" (margin {block.margin:.3g} at p = {block.where:.4g})"
+            where = (" (the SDP solver returned no point)" if block is None
+                     else f" (margin {block.margin:.3g} at p = {block.where:.4g})")
             reasons.append(f"block of {len(states)} states{where}")
     nu = "any" if rate_bound is None else f"{rate_bound:g}"
     reason = f"not certified at ν = {nu} per sample: {'; '.join(reasons)}" if reasons else ""

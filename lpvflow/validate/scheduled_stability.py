@@ -89,7 +89,8 @@ class ScheduledStability:
     def margin(self, loop_at: Callable[[float], np.ndarray], per_segment: int = FINE_PER_SEGMENT
                ) -> tuple[float, float]:
         """(smallest margin, p) of this certificate for the loop ``loop_at`` (e.g. a perturbed one) on a grid
-        ``per_segment`` times finer than the breakpoints: > 0 certifies it too."""
+        ``per_segment`` times finer than the breakpoints, block by block: > 0 certifies it too when it is
+        block triangular in the same blocks (only the diagonal blocks are checked)."""
         points = segment_grid(self.schedule.breakpoints, per_segment)
         worst = (np.inf, float(points[0]))
         for block in self.blocks:

@@ -19,6 +19,8 @@ from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.config import load_config
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.design import ROBUSTNESS, run_design
+from lpvflow.pipeline.rate_certificate import rate_certificate
+from lpvflow.pipeline.robustness import measurement_feedback
 from lpvflow.pipeline.settings import StageSettings
 from lpvflow.pipeline.trajectory_validation import trajectory_validation
 from lpvflow.pipeline.verify import simulate_loop
@@ -113,6 +115,8 @@ def test_the_stage_reports_the_difference_of_the_model_and_the_plant_in_the_loop
         expected = np.max(np.abs(on_plant.outputs[:, 0] - y_model))
         assert row["largest_difference"]["lower_level"] == pytest.approx(expected, abs=1e-9)
         assert 2e-4 < expected < 0.01, expected
+        step = np.max(np.abs(np.diff(on_plant.outputs[:, 0])))  # the plant run's fastest move per sample
+        assert row["largest_step"]["lower_level"] == pytest.approx(step, abs=1e-12) and step > 0
         assert row["plant_failure"] is None and row["model_failure"] is None
 
 
@@ -150,3 +154,16 @@ def test_the_report_shows_the_difference_per_scenario_and_the_worst_in_the_card(
     worst = max(rows, key=lambda row: row["largest_difference"]["lower_level"])
     assert (f"model vs plant in the loop, largest difference: lower_level "
             f"{worst['largest_difference']['lower_level']:.3g} m ({worst['scenario']})") in page
+
+
+def test_the_rate_certificate_is_a_note_for_a_controller_without_breakpoints(design):
+    """The tanks controller is scheduled on a box, not on breakpoints: the stage's rate certificate says
+    why it was not assessed instead of running an SDP."""
+    summary, folder, path = design
+    model, controller = load(folder / "model.json"), load(folder / "controller.json")
+    assert controller.polytope.kind != "piecewise"
+    rows = summary["stages"]["robustness"]["outputs"]["trajectory"]
+    out = rate_certificate(stage_context(folder, path), model, controller, rows,
+                           lambda p: measurement_feedback(controller, p))
+    assert list(out) == ["rate_certificate_note"] and "needs a controller on breakpoints" in \
+        out["rate_certificate_note"]

@@ -152,6 +152,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                                "+ K(y − y_m) with a model copy under an LQ gain as reference model"),
         "robustness_gate": Key(False, boolean, "stop the design after the robustness stage when the "
                                "controller's b(Ĝ, K_fb) is not above the ν-gap at a validate point"),
+        "rate_certificate": Key(False, boolean, "robustness stage: the largest scheduling rate at which the "
+                                "shipped loop's stability is certified, next to the verify runs' peak rate"),
         "breakpoints": Key(None, breakpoints, "piecewise polytope: ascending values (or rows) end to end"),
         "structure": Key("1dof", string(("1dof", "2dof")), "1dof: controller reads r − y; 2dof: [r; y]"),
         "weights": Key(REQUIRED, weights, "mixed-sensitivity weights S, K, [B, T, R, N], [integrator_shift]"),

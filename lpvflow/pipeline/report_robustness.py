@@ -55,8 +55,34 @@ def robustness_section(folder: Path, outputs: dict, units: dict[str, DisplayUnit
                    + "".join(f"<td>{html.escape(v)}</td>" for v in c) + "</tr>" for c in cells)
     statement = robustness_statement(outputs, points)
     css = "pass" if outputs.get("guaranteed") else "fail"
+    rate = rate_statement(outputs, units)
     return (f'<p class="{css}">{html.escape(statement)}</p><table><tr>'
-            + "".join(f"<th>{html.escape(h)}</th>" for h in shown) + f"</tr>{body}</table>")
+            + "".join(f"<th>{html.escape(h)}</th>" for h in shown) + f"</tr>{body}</table>"
+            + (f"<p>{html.escape(rate)}</p>" if rate else ""))
+
+
+def rate_statement(outputs: dict, units: dict[str, DisplayUnit]) -> str:
+    """The stage's ``rate_certificate`` as one line — "stability certified for arm_angle rates up to X °/s;
+    the fastest verify scenario (…) peaks at Y °/s", or "not certified even at X °/s (the smallest rate
+    tried)" — or its ``rate_certificate_note``; "" when neither was asked for."""
+    if "rate_certificate_note" in outputs:
+        return f"moving scheduling: {outputs['rate_certificate_note']}"
+    if "rate_certificate" not in outputs:
+        return ""
+    cert = outputs["rate_certificate"]
+    name = cert["signal"]
+    unit = units.get(name, DisplayUnit(""))
+
+    def speed(per_sample: float) -> str:
+        return number_text(per_sample * unit.factor / cert["Ts"], f" {unit.label}/s" if unit.label else "/s")
+
+    peak = f"the fastest verify scenario ({cert['peak_scenario']}) peaks at {speed(cert['peak_per_sample'])}"
+    if cert["largest"] is None:
+        return f"stability certified for {name} changing at any rate; {peak}"
+    if cert["largest"] == 0.0:
+        return (f"stability not certified for {name} changing even at {speed(cert['rates'][0])} (the "
+                f"smallest rate tried; {cert['reason']}); {peak}")
+    return f"stability certified for {name} rates up to {speed(cert['largest'])}; {peak}"
 
 
 def trajectory_table(rows: list[dict], units: dict[str, DisplayUnit]) -> str:

@@ -19,7 +19,9 @@ it the stage only reports.
 Frozen points say nothing about the moves between them. With ``[verify]`` scenarios the stage also runs
 the model in the loop of the same controller against the plant FMU in that loop on every scenario and
 reports the largest difference of each measured output (:mod:`lpvflow.pipeline.trajectory_validation`);
-that is never part of the gate.
+that is never part of the gate. With ``[synth] rate_certificate = true`` it also reports up to which rate
+of the scheduling signal the loop's stability is certified, next to the fastest move of those runs
+(:mod:`lpvflow.pipeline.rate_certificate`).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from lpvflow.models import load
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.coordinates import read_data
 from lpvflow.pipeline.frozen_references import signal_scaling
+from lpvflow.pipeline.rate_certificate import rate_certificate
 from lpvflow.pipeline.trajectory_validation import trajectory_validation
 from lpvflow.validate.robust_stability import delay_margin_samples, generalized_margin, input_disk_margin
 from lpvflow.validate.scaling import SignalScaling
@@ -117,5 +120,8 @@ def robustness(ctx: StageContext) -> tuple[dict, list[str]]:
         outputs["guaranteed"] = not outputs["not_guaranteed_at"]
     if ctx.config["verify"] is not None and ctx.config["design"]["plant"]:
         outputs |= trajectory_validation(ctx, model, controller)
+    if ctx.config["synth"].get("rate_certificate"):
+        outputs |= rate_certificate(ctx, model, controller, outputs.get("trajectory", []),
+                                    lambda p: measurement_feedback(controller, p))
     outputs["gate"] = robustness_verdict(outputs, bool(ctx.config["synth"].get("robustness_gate")))
     return outputs, []

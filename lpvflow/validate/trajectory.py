@@ -26,16 +26,20 @@ from lpvflow.pipeline.verify import ClosedLoopRun, simulate_loop, simulate_loop_
 
 @dataclass(frozen=True)
 class TrajectoryAgreement:
-    """One scenario: the largest |y_plant − y_model| per measured output, and each run's failure (or None)."""
+    """One scenario: the largest |y_plant − y_model| per measured output, the largest change per sample
+    |y(k+1) − y(k)| of each measured output in the plant-in-the-loop run (e.g. how fast a scheduling
+    signal moves), and each run's failure (or None)."""
 
     scenario: str
     largest_difference: dict[str, float]
+    largest_step: dict[str, float]
     plant_failure: str | None
     model_failure: str | None
 
     def to_dict(self) -> dict:
         return {"scenario": self.scenario, "largest_difference": self.largest_difference,
-                "plant_failure": self.plant_failure, "model_failure": self.model_failure}
+                "largest_step": self.largest_step, "plant_failure": self.plant_failure,
+                "model_failure": self.model_failure}
 
 
 def trajectory_agreement(controller: object, plant_fmu: str | Path, model_plant: Callable[[], ModelPlant],
@@ -55,8 +59,15 @@ def trajectory_agreement(controller: object, plant_fmu: str | Path, model_plant:
                        if np.isfinite(value)})
         on_model = simulate_loop_on(controller, model, scenario, loop, "model in the loop")
         results.append(TrajectoryAgreement(scenario.name, _largest_difference(on_plant, on_model),
-                                           on_plant.failure, on_model.failure))
+                                           _largest_step(on_plant), on_plant.failure, on_model.failure))
     return results
+
+
+def _largest_step(run: ClosedLoopRun) -> dict[str, float]:
+    """max_k |y(k+1) − y(k)| of each measured output over the samples the run completed (finite)."""
+    finite = np.isfinite(run.outputs).all(axis=1)
+    steps = np.abs(np.diff(run.outputs, axis=0))[finite[:-1] & finite[1:]]
+    return {name: float(steps[:, i].max(initial=0.0)) for i, name in enumerate(run.measured)}
 
 
 def _largest_difference(a: ClosedLoopRun, b: ClosedLoopRun) -> dict[str, float]:

@@ -1,0 +1,82 @@
+"""The robustness stage's moving-parameter line (lpvflow.pipeline.rate_certificate, report_robustness)."""
+
+import json
+import math
+from types import SimpleNamespace
+
+import control
+import numpy as np
+import pytest
+
+from lpvflow.pipeline.rate_certificate import rate_certificate, scheduling_signal
+from lpvflow.pipeline.report_robustness import rate_statement
+from lpvflow.pipeline.report_text import DisplayUnit
+
+ADIP = ["sin(arm_angle)", "1/(1 - 0.3785*cos(arm_angle)**2)", "cos(arm_angle)/(1 - 0.3785*cos(arm_angle)**2)"]
+
+
+def test_the_scheduling_signal_is_the_one_output_every_expression_reads():
+    assert scheduling_signal(ADIP, ["arm_angle", "pendulum_angle"]) == "arm_angle"
+    assert scheduling_signal(["lower_level"], ["lower_level"]) == "lower_level"  # the output itself
+    assert scheduling_signal([*ADIP, "pendulum_angle**2"], ["arm_angle", "pendulum_angle"]) is None
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_rate_line_converts_per_sample_to_display_units_per_second(seed):
+    rng = np.random.default_rng(seed)
+    Ts, peak = float(rng.choice([0.002, 0.005, 0.01])), float(rng.uniform(1e-3, 5e-3))
+    rates = [peak / 16, peak / 4, peak, None]
+    cert = {"signal": "arm_angle", "peak_per_sample": peak, "peak_scenario": "arm to -70 deg", "Ts": Ts,
+            "rates": rates, "reason": "not certified at ν = … per sample: block of 16 states"}
+    units = {"arm_angle": DisplayUnit.of("rad")}
+
+    def speed(per_sample: float) -> str:
+        return f"{math.degrees(per_sample) / Ts:.3g} °/s"
+
+    tail = f"the fastest verify scenario (arm to -70 deg) peaks at {speed(peak)}"
+    certified = {"largest": rates[1], "certified": [True, True, False]}
+    line = rate_statement({"rate_certificate": cert | certified}, units)
+    assert line == f"stability certified for arm_angle rates up to {speed(rates[1])}; {tail}"
+    line = rate_statement({"rate_certificate": cert | {"largest": 0.0, "certified": [False]}}, units)
+    assert line.startswith(f"stability not certified for arm_angle changing even at {speed(rates[0])} ")
+    assert "block of 16 states" in line and line.endswith(tail)
+    line = rate_statement({"rate_certificate": cert | {"largest": None, "certified": [True] * 4}}, units)
+    assert line == f"stability certified for arm_angle changing at any rate; {tail}"
+    assert rate_statement({"rate_certificate_note": "not assessed: why"}, units) == \
+        "moving scheduling: not assessed: why"
+    assert rate_statement({}, units) == ""
+
+
+def scalar_design(tmp_path, gain: float):
+    """A one-state plant x⁺ = a(y)x + u, y = x, scheduled by sin(y) on breakpoints, under u = −gain·y."""
+    (tmp_path / "experiment.json").write_text(json.dumps({"outputs": {"ranges": {"y": [-1.0, 1.0]}}}))
+    ctx = SimpleNamespace(config={"experiment": {"scheduling": {"sin_y": "sin(y)"}}},
+                          path=lambda name: tmp_path / name)
+    model = SimpleNamespace(p_names=["sin_y"], y_names=["y"], Ts=0.01,
+                            frozen=lambda p: control.ss([[0.9 + 0.3 * p[0]]], [[1.0]], [[1.0]], [[0.0]],
+                                                        0.01))
+    breakpoints = np.array([-1.2, -0.5, 0.0, 0.5, 1.2])
+    controller = SimpleNamespace(polytope=SimpleNamespace(
+        kind="piecewise", psi_vertices=[[1.0, np.sin(b)] for b in breakpoints]))
+    rows = [{"scenario": "a move", "largest_step": {"y": 0.02}}, {"scenario": "a faster move",
+                                                                  "largest_step": {"y": 0.05}}]
+    static = control.ss(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[-gain]], 0.01)
+    out = rate_certificate(ctx, model, controller, rows, lambda p: static)
+    return out, breakpoints
+
+
+def test_a_loop_stable_at_every_frozen_point_of_a_scalar_plant_is_certified_at_any_rate(tmp_path):
+    # 𝒜(y) = 0.9 + 0.3 sin(y) − 0.5 ∈ [0.15, 0.65]: V = x² decreases whatever y does
+    out, breakpoints = scalar_design(tmp_path, 0.5)
+    cert = out["rate_certificate"]
+    assert cert["signal"] == "y" and cert["peak_scenario"] == "a faster move"
+    assert cert["peak_per_sample"] == 0.05
+    assert cert["breakpoints"] == pytest.approx(breakpoints, abs=1e-4)  # from sin, on the widened range
+    assert cert["rates"][:3] == pytest.approx([0.05 / 16, 0.05 / 4, 0.05]) and cert["rates"][3] is None
+    assert cert["certified"] == [True] * 4 and cert["largest"] is None
+
+
+def test_an_unstable_frozen_loop_is_a_note_not_a_crash(tmp_path):
+    # 0.9 + 0.3 sin(y) − 0.1 > 1 for y > 0.73
+    out, _ = scalar_design(tmp_path, 0.1)
+    assert list(out) == ["rate_certificate_note"] and "is unstable" in out["rate_certificate_note"]

@@ -277,9 +277,11 @@ def test_cli_experiment_takes_an_lpv_controller(adip, tmp_path, capsys):
 
 def test_a_record_leaving_the_controllers_design_box_is_named(adip, tmp_path):
     """An LPV controller outside the box it was designed on extrapolates: ``design_box_exit`` names the
-    first sample where the record's scheduling leaves the box, on a record made up here and on the FMU
-    (arm held at 0.8 rad, sin 0.72 > the box's 0.6); ``run_fmu_experiment(within_design_box=True)`` makes
-    that one DataError line after writing the record, and without the flag the same run is a record."""
+    first sample where the record's scheduling leaves the box, on a record made up here, and the design's
+    experiment stage reports it (``left_design_box``) on an FMU run holding the arm at 0.8 rad (sin 0.72 >
+    the box's 0.6), while a run inside the box reports nothing."""
+    from lpvflow.pipeline.stages import experiment
+
     K = SynthesizedController.from_controller(limited("2dof"))
     time = np.arange(200) * 0.005
     arm = np.where(time < 0.5, 0.3, 0.7)  # sin 0.30 inside [-0.6, 0.6], sin 0.64 outside from t = 0.5 s
@@ -287,12 +289,16 @@ def test_a_record_leaving_the_controllers_design_box_is_named(adip, tmp_path):
     note = K.design_box_exit(time, {"arm_angle": arm, "pendulum_angle": 0 * time})
     assert "at t = 0.5 s" in note and "sin(arm_angle) = 0.6442 in [-0.6, 0.6]" in note
     assert "100 of 200 samples" in note
-    run = dict(setpoint={"arm_angle": "const:value=0.8"}, parameters={"x0_pendulum_angle": 0.0}, seed=1,
-               progress=False)
-    record = run_fmu_experiment(adip, None, 3.0, controller=limited("2dof"), **run)
-    assert np.max(np.sin(record.columns["arm_angle"])) > 0.6
-    out = tmp_path / "data.csv"
-    with pytest.raises(DataError, match=r"left the scheduling box the controller was designed on at t = "):
-        run_fmu_experiment(adip, None, 3.0, controller=limited("2dof"), output=out, within_design_box=True,
-                           **run)
-    assert out.exists()
+    path = tmp_path / "K.json"
+    path.write_text(json.dumps(limited("2dof").to_dict()))
+    notes = []
+    for value in (0.3, 0.8):
+        cfg = {"Ts": None, "duration": 3.0, "inputs": {}, "controller": str(path), "excitation": {},
+               "parameters": {}, "scheduling": {}, "seed": 1, "quantization": {}, "noise": {},
+               "setpoint": {"arm_angle": f"const:value={value}"}}
+        folder = tmp_path / str(value)
+        folder.mkdir()
+        outputs, _ = experiment(StageContext(folder, {"experiment": cfg, "design": {"plant": str(adip)}}))
+        notes.append(outputs.get("left_design_box"))
+    assert notes[0] is None
+    assert notes[1].startswith("left the scheduling box the controller was designed on at t = ")

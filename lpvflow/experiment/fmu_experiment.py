@@ -7,7 +7,6 @@ from pathlib import Path
 
 import control
 
-from lpvflow.errors import DataError
 from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.experiment.plant import open_plant, sha256_of
@@ -36,7 +35,6 @@ def run_fmu_experiment(
     setpoint: Mapping[str, str | SignalSpec] | None = None,
     quantization: Mapping[str, float] | None = None,
     noise: Mapping[str, float] | None = None,
-    within_design_box: bool = False,
 ) -> ExperimentRecord:
     """Run :func:`~lpvflow.experiment.run.run_experiment` on the FMU at ``fmu`` with ``parameters``
     set before initialisation, and write ``output`` (+ ``<output>.json``) when given.
@@ -46,9 +44,6 @@ def run_fmu_experiment(
     :class:`LPVController` with its ``info["signals"]`` (:mod:`lpvflow.experiment.synthesized`) or a
     discrete python-control ``StateSpace`` whose input/output labels are plant output/input names
     (operating points zero). ``Ts=None`` takes the controller's sampling time, else the step the FMU declares.
-    With ``within_design_box`` a record that leaves the scheduling box the controller was designed on
-    (``design_box_exit``: an LPV controller's polytope) is one DataError line, after ``output`` is written
-    (the record shows where the loop went).
     """
     fmu = Path(fmu)
     protected = [fmu]
@@ -81,10 +76,4 @@ def run_fmu_experiment(
         record.metadata["controller_file"] = source
     if output is not None:
         write_record(record, output, protected)
-    left = controller.design_box_exit(record.time, record.columns) if within_design_box and controller \
-        else None
-    if left:
-        where = source["path"] if source else "the controller"
-        raise DataError(f"the experiment under {where} {left}: lower the excitation or the set-points "
-                        "([experiment] iterate_excitation / iterate_setpoint in an iterate round)")
     return record

@@ -53,19 +53,21 @@ from lpvflow.validate.plots import bode_overlay, gap_margin_plot
 
 
 def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
-    """Identification experiment on the plant FMU (closed loop when a controller is given; a record leaving
-    its design box is an error, ``run_fmu_experiment(within_design_box=True)``)."""
+    """Experiment on the plant FMU (closed loop under a controller; ``left_design_box``: design_box_exit)."""
     cfg = ctx.config["experiment"]
     record = run_fmu_experiment(
         ctx.config["design"]["plant"], cfg["Ts"], cfg["duration"], inputs=cfg["inputs"] or None,
         controller=cfg["controller"], excitation=cfg["excitation"] or None,
         parameters=cfg["parameters"] or None, scheduling_columns=cfg["scheduling"] or None,
         seed=cfg["seed"], output=ctx.path(DATA_FILE), progress=None, setpoint=cfg["setpoint"] or None,
-        quantization=cfg["quantization"] or None, noise=cfg["noise"] or None, within_design_box=True,
+        quantization=cfg["quantization"] or None, noise=cfg["noise"] or None,
     )
-    ranges = {name: [float(np.min(v)), float(np.max(v))]
-              for name, v in record.columns.items() if name != "time"}
-    return {"samples": len(record.time), "Ts": record.Ts, "ranges": ranges}, ["data.csv", "data.csv.json"]
+    outputs = {"samples": len(record.time), "Ts": record.Ts, "ranges": {
+        name: [float(np.min(v)), float(np.max(v))] for name, v in record.columns.items() if name != "time"}}
+    if cfg["controller"] and (left := load_experiment_controller(cfg["controller"]).design_box_exit(
+            record.time, record.columns)):
+        outputs["left_design_box"] = left
+    return outputs, ["data.csv", "data.csv.json"]
 
 
 def identify(ctx: StageContext) -> tuple[dict, list[str]]:

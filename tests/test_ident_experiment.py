@@ -145,6 +145,9 @@ def test_gate_verdict_names_the_worst_point():
     assert verdict["passed"] is False
     assert "1 of 3 frozen points (worst θ = 0.5: ν-gap 0.2 ≥ b(P, K_id) 0.08)" in verdict["reason"]
     assert "not used for synthesis" in verdict["reason"]
+    lost = {"left_design_box": "left the scheduling box the controller was designed on at t = 14.07 s (…)"}
+    assert verdict["reason"] + "; the experiment record " + lost["left_design_box"] == \
+        gate_verdict(outputs, True, lost)["reason"]
     outputs.update(nugap=[0.05, 0.02, 0.07], nugap_below_b_everywhere=True)
     assert gate_verdict(outputs, True)["passed"] is True
     assert gate_verdict(outputs, False)["passed"] is None

@@ -5,14 +5,16 @@ from __future__ import annotations
 import numpy as np
 
 
-def gate_verdict(outputs: dict, enabled: bool) -> dict:
+def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None) -> dict:
     """The ν-gap/b(P, K) gate of the validate stage: ``{"passed": bool | None, "reason": str}``.
 
     The model passes when δν(G_FMU(θ), Ĝ(θ)) < b(Ĝ(θ), K_id) at every frozen grid point, i.e. the
     identification controller provably stabilizes every frozen plant as close to the model as the FMU
     is (Vinnicombe's robust-stability test; thesis Fig. 6.11). ``passed`` is False when it fails, with the
     worst point in the reason (the design then stops after validate when the gate is on), and None when
-    it was not evaluated (gate off, or no FMU reference or no experiment controller to compute it)."""
+    it was not evaluated (gate off, or no FMU reference or no experiment controller to compute it). A failing
+    reason also says where the record left the experiment controller's design box (``left_design_box`` of
+    the ``experiment`` stage's outputs), which is what a lost loop looks like."""
     if not enabled:
         return {"passed": None, "reason": "gate off ([validate] gate = false)"}
     if "nugap_below_b_everywhere" not in outputs:
@@ -28,4 +30,6 @@ def gate_verdict(outputs: dict, enabled: bool) -> dict:
     reason = (f"the identified model fails the ν-gap test at {failing} of {len(gaps)} frozen points "
               f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g}); "
               "it is not used for synthesis")
+    if experiment and experiment.get("left_design_box"):
+        reason += f"; the experiment record {experiment['left_design_box']}"
     return {"passed": False, "reason": reason}

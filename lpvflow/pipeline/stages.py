@@ -241,7 +241,7 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
         if K is not None:
             outputs["gate_margin"] = [row["stability_margin_b"] - row["nugap"] for row in rows]
             outputs["nugap_below_b_everywhere"] = all(row["passes"] for row in rows)
-    outputs["gate"] = gate_verdict(outputs, cfg["gate"])
+    outputs["gate"] = gate_verdict(outputs, cfg["gate"], ctx.outputs.get("experiment"))
     return outputs, artifacts
 
 

@@ -83,6 +83,27 @@ def fmu_open_loop(path: Path, w, p) -> np.ndarray:
         fmu.close()
 
 
+def controller_and_plant_slaves(controller_fmu: Path, plant_fmu: Path, plant_parameters: dict, tmp: Path
+                                ) -> tuple[tuple[FMU2Slave, FMU2Slave], dict[str, dict[str, int]]]:
+    """The controller FMU ("K") and the plant FMU ("G", ``plant_parameters`` set in initialisation) as
+    initialised fmpy slaves, and each one's value references by variable name."""
+    slaves, refs = [], {}
+    for key, path in (("K", controller_fmu), ("G", plant_fmu)):
+        description = read_model_description(str(path))
+        refs[key] = {v.name: v.valueReference for v in description.modelVariables}
+        slave = FMU2Slave(guid=description.guid, unzipDirectory=extract(str(path), str(tmp / key)),
+                          modelIdentifier=description.coSimulation.modelIdentifier, instanceName=key)
+        slave.instantiate()
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        if key == "G":
+            for name, value in plant_parameters.items():
+                slave.setReal([refs["G"][name]], [value])
+        slave.exitInitializationMode()
+        slaves.append(slave)
+    return (slaves[0], slaves[1]), refs
+
+
 def fmpy_closed_loop(controller_fmu: Path, plant_fmu: Path, scenario: Scenario, Ts: float, tmp: Path,
                      scheduling: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """An importer's loop with fmpy alone, wired by port names: per sample the plant's arm_angle and
@@ -91,22 +112,7 @@ def fmpy_closed_loop(controller_fmu: Path, plant_fmu: Path, scenario: Scenario, 
     controller's ``voltage``, clipped to ±10 V, drives the plant for one step. Returns the measured
     outputs (n, 2) and the applied voltage (n,)."""
     scheduling = {"sin_arm": np.sin} if scheduling is None else scheduling
-    slaves, refs = {}, {}
-    for key, path in (("K", controller_fmu), ("G", plant_fmu)):
-        description = read_model_description(str(path))
-        refs[key] = {v.name: v.valueReference for v in description.modelVariables}
-        identifier = description.coSimulation.modelIdentifier
-        slave = FMU2Slave(guid=description.guid, unzipDirectory=extract(str(path), str(tmp / key)),
-                          modelIdentifier=identifier, instanceName=key)
-        slave.instantiate()
-        slave.setupExperiment(startTime=0.0)
-        slave.enterInitializationMode()
-        if key == "G":
-            for name, value in scenario.plant_parameters.items():
-                slave.setReal([refs["G"][name]], [value])
-        slave.exitInitializationMode()
-        slaves[key] = slave
-    K, G = slaves["K"], slaves["G"]
+    (K, G), refs = controller_and_plant_slaves(controller_fmu, plant_fmu, scenario.plant_parameters, tmp)
     n = round(scenario.duration / Ts)
     r = scenario.reference["arm_angle"].sample(np.arange(n) * Ts)
     outputs, applied = np.zeros((n, 2)), np.zeros(n)

@@ -15,8 +15,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from fmpy import extract, read_model_description
-from fmpy.fmi2 import FMU2Slave
 
 from lpvflow.basis import Basis
 from lpvflow.loop.fmu_controller import FmuController
@@ -26,6 +24,7 @@ from lpvflow.pipeline.scenarios import Loop, Scenario, Signal
 from lpvflow.pipeline.verify import simulate_loop
 from lpvflow.synth.controller import LPVController
 from lpvflow.synth.polytope import PiecewisePolytope
+from tests.test_2dof_export import controller_and_plant_slaves
 
 ROOT = Path(__file__).resolve().parents[1]
 MAGLEV = ROOT / "fmu_plants" / "build" / "maglev.fmu"
@@ -94,22 +93,7 @@ def fmpy_closed_loop(controller_fmu: Path, tmp: Path) -> tuple[np.ndarray, np.nd
     ports of the same names (absolute, in m), the references to ``<output>_ref``, the upper disk position
     to the scheduling port ``y2``; the controller's coil currents drive the plant for one step. Returns
     the measured positions (n, 2) and the currents (n, 2)."""
-    slaves, refs = {}, {}
-    for key, path in (("K", controller_fmu), ("G", MAGLEV)):
-        description = read_model_description(str(path))
-        refs[key] = {v.name: v.valueReference for v in description.modelVariables}
-        identifier = description.coSimulation.modelIdentifier
-        slave = FMU2Slave(guid=description.guid, unzipDirectory=extract(str(path), str(tmp / key)),
-                          modelIdentifier=identifier, instanceName=key)
-        slave.instantiate()
-        slave.setupExperiment(startTime=0.0)
-        slave.enterInitializationMode()
-        if key == "G":
-            for name, value in loop().plant_parameters.items():
-                slave.setReal([refs["G"][name]], [value])
-        slave.exitInitializationMode()
-        slaves[key] = slave
-    K, G = slaves["K"], slaves["G"]
+    (K, G), refs = controller_and_plant_slaves(controller_fmu, MAGLEV, loop().plant_parameters, tmp)
     n = round(SCENARIO.duration / TS)
     t_k = np.arange(n) * TS
     r = np.column_stack([np.full(n, Y_OP[0]), SCENARIO.reference["upper_disk_position"].sample(t_k)])

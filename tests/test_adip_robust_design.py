@@ -5,15 +5,12 @@ design at 0° and loses the larger ones."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
 from lpvflow.models import load
-from lpvflow.pipeline.config import bundled_config, repository_root
-from lpvflow.pipeline.design import run_design
-from tests.test_robustness import _matrices, grid_margin
+from lpvflow.pipeline.config import repository_root
+from tests.test_robustness import assert_shipped_b_above_nugap, run_bundled_design
 
 NAME = "adip"
 
@@ -22,16 +19,7 @@ pytestmark = pytest.mark.slow  # the whole design: about a minute on two cores
 
 @pytest.fixture(scope="module")
 def robust_run(tmp_path_factory):
-    folder = tmp_path_factory.mktemp(NAME)
-    text = bundled_config(NAME).read_text()
-    text = text.replace(f'name = "{NAME}"', f'name = "{NAME}"\noutput_dir = "{folder}"')
-    (folder / "design.toml").write_text(text)
-    with pytest.MonkeyPatch.context() as patch:
-        patch.chdir(repository_root())
-        summary = run_design(folder / "design.toml", log=lambda _: None)
-    written = json.loads((folder / NAME / "summary.json").read_text())
-    assert written["verdict"] == summary["verdict"]
-    return summary, folder / NAME
+    return run_bundled_design(NAME, tmp_path_factory.mktemp(NAME))
 
 
 def test_b_of_the_shipped_feedback_exceeds_one_and_a_half_nugaps_at_every_gate_point(robust_run):
@@ -40,20 +28,7 @@ def test_b_of_the_shipped_feedback_exceeds_one_and_a_half_nugaps_at_every_gate_p
     points, equal to the stage's b within 1 %. Measured (seed 1, after the identification-for-control
     round): b 0.080–0.131, ν-gap 0.032–0.051."""
     summary, folder = robust_run
-    stage = summary["stages"]["robustness"]["outputs"]
-    validate = summary["stages"]["validate"]["outputs"]
-    model, controller = load(folder / "model.json"), load(folder / "controller.json")
-    assert controller.info["method"] == "loop-shaping" and len(stage["rows"]) == 9
-    Du, Dy = np.diag([3.0]), np.diag([0.3, 0.025])
-    for row, theta, gap in zip(stage["rows"], validate["theta"], validate["nugap"], strict=True):
-        AG, BG, CG, DG = _matrices(model.frozen(np.array(theta)))
-        AK, BK, CK, DK = _matrices(controller.frozen(np.array(theta)))
-        G = (AG, BG @ Du, np.linalg.solve(Dy, CG), np.linalg.solve(Dy, DG) @ Du)
-        K_fb = (AK, BK[:, 2:] @ Dy, np.linalg.solve(Du, CK), np.linalg.solve(Du, DK[:, 2:]) @ Dy)
-        b = grid_margin(G, K_fb)
-        assert b >= max(1.5 * gap, 0.05), (theta, b, gap)
-        assert row["b"] == pytest.approx(b, rel=0.01)
-    assert stage["guaranteed"] is True
+    assert_shipped_b_above_nugap(summary, folder, np.diag([3.0]), np.diag([0.3, 0.025]), 9)
     assert summary["stages"]["synth"]["outputs"]["certificate_ok"] is True
 
 

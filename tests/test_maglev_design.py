@@ -5,15 +5,10 @@ controller with the LTI point design by IAE and peak |y − r| on the same scena
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
-from lpvflow.models import load
-from lpvflow.pipeline.config import bundled_config, repository_root
-from lpvflow.pipeline.design import run_design
-from tests.test_robustness import _matrices, grid_margin
+from tests.test_robustness import assert_shipped_b_above_nugap, run_bundled_design
 
 NAME = "maglev"
 
@@ -22,16 +17,7 @@ pytestmark = pytest.mark.slow  # the whole design: about a minute on two cores
 
 @pytest.fixture(scope="module")
 def maglev_run(tmp_path_factory):
-    folder = tmp_path_factory.mktemp(NAME)
-    text = bundled_config(NAME).read_text()
-    text = text.replace(f'name = "{NAME}"', f'name = "{NAME}"\noutput_dir = "{folder}"')
-    (folder / "design.toml").write_text(text)
-    with pytest.MonkeyPatch.context() as patch:
-        patch.chdir(repository_root())
-        summary = run_design(folder / "design.toml", log=lambda _: None)
-    written = json.loads((folder / NAME / "summary.json").read_text())
-    assert written["verdict"] == summary["verdict"]
-    return summary, folder / NAME
+    return run_bundled_design(NAME, tmp_path_factory.mktemp(NAME))
 
 
 def test_b_of_the_shipped_feedback_exceeds_one_and_a_half_nugaps_at_every_gate_point(maglev_run):
@@ -39,20 +25,7 @@ def test_b_of_the_shipped_feedback_exceeds_one_and_a_half_nugaps_at_every_gate_p
     in [validate] scaling 0.1 A, 2 mm) ≥ max(1.5·ν-gap, 0.05) at y2 = 7.5 … 8.6 cm, equal to the stage's b
     within 1 %. Measured (seed 1): b 0.19–0.24, ν-gap 0.001–0.004."""
     summary, folder = maglev_run
-    stage = summary["stages"]["robustness"]["outputs"]
-    validate = summary["stages"]["validate"]["outputs"]
-    model, controller = load(folder / "model.json"), load(folder / "controller.json")
-    assert controller.info["method"] == "loop-shaping" and len(stage["rows"]) == 5
-    Du, Dy = np.diag([0.1, 0.1]), np.diag([0.002, 0.002])
-    for row, theta, gap in zip(stage["rows"], validate["theta"], validate["nugap"], strict=True):
-        AG, BG, CG, DG = _matrices(model.frozen(np.array(theta)))
-        AK, BK, CK, DK = _matrices(controller.frozen(np.array(theta)))
-        G = (AG, BG @ Du, np.linalg.solve(Dy, CG), np.linalg.solve(Dy, DG) @ Du)
-        K_fb = (AK, BK[:, 2:] @ Dy, np.linalg.solve(Du, CK), np.linalg.solve(Du, DK[:, 2:]) @ Dy)
-        b = grid_margin(G, K_fb)
-        assert b >= max(1.5 * gap, 0.05), (theta, b, gap)
-        assert row["b"] == pytest.approx(b, rel=0.01)
-    assert stage["guaranteed"] is True
+    assert_shipped_b_above_nugap(summary, folder, np.diag([0.1, 0.1]), np.diag([0.002, 0.002]), 5)
 
 
 def test_every_scenario_passes_and_synth_takes_under_a_minute(maglev_run):

@@ -1,6 +1,5 @@
 """The robustness stage's moving-parameter line (lpvflow.pipeline.rate_certificate, report_robustness)."""
 
-import json
 import math
 from types import SimpleNamespace
 
@@ -47,11 +46,10 @@ def test_the_rate_line_converts_per_sample_to_display_units_per_second(seed):
     assert rate_statement({}, units) == ""
 
 
-def scalar_design(tmp_path, gain: float):
+def scalar_design(gain: float):
     """A one-state plant x⁺ = a(y)x + u, y = x, scheduled by sin(y) on breakpoints, under u = −gain·y."""
-    (tmp_path / "experiment.json").write_text(json.dumps({"outputs": {"ranges": {"y": [-1.0, 1.0]}}}))
     ctx = SimpleNamespace(config={"experiment": {"scheduling": {"sin_y": "sin(y)"}}},
-                          path=lambda name: tmp_path / name)
+                          outputs={"experiment": {"ranges": {"y": [-1.0, 1.0]}}})
     model = SimpleNamespace(p_names=["sin_y"], y_names=["y"], Ts=0.01,
                             frozen=lambda p: control.ss([[0.9 + 0.3 * p[0]]], [[1.0]], [[1.0]], [[0.0]],
                                                         0.01))
@@ -65,9 +63,9 @@ def scalar_design(tmp_path, gain: float):
     return out, breakpoints
 
 
-def test_a_loop_stable_at_every_frozen_point_of_a_scalar_plant_is_certified_at_any_rate(tmp_path):
+def test_a_loop_stable_at_every_frozen_point_of_a_scalar_plant_is_certified_at_any_rate():
     # 𝒜(y) = 0.9 + 0.3 sin(y) − 0.5 ∈ [0.15, 0.65]: V = x² decreases whatever y does
-    out, breakpoints = scalar_design(tmp_path, 0.5)
+    out, breakpoints = scalar_design(0.5)
     cert = out["rate_certificate"]
     assert cert["signal"] == "y" and cert["peak_scenario"] == "a faster move"
     assert cert["peak_per_sample"] == 0.05
@@ -76,7 +74,7 @@ def test_a_loop_stable_at_every_frozen_point_of_a_scalar_plant_is_certified_at_a
     assert cert["certified"] == [True] * 4 and cert["largest"] is None
 
 
-def test_an_unstable_frozen_loop_is_a_note_not_a_crash(tmp_path):
+def test_an_unstable_frozen_loop_is_a_note_not_a_crash():
     # 0.9 + 0.3 sin(y) − 0.1 > 1 for y > 0.73
-    out, _ = scalar_design(tmp_path, 0.1)
+    out, _ = scalar_design(0.1)
     assert list(out) == ["rate_certificate_note"] and "is unstable" in out["rate_certificate_note"]

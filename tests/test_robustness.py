@@ -70,6 +70,42 @@ def _matrices(system: control.StateSpace) -> tuple:
     return tuple(np.asarray(M, dtype=float) for M in (system.A, system.B, system.C, system.D))
 
 
+def run_bundled_design(name: str, folder: Path) -> tuple[dict, Path]:
+    """``lpvflow design --example name`` written into ``folder``: (summary, the design's output folder)."""
+    from lpvflow.pipeline.config import bundled_config, repository_root
+
+    text = bundled_config(name).read_text()
+    text = text.replace(f'name = "{name}"', f'name = "{name}"\noutput_dir = "{folder}"')
+    (folder / "design.toml").write_text(text)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(repository_root())
+        summary = run_design(folder / "design.toml", log=lambda _: None)
+    written = json.loads((folder / name / "summary.json").read_text())
+    assert written["verdict"] == summary["verdict"]
+    return summary, folder / name
+
+
+def assert_shipped_b_above_nugap(summary: dict, folder: Path, Du: np.ndarray, Dy: np.ndarray,
+                                 points: int) -> None:
+    """At each of the ``points`` validate points θ: b(Ĝ(θ), K_fb(θ)) by :func:`grid_margin` — the frozen
+    model and the 2-DOF controller's measurement columns in validate's scaling D_u, D_y — is at least
+    max(1.5·ν-gap, 0.05) and equals the robustness stage's b within 1 %; the stage says guaranteed."""
+    stage = summary["stages"]["robustness"]["outputs"]
+    validate = summary["stages"]["validate"]["outputs"]
+    model, controller = load(folder / "model.json"), load(folder / "controller.json")
+    assert controller.info["method"] == "loop-shaping" and len(stage["rows"]) == points
+    ny = Dy.shape[0]
+    for row, theta, gap in zip(stage["rows"], validate["theta"], validate["nugap"], strict=True):
+        AG, BG, CG, DG = _matrices(model.frozen(np.array(theta)))
+        AK, BK, CK, DK = _matrices(controller.frozen(np.array(theta)))
+        G = (AG, BG @ Du, np.linalg.solve(Dy, CG), np.linalg.solve(Dy, DG) @ Du)
+        K_fb = (AK, BK[:, ny:] @ Dy, np.linalg.solve(Du, CK), np.linalg.solve(Du, DK[:, ny:]) @ Dy)
+        b = grid_margin(G, K_fb)
+        assert b >= max(1.5 * gap, 0.05), (theta, b, gap)
+        assert row["b"] == pytest.approx(b, rel=0.01)
+    assert stage["guaranteed"] is True
+
+
 def _random_plant(rng: np.random.Generator, n: int, ny: int, nu: int) -> control.StateSpace:
     A = rng.standard_normal((n, n))
     A *= rng.uniform(0.5, 1.2) / np.max(np.abs(np.linalg.eigvals(A)))  # stable or unstable

@@ -30,12 +30,13 @@ def read_data(ctx: StageContext, model_signals: bool = False) -> tuple[Dataset, 
     return without_offsets(est, est), without_offsets(val, est)
 
 
-def estimation_records(ctx: StageContext) -> list[Dataset]:
+def estimation_records(ctx: StageContext, est: Dataset) -> list[Dataset]:
     """The estimation data of the identify stage in the model's signals: this record's estimation part
-    (:func:`read_data`) after, with ``[identify] rounds = "all"``, the estimation part of every earlier
-    round's record (:data:`EARLIER_RECORDS`), each in the signals of :func:`model_coordinates` with the trim
-    of the controller it was recorded under. The records stay apart (one least-squares problem whose lags
-    never cross from one record into the next, :func:`lpvflow.identify.arx.identify_arx`)."""
+    ``est`` (:func:`read_data` with ``model_signals``, read by the caller) after, with ``[identify]
+    rounds = "all"``, the estimation part of every earlier round's record (:data:`EARLIER_RECORDS`), each
+    in the signals of :func:`model_coordinates` with the trim of the controller it was recorded under.
+    The records stay apart (one least-squares problem whose lags never cross from one record into the
+    next, :func:`lpvflow.identify.arx.identify_arx`)."""
     cfg = ctx.config["identify"]
     earlier = cfg[EARLIER_RECORDS] if EARLIER_RECORDS in cfg else []
     records = []
@@ -43,7 +44,7 @@ def estimation_records(ctx: StageContext) -> list[Dataset]:
         view = StageContext(Path(record["data"]).parent,
                             {"identify": cfg, "experiment": {"controller": record["controller"]}})
         records.append(read_data(view, model_signals=True)[0])
-    return [*records, read_data(ctx, model_signals=True)[0]]
+    return [*records, est]
 
 
 def two_step_excitation(ctx: StageContext, n: int) -> np.ndarray:

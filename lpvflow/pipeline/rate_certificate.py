@@ -13,7 +13,6 @@ controller's, mapped to y_s on (a widening of) the recorded range of y_s.
 
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from collections.abc import Callable
@@ -92,7 +91,7 @@ def _breakpoints(ctx: StageContext, signal: str, theta: Callable, vertices: np.n
     """The values of y_s whose θ are the polytope's vertices: the nearest of 40001 values over its recorded
     range widened by half its width on either side (breakpoints may lie past the recorded moves); None
     when one misses by more than 10⁻³ of the span of θ or they are not ascending."""
-    ranges = json.loads(ctx.path("experiment.json").read_text()).get("outputs", {}).get("ranges", {})
+    ranges = ctx.outputs.get("experiment", {}).get("ranges", {})  # the experiment stage's, in this pass
     if signal not in ranges:
         return None
     lo, hi = ranges[signal]

@@ -84,7 +84,7 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     cfg = ctx.config["identify"]
     method = cfg["method"]  # the schema refuses static-arx: no state-space realization
     est, val = read_data(ctx, model_signals=True)
-    records = estimation_records(ctx)
+    records = estimation_records(ctx, est)
     excitation = two_step_excitation(ctx, est.N) if method == "two-step" else None
     try:
         model = estimate([prefiltered(record, cfg["prefilter"]) for record in records], method, cfg["na"],

@@ -140,22 +140,36 @@ def box_words(box: np.ndarray, names: Sequence[str]) -> str:
     return ", ".join(f"{name} ∈ [{lo:g}, {hi:g}]" for name, (lo, hi) in zip(names, box, strict=True))
 
 
+class _MultilinearPolytope(Polytope):
+    """A polytope whose coordinates are multilinear in the values of ψ's terms within ``bounds``
+    (:func:`_multilinear`); its controller table carries those bounds."""
+
+    @property
+    @abstractmethod
+    def bounds(self) -> np.ndarray:
+        """[[lo, hi], …] of the values the multilinear coordinates are taken in."""
+
+    def coordinates(self, psi: np.ndarray) -> np.ndarray:
+        return _multilinear(self.bounds, psi)
+
+    def tables(self) -> dict[str, np.ndarray]:
+        return {"term_bounds": np.asarray(self.bounds, dtype=float)}
+
+
 @dataclass(frozen=True)
-class BoxPolytope(Polytope):
+class BoxPolytope(_MultilinearPolytope):
     """``"box"``: ψ affine in p, the corners of the scheduling box, multilinear coordinates."""
 
     kind = "box"
 
     @property
+    def bounds(self) -> np.ndarray:
+        return self.box
+
+    @property
     def vertex_breakpoints(self) -> np.ndarray | None:
         """A box over one signal is the segment [lo, hi]: its two ends (λ linear in p); None for more."""
         return self.box[0] if len(self.box) == 1 else None
-
-    def coordinates(self, psi: np.ndarray) -> np.ndarray:
-        return _multilinear(self.box, psi)
-
-    def tables(self) -> dict[str, np.ndarray]:
-        return {"term_bounds": np.asarray(self.box, dtype=float)}
 
     def rule(self, psi: str, names: Sequence[str]) -> str:
         return (f"{psi}; box polytope over {box_words(self.box, names)}: "
@@ -164,7 +178,7 @@ class BoxPolytope(Polytope):
 
 
 @dataclass(frozen=True)
-class TermBoxPolytope(Polytope):
+class TermBoxPolytope(_MultilinearPolytope):
     """``"term-box"``: the bounding box ``term_box`` of the non-constant terms, multilinear coordinates
     in the term values."""
 
@@ -174,11 +188,9 @@ class TermBoxPolytope(Polytope):
         if self.term_box is None:
             raise ModelError("a term-box polytope needs the bounds of its terms (term_box)")
 
-    def coordinates(self, psi: np.ndarray) -> np.ndarray:
-        return _multilinear(self.term_box, psi)
-
-    def tables(self) -> dict[str, np.ndarray]:
-        return {"term_bounds": np.asarray(self.term_box, dtype=float)}
+    @property
+    def bounds(self) -> np.ndarray:
+        return self.term_box
 
     def rule(self, psi: str, names: Sequence[str]) -> str:
         return (f"{psi}; term box (bounds of each non-constant term of ψ over the scheduling box "

@@ -166,6 +166,13 @@ def test_fmu_reference_gives_the_gap_to_the_linearization(tanks_model, tmp_path)
         (["--json", "{data}"], "would overwrite the input"),
         (["--reference", "{fmu}", "--json", "{out}"], "--fmu-scheduling"),
         (["--fmu-scheduling", "level", "--json", "{out}"], "needs --reference"),
+        (["--fmu-hold", "lower_level=0.1", "--json", "{out}"], "--fmu-hold needs --reference"),
+        (["--reference", "{fmu}", "--fmu-scheduling", "diag_scheduling", "--fmu-hold", "nowhere=0.1",
+          "--json", "{out}"], "held outputs nowhere are not outputs"),
+        (["--reference", "{fmu}", "--fmu-scheduling", "diag_scheduling", "--fmu-hold", "lower_level=high",
+          "--json", "{out}"], "'high' is not a number"),
+        (["--reference", "{model}", "--fmu-hold", "lower_level=0.1", "--json", "{out}"],
+         "apply only to an FMU reference"),
         (["--controller", "{model}", "--json", "{out}"], "holds no controller"),
         (["--controller", "{wide}", "--json", "{out}"], "must be 1x1"),
         (["--grid", "1", "--json", "{out}"], "at least 2 points"),
@@ -205,3 +212,44 @@ def test_fmu_local_arx_reference_is_within_its_gap_to_the_linearization(tanks_mo
                    "--fmu-reference", kind, "--grid", 2, "--json", out) == 0
         gaps[kind] = np.array([row["nugap"] for row in json.loads(out.read_text())["frozen"]["rows"]])
     assert np.all(np.abs(gaps["local-arx"] - gaps["linearization"]) < 1e-4)
+
+
+def test_fmu_hold_pins_the_reference_equilibria(tmp_path):
+    """The maglev has two coil currents and one scheduling signal (the upper disk), so its equilibria
+    form a curve; ``--fmu-hold`` pins the lower disk as ``[validate] hold`` does in a design. The model is
+    the FMU's own linearization at (lower 1.5 cm, upper at the middle of the range), held constant: with
+    the hold every row's ν-gap is the one to the held linearization at that point (0 at the middle),
+    without it the equilibrium search leaves the lower disk elsewhere and the gaps differ."""
+    fmu, Ts, upper = built_fmu("maglev"), 0.002, [0.074, 0.087]
+    start = {"lower_disk_position": 0.015, "upper_disk_position": 0.08, "lower_coil_current": 0.927,
+             "upper_coil_current": -0.045}
+    hold = {"lower_disk_position": 0.015}
+    with FmuLinearization(fmu, Ts, ["upper_disk_position"], start, hold=hold) as held:
+        G = held(np.array([np.mean(upper)]))
+    constant = [np.stack([M, np.zeros_like(M)]) for M in (G.A, G.B, G.C, G.D)]
+    model = lpvflow.LPVSS(*constant, Basis("affine", 1, p_min=(upper[0],), p_max=(upper[1],)), Ts,
+                          u_names=["lower_coil_current", "upper_coil_current"],
+                          y_names=["lower_disk_position", "upper_disk_position"], p_names=["upper"])
+    model.save(tmp_path / "model.json")
+    rng = np.random.default_rng(36)
+    n = 60
+    u, p = 0.01 * rng.standard_normal((n, 2)), np.linspace(*upper, n)[:, None]
+    y = model.simulate(u, p)
+    np.savetxt(tmp_path / "data.csv", np.column_stack([np.arange(n) * Ts, u, y, p]), delimiter=",",
+               header="time,i_lower,i_upper,y_lower,y_upper,upper", comments="")
+    columns = ["--u", "i_lower", "i_upper", "--y", "y_lower", "y_upper", "--p", "upper"]
+    common = ["--reference", fmu, "--fmu-scheduling", "upper_disk_position", "--grid", 3,
+              "--fmu-start", *[f"{k}={v}" for k, v in start.items()]]
+    gaps = {}
+    for name, option in (("held", ["--fmu-hold", "lower_disk_position=0.015"]), ("free", [])):
+        out = tmp_path / f"{name}.json"
+        assert run(tmp_path / "model.json", tmp_path / "data.csv", *columns, *common, *option,
+                   "--json", out) == 0
+        rows = json.loads(out.read_text())["frozen"]["rows"]
+        gaps[name] = np.array([row["nugap"] for row in rows])
+        points = [np.array(row["p"]) for row in rows]
+    with FmuLinearization(fmu, Ts, ["upper_disk_position"], start, hold=hold) as held:
+        expected = [nugap(held(q), model.frozen(q)).value for q in points]
+    np.testing.assert_allclose(gaps["held"], expected, atol=1e-9)
+    assert min(gaps["held"]) < 1e-6
+    assert np.max(np.abs(gaps["free"] - gaps["held"])) > 1e-3

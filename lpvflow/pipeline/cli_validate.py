@@ -55,6 +55,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "identified from a small-signal experiment at each grid point")
     p.add_argument("--fmu-start", nargs="+", default=[], metavar="NAME=VALUE",
                    help="FMU reference: start values of states/inputs for the equilibrium search")
+    p.add_argument("--fmu-hold", nargs="+", default=[], metavar="OUTPUT=VALUE",
+                   help="FMU reference: outputs held at these values in the equilibria, needed when the "
+                        "plant has more inputs than scheduling signals (the design file's [validate] hold; "
+                        "e.g. lower_disk_position=0.015 for the maglev)")
     p.add_argument("--controller", metavar="CTRL.json",
                    help="lpvflow/lti-controller or lpvflow/lpv-controller file: adds b(P,K), "
                         "pass/fail of nu-gap < b and margins")
@@ -162,32 +166,43 @@ def _load_loop_controller(path: str | None) -> tuple[object, str | None]:
 
 def _reference(args: argparse.Namespace, model: LPVSS) -> tuple[object, str | None]:
     if args.reference is None:
-        if args.fmu_scheduling:
-            raise DataError("--fmu-scheduling needs --reference PLANT.fmu")
+        given = [option for option, value in (("--fmu-scheduling", args.fmu_scheduling),
+                                              ("--fmu-start", args.fmu_start), ("--fmu-hold", args.fmu_hold))
+                 if value]
+        if given:
+            raise DataError(f"{', '.join(given)} needs --reference PLANT.fmu")
         return None, None
     if Path(args.reference).suffix.lower() == ".fmu":
         if not args.fmu_scheduling or len(args.fmu_scheduling) != model.basis.n_p:
             raise DataError("an FMU reference needs --fmu-scheduling with one expression per scheduling "
                             f"signal of the model ({model.basis.n_p}), e.g. --fmu-scheduling diag_scheduling")
-        start = {}
-        for text in args.fmu_start:
-            name, value = parse_assignment(text)
-            try:
-                start[name] = float(value)
-            except ValueError:
-                raise DataError(f"--fmu-start {text!r}: {value!r} is not a number") from None
+        start = _numbers("--fmu-start", args.fmu_start)
+        hold = _numbers("--fmu-hold", args.fmu_hold)
         kind = FmuLinearization if args.fmu_reference == "linearization" else FmuLocalModels
-        reference = kind(args.reference, model.Ts, args.fmu_scheduling, start)
+        reference = kind(args.reference, model.Ts, args.fmu_scheduling, start, hold=hold)
         return reference, (f"{args.reference} ({args.fmu_reference} at equilibria with scheduling "
                            f"{', '.join(args.fmu_scheduling)})")
-    if args.fmu_scheduling:
-        raise DataError("--fmu-scheduling applies only to an FMU reference (PLANT.fmu)")
+    if args.fmu_scheduling or args.fmu_start or args.fmu_hold:
+        raise DataError("--fmu-scheduling, --fmu-start and --fmu-hold apply only to an FMU reference "
+                        "(PLANT.fmu)")
     reference = _frozen_model(_load_model(args.reference))
     if (reference.ny, reference.nu, reference.basis.n_p) != (model.ny, model.nu, model.basis.n_p):
         raise ModelError(f"the reference is {reference.ny}x{reference.nu} with {reference.basis.n_p} "
                          f"scheduling signal(s), the model {model.ny}x{model.nu} with {model.basis.n_p}; "
                          "give a matching one")
     return reference, f"{args.reference} (frozen LPV model)"
+
+
+def _numbers(option: str, texts: list[str]) -> dict[str, float]:
+    """NAME=VALUE assignments of ``option`` as a name → number map."""
+    values = {}
+    for text in texts:
+        name, value = parse_assignment(text)
+        try:
+            values[name] = float(value)
+        except ValueError:
+            raise DataError(f"{option} {text!r}: {value!r} is not a number") from None
+    return values
 
 
 def _frozen_callable(reference: object) -> object:

@@ -90,3 +90,20 @@ def test_without_reference_rows_carry_margins_only():
         system = model.frozen(np.array(row["p"]))
         assert row["stability_margin_b"] == pytest.approx(stability_margin(system, K))
         assert row["margins"]["disk_margin"] > 0
+
+
+def test_a_model_with_a_hidden_integrator_is_refused_naming_the_point():
+    """A model whose pole at z = 1 the input cannot move (PBH) breaks the ν-gap's winding count; the
+    error names the scheduling point and which system (the model, P2) it is, in one line."""
+    rng = np.random.default_rng(5)
+    a = rng.uniform(0.2, 0.8)
+    A = np.stack([np.diag([1.0, a]), np.zeros((2, 2))])
+    B = np.stack([[[0.0], [1.0]], np.zeros((2, 1))])
+    C = np.stack([[[1.0, 1.0]], np.zeros((1, 2))])
+    D = np.zeros((2, 1, 1))
+    model = LPVSS(A, B, C, D, Basis("affine", 1, p_min=(0.0,), p_max=(1.0,)), 0.1)
+    reference = ct.ss([[a]], [[1.0]], [[1.0]], [[0.0]], 0.1)
+    with pytest.raises(ModelError) as err:
+        compare_frozen(model, reference, 3)
+    assert "scheduling point [0.0]" in str(err.value) and "P2 the model" in str(err.value)
+    assert "uncontrollable or unobservable" in str(err.value) and "\n" not in str(err.value)

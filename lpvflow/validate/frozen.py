@@ -78,7 +78,11 @@ def compare_frozen(
     for point in grid:
         row: dict = {"p": point.p.tolist(), "kind": point.kind}
         if reference_at is not None:
-            gap = nugap(reference_at(point.p), point.system)
+            try:
+                gap = nugap(reference_at(point.p), point.system)
+            except ModelError as err:
+                raise ModelError(f"the ν-gap at the scheduling point {np.round(point.p, 4).tolist()} "
+                                 f"(P1 the reference, P2 the model): {err}") from None
             row.update({"nugap": gap.value, "nugap_frequency_rad_s": gap.frequency,
                         "winding_condition_held": gap.winding_condition_held})
         if controller_at is not None:

@@ -83,7 +83,7 @@ SYNTH = Stage("synth", stages.synth, ("synth",),
               {"synth": ALL, "verify": ("loop",), "experiment": ("scheduling",), "design": ("plant",)},
               ("reduce",), _PLANT)
 ROBUSTNESS = Stage("robustness", robustness, ("synth", *VALIDATE.requires),
-                   {"validate": ("scaling",), "synth": ("robustness_gate", "rate_certificate"),
+                   {"validate": ("scaling",), "synth": ("robustness_gate", "rate_certificate", "breakpoints"),
                     "identify": (*_SIGNALS, "increments"), "experiment": ("controller", "scheduling"),
                     "verify": ("loop", "scenario"), "design": ("plant",)},
                    ("reduce", "validate", "synth"), _PLANT + _CONTROLLER)

@@ -302,3 +302,43 @@ def test_a_record_leaving_the_controllers_design_box_is_named(adip, tmp_path):
         notes.append(outputs.get("left_design_box"))
     assert notes[0] is None
     assert notes[1].startswith("left the scheduling box the controller was designed on at t = ")
+
+
+def test_every_experiment_controller_kind_answers_through_the_protocol():
+    """``run_fmu_experiment`` branches on no controller class: each object gives the controller an
+    experiment runs (``experiment_controller()``): the experiment kinds themselves, an LPVController
+    wired by its port record (the same wiring as its file), and one DataError line without that record.
+    The LTI and gridded kinds have no design box, so no record leaves one: on random records far
+    outside any range ``design_box_exit`` is None (the protocol's answer), where the LPV controller's
+    names the first sample outside its box."""
+    import dataclasses
+
+    import control
+
+    from lpvflow.experiment.controller import GriddedController, LtiController
+    from lpvflow.loop.protocol import ExperimentController
+
+    rng = np.random.default_rng(7)
+    lti = LtiController.from_statespace(control.ss([[0.5]], [[0.2]], [[1.0]], [[0.1]], 0.005),
+                                        inputs=["arm_angle"], outputs=["voltage"])
+    grid = np.array([-1.0, 0.0, 1.0])
+    gridded = GriddedController(grid, np.full((3, 1, 1), 0.5), np.full((3, 1, 1), 0.2), np.ones((3, 1, 1)),
+                                np.full((3, 1, 1), 0.1), np.zeros((3, 1)), np.zeros((3, 1)), 0.005,
+                                ("arm_angle",), ("voltage",), "sin(arm_angle)")
+    law = limited("2dof")
+    wired = law.experiment_controller()
+    expected = SynthesizedController.from_controller(law)
+    assert wired.law is law and (wired.inputs, wired.outputs, wired.scheduling) == (
+        expected.inputs, expected.outputs, expected.scheduling)
+    np.testing.assert_array_equal(wired.u_op, expected.u_op)
+    for K in (lti, gridded, wired):
+        assert ExperimentController in type(K).__mro__ and K.experiment_controller() is K
+    time = np.arange(300) * 0.005
+    for _ in range(5):
+        columns = {"arm_angle": rng.uniform(-50, 50, time.size), "pendulum_angle": rng.normal(size=time.size)}
+        assert lti.design_box_exit(time, columns) is None and gridded.design_box_exit(time, columns) is None
+        first = int(np.argmax(np.abs(np.sin(columns["arm_angle"])) > 0.6))
+        assert f"at t = {time[first]:.4g} s" in wired.design_box_exit(time, columns)
+    bare = dataclasses.replace(law, info={})
+    with pytest.raises(DataError, match=r"has no info\['signals'\] record"):
+        bare.experiment_controller()

@@ -9,9 +9,10 @@ import pytest
 import lpvflow
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError
+from lpvflow.identify.methods import IDENTIFICATION_METHODS, IdentificationMethod, estimate, method_names
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import LPVSS
-from lpvflow.pipeline.cli_identify import METHODS
+from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.config import check_table
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.stages import identify
@@ -45,7 +46,7 @@ def _context(tmp_path, n_p: int = 1, **identify_keys) -> tuple[StageContext, LPV
     return StageContext(tmp_path, config), true
 
 
-PIPELINE_METHODS = [m for m in METHODS if m not in ("static-arx", "kcca-lfr")]
+PIPELINE_METHODS = [m for m in method_names(realizable=True) if m != "kcca-lfr"]
 
 
 @pytest.mark.parametrize("method", PIPELINE_METHODS)
@@ -88,3 +89,46 @@ def test_unusable_methods_are_refused_with_the_key(tmp_path):
     ctx, _ = _context(tmp_path, method="two-step", excitation="missing_column")
     with pytest.raises(DataError, match="needs the excitation column 'missing_column'"):
         identify(ctx)
+
+
+TOY_CALLS: list = []
+
+
+def toy_estimator(data, settings):
+    """A registered method of the test below: lpr-arx with B scaled by 0.9 (a model no built-in method
+    returns), recording the settings it received and the model it returned."""
+    model = estimate(data, "lpr-arx", settings.na, settings.nb, settings.nk, settings.basis)
+    model.B[:] *= 0.9
+    TOY_CALLS.append((settings, model))
+    return model
+
+
+@pytest.mark.parametrize("needs_excitation", [False, True])
+def test_an_identification_method_is_an_estimator_and_one_registry_line(tmp_path, monkeypatch, capsys,
+                                                                         needs_excitation):
+    """docs/identification_methods.md: adding a method is one module (here :func:`toy_estimator`) and one
+    line in IDENTIFICATION_METHODS: the design file accepts the name, the identify stage and ``lpvflow
+    identify`` both run it (the same :func:`estimate`) and write its model, with nothing else changed;
+    a method that needs the excitation gets it from the data's excitation column in the stage and from
+    --excitation on the command line."""
+    monkeypatch.setitem(IDENTIFICATION_METHODS, "toy", IdentificationMethod(
+        "a toy: lpr-arx, altered", f"{__name__}:toy_estimator", needs_excitation=needs_excitation))
+    TOY_CALLS.clear()
+    ctx, _ = _context(tmp_path, method="toy")
+    outputs, artifacts = identify(ctx)
+    assert outputs["method"] == "toy" and "residuals.png" in artifacts  # an "io" method: residuals
+    assert len(TOY_CALLS) == 1 and (TOY_CALLS[0][0].excitation is not None) == needs_excitation
+    np.testing.assert_array_equal(lpvflow.load(tmp_path / "model_full.json").io.B, TOY_CALLS[0][1].B)
+    cli_model = tmp_path / "cli.json"
+    excitation = ["--excitation", "volt_excitation"] if needs_excitation else []
+    status = main(["identify", str(tmp_path / "data.csv"), "--u", "volt", "--y", "angle", "--p", "p1",
+                   "--method", "toy", *excitation, "-o", str(cli_model)])
+    out, err = capsys.readouterr()
+    assert status == 0, err
+    assert out.startswith("toy: 1x1") and len(TOY_CALLS) == 2
+    assert (TOY_CALLS[1][0].excitation is not None) == needs_excitation
+    np.testing.assert_array_equal(lpvflow.load(cli_model).io.B, TOY_CALLS[1][1].B)
+    if needs_excitation:  # the command line asks for the column the method needs
+        assert main(["identify", str(tmp_path / "data.csv"), "--u", "volt", "--y", "angle", "--p", "p1",
+                     "--method", "toy", "-o", str(tmp_path / "none.json")]) == 2
+        assert "--method toy needs --excitation COL" in capsys.readouterr().err

@@ -10,6 +10,8 @@ import pytest
 from lpvflow.pipeline.rate_certificate import rate_certificate, scheduling_signal
 from lpvflow.pipeline.report_robustness import rate_statement
 from lpvflow.pipeline.report_text import DisplayUnit
+from lpvflow.pipeline.scheduling_values import SignalImages, SignalValues
+from lpvflow.synth.polytope import BoxPolytope, PiecewisePolytope
 
 ADIP = ["sin(arm_angle)", "1/(1 - 0.3785*cos(arm_angle)**2)", "cos(arm_angle)/(1 - 0.3785*cos(arm_angle)**2)"]
 
@@ -46,16 +48,22 @@ def test_the_rate_line_converts_per_sample_to_display_units_per_second(seed):
     assert rate_statement({}, units) == ""
 
 
-def scalar_design(gain: float):
-    """A one-state plant x⁺ = a(y)x + u, y = x, scheduled by sin(y) on breakpoints, under u = −gain·y."""
-    ctx = SimpleNamespace(config={"experiment": {"scheduling": {"sin_y": "sin(y)"}}},
-                          outputs={"experiment": {"ranges": {"y": [-1.0, 1.0]}}})
+def scalar_design(gain: float, given=None, polytope=None):
+    """A one-state plant x⁺ = a(y)x + u, y = x, scheduled by sin(y) on breakpoints, under u = −gain·y;
+    ``[synth] breakpoints`` given as values of y (the design file's ``{ signal = "y", values = … }``)
+    unless ``given``, the controller on their piecewise polytope unless ``polytope``."""
+    breakpoints = np.array([-1.2, -0.5, 0.0, 0.5, 1.2])
+    source = SignalValues("y", tuple(breakpoints))
+    images = SignalImages([[float(np.sin(b))] for b in breakpoints], source) if given is None else given
+    ctx = SimpleNamespace(config={"experiment": {"scheduling": {"sin_y": "sin(y)"}},
+                                  "synth": {"breakpoints": images}})
     model = SimpleNamespace(p_names=["sin_y"], y_names=["y"], Ts=0.01,
                             frozen=lambda p: control.ss([[0.9 + 0.3 * p[0]]], [[1.0]], [[1.0]], [[0.0]],
                                                         0.01))
-    breakpoints = np.array([-1.2, -0.5, 0.0, 0.5, 1.2])
-    controller = SimpleNamespace(polytope=SimpleNamespace(
-        kind="piecewise", psi_vertices=[[1.0, np.sin(b)] for b in breakpoints]))
+    vertices = np.array([[1.0, np.sin(b)] for b in breakpoints])
+    piecewise = PiecewisePolytope(np.array([[np.sin(-1.2), np.sin(1.2)]]), vertices,
+                                  breakpoints=np.sin(breakpoints))
+    controller = SimpleNamespace(polytope=piecewise if polytope is None else polytope)
     rows = [{"scenario": "a move", "largest_step": {"y": 0.02}}, {"scenario": "a faster move",
                                                                   "largest_step": {"y": 0.05}}]
     static = control.ss(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[-gain]], 0.01)
@@ -69,7 +77,7 @@ def test_a_loop_stable_at_every_frozen_point_of_a_scalar_plant_is_certified_at_a
     cert = out["rate_certificate"]
     assert cert["signal"] == "y" and cert["peak_scenario"] == "a faster move"
     assert cert["peak_per_sample"] == 0.05
-    assert cert["breakpoints"] == pytest.approx(breakpoints, abs=1e-4)  # from sin, on the widened range
+    assert cert["breakpoints"] == breakpoints.tolist()  # the design file's, not searched for
     assert cert["rates"][:3] == pytest.approx([0.05 / 16, 0.05 / 4, 0.05]) and cert["rates"][3] is None
     assert cert["certified"] == [True] * 4 and cert["largest"] is None
 
@@ -78,3 +86,27 @@ def test_an_unstable_frozen_loop_is_a_note_not_a_crash():
     # 0.9 + 0.3 sin(y) − 0.1 > 1 for y > 0.73
     out, _ = scalar_design(0.1)
     assert list(out) == ["rate_certificate_note"] and "is unstable" in out["rate_certificate_note"]
+
+
+def test_the_breakpoints_come_from_the_design_file_or_the_note_says_how_to_give_them():
+    """The storage's breakpoints are [synth] breakpoints in the measured signal: given as scheduling rows
+    (their y values unknown), as values of another signal, or not the controller's (random moves of
+    one row), the line is a note naming what to give; a box over the one signal (no breakpoints, the
+    tanks designs) is not assessed, as before."""
+    rows = [[float(np.sin(b))] for b in (-1.2, -0.5, 0.0, 0.5, 1.2)]
+    out, _ = scalar_design(0.5, given=rows)
+    assert list(out) == ["rate_certificate_note"]
+    assert 'give [synth] breakpoints as values of y ({ signal = "y", values = [...] })' in \
+        out["rate_certificate_note"]
+    out, _ = scalar_design(0.5, given=SignalImages(rows, SignalValues("z", (0.0,) * 5)))
+    assert "as values of y" in out["rate_certificate_note"]
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        moved = [row[:] for row in rows]
+        moved[int(rng.integers(5))][0] += float(rng.uniform(1e-6, 1e-2))
+        out, _ = scalar_design(0.5, given=SignalImages(moved, SignalValues("y", (-1.2, -0.5, 0.0, 0.5, 1.2))))
+        assert "not those of [synth] breakpoints" in out["rate_certificate_note"]
+    box = BoxPolytope(np.array([[-0.9, 0.9]]), np.array([[1.0, -0.9], [1.0, 0.9]]))
+    assert box.vertex_breakpoints is not None  # hat-form λ, yet not assessed: the design gives no breakpoints
+    out, _ = scalar_design(0.5, polytope=box)
+    assert "needs a controller on breakpoints" in out["rate_certificate_note"]

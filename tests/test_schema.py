@@ -52,7 +52,8 @@ def test_a_design_file_is_a_synth_config_and_a_scenario_file() -> None:
     assert tables["synth"]["method"] == "observer" and tables["synth"]["structure"] == "2dof"
     assert len(tables["synth"]["box"]) == 3 and [len(b) for b in tables["synth"]["breakpoints"]] == [3] * 13
     assert tables["synth"]["reference_filter"] == {"bandwidth": 2.12, "damping": 1.0}
-    assert set(tables["synth"]["weights"]) == {"S", "R", "K", "B", "integrator_shift"}
+    weights = tables["synth"]["weights"]
+    assert set(weights.given) == {"S", "R", "K", "B"} and weights.integrator_shift == 1e-4
     scenarios = load_scenarios(path)
     assert scenarios.loop.actuated == ("voltage",)
     assert [s.name for s in scenarios.scenarios][:2] == ["arm to +30 deg", "arm to -30 deg"]
@@ -79,7 +80,15 @@ def test_a_partial_file_is_enough_for_the_table_a_command_needs(tmp_path: Path) 
     ("synth", {"weights": {"S": {}}}, "[synth] weights lacks ['K']"),
     ("synth", {"weights": {"S": {}, "K": 3}}, "[synth] weights.K = 3 must be a table"),
     ("synth", {"weights": {"S": {}, "K": {}, "integrator_shift": 0.5}}, "integrator_shift = 0.5 must be"),
-    ("synth", {"weights": {"S": {}, "K": {}}, "solver": "mosek"}, "[synth] solver = 'MOSEK' must be one of"),
+    ("synth", {"weights": {"S": {"bandwidth": 1.0}, "K": {"num": [1], "den": [1]}}, "solver": "mosek"},
+     "[synth] solver = 'MOSEK' must be one of"),
+    ("synth", {"weights": {"S": {}, "K": {"num": [1], "den": [1]}}},
+     "[synth] weights: weight W_S: give num/den"),
+    ("synth", {"weights": {"S": {"bandwidth": 1.0}, "K": {"num": [1, 2], "den": [1]}}},
+     "[synth] weights: weight W_K is not proper"),
+    ("synth", {"weights": {"S": {"bandwidth": 1.0}, "K": {"num": [1], "den": [1]}},
+               "vertex_weights": [{}, {"S": [{"bandwidth": -1.0}]}]},
+     "[synth] vertex_weights[1]: weight W_S[0]: bandwidth -1.0 rad/s must be > 0"),
     ("validate", {"grid": 1}, "[validate] grid = 1 must be an integer ≥ 2"),
     ("experiment", {"Ts": 1.0, "duration": 1.0, "parameters": {"x0": "a"}}, "parameters.x0 = 'a'"),
 ])

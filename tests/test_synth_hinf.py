@@ -147,7 +147,7 @@ def test_polytopic_gamma_matches_an_independent_common_lyapunov_optimum():
     reference = _discrete_eliminated_optimum(gp.vertices)
     assert abs(res.gamma_lower - reference) <= 0.05 * reference
     assert reference * (1 - 0.05) <= res.gamma <= 1.05 * reference
-    cert = certify(res, model, weights, per_axis=11)
+    cert = certify(res, model, per_axis=11)
     assert cert.ok and cert.frozen_hinf_max <= res.gamma * (1 + 1e-3)
 
 
@@ -160,7 +160,7 @@ def test_polytopic_gamma_is_not_below_any_frozen_optimum(design):
 
 def test_every_controller_passes_the_independent_recheck(design):
     model, res = design
-    cert = certify(res, model, WEIGHTS, per_axis=15)
+    cert = certify(res, model, per_axis=15)
     assert cert.ok and cert.margin > 0 and cert.quadratically_stable
     assert cert.frozen_hinf_max <= cert.gamma * (1 + 1e-3)
     assert cert.switching_growth <= 1.0 and cert.switching_final < 1.0
@@ -188,7 +188,7 @@ def test_degenerate_box_is_the_lti_design_at_that_point(design):
     gp = generalized_plant(model, WEIGHTS, [[0.5, 0.5]])
     assert gp.polytope.kind == "point" and gp.polytope.n_vertices == 1
     lti = synthesize(gp)
-    assert certify(lti, model, WEIGHTS, per_axis=3).ok
+    assert certify(lti, model, per_axis=3).ok
     assert lti.gamma <= res.gamma * (1 + 1e-2)
 
 

@@ -47,7 +47,7 @@ def adip_family(trim_gain: float = TRIM_GAIN) -> LPVSS:
 def design():
     model = adip_family()
     plant = generalized_plant(model, bundled_weights(), [[0.0, 1.0]], "2dof", BREAKPOINTS)
-    return model, plant, observer_design(plant, model, bundled_weights(), SETTINGS)
+    return model, plant, observer_design(plant, model, SETTINGS)
 
 
 def frozen_loop(model: LPVSS, K: tuple[np.ndarray, ...], p: float) -> control.StateSpace:
@@ -95,10 +95,10 @@ def test_its_gamma_is_python_controls_frozen_norm_and_no_better_than_the_riccati
     against optima 1.55–1.57 — the LQG design is 2.9× the frozen H∞ optimum of its own weights."""
     model = adip_family(trim_gain=0.0)
     plant = generalized_plant(model, bundled_weights(), [[0.0, 1.0]], "2dof", BREAKPOINTS)
-    result = observer_design(plant, model, bundled_weights(), SETTINGS)
+    result = observer_design(plant, model, SETTINGS)
     grid = np.linspace(0.0, 1.0, 21).reshape(-1, 1)
     norms = frozen_hinf_norms(lambda p: mix(result.K_vertices, hat_coordinates(BREAKPOINTS, p[0])), model,
-                              bundled_weights(), grid, "2dof")
+                              plant.weights, grid, "2dof")
     assert result.check.hinf_max == pytest.approx(norms.max(), rel=1e-6)
     for v, norm in zip(plant.vertices, norms[::10], strict=True):
         optimum = riccati_gamma(v, TS)
@@ -143,10 +143,10 @@ def test_settings_and_config_errors_name_the_key():
     model = adip_family()
     with pytest.raises(ModelError, match='structure = "2dof"'):
         plant = generalized_plant(model, bundled_weights(), [[0.0, 1.0]], "1dof", BREAKPOINTS)
-        observer_design(plant, model, bundled_weights(), SETTINGS)
+        observer_design(plant, model, SETTINGS)
     with pytest.raises(ModelError, match="breakpoints"):
         plant = generalized_plant(model, bundled_weights(), [[0.0, 1.0]], "2dof")
-        observer_design(plant, model, bundled_weights(), SETTINGS)
+        observer_design(plant, model, SETTINGS)
     with pytest.raises(ModelError, match=r"observer.noise must be positive"):
         ObserverSettings(noise=0.0)
     with pytest.raises(ModelError, match=r"reference_filter.bandwidth must be positive"):
@@ -177,7 +177,7 @@ def test_lpvflow_synth_designs_it_from_a_design_file(tmp_path, capsys):
     assert "largest frozen closed-loop norm" in out and "largest spectral radius" in out
     K = load(tmp_path / "K.json")
     expected = observer_design(generalized_plant(model, bundled_weights(), [[0.0, 1.0]], "2dof", BREAKPOINTS),
-                               model, bundled_weights(), SETTINGS).controller
+                               model, SETTINGS).controller
     np.testing.assert_allclose(K.Ck, expected.Ck, rtol=1e-9, atol=1e-12)
     assert K.info["method"] == "observer" and K.info["certificate"]["ok"] is True
 

@@ -158,9 +158,10 @@ def test_dilated_not_worse_on_random_polytopes(seed):
 def test_maglev_like_dilated_not_worse_than_quadratic():  # 40-80 s: 12 states, 9 dilated LMIs of size 30
     model, weights = maglev_like()
     # started from the quadratic point: without it Clarabel stops at 1.47308 > 1.47213 (quadratic)
-    q, d = _dilated_ratio(generalized_plant(model, weights), seed_quadratic=True)
+    plant = generalized_plant(model, weights)
+    q, d = _dilated_ratio(plant, seed_quadratic=True)
     assert d.gamma_opt <= q.gamma_opt * (1 + 1e-6)
-    assert certify_state_feedback(d, model, weights, per_axis=11).ok
+    assert certify_state_feedback(d, model, plant.weights, per_axis=11).ok
 
 
 @pytest.mark.parametrize("disk", [None, DISK])
@@ -188,10 +189,10 @@ def _max_disk_distance(result, model):
 
 @pytest.mark.parametrize("method", ["quadratic", "dilated"])
 def test_disk_moves_every_frozen_pole_into_the_disk_and_is_active(toy, method):
-    model, _, designs = toy
+    model, gp, designs = toy
     free, placed = designs[method, None], designs[method, DISK]
     outside, inside = _max_disk_distance(free, model), _max_disk_distance(placed, model)
-    cert = certify_state_feedback(placed, model, WEIGHTS, per_axis=21)
+    cert = certify_state_feedback(placed, model, gp.weights, per_axis=21)
     print(f"{method}: max |z − q|/r without the disk {outside:.3f}, with it {inside:.3f}; "
           f"γ {free.gamma:.4f} → {placed.gamma:.4f}")
     assert outside > 1.0 and inside < 1.0 and cert.pole_max < 1.0 and cert.ok
@@ -199,9 +200,9 @@ def test_disk_moves_every_frozen_pole_into_the_disk_and_is_active(toy, method):
 
 @pytest.mark.parametrize("method", ["quadratic", "dilated"])
 def test_every_controller_passes_the_independent_recheck(toy, method):
-    model, _, designs = toy
+    model, gp, designs = toy
     for disk in (None, DISK):
-        cert = certify_state_feedback(designs[method, disk], model, WEIGHTS)
+        cert = certify_state_feedback(designs[method, disk], model, gp.weights)
         print(method, disk, *cert.lines(), sep="\n  ")
         assert cert.ok and cert.frozen_hinf_max <= cert.gamma * (1 + 1e-3) and cert.switching_final < 1e-6
         if method == "quadratic":
@@ -209,13 +210,13 @@ def test_every_controller_passes_the_independent_recheck(toy, method):
 
 
 def test_recheck_catches_a_tampered_design(toy):
-    model, _, designs = toy
+    model, gp, designs = toy
     good = designs["quadratic", None]
     bad = dataclasses.replace(good, K_vertices=[2.0 * K for K in good.K_vertices])
-    cert = certify_state_feedback(bad, model, WEIGHTS, per_axis=11)
+    cert = certify_state_feedback(bad, model, gp.weights, per_axis=11)
     assert cert.lmi_max_eig > 0 and not cert.ok
     low = dataclasses.replace(good, gamma=0.8 * good.gamma)
-    cert = certify_state_feedback(low, model, WEIGHTS, per_axis=11)
+    cert = certify_state_feedback(low, model, gp.weights, per_axis=11)
     assert cert.frozen_hinf_max > low.gamma and not cert.ok
 
 
@@ -269,14 +270,14 @@ def test_gamma_spec_below_the_optimum_is_refused_with_the_reason(toy):
 
 
 def test_quadratic_stability_falls_back_to_the_designs_own_lyapunov_matrix(toy, monkeypatch):
-    model, _, designs = toy
+    model, gp, designs = toy
     failed = certificate_module.quadratic_stability([np.array([[2.0]])])  # a real refusal (unstable vertex)
     monkeypatch.setattr(certificate_module, "quadratic_stability", lambda A: failed)
     good = designs["quadratic", None]
-    cert = certify_state_feedback(good, model, WEIGHTS, per_axis=5)
+    cert = certify_state_feedback(good, model, gp.weights, per_axis=5)
     assert cert.quadratically_stable and "the design's P" in cert.stability_note and cert.ok
     bad = dataclasses.replace(good, K_vertices=[3.0 * K for K in good.K_vertices])
-    assert not certify_state_feedback(bad, model, WEIGHTS, per_axis=5).quadratically_stable
+    assert not certify_state_feedback(bad, model, gp.weights, per_axis=5).quadratically_stable
 
 
 def test_the_module_docstring_example_runs():

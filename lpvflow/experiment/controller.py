@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lpvflow.errors import DataError, ModelError
-from lpvflow.loop.protocol import FixedLaw, GriddedLaw, LtiLaw
+from lpvflow.loop.protocol import ExperimentController, FixedLaw, GriddedLaw, LtiLaw
 
 if TYPE_CHECKING:  # python-control takes ~1 s to import; the controller law needs only numpy
     import control
@@ -28,7 +28,7 @@ VERSION = 1
 
 
 @dataclass(frozen=True)
-class LtiController:
+class LtiController(ExperimentController):
     """xc(k+1) = A xc + B (y - y_op), u = u_op + C xc + D (y - y_op), sampled at Ts."""
 
     A: np.ndarray
@@ -90,10 +90,6 @@ class LtiController:
     def loop_law(self) -> LtiLaw:
         """The controller in the loop protocol (:class:`lpvflow.loop.protocol.LtiLaw`)."""
         return LtiLaw(self)
-
-    def design_box_exit(self, time: np.ndarray, columns: Mapping[str, np.ndarray]) -> str | None:
-        """None: an LTI controller has no scheduling box (see the synthesized controller's)."""
-        return None
 
     def verification_law(self, measured: Sequence[str], actuated: Sequence[str]) -> FixedLaw:
         """The law verification steps in a loop that measures ``measured`` and drives ``actuated``
@@ -214,7 +210,7 @@ GRIDDED_VERSION = 1
 
 
 @dataclass(frozen=True)
-class GriddedController:
+class GriddedController(ExperimentController):
     """A gain-scheduled controller given on a grid of one scheduling value θ (format
     ``lpvflow/gridded-controller`` version 1): per grid point θ_i the matrices A_i, B_i, C_i, D_i and the
     operating points y_op,i (of the plant outputs read) and u_op,i (the trim of the plant inputs driven).
@@ -280,10 +276,6 @@ class GriddedController:
     def loop_law(self) -> GriddedLaw:
         """The controller in the loop protocol (:class:`lpvflow.loop.protocol.GriddedLaw`)."""
         return GriddedLaw(self)
-
-    def design_box_exit(self, time: np.ndarray, columns: Mapping[str, np.ndarray]) -> str | None:
-        """None: a gridded controller holds its end gains beyond its grid and records no design box."""
-        return None
 
     @property
     def scheduling_names(self) -> list[str]:

@@ -52,10 +52,10 @@ def run_fmu_experiment(
         protected.append(Path(controller))
         controller_path, controller = controller, load_experiment_controller(controller)
         source = {"path": str(controller_path), "sha256": sha256_of(controller_path)}
-    elif isinstance(controller, LPVController):
-        controller = SynthesizedController.from_controller(controller)
     elif isinstance(controller, control.StateSpace):
         controller = LtiController.from_statespace(controller)
+    elif controller is not None:
+        controller = controller.experiment_controller()
     if Ts is None:
         Ts = controller.Ts if controller is not None else declared_step(fmu)
     if output is not None:

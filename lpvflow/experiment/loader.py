@@ -6,12 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.experiment.synthesized import SynthesizedController
 from lpvflow.loop.loader import JSON_KINDS, LPV_FORMAT, READERS, load_controller_file, lpv_controller
-
-#: Controllers an experiment can run.
-ExperimentController = LtiController | GriddedController | SynthesizedController
+from lpvflow.loop.protocol import ExperimentController
 
 
 def _wired(doc: dict, source: str) -> SynthesizedController:

@@ -30,7 +30,7 @@ import numpy as np
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import LtiController
 from lpvflow.experiment.scheduling import compile_expression, evaluate
-from lpvflow.loop.protocol import SynthesizedLaw
+from lpvflow.loop.protocol import ExperimentController, SynthesizedLaw
 
 if TYPE_CHECKING:  # python-control (imported by lpvflow.synth) takes ~1 s; loaded only with a controller
     from lpvflow.synth.controller import LPVController
@@ -40,7 +40,7 @@ _STEP = 1e-6
 
 
 @dataclass
-class SynthesizedController:
+class SynthesizedController(ExperimentController):
     """An :class:`LPVController` wired to plant signals by its ``info["signals"]`` (module docstring).
 
     Attributes:

@@ -1,42 +1,117 @@
 """The identification methods: one registry from a method name to its estimator, read by
 ``lpvflow identify`` (``--method``), the design file's ``[identify] method`` and the design's identify
-stage, so every method is available in all three.
+stage, which all call :func:`estimate`, so every method is available in all three.
 
-IO methods (left polynomial / shifted or static form) map to ``(estimator kind, form)``; the state-space
-methods (pbsid, cva) and the LFR methods (kcca-lfr[-affine]) return their own model classes. Adding an
-estimator: its module under :mod:`lpvflow.identify`, one entry here (and in :func:`estimate`), its row in
-``docs/features.md``.
+A method is
+
+* one module with an estimator ``estimator(data, settings) -> LPVIO | LPVSS | LPVLFR``: ``data`` one
+  :class:`~lpvflow.data.Dataset` (a list of them for a method with ``several_records``), ``settings`` the
+  :class:`EstimationSettings` of the command line or the ``[identify]`` table;
+* one line in :data:`IDENTIFICATION_METHODS` (its ``entry`` is ``"module:function"``, imported on first
+  use), saying what the estimator returns and what it needs;
+* its row in ``docs/features.md`` (and a key of its own in the ``[identify]`` schema, if it has one).
+
+``docs/identification_methods.md`` walks through adding one.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import importlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
-from lpvflow.identify.arx import identify_arx
 from lpvflow.identify.spline_sls import free_knot_count
 from lpvflow.lfr import LPVLFR
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import LPVSS
 
-#: IO methods: name → (estimator kind, form). The state-space and LFR methods are handled apart.
-IO_METHODS = {
-    "lpr-arx": ("arx", "shifted"), "static-arx": ("arx", "static"), "iv-arx": ("iv-arx", "shifted"),
-    "iv-oe": ("iv-oe", "shifted"), "oe-paa": ("oe-paa", "shifted"), "oe": ("oe", "shifted"),
-    "armax": ("armax", "shifted"), "riv": ("riv", "shifted"), "sriv": ("sriv", "shifted"),
-    "two-step": ("two-step", "shifted"),
+
+@dataclass(frozen=True)
+class EstimationSettings:
+    """What an estimator may read: the orders ``na``, ``nb``, ``nk`` (whole numbers or per-channel
+    matrices), the scheduling ``basis`` spec, the Tikhonov weight ``ridge`` (ARX), the ARMAX noise order
+    ``nc`` (None: na), the external ``excitation`` (one value per sample, two-step), the pbsid ``past``
+    window and the state ``order`` of the state-space and LFR methods (None: their own choice)."""
+
+    na: int | np.ndarray = 2
+    nb: int | np.ndarray = 2
+    nk: int | np.ndarray = 1
+    basis: str = "affine"
+    ridge: float = 0.0
+    nc: int | None = None
+    excitation: np.ndarray | None = None
+    past: int | None = None
+    order: int | None = None
+
+
+@dataclass(frozen=True)
+class IdentificationMethod:
+    """One identification method: ``summary`` (one line, shown by ``lpvflow identify --help``),
+    ``entry`` (``"module:function"`` of its estimator), ``result`` (``"io"``: an :class:`LPVIO`, realized
+    exactly by ``to_ss``, with one-step residuals; ``"state-space"``: an :class:`LPVSS` or
+    :class:`LPVLFR`), ``several_records`` (estimates from several records at once), ``free_knots``
+    (estimates the knots of a ``spline:free:K`` basis), ``needs_excitation`` (reads the external
+    excitation) and ``realizable`` (its model has a state-space realization)."""
+
+    summary: str
+    entry: str
+    result: str = "io"
+    several_records: bool = False
+    free_knots: bool = False
+    needs_excitation: bool = False
+    realizable: bool = True
+
+    def estimator(self) -> Callable[[Dataset | list[Dataset], EstimationSettings], LPVIO | LPVSS | LPVLFR]:
+        """The estimator named by ``entry``."""
+        module, _, name = self.entry.partition(":")
+        return getattr(importlib.import_module(module), name)
+
+
+_BUILT_IN = "lpvflow.identify.estimators"
+
+#: Method name → its method. The first is the default of ``lpvflow identify``.
+IDENTIFICATION_METHODS: dict[str, IdentificationMethod] = {
+    "lpr-arx": IdentificationMethod("LPV-ARX, shifted form, realizable", f"{_BUILT_IN}:lpr_arx",
+                                    several_records=True, free_knots=True),
+    "static-arx": IdentificationMethod("LPV-ARX, Bamieh–Giarré static form (no realization)",
+                                       f"{_BUILT_IN}:static_arx", several_records=True, free_knots=True,
+                                       realizable=False),
+    "iv-arx": IdentificationMethod("instrumental-variable ARX", f"{_BUILT_IN}:iv_arx"),
+    "iv-oe": IdentificationMethod("instrumental-variable OE (thesis Alg. 4.1)", f"{_BUILT_IN}:iv_oe"),
+    "oe-paa": IdentificationMethod("OE by the recursive PAA", f"{_BUILT_IN}:oe_paa"),
+    "oe": IdentificationMethod("OE by prediction-error minimisation", f"{_BUILT_IN}:oe"),
+    "armax": IdentificationMethod("ARMAX by pseudo-linear regression", f"{_BUILT_IN}:armax"),
+    "riv": IdentificationMethod("refined instrumental variables", f"{_BUILT_IN}:riv"),
+    "sriv": IdentificationMethod("simplified refined instrumental variables", f"{_BUILT_IN}:sriv"),
+    "two-step": IdentificationMethod("two-step closed-loop estimation (needs the excitation)",
+                                     f"{_BUILT_IN}:two_step", needs_excitation=True),
+    "pbsid": IdentificationMethod("predictor-based subspace identification", f"{_BUILT_IN}:pbsid",
+                                  result="state-space"),
+    "cva": IdentificationMethod("canonical variate analysis (subspace)", f"{_BUILT_IN}:cva",
+                                result="state-space"),
+    "kcca-lfr": IdentificationMethod("LFR model by kernel CCA", f"{_BUILT_IN}:kcca_lfr",
+                                     result="state-space"),
+    "kcca-lfr-affine": IdentificationMethod("LFR model by kernel CCA, affine dependence",
+                                            f"{_BUILT_IN}:kcca_lfr_affine", result="state-space"),
 }
-SS_METHODS = ("pbsid", "cva", "kcca-lfr", "kcca-lfr-affine")
-METHODS = sorted([*IO_METHODS, *SS_METHODS])
 
-#: The methods that estimate from several records at once (:func:`lpvflow.identify.arx.identify_arx`).
-MULTI_RECORD_METHODS = ("lpr-arx", "static-arx")
 
-#: The methods whose model has a state-space realization (``[identify] method``): static-arx has none.
-STATE_SPACE_METHODS = tuple(m for m in METHODS if m != "static-arx")
+def method_of(name: str) -> IdentificationMethod:
+    """The registered method ``name``; an unknown name is one DataError line."""
+    if name not in IDENTIFICATION_METHODS:
+        raise DataError(f"method {name!r} is unknown; use one of {', '.join(sorted(IDENTIFICATION_METHODS))}")
+    return IDENTIFICATION_METHODS[name]
+
+
+def method_names(*, realizable: bool = False, several_records: bool = False) -> list[str]:
+    """The registered method names (sorted), only the realizable ones or those that estimate from several
+    records if asked."""
+    return sorted(name for name, m in IDENTIFICATION_METHODS.items()
+                  if (m.realizable or not realizable) and (m.several_records or not several_records))
 
 
 def estimate(
@@ -53,60 +128,21 @@ def estimate(
     past: int | None = None,
     order: int | None = None,
 ) -> LPVIO | LPVSS | LPVLFR:
-    """The model of ``method`` (one of :data:`METHODS`) on ``data``: an :class:`LPVIO` for the IO
-    methods (``spline:free:K`` bases estimate their knots), an :class:`LPVSS` for pbsid and cva, an
-    :class:`LPVLFR` for kcca-lfr[-affine]. ``excitation`` is the external excitation two-step needs (one
-    value per sample), ``nc`` the armax noise order (default na), ``past`` the pbsid past window and
-    ``order`` the state order of the state-space and LFR methods (default: their own choice; 2 for LFR).
-    Several records (a sequence of datasets) are one estimation problem for the methods in
-    :data:`MULTI_RECORD_METHODS`.
+    """The model of ``method`` (a name of :data:`IDENTIFICATION_METHODS`) on ``data``: its estimator with
+    these :class:`EstimationSettings`. Several records (a sequence of datasets) are one estimation
+    problem for the methods with ``several_records`` and a fixed basis; ``spline:free:K`` bases are
+    estimated by the methods with ``free_knots``; ``excitation`` must be given to a method that needs it.
     """
-    if method not in METHODS:
-        raise DataError(f"method {method!r} is unknown; use one of {', '.join(METHODS)}")
-    if not isinstance(data, Dataset):
-        records = list(data)
-        if len(records) > 1 and (method not in MULTI_RECORD_METHODS or free_knot_count(basis) is not None):
-            raise DataError(f"method {method!r} estimates from one record; several records need "
-                            f"{' or '.join(MULTI_RECORD_METHODS)} with a fixed basis")
-        if len(records) > 1:
-            return identify_arx(records, na, nb, nk, basis, form=IO_METHODS[method][1], ridge=ridge)
-        data = records[0]
-    if method in SS_METHODS:
-        if method == "pbsid":
-            from lpvflow.identify.pbsid import identify_pbsid
-
-            return identify_pbsid(data, order=order, past=past, basis=basis, form="kernel",
-                                  regularization="gcv")
-        if method == "cva":
-            from lpvflow.identify.cva import identify_cva
-
-            return identify_cva(data, basis, state_order=order, feedthrough=bool(np.all(np.asarray(nk) == 0)))
-        from lpvflow.identify.kcca_lfr import identify_kcca_lfr
-
-        return identify_kcca_lfr(data, order or 2, affine=method == "kcca-lfr-affine")
-    kind, form = IO_METHODS[method]
-    n_knots = free_knot_count(basis)
-    if kind == "two-step":
-        from lpvflow.identify.two_step import identify_two_step
-
-        if excitation is None:
-            raise DataError("method two-step needs the external excitation signal")
-        return identify_two_step(data, np.asarray(excitation, dtype=float), na, nb, nk, basis, form=form)
-    if n_knots is not None:
-        if kind != "arx":
-            raise DataError("free spline knots (spline:free:K) are estimated with the methods lpr-arx "
-                            "or static-arx")
-        from lpvflow.identify.spline_sls import identify_spline_sls
-
-        return identify_spline_sls(data, na, nb, nk, n_knots, form=form)
-    if kind == "arx":
-        return identify_arx(data, na, nb, nk, basis, form=form, ridge=ridge)
-    from lpvflow.identify import armax, iv, oe
-
-    if kind == "armax":
-        return armax.identify_armax(data, na, nb, nk, nc or int(np.max(na)), basis, form=form)
-    if kind in ("riv", "sriv"):
-        return iv.identify_riv(data, na, nb, nk, basis, form=form, simplified=kind == "sriv")
-    estimator = {"iv-arx": iv.identify_iv_arx, "iv-oe": iv.identify_iv_oe, "oe-paa": iv.identify_oe_paa,
-                 "oe": oe.identify_oe}[kind]
-    return estimator(data, na, nb, nk, basis, form=form)
+    chosen = method_of(method)
+    records = [data] if isinstance(data, Dataset) else list(data)
+    free = free_knot_count(basis) is not None
+    if len(records) > 1 and (not chosen.several_records or free):
+        raise DataError(f"method {method!r} estimates from one record; several records need "
+                        f"{' or '.join(method_names(several_records=True))} with a fixed basis")
+    if free and not chosen.free_knots:
+        raise DataError("free spline knots (spline:free:K) are estimated with the methods "
+                        f"{' or '.join(m for m, e in IDENTIFICATION_METHODS.items() if e.free_knots)}")
+    if chosen.needs_excitation and excitation is None:
+        raise DataError(f"method {method} needs the external excitation signal")
+    settings = EstimationSettings(na, nb, nk, basis, ridge, nc, excitation, past, order)
+    return chosen.estimator()(records[0] if len(records) == 1 else records, settings)

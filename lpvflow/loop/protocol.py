@@ -28,7 +28,7 @@ law to y_op − s, so that the recorded excitation holds them and the law keeps 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -69,6 +69,40 @@ class LoopController(Protocol):
 
     def setpoint_command(self, setpoints: np.ndarray) -> np.ndarray | None:
         """(n, nu) command the set-points (n, ny) add to the output, or None: they are references."""
+
+
+class ExperimentController(Protocol):
+    """What an identification experiment runs (:func:`lpvflow.experiment.run.run_experiment`): the plant
+    outputs it reads (``inputs``) and the plant inputs it drives (``outputs``), its sampling time, its law
+    in the loop protocol (``loop_law()``), its file document (``to_dict()``) and, through the defaults
+    below, itself as the controller to run and where a record left its design box.
+    :class:`~lpvflow.experiment.controller.LtiController`,
+    :class:`~lpvflow.experiment.controller.GriddedController` and
+    :class:`~lpvflow.experiment.synthesized.SynthesizedController` are such controllers; a synthesized
+    :class:`~lpvflow.synth.controller.LPVController` gives one wired by its port record with its
+    ``experiment_controller()``."""
+
+    Ts: float
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+
+    def loop_law(self) -> LoopController: ...
+
+    def to_dict(self) -> dict: ...
+
+    def experiment_controller(self) -> ExperimentController:
+        """The controller an experiment runs: this one."""
+        return self
+
+    def design_box_exit(self, time: np.ndarray, columns: Mapping[str, np.ndarray]) -> str | None:
+        """Where a record made under the controller (``columns`` by signal name, sampled at ``time``)
+        leaves the scheduling box the controller was designed on, in words; None when it stays inside.
+
+        This default is the answer for a controller designed without a scheduling box: an LTI controller
+        (one operating point) and a gridded controller (its gains are a table over its own θ grid, held at
+        the end gains beyond it; it records no design box) have no box a record could leave. A controller
+        with a design box (:class:`~lpvflow.experiment.synthesized.SynthesizedController`) overrides it."""
+        return None
 
 
 class FeedthroughController(LoopController, Protocol):

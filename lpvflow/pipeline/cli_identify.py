@@ -13,7 +13,7 @@ from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset, read_columns
 from lpvflow.errors import DataError, ModelError
 from lpvflow.identify.fit_check import UselessFitWarning, useless_fit_message
-from lpvflow.identify.methods import IO_METHODS, METHODS, SS_METHODS, estimate
+from lpvflow.identify.methods import IDENTIFICATION_METHODS, estimate, method_of
 from lpvflow.lfr import LPVLFR
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import LPVSS, atomic_write_json, load, report_header
@@ -47,11 +47,10 @@ def configure_identify(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nb", default="2", help="number of input lags: N or a matrix (default 2)")
     p.add_argument("--nk", default="1", help="input delay in samples: N or a matrix (default 1)")
     p.add_argument("--basis", default="affine", help="affine | poly:D | poly:D:nocross | spline:K1,K2,..")
-    p.add_argument("--method", default="lpr-arx", choices=METHODS,
-                   help="lpr-arx: shifted form, realizable (default); static-arx: Bamieh–Giarré form; "
-                        "iv-arx, iv-oe, oe-paa, oe, armax, riv, sriv: unbiased estimators (thesis Ch. 4); "
-                        "two-step: closed-loop data (needs --excitation); pbsid, cva: subspace; "
-                        "kcca-lfr[-affine]: LFR model")
+    p.add_argument("--method", default=next(iter(IDENTIFICATION_METHODS)),
+                   choices=list(IDENTIFICATION_METHODS),
+                   help="; ".join(f"{name}: {m.summary}" for name, m in IDENTIFICATION_METHODS.items())
+                   + " (default: the first)")
     p.add_argument("--ridge", type=float, default=0.0, help="Tikhonov weight for lpr/static-arx (default 0)")
     p.add_argument("--nc", type=int, help="noise polynomial order for armax (default na)")
     p.add_argument("--excitation", metavar="COL", help="external excitation column for two-step")
@@ -78,39 +77,36 @@ def configure_simulate(s: argparse.ArgumentParser) -> None:
     declare(s, inputs=("model", "data"), outputs=("json_out", "plot"))
 
 
-def _identify_io(args: argparse.Namespace, data: Dataset) -> LPVIO:
-    """The IO estimator chosen by --method (spline:free:K bases estimate their knots)."""
+def _estimate(args: argparse.Namespace, data: Dataset) -> LPVIO | LPVSS | LPVLFR:
+    """The model of --method (:func:`lpvflow.identify.methods.estimate`, which the design's identify stage
+    calls too) with the external excitation column when the method needs one."""
     excitation = None
-    if IO_METHODS[args.method][0] == "two-step":
+    if method_of(args.method).needs_excitation:
         if not args.excitation:
-            raise DataError("--method two-step needs --excitation COL (the external excitation signal)")
+            raise DataError(f"--method {args.method} needs --excitation COL (the external excitation signal)")
         excitation = read_columns(args.data, [args.excitation]).get(args.excitation)
         if excitation is None:
             raise DataError(f"excitation column {args.excitation!r} not found in {args.data}")
-    return estimate(data, args.method, parse_order(args.na), parse_order(args.nb), parse_order(args.nk),
-                    args.basis, ridge=args.ridge, nc=args.nc, excitation=excitation)
-
-
-def _identify_state_space(args: argparse.Namespace, data: Dataset):
-    """Subspace (pbsid, cva) and LFR (kcca-lfr) methods: they return a state-space model directly."""
-    return estimate(data, args.method, nk=parse_order(args.nk), basis=args.basis, past=args.past,
-                    order=args.order)
+    with warnings.catch_warnings():  # the fit is checked by run_identify for every method
+        warnings.simplefilter("ignore", UselessFitWarning)
+        return estimate(data, args.method, parse_order(args.na), parse_order(args.nb), parse_order(args.nk),
+                        args.basis, ridge=args.ridge, nc=args.nc, excitation=excitation, past=args.past,
+                        order=args.order)
 
 
 def run_identify(args: argparse.Namespace) -> int:
     data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
     if args.remove_offsets:
         data = data.remove_offsets()
-    if args.controller and args.method in SS_METHODS:
+    io_method = method_of(args.method).result == "io"
+    if args.controller and not io_method:
         raise DataError(f"--controller checks an input-output model in the loop; --method {args.method} "
                         "gives a state-space model: use an IO method (lpr-arx, iv-oe, ...)")
-    if args.method in SS_METHODS:
-        with warnings.catch_warnings():  # the fit is checked below for every method
-            warnings.simplefilter("ignore", UselessFitWarning)
-            model = _identify_state_space(args, data)
+    if not io_method:
+        model = _estimate(args, data)
         description = f"state order {getattr(model, 'nx', '?')}"
     else:
-        io = _identify_io(args, data)
+        io = _estimate(args, data)
         if io.form == "static":
             if args.order is not None:
                 raise DataError("--order needs a realizable model; use --method lpr-arx")

@@ -55,8 +55,8 @@ def two_step_excitation(ctx: StageContext, n: int) -> np.ndarray:
     column = cfg["excitation"] or f"{cfg['u'][0]}_excitation"
     table = ctx.columns()
     if column not in table:
-        raise DataError(f"[identify] method = \"two-step\" needs the excitation column {column!r}, which "
-                        "the data lack; set [identify] excitation to a column of data.csv")
+        raise DataError(f"[identify] method = {cfg['method']!r} needs the excitation column {column!r}, "
+                        "which the data lack; set [identify] excitation to a column of data.csv")
     return table[column][:n]
 
 

@@ -83,7 +83,7 @@ SYNTH = Stage("synth", stages.synth, ("synth",),
               {"synth": ALL, "verify": ("loop",), "experiment": ("scheduling",), "design": ("plant",)},
               ("reduce",), _PLANT)
 ROBUSTNESS = Stage("robustness", robustness, ("synth", *VALIDATE.requires),
-                   {"validate": ("scaling",), "synth": ("robustness_gate", "rate_certificate"),
+                   {"validate": ("scaling",), "synth": ("robustness_gate", "rate_certificate", "breakpoints"),
                     "identify": (*_SIGNALS, "increments"), "experiment": ("controller", "scheduling"),
                     "verify": ("loop", "scenario"), "design": ("plant",)},
                    ("reduce", "validate", "synth"), _PLANT + _CONTROLLER)
@@ -123,9 +123,10 @@ def check_iterate(config: Config) -> None:
     """One DataError line when ``[experiment] iterate`` cannot run: the rounds need a ``[synth]`` table (the
     controller each round designs), and that controller drives the model inputs, so their signals must be
     ``[experiment] excitation``, not open-loop ``inputs``; ``[identify] rounds = "all"`` estimates from
-    several records (:data:`~lpvflow.identify.methods.MULTI_RECORD_METHODS`) without offsets (one operating
+    several records (the methods with ``several_records`` in
+    :data:`~lpvflow.identify.methods.IDENTIFICATION_METHODS`) without offsets (one operating
     point per record would be several models). The keys of the rounds need ``iterate``."""
-    from lpvflow.identify.methods import MULTI_RECORD_METHODS
+    from lpvflow.identify.methods import method_names
 
     experiment, identify = config["experiment"], config["identify"]
     rounds = experiment["iterate"]
@@ -137,7 +138,7 @@ def check_iterate(config: Config) -> None:
             raise DataError(f"{given[0]} applies to the rounds of [experiment] iterate, which is 0; set "
                             "iterate or remove it")
         return
-    if identify["rounds"] == "all" and identify["method"] not in MULTI_RECORD_METHODS:
+    if identify["rounds"] == "all" and identify["method"] not in method_names(several_records=True):
         raise DataError(f'[identify] rounds = "all" estimates from several records, which method '
                         f'{identify["method"]!r} does not; use "lpr-arx"')
     if identify["rounds"] == "all" and identify["remove_offsets"]:

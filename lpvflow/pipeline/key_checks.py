@@ -13,12 +13,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from lpvflow.basis import Basis
-from lpvflow.errors import DataError, LpvflowError
+from lpvflow.errors import DataError, LpvflowError, ModelError
 from lpvflow.experiment.specs import parse_spec
-from lpvflow.identify.methods import STATE_SPACE_METHODS
+from lpvflow.identify.methods import method_names
 from lpvflow.identify.prefilter import parse_prefilter
 from lpvflow.pipeline.scenarios import Loop, Scenario, parse_loop, parse_scenario
 from lpvflow.pipeline.scheduling_values import SignalValues, signal_values
+from lpvflow.synth.weights import CHANNELS, Weight, Weights, weight_entries
 
 #: Marks a key without a default.
 REQUIRED = object()
@@ -152,7 +153,7 @@ def basis(value: Any, where: str) -> str:
 
 def method(value: Any, where: str) -> str:
     """An estimator of ``lpvflow identify`` with a state-space result (static-arx has none)."""
-    return string(STATE_SPACE_METHODS)(value, where)
+    return string(method_names(realizable=True))(value, where)
 
 
 def prefilter(value: Any, where: str) -> str:
@@ -192,20 +193,31 @@ def formats(value: Any, where: str) -> list[str]:
     return chosen
 
 
-#: The weights of the mixed-sensitivity design (lpvflow.synth.plant.weight_systems).
-WEIGHT_KEYS = ("S", "K", "B", "T", "R", "N", "integrator_shift")
+#: The keys of a weights table (:class:`lpvflow.synth.weights.Weights`).
+WEIGHT_KEYS = (*CHANNELS, "integrator_shift")
 
 
-def weights(value: Any, where: str) -> dict[str, Any]:
-    """``{ S = …, K = …, [B, T, R], [integrator_shift] }``; each weight a table or a list of tables."""
+def weights(value: Any, where: str) -> Weights:
+    """``{ S = …, K = …, [B, T, R, N], [integrator_shift] }``; each weight a table or a list of tables;
+    parsed once into :class:`lpvflow.synth.weights.Weights`."""
     if not isinstance(value, dict):
         raise _fail(where, value, "a table of weights (weights.S = …, weights.K = …)")
-    unknown = sorted(set(value) - set(WEIGHT_KEYS))
-    if unknown:
-        raise DataError(f"{where} has unknown key(s) {unknown}; known: {list(WEIGHT_KEYS)}")
+    _weight_keys(value, where)
     missing = [k for k in ("S", "K") if k not in value]
     if missing:
         raise DataError(f"{where} lacks {missing} (W_S on the error and W_K on the control are required)")
+    try:
+        return Weights.parse(value)
+    except ModelError as exc:
+        raise DataError(f"{where}: {exc}") from None
+
+
+def _weight_keys(value: dict, where: str) -> None:
+    """Unknown keys, weights that are not tables and an integrator_shift outside (0, 0.5), each one line
+    naming the key."""
+    unknown = sorted(set(value) - set(WEIGHT_KEYS))
+    if unknown:
+        raise DataError(f"{where} has unknown key(s) {unknown}; known: {list(WEIGHT_KEYS)}")
     for key in set(value) - {"integrator_shift"}:
         weight = value[key]
         if not (isinstance(weight, dict) or (isinstance(weight, list) and weight
@@ -215,7 +227,6 @@ def weights(value: Any, where: str) -> dict[str, Any]:
     if "integrator_shift" in value:
         shift = number(0.0, 0.5, open_low=True, open_high=True)
         shift(value["integrator_shift"], f"{where}.integrator_shift")
-    return value
 
 
 def breakpoints(value: Any, where: str) -> list | SignalValues:
@@ -237,16 +248,20 @@ def largest_step(value: Any, where: str) -> dict[str, str]:
     return {"scenario": string()(value["scenario"], f"{where}.scenario"), "criterion": criterion}
 
 
-def vertex_weights(value: Any, where: str) -> list[dict[str, Any]]:
+def vertex_weights(value: Any, where: str) -> list[dict[str, Weight | float]]:
     """A list of partial weight tables, one per vertex (breakpoint) of the design polytope: each replaces
-    entries of ``[synth] weights`` at its vertex (scheduled weights)."""
+    entries of ``[synth] weights`` at its vertex (scheduled weights); parsed once
+    (:func:`lpvflow.synth.weights.weight_entries`)."""
     if not isinstance(value, list) or not value or not all(isinstance(v, dict) for v in value):
         raise _fail(where, value, "a list of weight tables, one per vertex: [{ S = … }, { }, { S = … }]")
+    parsed = []
     for i, table in enumerate(value):
-        unknown = sorted(set(table) - set(WEIGHT_KEYS) - {"integrator_shift"})
-        if unknown:
-            raise DataError(f"{where}[{i}] has unknown key(s) {unknown}; known: {list(WEIGHT_KEYS)}")
-    return value
+        _weight_keys(table, f"{where}[{i}]")
+        try:
+            parsed.append(weight_entries(table))
+        except ModelError as exc:
+            raise DataError(f"{where}[{i}]: {exc}") from None
+    return parsed
 
 
 def observer(value: Any, where: str) -> dict[str, float]:

@@ -7,6 +7,7 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import fmpy
 import numpy as np
@@ -14,7 +15,9 @@ import numpy as np
 from lpvflow.errors import DataError, ModelError
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.scenarios import Loop
-from lpvflow.synth.controller import LPVController
+
+if TYPE_CHECKING:  # the port record is read from a controller's info; synth is not imported for it
+    from lpvflow.synth.controller import LPVController
 
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 

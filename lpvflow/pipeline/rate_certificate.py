@@ -8,7 +8,13 @@ x⁺ = 𝒜(y_s)x: the reduced model frozen at θ(y_s) with u = K_fb(θ(y_s)) y
 :func:`lpvflow.validate.scheduled_stability.largest_certified_rate` tries the ladder (1/16, 1/4, 1) × the
 largest per-sample change of y_s in the plant-in-the-loop runs of the trajectory validation (those runs,
 not new ones), then any rate, stopping at the first rate not certified. The storage's breakpoints are the
-controller's, mapped to y_s on (a widening of) the recorded range of y_s.
+controller's, in y_s as the design file gives them (``[synth] breakpoints = { signal = y_s, values = … }``,
+:class:`lpvflow.pipeline.scheduling_values.SignalImages`); breakpoints given as scheduling rows, or
+rows that are not the controller's, are a note saying so.
+
+It runs where the controller's polytope has ``breakpoints`` (a piecewise polytope). A box over one
+signal (the tanks designs) is left out although its two ends would do as breakpoints: ``[synth]`` gives
+it no breakpoints in the measured signal.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment.scheduling import evaluate
 from lpvflow.pipeline.context import StageContext
+from lpvflow.pipeline.scheduling_values import SignalImages
 from lpvflow.validate.scheduled_stability import largest_certified_rate
 
 #: The ladder, as fractions of the verify scenarios' peak rate (then any rate).
@@ -53,16 +60,15 @@ def rate_certificate(ctx: StageContext, model: Any, controller: Any, trajectory:
     expressions = [definitions.get(name, name) for name in model.p_names]
     signal = scheduling_signal(expressions, list(model.y_names))
     polytope = controller.polytope
-    if polytope.kind != "piecewise" or signal is None:
+    if polytope.breakpoints is None or signal is None:
         return {"rate_certificate_note": "not assessed: needs a controller on breakpoints (a piecewise "
                                          "polytope) scheduled by expressions of one measured output"}
     if not trajectory:
         return {"rate_certificate_note": "not assessed: no plant-in-the-loop runs to take the peak rate from"}
+    breakpoints = _breakpoints(ctx.config["synth"]["breakpoints"], signal, polytope.breakpoints)
+    if isinstance(breakpoints, str):
+        return {"rate_certificate_note": f"not assessed: {breakpoints}"}
     theta = _curve(expressions, signal)
-    breakpoints = _breakpoints(ctx, signal, theta, np.asarray(polytope.psi_vertices)[:, 1:])
-    if breakpoints is None:
-        return {"rate_certificate_note": f"not assessed: the controller's breakpoints are not on the curve "
-                                         f"of {signal} over its recorded range"}
     fastest = max(trajectory, key=lambda row: row["largest_step"][signal])
     peak = float(fastest["largest_step"][signal])
     rates: list[float | None] = [f * peak for f in FRACTIONS] + [None]
@@ -87,22 +93,19 @@ def _curve(expressions: list[str], signal: str) -> Callable[[np.ndarray], np.nda
                                            for e in expressions])
 
 
-def _breakpoints(ctx: StageContext, signal: str, theta: Callable, vertices: np.ndarray) -> np.ndarray | None:
-    """The values of y_s whose θ are the polytope's vertices: the nearest of 40001 values over its recorded
-    range widened by half its width on either side (breakpoints may lie past the recorded moves); None
-    when one misses by more than 10⁻³ of the span of θ or they are not ascending."""
-    ranges = ctx.outputs.get("experiment", {}).get("ranges", {})  # the experiment stage's, in this pass
-    if signal not in ranges:
-        return None
-    lo, hi = ranges[signal]
-    grid = np.linspace(lo - (hi - lo) / 2, hi + (hi - lo) / 2, 40001)
-    curve = theta(grid)
-    span = np.ptp(curve, axis=0) + 1e-12
-    miss = np.abs((curve[None, :, :] - vertices[:, None, :]) / span).max(axis=2)
-    nearest = miss.argmin(axis=1)
-    if miss[np.arange(len(vertices)), nearest].max() > 1e-3 or np.any(np.diff(nearest) <= 0):
-        return None
-    return grid[nearest]
+def _breakpoints(given: Any, signal: str, controller_breakpoints: np.ndarray) -> np.ndarray | str:
+    """The values of y_s at the controller's breakpoints: ``[synth] breakpoints`` as the design file gives
+    them in ``signal``, when their images' first column is the controller's breakpoints (to 1e-9
+    relative); else why not, in words."""
+    if not (isinstance(given, SignalImages) and given.source.signal == signal):
+        return (f"give [synth] breakpoints as values of {signal} ({{ signal = \"{signal}\", values = [...] "
+                "}) so the controller's breakpoints are known along it")
+    first = np.asarray(given, dtype=float)[:, 0]
+    controller = np.asarray(controller_breakpoints, dtype=float)
+    if first.shape != controller.shape or not np.allclose(first, controller, rtol=1e-9, atol=1e-12):
+        return ("the controller's breakpoints are not those of [synth] breakpoints (a controller of "
+                "another design)")
+    return np.asarray(given.source.values, dtype=float)
 
 
 def _loop(model: Any, feedback: Callable, theta: Callable) -> Callable[[float], np.ndarray]:

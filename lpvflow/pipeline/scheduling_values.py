@@ -46,6 +46,16 @@ class SignalValues:
     is_range: bool = False
 
 
+class SignalImages(list):
+    """Rows of scheduling points (the numeric form of a key, a list of rows) that keep the plant-signal
+    values they are the images of (``source``): ``[synth] breakpoints`` given in the arm angle stay known
+    in the arm angle (:mod:`lpvflow.pipeline.rate_certificate`)."""
+
+    def __init__(self, rows: list[list[float]], source: SignalValues) -> None:
+        super().__init__(rows)
+        self.source = source
+
+
 def signal_values(value: Any, where: str, *, box: bool = False) -> SignalValues:
     """The table form of the module docstring, checked: ``signal``, ``values`` or ``range`` (with ``count``,
     except for a box), optional ``unit`` ("rad" or "deg")."""
@@ -116,6 +126,6 @@ def with_images(config: dict[str, Any], replace: Any) -> dict[str, Any]:
                 raise DataError(f"{where}: give one value of {value.signal} (the baseline's point)")
             numeric = rows[0].tolist()
         else:
-            numeric = rows.tolist()
+            numeric = SignalImages(rows.tolist(), value)
         config[table] = replace(config[table], **{key: numeric})
     return config

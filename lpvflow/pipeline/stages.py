@@ -18,7 +18,7 @@ from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.errors import DataError, LpvflowError
 from lpvflow.experiment.fmu_experiment import run_fmu_experiment
 from lpvflow.experiment.loader import load_experiment_controller
-from lpvflow.identify.methods import IO_METHODS, estimate
+from lpvflow.identify.methods import estimate, method_of
 from lpvflow.identify.prefilter import prefiltered
 from lpvflow.identify.realize import integrate_outputs
 from lpvflow.identify.reduce import max_frozen_radius, plot_singular_values, reduce_keeping_radius
@@ -85,7 +85,7 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     method = cfg["method"]  # the schema refuses static-arx: no state-space realization
     est, val = read_data(ctx, model_signals=True)
     records = estimation_records(ctx, est)
-    excitation = two_step_excitation(ctx, est.N) if method == "two-step" else None
+    excitation = two_step_excitation(ctx, est.N) if method_of(method).needs_excitation else None
     try:
         model = estimate([prefiltered(record, cfg["prefilter"]) for record in records], method, cfg["na"],
                          cfg["nb"], cfg["nk"], cfg["basis"], ridge=cfg["ridge"], nc=cfg["nc"],
@@ -96,7 +96,7 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     if len(records) > 1:
         outputs["estimation_records"] = [record.N for record in records]
     artifacts = ["model_full.json"]
-    if method in IO_METHODS:
+    if method_of(method).result == "io":
         ss, units = model.to_ss(), fmu_units(ctx.config["design"]["plant"])
         outputs |= one_step_residuals(model, val, ctx.path("residuals.png"), units)
         artifacts.append("residuals.png")

@@ -36,6 +36,7 @@ from lpvflow.synth.hinf import HinfResult
 from lpvflow.synth.plant import VertexPlant, augment, interpolate
 from lpvflow.synth.polytope import Polytope, box_grid
 from lpvflow.synth.rate_bounded import ScheduledResult, fine_check
+from lpvflow.synth.weights import WeightSystems
 from lpvflow.validate.norms import hinf_norm
 from lpvflow.validate.stability import quadratic_stability
 
@@ -48,16 +49,14 @@ def vertex_margins(result: HinfResult) -> list[float]:
 
 
 def frozen_hinf_norms(controller_at: Callable[[np.ndarray], tuple[np.ndarray, ...]], model: LPVSS,
-                      weights: dict, grid: np.ndarray, structure: str = "1dof") -> np.ndarray:
+                      W: WeightSystems, grid: np.ndarray, structure: str = "1dof") -> np.ndarray:
     """‖T_zw‖_∞ of the frozen closed loop at every grid point (python-control lft,
     :func:`lpvflow.validate.norms.hinf_norm`):
     ``controller_at(p)`` gives (Ak, Bk, Ck, Dk) from the measured signals to u before W_B (augment puts
     W_B in the plant). The grid is the design's box, which may reach past the model's identified range
     as the design does (the synth stage reports where: :func:`lpvflow.pipeline.controller_design.
-    extrapolation_note`), so the model is evaluated there without a range warning."""
-    from lpvflow.synth.plant import weight_systems
-
-    W = weight_systems(weights, model.ny, model.nu, model.Ts)
+    extrapolation_note`), so the model is evaluated there without a range warning. ``W`` are the design's
+    weights at the model's Ts (:attr:`lpvflow.synth.plant.GeneralizedPlant.weights`)."""
     nu = model.nu
     ny = 2 * model.ny if structure == "2dof" else model.ny
     norms = []
@@ -152,15 +151,17 @@ class Certificate:
         ]
 
 
-def certify(result: HinfResult, model: LPVSS | None, weights: dict, per_axis: int = 21) -> Certificate:
-    """Run checks 1–4 of the module docstring (check 2 on the design's own plant when ``model`` is None)."""
+def certify(result: HinfResult, model: LPVSS | None, per_axis: int = 21) -> Certificate:
+    """Run checks 1–4 of the module docstring (check 2 on the design's own plant when ``model`` is None,
+    else on ``model`` with the design's weights)."""
     poly = result.plant.polytope
     if model is None:
         lams = design_coordinates(poly, result.plant.basis, per_axis)
         norms = interpolated_hinf_norms(result.vertices, result.K_vertices, lams, result.plant.Ts)
     else:
         grid = box_grid(poly.box, per_axis)
-        norms = frozen_hinf_norms(vertex_interpolation(result), model, weights, grid, result.plant.structure)
+        norms = frozen_hinf_norms(vertex_interpolation(result), model, result.plant.weights, grid,
+                                  result.plant.structure)
     peak, final, growth = switching_simulation(result)
     margin = min(vertex_margins(result))
     return Certificate(margin, float(norms.max()), result.gamma, peak, final, growth, margin > 0)
@@ -191,13 +192,13 @@ def rate_bounded_walk(result: ScheduledResult, n_steps: int = 4000, seed: int = 
     return float(peak), float(np.linalg.norm(xi) / norm0), float(growth)
 
 
-def certify_rate_bounded(result: ScheduledResult, model: LPVSS | None, weights: dict, structure: str = "1dof",
-                         per_axis: int = 21) -> Certificate:
+def certify_rate_bounded(result: ScheduledResult, model: LPVSS | None, weights: WeightSystems,
+                         structure: str = "1dof", per_axis: int = 21) -> Certificate:
     """Checks 1–4 for a rate-bounded design: 1. Φ(p, p⁺) rebuilt from the returned numbers on a grid ten
     times finer than the breakpoints (:func:`lpvflow.synth.rate_bounded.fine_check`); 2. frozen H∞ norms
-    of ``model`` with ``weights`` (python-control; with scheduled weights, ``model`` None: of the design's
-    generalized plant interpolated at p); 3. quadratic stability of the breakpoint loops (informative);
-    4. :func:`rate_bounded_walk`."""
+    of ``model`` with the design's ``weights`` at its Ts (python-control; with scheduled weights, ``model``
+    None: of the design's generalized plant interpolated at p); 3. quadratic stability of the breakpoint
+    loops (informative); 4. :func:`rate_bounded_walk`."""
     margin, _ = fine_check(result)
     b = result.schedule.breakpoints
     grid = box_grid(np.array([[b[0], b[-1]]]), per_axis)

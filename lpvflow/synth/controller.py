@@ -44,6 +44,7 @@ import numpy as np
 
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, ModelError
+from lpvflow.experiment.synthesized import SynthesizedController
 from lpvflow.models import FORMAT_VERSION, atomic_write_json, check_format
 from lpvflow.synth.polytope import Polytope, polytope_of_kind
 
@@ -250,6 +251,13 @@ class LPVController:
 
     def close(self) -> None:
         """Nothing to release (the controller holds no instance or file)."""
+
+    def experiment_controller(self) -> SynthesizedController:
+        """The controller an identification experiment runs
+        (:class:`lpvflow.loop.protocol.ExperimentController`): this law wired to the plant signals by its
+        port record ``info["signals"]`` (:class:`lpvflow.experiment.synthesized.SynthesizedController`;
+        one DataError line without the record)."""
+        return SynthesizedController.from_controller(self)
 
     def matrices(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(A, B, C, D) of the controller frozen at p: Σ λ_i(p) M_i (the trim u_eq(p) is not part of them)."""

@@ -62,10 +62,9 @@ def synthesize_design(model: LPVSS, settings: Mapping[str, Any], box: list | Non
     :data:`lpvflow.synth.methods.SYNTHESIS_METHODS`, with the table's trim; ``box`` overrides the table's
     box (the LTI baseline's degenerate box: designed by the method itself when its ``point_design`` says
     so, else by :func:`design_common`)."""
-    weights, structure = settings["weights"], settings["structure"]
     point = box is not None
-    plant = generalized_plant(model, weights, settings["box"] if box is None else box, structure,
-                              None if point else settings["breakpoints"],
+    plant = generalized_plant(model, settings["weights"], settings["box"] if box is None else box,
+                              settings["structure"], None if point else settings["breakpoints"],
                               None if point else settings["vertex_weights"])
     # scheduled weights, or scheduling signals tied along the breakpoints: the frozen check runs on the
     # design's own plant (the model's box corners lie off the curve the signals follow)
@@ -89,7 +88,7 @@ def design_common(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, 
     certified by :func:`lpvflow.synth.certify.certify`."""
     result = synthesize(plant, settings["solver"])
     return Design(result.controller, result.gamma, result.gamma_lower,
-                  certify(result, frozen_model, settings["weights"]), plant, result.report.seconds)
+                  certify(result, frozen_model), plant, result.report.seconds)
 
 
 def design_rate_bounded(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
@@ -98,7 +97,7 @@ def design_rate_bounded(model: LPVSS, plant: GeneralizedPlant, settings: Mapping
     (parameter-dependent Lyapunov function, |p(k+1) − p(k)| ≤ ``rate_bound``), certified by
     :func:`lpvflow.synth.certify.certify_rate_bounded`."""
     result, controller = synthesize_rate_bounded(plant, settings["rate_bound"], settings["solver"])
-    certificate = certify_rate_bounded(result, frozen_model, settings["weights"], settings["structure"])
+    certificate = certify_rate_bounded(result, frozen_model, plant.weights, settings["structure"])
     return Design(controller, result.gamma, result.gamma_lower, certificate, plant, result.report.seconds)
 
 
@@ -108,7 +107,7 @@ def design_observer(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str
     breakpoints, interpolated; checked at frozen points only, :class:`lpvflow.synth.observer.FrozenCheck`)."""
     start = time.perf_counter()
     filt = settings.get("reference_filter") or {}
-    observer = observer_design(plant, model, settings["weights"], ObserverSettings(
+    observer = observer_design(plant, model, ObserverSettings(
         **(settings.get("observer") or {}), filter_bandwidth=filt.get("bandwidth"),
         filter_damping=filt.get("damping", 1.0)))
     return Design(observer.controller, observer.check.hinf_max, None, observer.check, plant,

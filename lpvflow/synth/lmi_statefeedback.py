@@ -14,7 +14,7 @@ generalized plant whose states are all measured, e.g. a model in state coordinat
     plant = generalized_plant(model, weights)
     result = synthesize_state_feedback(plant, "dilated", disk=(0.5, 0.45))
     K = result.gain_at(model.basis.p_min)          # the gain u = K x at one scheduling value
-    assert certify_state_feedback(result, model, weights).ok
+    assert certify_state_feedback(result, model, plant.weights).ok
 
 Plant at vertex i (the generalized plant of :mod:`lpvflow.synth.plant`, state x = [x_plant; x_weights],
 every state measured; or plain vertex tuples):

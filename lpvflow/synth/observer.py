@@ -242,10 +242,9 @@ def frozen_check(plant: GeneralizedPlant, K_vertices: list[tuple[np.ndarray, ...
     return FrozenCheck(radius, max(float(control.norm(loop, "inf")) for loop in loops), len(lams))
 
 
-def observer_design(plant: GeneralizedPlant, model: LPVSS, weights: dict, settings: ObserverSettings
-                    ) -> ObserverResult:
+def observer_design(plant: GeneralizedPlant, model: LPVSS, settings: ObserverSettings) -> ObserverResult:
     """The controller of the module docstring at every breakpoint of ``plant`` (a 2-DOF generalized plant
-    of ``model`` with ``weights`` on a piecewise polytope), interpolated with the plant's λ(p).
+    of ``model`` with its weights on a piecewise polytope), interpolated with the plant's λ(p).
 
     Raises:
         ModelError: a 1-DOF plant, a polytope without breakpoints, or a dynamic W_R or W_N.
@@ -256,7 +255,7 @@ def observer_design(plant: GeneralizedPlant, model: LPVSS, weights: dict, settin
     if plant.polytope.breakpoints is None:
         raise ModelError("the observer design interpolates frozen designs between breakpoints: give [synth] "
                          f"breakpoints (this design's polytope is {plant.polytope.kind!r})")
-    blocks = state_blocks(model, weights, plant.structure)
+    blocks = state_blocks(model, plant.weights, plant.structure)
     WB = plant.input_filter
     model_vertices = vertex_matrices(model, plant.polytope)
     K = [_vertex_controller(v, mats, blocks, WB, settings)

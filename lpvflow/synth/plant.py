@@ -27,7 +27,9 @@ which matrix breaks the assumption instead of returning a controller without a g
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import control
 import numpy as np
@@ -36,7 +38,7 @@ from lpvflow.basis import Basis
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
 from lpvflow.synth.polytope import Polytope, piecewise_polytope, polytope_of, vertex_matrices
-from lpvflow.synth.weights import DEFAULT_INTEGRATOR_SHIFT, diagonal_weight
+from lpvflow.synth.weights import Weights, WeightSystems, as_weights
 
 _CONST_TOL = 1e-10
 
@@ -83,9 +85,14 @@ class GeneralizedPlant:
     Ts: float
     n_plant_states: int
     z_names: list[str]
-    input_filter: control.StateSpace | None = None
+    weights: WeightSystems
     basis: Basis | None = None
     structure: str = "1dof"
+
+    @property
+    def input_filter(self) -> control.StateSpace | None:
+        """W_B (None without an input filter)."""
+        return self.weights.get("B")
 
     @property
     def dims(self) -> tuple[int, int, int, int, int]:
@@ -126,18 +133,10 @@ def _named_ss(M: control.StateSpace, inp: str, out: str, name: str) -> control.S
                       outputs=[f"{out}[{i}]" for i in range(M.noutputs)], name=name)
 
 
-def weight_systems(weights: dict, ny: int, nu: int, Ts: float) -> dict[str, control.StateSpace]:
-    """The diagonal weights W_S, W_K and the optional W_B, W_T, W_R, W_N (2-DOF measurement noise) of a
-    ``[weights]`` table."""
-    for key in ("S", "K"):
-        if key not in weights:
-            raise ModelError(f"design spec lacks the weight [weights.{key}] "
-                             "(W_S on e and W_K on u are required)")
-    eps = float(weights.get("integrator_shift", DEFAULT_INTEGRATOR_SHIFT))
-    if not 0.0 < eps < 0.5:
-        raise ModelError(f"integrator_shift must be in (0, 0.5), got {eps}")
-    sizes = {"S": ny, "K": nu, "B": nu, "T": ny, "R": ny, "N": ny}
-    return {k: diagonal_weight(weights[k], sizes[k], Ts, f"W_{k}", eps) for k in sizes if k in weights}
+def weight_systems(weights: Weights | Mapping[str, Any], ny: int, nu: int, Ts: float) -> WeightSystems:
+    """The diagonal weights W_S, W_K and the optional W_B, W_T, W_R, W_N (2-DOF measurement noise) at Ts
+    (:meth:`lpvflow.synth.weights.Weights.discretize`)."""
+    return as_weights(weights).discretize(ny, nu, Ts)
 
 
 #: Measurement-noise weight of the 2-DOF loop when the design gives no ``weights.N``.
@@ -178,11 +177,10 @@ def augment(G: control.StateSpace, W: dict[str, control.StateSpace], Ts: float, 
     return control.interconnect(blocks, inplist=[*exogenous, "u"], outlist=[*outputs, *measured], dt=Ts)
 
 
-def state_blocks(model: LPVSS, weights: dict, structure: str = "1dof") -> dict[str, slice]:
+def state_blocks(model: LPVSS, W: WeightSystems, structure: str = "1dof") -> dict[str, slice]:
     """Where each part of :func:`augment`'s state lies: ``"G"`` (the plant model) first, then the weights
-    in the order of its blocks (W_S, W_K, W_N for 2-DOF, W_R, W_B, W_T; ``control.interconnect`` stacks the
-    blocks' states in list order). Only the parts with states are listed."""
-    W = weight_systems(weights, model.ny, model.nu, model.Ts)
+    ``W`` in the order of its blocks (W_S, W_K, W_N for 2-DOF, W_R, W_B, W_T; ``control.interconnect``
+    stacks the blocks' states in list order). Only the parts with states are listed."""
     order = ["S", "K"] + (["N"] if structure == "2dof" and "N" in W else []) + [k for k in ("R", "B", "T")
                                                                                   if k in W]
     blocks, start = {"G": slice(0, model.nx)}, model.nx
@@ -193,38 +191,39 @@ def state_blocks(model: LPVSS, weights: dict, structure: str = "1dof") -> dict[s
     return blocks
 
 
-def generalized_plant(model: LPVSS, weights: dict, box: np.ndarray | list | None = None,
-                      structure: str = "1dof", breakpoints: np.ndarray | list | None = None,
-                      vertex_weights: list[dict] | None = None) -> GeneralizedPlant:
+def generalized_plant(model: LPVSS, weights: Weights | Mapping[str, Any],
+                      box: np.ndarray | list | None = None, structure: str = "1dof",
+                      breakpoints: np.ndarray | list | None = None,
+                      vertex_weights: Sequence[Mapping[str, Any]] | None = None) -> GeneralizedPlant:
     """The augmented plant (1-DOF or 2-DOF, :func:`augment`) at each vertex of the tightest polytope of
     ``model`` over ``box``, or at ``breakpoints`` of its one scheduling signal (a piecewise polytope,
-    :func:`lpvflow.synth.polytope.piecewise_polytope`).
+    :func:`lpvflow.synth.polytope.piecewise_polytope`). The weights (typed, or a ``[synth] weights`` table)
+    are discretized here at the model's Ts, once; the plant carries them (``weights``).
 
     Scheduled weights (thesis §6.3: W_S1, W_S2, W_S3 at the vertices 0, ±φ_t): ``vertex_weights[i]``
     replaces entries of ``weights`` at vertex i; the weights are then interpolated with the plant's own
     λ(p) (their state-space matrices must have the same orders). A scheduled weight that makes B2, C2,
     D12 or D21 vertex-dependent is refused by :func:`check_a3`, which names the matrix."""
+    weights = as_weights(weights)
     polytope = polytope_of(model, box) if breakpoints is None else piecewise_polytope(model, box, breakpoints)
     ny, nu = model.ny, model.nu
     if vertex_weights is not None and len(vertex_weights) != polytope.n_vertices:
         raise ModelError(f"vertex_weights gives {len(vertex_weights)} weight tables for a polytope with "
                          f"{polytope.n_vertices} vertices ({polytope.kind}): give one per vertex")
-    overrides = vertex_weights or [{}] * polytope.n_vertices
-    tables = [{**weights, **override} for override in overrides]
-    nz = ny + nu + (ny if "T" in weights else 0)
+    W = weights.discretize(ny, nu, model.Ts)
+    at_vertices = [W] * polytope.n_vertices if vertex_weights is None else [
+        weights.replaced(override).discretize(ny, nu, model.Ts) for override in vertex_weights]
+    nz = ny + nu + (ny if "T" in W else 0)
     nw = 2 * ny if structure == "2dof" else ny
     vertices, orders = [], set()
-    for table, (A, B, C, D) in zip(tables, vertex_matrices(model, polytope), strict=True):
-        W = weight_systems(table, ny, nu, model.Ts)
-        orders.add(tuple((k, w.nstates) for k, w in sorted(W.items())))
-        P = augment(control.ss(A, B, C, D, model.Ts), W, model.Ts, structure)
+    for Wv, (A, B, C, D) in zip(at_vertices, vertex_matrices(model, polytope), strict=True):
+        orders.add(tuple((k, w.nstates) for k, w in sorted(Wv.items())))
+        P = augment(control.ss(A, B, C, D, model.Ts), Wv, model.Ts, structure)
         vertices.append(VertexPlant.from_ss(P, nw=nw, nz=nz))
     if len(orders) > 1:
         raise ModelError("vertex_weights change the order of a weight between vertices: a scheduled weight "
                          "must keep its numerator and denominator degrees (change gains and poles only)")
     check_a3(vertices)
-    W = weight_systems(weights, ny, nu, model.Ts)
     z_names = [f"W_S e[{i}]" for i in range(ny)] + [f"W_K u[{i}]" for i in range(nu)]
-    z_names += [f"W_T y[{i}]" for i in range(ny)] if "T" in weights else []
-    return GeneralizedPlant(vertices, polytope, model.Ts, model.nx, z_names, W.get("B"), model.basis,
-                            structure)
+    z_names += [f"W_T y[{i}]" for i in range(ny)] if "T" in W else []
+    return GeneralizedPlant(vertices, polytope, model.Ts, model.nx, z_names, W, model.basis, structure)

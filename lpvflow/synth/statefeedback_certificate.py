@@ -15,8 +15,9 @@ import numpy as np
 from lpvflow.errors import ModelError
 from lpvflow.models import LPVSS
 from lpvflow.synth.lmi_statefeedback import SFVertex, StateFeedbackResult, vertex_lmi_max_eig
-from lpvflow.synth.plant import VertexPlant, augment, weight_systems
+from lpvflow.synth.plant import VertexPlant, augment
 from lpvflow.synth.polytope import box_grid
+from lpvflow.synth.weights import WeightSystems
 from lpvflow.validate.stability import check_common_lyapunov, quadratic_stability
 
 
@@ -75,7 +76,7 @@ def _simplex_grid(N: int, per_axis: int, rng: np.random.Generator) -> np.ndarray
     return np.vstack([np.eye(N), rng.dirichlet(np.ones(N), 2000 - N)])
 
 
-def _frozen(result: StateFeedbackResult, model: LPVSS | None, weights: dict | None, per_axis: int,
+def _frozen(result: StateFeedbackResult, model: LPVSS | None, W: WeightSystems | None, per_axis: int,
             rng: np.random.Generator) -> list[tuple[SFVertex, np.ndarray]]:
     """(frozen plant, gain) on the grid: from ``model.frozen(p)`` and the weights (p on a grid of the
     box, gain at λ(p)), or, for plain vertex lists, the vertex combination at λ on a simplex grid."""
@@ -87,9 +88,8 @@ def _frozen(result: StateFeedbackResult, model: LPVSS | None, weights: dict | No
                            for f in SFVertex.__dataclass_fields__))
             out.append((v, result.gain(lam)))
         return out
-    if weights is None or result.polytope is None:
+    if W is None or result.polytope is None:
         raise ModelError("certifying against a model needs its weights and a design from a GeneralizedPlant")
-    W = weight_systems(weights, model.ny, model.nu, model.Ts)
     _, nw, _, nz = result.vertices[0].dims
     out = []
     for p in box_grid(result.polytope.box, per_axis):
@@ -122,7 +122,7 @@ def switching_simulation(
 
 
 def certify_state_feedback(
-    result: StateFeedbackResult, model: LPVSS | None = None, weights: dict | None = None,
+    result: StateFeedbackResult, model: LPVSS | None = None, weights: WeightSystems | None = None,
     per_axis: int = 41, eps: float = 1e-10, n_steps: int = 3000, seed: int = 0,
 ) -> StateFeedbackCertificate:
     """Re-check a state-feedback design trusting neither the solver nor the change of variables.
@@ -131,8 +131,9 @@ def certify_state_feedback(
        (:func:`vertex_lmi_max_eig`): max eigenvalue ≤ −eps;
     2. quadratic stability of the closed-loop vertices A_i + B2_iK_i (common Lyapunov LMI with its own
        eigenvalue re-check, :func:`_quadratic_stability`);
-    3. on a θ grid (``per_axis`` points per scheduling axis, from ``model.frozen(p)`` and ``weights``
-       when given, else convex combinations of the vertices): the frozen closed-loop ‖T_zw‖∞ from
+    3. on a θ grid (``per_axis`` points per scheduling axis, from ``model.frozen(p)`` and ``weights``, the
+       design plant's :attr:`~lpvflow.synth.plant.GeneralizedPlant.weights`, when given, else convex
+       combinations of the vertices): the frozen closed-loop ‖T_zw‖∞ from
        ``control.norm`` ≤ γ(1 + 1e-3), and every closed-loop eigenvalue in the disk (unit disk without one);
     4. :func:`switching_simulation` under a θ redrawn every sample: final ‖ξ‖/‖ξ(0)‖ < 1.
     """

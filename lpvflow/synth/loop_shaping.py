@@ -26,9 +26,8 @@ is fixed by the LMI solution only up to its state basis: with the closed-loop Ly
 𝒳 = [S N; Nᵀ X₂₂] (state [x; x_K]) and 𝒳⁻¹ = [R M; Mᵀ ∗], every factorization MNᵀ = I − RS gives the same
 closed loop in another controller basis (Scherer, Gahinet & Chilali 1997, "Multiobjective
 output-feedback control via LMI optimization", IEEE TAC 42(7): the reconstruction of their eq. (35) holds
-for any such M, N). The factorization M = R,
-N = R⁻¹ − S (P = S − R⁻¹ = N X₂₂⁻¹Nᵀ ≻ 0 for a strict solution) is the state change x_K = T x̃_K,
-T = −X₂₂⁻¹Nᵀ, after which
+for any such M, N). The factorization M = R, N = R⁻¹ − S (P = S − R⁻¹ = N X₂₂⁻¹Nᵀ ≻ 0 for a strict
+solution) is the state change x_K = T x̃_K, T = −X₂₂⁻¹Nᵀ, after which
 
     𝒳̃ = [S  −P; −P  P],   V(x, x̃_K) = xᵀR⁻¹x + (x − x̃_K)ᵀP(x − x̃_K):
 

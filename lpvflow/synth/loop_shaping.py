@@ -92,7 +92,10 @@ class LoopShapingDesign:
     Attributes:
         gamma: the certified ‖[I; K∞](I − GsK∞)⁻¹[I  Gs]‖∞ bound (1/γ is the guaranteed b(Gs, K∞)).
         shaped: the shaped plant(s) Gs = W2·G·W1 (one per breakpoint for a scheduled design).
-        K_inf: the controller(s) K∞ of the shaped plant(s) (u_s = K∞ y_s), at the breakpoints.
+        K_inf: the controller(s) K∞ of the shaped plant(s) (u_s = K∞ y_s), at the breakpoints; without
+            breakpoints (one plant, or one Lyapunov matrix over several) in the shaped plant's state
+            coordinates (:func:`in_plant_coordinates`), with breakpoints as the rate-bounded design returns
+            them.
         feedback: the feedback(s) K = W1·K∞·W2 for the plant itself (u = K y), at the breakpoints.
         result: what hinfsyn returned (its ``certificate``, ``gamma_lower``, …).
     """
@@ -165,8 +168,10 @@ def loop_shaping(plants: Sequence[object], W1: Sequence[object], W2: object, *,
     One plant: an LTI design (γ → γ_opt = 1/b_opt(Gs) as the suboptimality shrinks). Several plants at
     ``breakpoints`` (ascending values of one scheduling signal): hinfsyn's rate-bounded design with
     ``rate_bound`` (per sample; None: any rate); several plants without breakpoints: one common Lyapunov
-    matrix over their polytope. The feedback for the plant itself is K = W1·K∞·W2 (u = K y) at each
-    breakpoint (interpolating K∞ and W1 between breakpoints is the scheduled controller).
+    matrix over their polytope (the vertex controllers share the certificate, so one basis change,
+    :func:`in_plant_coordinates`, puts them all in the shaped plant's coordinates). The feedback for the
+    plant itself is K = W1·K∞·W2 (u = K y) at each breakpoint (interpolating K∞ and W1 between breakpoints
+    is the scheduled controller).
     """
     if len(plants) != len(W1) or not plants:
         raise ModelError(f"give one W1 per plant: {len(plants)} plants, {len(W1)} weights W1")

@@ -1,5 +1,5 @@
-"""``[synth] method = "loop-shaping"`` through ``lpvflow synth --config``: the vertex levels (hinfsyn's LMI
-controllers) against the Riccati optimum of the shaped plant, the margin of the written
+"""``[synth] method = "loop-shaping"`` through ``lpvflow synth --config``: the vertex levels (Riccati central
+controllers) and the LMI witness against the Riccati optimum of the shaped plant, the margin of the written
 controller by an independent frequency-grid formula (1dof, and 2dof in a signal scaling with the reference
 injected after K∞), and the frozen check refusing a destabilized controller."""
 
@@ -14,14 +14,10 @@ import scipy.linalg
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
 from lpvflow.synth.controller import mix
-from lpvflow.synth.loop_shaping import (
-    central_ncf_controller,
-    crossover_normalized,
-    integrator_lead_weight,
-    loop_shaping,
-)
+from lpvflow.synth.loop_shaping import central_ncf_controller, crossover_normalized, integrator_lead_weight
 from lpvflow.synth.loop_shaping_design import (
     FROZEN_PER_SEGMENT,
+    GAMMA_FACTOR,
     frozen_margin_check,
     reference_model_gains,
     with_reference_model,
@@ -94,16 +90,16 @@ def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, see
                "-o", str(out)])
     controller = load(out)
     info = json.loads(out.read_text())["info"]
-    gammas, riccati_gammas = info["vertex_gammas"], info["riccati_gammas"]
+    gammas, lmi_gammas = info["vertex_gammas"], info["lmi_gammas"]
     assert controller.info["method"] == "loop-shaping" and controller.info["crossover"] == CROSSOVER
     W1 = integrator_lead_weight(model.Ts, CROSSOVER, integral_ratio=integral_ratio or 10.0)
     for i, p in enumerate(BREAKPOINTS):
         G = model.frozen(np.array([p]))
         W1_i = crossover_normalized(G, W1, CROSSOVER)
         gamma_opt = 1.0 / optimal_margin(G * W1_i)
-        assert riccati_gammas[i] == pytest.approx(gamma_opt, rel=1e-6)
-        # the witness: hinfsyn's certified level on the NCF plant equals the Riccati optimum within 1 %
-        assert gamma_opt * (1 - 1e-6) <= gammas[i] <= 1.01 * gamma_opt
+        assert gammas[i] == pytest.approx(GAMMA_FACTOR * gamma_opt, rel=1e-6)
+        # the witness: hinfsyn's LMI level on the NCF plant equals the Riccati optimum within 1 %
+        assert gamma_opt * (1 - 1e-6) <= lmi_gammas[i] <= 1.01 * gamma_opt
         # the written controller reads e = r − y: u = −K e is u = K y with B and D negated back
         K = (controller.Ak[i], -controller.Bk[i], controller.Ck[i], -controller.Dk[i])
         assert _margin_on_grid(G, K, W1_i) >= 1.0 / gammas[i]
@@ -161,9 +157,9 @@ def test_scaled_two_dof_controller_has_the_shaped_margin_and_injects_r_after_k_i
         # the columns reading y, in the scaled signals: D_u⁻¹ K_y D_y
         K_y = (Ak, Bk[:, 2:] @ Dy, np.linalg.inv(Du) @ Ck, np.linalg.inv(Du) @ Dk[:, 2:] @ Dy)
         assert _margin_on_grid(G, K_y, W1_i) >= 1.0 / gammas[i]
-        # the reference path is −W1·K∞(1) (scaled), K∞ the LMI controller of the shaped plant
-        W2 = control.ss([], [], [], np.eye(2), model.Ts)
-        dc = loop_shaping([G], [W1_i], W2).K_inf[0](1.0, squeeze=False)
+        # the reference path is −W1·K∞(1) (scaled): K_r(z) = −K_y(z)·K∞(z)⁻¹K∞(1) on the frequency grid
+        K_inf, _ = central_ncf_controller(G * W1_i, GAMMA_FACTOR)
+        dc = K_inf(1.0, squeeze=False)
         for w in (0.1, 3.0, 30.0):
             z = np.exp(1j * w * model.Ts)
             resolvent = np.linalg.solve(z * np.eye(Ak.shape[0]) - Ak, Bk)
@@ -189,26 +185,25 @@ def test_frozen_check_refuses_a_destabilized_controller():
     for p in BREAKPOINTS:
         G = model.frozen(np.array([p]))
         W1_i = crossover_normalized(G, W1, CROSSOVER)
-        K, gamma = central_ncf_controller(G * W1_i, 1.005)
+        K, gamma = central_ncf_controller(G * W1_i, GAMMA_FACTOR)
         vertices.append(tuple(np.asarray(M) for M in (G.A, G.B, G.C, G.D)))
         weights.append(tuple(np.asarray(M) for M in (W1_i.A, W1_i.B, W1_i.C, W1_i.D)))
         K_inf.append(tuple(np.asarray(M) for M in (K.A, K.B, K.C, K.D)))
         gammas.append(gamma)
-    optima = [g / 1.005 for g in gammas]  # a witness 0.5 % below the levels
+    lmi = [g / GAMMA_FACTOR for g in gammas]  # a witness that agrees exactly
     t = np.unique(np.concatenate([np.linspace(lo, hi, FROZEN_PER_SEGMENT)
                                   for lo, hi in itertools.pairwise(BREAKPOINTS)]))
     lams = [hat_coordinates(BREAKPOINTS, ti) for ti in t]
-    assert frozen_margin_check(vertices, weights, K_inf, gammas, optima, lams, model.Ts).b_min > 0  # stable
+    assert frozen_margin_check(vertices, weights, K_inf, gammas, lmi, lams, model.Ts).b_min > 0  # all stable
     Ak, Bk, Ck, Dk = K_inf[1]
     broken = (Ak, Bk, Ck, Dk - 50.0)  # a large positive-feedback gain at the middle breakpoint
     G, W1_1 = control.ss(*vertices[1], model.Ts), control.ss(*weights[1], model.Ts)
     loop = (G * W1_1).feedback(control.ss(*broken, model.Ts), sign=1)
     assert np.abs(loop.poles()).max() > 1.0  # independently: the frozen loop there is unstable
-    check = frozen_margin_check(vertices, weights, [K_inf[0], broken, K_inf[2]], gammas, optima, lams,
-                                model.Ts)
+    check = frozen_margin_check(vertices, weights, [K_inf[0], broken, K_inf[2]], gammas, lmi, lams, model.Ts)
     assert not check.ok and check.worst_ratio == 0.0
-    # levels 2 % above the Riccati optimum fail the check, the loops unchanged
-    off = frozen_margin_check(vertices, weights, K_inf, gammas, [g / 1.02 for g in gammas], lams, model.Ts)
+    # a witness 2 % off the Riccati optimum fails the check, the loops unchanged
+    off = frozen_margin_check(vertices, weights, K_inf, gammas, [1.02 * g for g in lmi], lams, model.Ts)
     assert off.worst_ratio >= 1.0 and not off.ok
 
 
@@ -235,7 +230,7 @@ def test_reference_model_path_leaves_the_feedback_nothing_to_correct_on_the_mode
     mats = tuple(np.asarray(M) for M in (G.A, G.B, G.C, G.D))
     scale = SignalScaling(np.array([rng.uniform(0.5, 2)]), np.array([rng.uniform(0.5, 2)]))
     F, N = reference_model_gains(mats, scale, 1.0)
-    K, _ = central_ncf_controller(G, 1.01)
+    K, _ = central_ncf_controller(G, GAMMA_FACTOR)
     K_fb = tuple(np.asarray(M) for M in (K.A, K.B, K.C, K.D))
     Ac, Bc, Cc, Dc = with_reference_model(K_fb, mats, F, N)
     r = np.ones(600)

@@ -5,15 +5,18 @@ import control as ct
 import numpy as np
 import pytest
 import slycot
+from scipy.linalg import block_diag
 
 from lpvflow.errors import ModelError
 from lpvflow.synth.loop_shaping import (
     crossover_normalized,
+    in_plant_coordinates,
     integrator_lead_weight,
     loop_shaping,
     ncf_generalized_plant,
     shaped_plant,
 )
+from lpvflow.validate.norms import hinf_norm
 from lpvflow.validate.robust_stability import generalized_margin, optimal_margin
 from tests.lti_helpers import random_ss
 
@@ -178,3 +181,67 @@ def test_crossover_normalized_weight_crosses_one_at_the_crossover():
         assert np.linalg.norm(G(z, squeeze=False) @ W1n(z, squeeze=False), 2) == pytest.approx(1.0, rel=1e-9)
         np.testing.assert_array_equal(W1n.A, W1.A)
         np.testing.assert_array_equal(W1n.B, W1.B)
+
+
+def _random_certificate(rng, n, m, p):
+    """A random controller (order n, p inputs, m outputs) and a random positive definite 𝒳 (2n × 2n)."""
+    K = (rng.standard_normal((n, n)), rng.standard_normal((n, p)), rng.standard_normal((m, n)),
+         rng.standard_normal((m, p)))
+    F = rng.standard_normal((2 * n, 2 * n)) + 2 * n * np.eye(2 * n)
+    return K, F.T @ F
+
+
+def _transformed(K, X, T):
+    """K in the basis x_K = T x̃_K and 𝒳 written for [x; x̃_K]."""
+    n = T.shape[0]
+    Ti = np.linalg.inv(T)
+    E = block_diag(np.eye(X.shape[0] - n), T)
+    return (Ti @ K[0] @ T, Ti @ K[1], K[2] @ T, K[3]), E.T @ X @ E
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_plant_coordinates_do_not_depend_on_the_basis_the_solver_returned(seed):
+    """in_plant_coordinates of (K, 𝒳) and of the same controller and certificate in any other controller
+    basis are the same matrices; after a plant state change x = Q x̂ (𝒳 written for [x̂; x_K]) the result
+    changes by the same Q; and 𝒳 in the result's basis is [S −P; −P P], P = S − R⁻¹."""
+    rng = np.random.default_rng(seed)
+    n, m, p = int(rng.integers(2, 5)), int(rng.integers(1, 3)), int(rng.integers(1, 3))
+    K, X = _random_certificate(rng, n, m, p)
+    base = in_plant_coordinates(K, X)
+    V = rng.standard_normal((n, n)) + 3 * np.eye(n)
+    for a, b in zip(in_plant_coordinates(*_transformed(K, X, V)), base, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-8, atol=1e-10)
+    Q = rng.standard_normal((n, n)) + 3 * np.eye(n)
+    E = block_diag(Q, np.eye(n))
+    moved = in_plant_coordinates(K, E.T @ X @ E)
+    for a, b in zip(moved, _transformed(base, X, Q)[0], strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-8, atol=1e-10)
+    # the basis change x_K = T x̃_K from K to the result, from the controllability matrices of both
+    ctrb = [np.hstack([np.linalg.matrix_power(k[0], j) @ k[1] for j in range(n)]) for k in (K, base)]
+    T = ctrb[0] @ np.linalg.pinv(ctrb[1])  # x_K = T x̃_K
+    S, R = X[:n, :n], np.linalg.inv(X)[:n, :n]
+    P = S - np.linalg.inv(R)
+    np.testing.assert_allclose(_transformed(K, X, T)[1], np.block([[S, -P], [-P, P]]), rtol=1e-7,
+                               atol=1e-9 * np.abs(X).max())
+
+
+def test_lmi_controllers_meet_their_level_by_python_control():
+    """The LMI controller K∞ in the shaped plant's coordinates: ‖T_zw‖∞ of the four-block loop ≤ γ by
+    python-control (lpvflow.validate.norms.hinf_norm) and b(Gs, K∞) ≥ 1/γ, for random plants."""
+    for rng, G in random_plants(seed=7, count=6):
+        p, Ts = G.noutputs, G.dt
+        W1 = pi_rolloff_weight(p, Ts, rng.uniform(0.1, 2.0), rng.uniform(20, 200), rng.uniform(0.5, 5))
+        design = loop_shaping([G], [W1], identity(p, Ts))
+        Gs, K = design.shaped[0], design.K_inf[0]
+        P = ncf_generalized_plant(Gs)
+        A, B, C, D = (np.asarray(M) for M in (P.A, P.B, P.C, P.D))
+        # exogenous [w1; w2] and performance [z1; z2] first, then u (columns) and y (rows); D22 = 0
+        e, c = slice(0, P.ninputs - Gs.ninputs), slice(P.ninputs - Gs.ninputs, None)
+        f, y = slice(0, P.noutputs - p), slice(P.noutputs - p, None)
+        Ak, Bk, Ck, Dk = (np.asarray(M) for M in (K.A, K.B, K.C, K.D))
+        loop = ct.ss(np.block([[A + B[:, c] @ Dk @ C[y], B[:, c] @ Ck], [Bk @ C[y], Ak]]),
+                     np.vstack([B[:, e] + B[:, c] @ Dk @ D[y, e], Bk @ D[y, e]]),
+                     np.hstack([C[f] + D[f, c] @ Dk @ C[y], D[f, c] @ Ck]),
+                     D[f, e] + D[f, c] @ Dk @ D[y, e], Ts)
+        assert hinf_norm(loop) <= design.gamma * (1 + 1e-6)
+        assert generalized_margin(Gs, K) >= (1.0 / design.gamma) * (1 - 1e-6)

@@ -20,6 +20,24 @@ Gs = W2·G·W1 is the H∞ problem ‖T_zw‖∞ < γ of the four-block generali
 vertices of a polytope (one Lyapunov matrix) or at breakpoints with a rate bound (the LPV form of
 LPVTools' ``lpvncfsyn``). The feedback for the plant is K = W1·K∞·W2. At a frozen point the LMI γ must
 equal the Riccati γ_opt (tests).
+
+**The LMI controller in the plant's coordinates** (:func:`in_plant_coordinates`). A full-order controller
+is fixed by the LMI solution only up to its state basis: with the closed-loop Lyapunov matrix
+𝒳 = [S N; Nᵀ X₂₂] (state [x; x_K]) and 𝒳⁻¹ = [R M; Mᵀ ∗], every factorization MNᵀ = I − RS gives the same
+closed loop in another controller basis (Scherer, Gahinet & Chilali 1997, "Multiobjective
+output-feedback control via LMI optimization", IEEE TAC 42(7): the reconstruction of their eq. (35) holds
+for any such M, N). The factorization M = R, N = R⁻¹ − S (P = S − R⁻¹ = N X₂₂⁻¹Nᵀ ≻ 0 for a strict
+solution) is the state change x_K = T x̃_K, T = −X₂₂⁻¹Nᵀ, after which
+
+    𝒳̃ = [S  −P; −P  P],   V(x, x̃_K) = xᵀR⁻¹x + (x − x̃_K)ᵀP(x − x̃_K):
+
+the certificate penalizes x − x̃_K, so x̃_K is an estimate of the plant's state in the plant's own basis
+(the observer form of the central H∞ controller: Doyle, Glover, Khargonekar & Francis 1989, "State-space
+solutions to standard H2 and H∞ control problems", IEEE TAC 34(8)), and a plant state change
+x = Qx̂ changes x̃_K by the same Q. Controllers of plants that share their state coordinates (the
+breakpoints of a scheduled design) then share theirs, and Σλ_iK_i interpolates gains of one structure;
+interpolated in the bases the separate SDP solves return, they are not (on the bundled ADIP design the
+frozen loop is unstable at the first grid point off a breakpoint).
 """
 
 from __future__ import annotations
@@ -74,7 +92,10 @@ class LoopShapingDesign:
     Attributes:
         gamma: the certified ‖[I; K∞](I − GsK∞)⁻¹[I  Gs]‖∞ bound (1/γ is the guaranteed b(Gs, K∞)).
         shaped: the shaped plant(s) Gs = W2·G·W1 (one per breakpoint for a scheduled design).
-        K_inf: the controller(s) K∞ of the shaped plant(s) (u_s = K∞ y_s), at the breakpoints.
+        K_inf: the controller(s) K∞ of the shaped plant(s) (u_s = K∞ y_s), at the breakpoints; without
+            breakpoints (one plant, or one Lyapunov matrix over several) in the shaped plant's state
+            coordinates (:func:`in_plant_coordinates`), with breakpoints as the rate-bounded design returns
+            them.
         feedback: the feedback(s) K = W1·K∞·W2 for the plant itself (u = K y), at the breakpoints.
         result: what hinfsyn returned (its ``certificate``, ``gamma_lower``, …).
     """
@@ -147,8 +168,10 @@ def loop_shaping(plants: Sequence[object], W1: Sequence[object], W2: object, *,
     One plant: an LTI design (γ → γ_opt = 1/b_opt(Gs) as the suboptimality shrinks). Several plants at
     ``breakpoints`` (ascending values of one scheduling signal): hinfsyn's rate-bounded design with
     ``rate_bound`` (per sample; None: any rate); several plants without breakpoints: one common Lyapunov
-    matrix over their polytope. The feedback for the plant itself is K = W1·K∞·W2 (u = K y) at each
-    breakpoint (interpolating K∞ and W1 between breakpoints is the scheduled controller).
+    matrix over their polytope (the vertex controllers share the certificate, so one basis change,
+    :func:`in_plant_coordinates`, puts them all in the shaped plant's coordinates). The feedback for the
+    plant itself is K = W1·K∞·W2 (u = K y) at each breakpoint (interpolating K∞ and W1 between breakpoints
+    is the scheduled controller).
     """
     if len(plants) != len(W1) or not plants:
         raise ModelError(f"give one W1 per plant: {len(plants)} plants, {len(W1)} weights W1")
@@ -160,10 +183,35 @@ def loop_shaping(plants: Sequence[object], W1: Sequence[object], W2: object, *,
     else:
         result = hinfsyn(generalized, p, m, breakpoints=breakpoints, rate_bound=rate_bound, **hinfsyn_options)
     Ts = shaped[0].dt
-    K_inf = [control.ss(*K, Ts) for K in result.K_vertices]
+    K_vertices = result.K_vertices if breakpoints is not None else [
+        in_plant_coordinates(K, result.lyapunov_factor.T @ result.lyapunov_factor) for K in result.K_vertices]
+    K_inf = [control.ss(*K, Ts) for K in K_vertices]
     W2 = as_statespace(W2, "W2")
     feedback = [as_statespace(W, "W1") * K * W2 for W, K in zip(W1, K_inf, strict=True)]
     return LoopShapingDesign(float(result.gamma), shaped, K_inf, feedback, result)
+
+
+def in_plant_coordinates(K: tuple[np.ndarray, ...], lyapunov: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The full-order controller K = (A_K, B_K, C_K, D_K) in the basis x_K = T x̃_K, T = −X₂₂⁻¹Nᵀ, where
+    its closed-loop Lyapunov matrix ``lyapunov`` = 𝒳 = [S N; Nᵀ X₂₂] (state [x; x_K], x the generalized
+    plant's state) becomes [S −P; −P P], P = S − R⁻¹ (module docstring): (T⁻¹A_KT, T⁻¹B_K, C_KT, D_K).
+
+    Raises:
+        ModelError: a controller whose order differs from the plant's, or an N that is singular in floating
+            point (no strict LMI solution).
+    """
+    A, B, C, D = K
+    nk = A.shape[0]
+    n = lyapunov.shape[0] - nk
+    if n != nk:
+        raise ModelError(f"the controller has order {nk} and the plant {n}: only a full-order controller has "
+                         "the plant's coordinates")
+    N, X22 = lyapunov[:n, n:], lyapunov[n:, n:]
+    T = -np.linalg.solve(X22, N.T)
+    if not np.linalg.cond(T) < 1.0 / np.finfo(float).eps:
+        raise ModelError("the certificate's coupling block N is singular: the LMI solution is not strict")
+    Ti = np.linalg.inv(T)
+    return Ti @ A @ T, Ti @ B, C @ T, D
 
 
 # ------------------------------------------------------------------------------------ weights

@@ -224,7 +224,7 @@ class _LevelProblem:
     def solve(self, gamma: float, solver: str) -> SolveReport:
         """The SDP at γ (raises SynthesisError when the solver returns no point)."""
         self.gamma.value = gamma
-        return solve(self.problem, solver, f"the H∞ controller LMIs at γ = {gamma:.6g}")
+        return solve(self.problem, solver, f"the H∞ controller LMIs at γ = {gamma:.6g}", fine=True)
 
 
 def _controller(v: VertexPlant, R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray,

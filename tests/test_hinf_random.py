@@ -20,8 +20,9 @@ from lpvflow.validate.norms import hinf_norm
 from tests.hinf_cases import polytopic_case, weighted_cases
 
 #: Share of random plants whose certified γ is within 1 % of SB10DD. The target is every one; measured
-#: 58 of 63 (seed 2027) and 14 of 14 (seed 2026): the gap is recorded in benchmarks/README.md.
-WITHIN_ONE_PERCENT = 0.9
+#: 62 of 63 (seed 2027; the other, a lightly damped plant, 4.8 % above) and 14 of 14 (seed 2026): the gap
+#: is recorded in benchmarks/README.md.
+WITHIN_ONE_PERCENT = 0.98
 
 
 def _vertex(P: control.StateSpace, nmeas: int, ncon: int) -> VertexPlant:

@@ -54,6 +54,17 @@ def test_random_weighted_plants_get_certified_controllers_near_the_riccati_optim
     assert np.all(ratios <= 1.01), ratios
 
 
+def test_a_level_near_the_optimum_is_resolved_where_its_margin_is_tiny():
+    """Seed 2027, case 22 (an unstable plant, 4 states; Ts ≈ 10 ms): solved to Clarabel's default duality
+    gap 1e-8, the controller LMIs 0.26 % above the optimum returned t = −2.6e-5 (‖R‖ ≈ 2.7e3) as "optimal",
+    their controller failed the certificate and the synthesis ended 1.2 % above SB10DD; with the level
+    SDPs' gap at 1e-12 it must come within 0.5 %."""
+    case = weighted_cases(23, 2027)[22]
+    res = hinfsyn(case.P, case.nmeas, case.ncon)
+    assert min(res.certificate) > 0
+    assert res.gamma <= 1.005 * riccati_gamma(_vertex(case.P, case.nmeas, case.ncon), case.P.dt)
+
+
 @pytest.mark.slow
 def test_sixty_three_random_weighted_plants():
     ratios = np.array(_outcomes(weighted_cases(63, 2027)))

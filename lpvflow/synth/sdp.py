@@ -32,8 +32,8 @@ _SETTINGS = {
 }
 #: Clarabel's duality-gap tolerances for an SDP whose margin must be resolved far below 1e-8 of its variables
 #: (the H∞ controller LMIs at one level, :mod:`lpvflow.synth.vertex_synthesis` step 5): near the optimal
-#: level the largest margin t is 1e-6…1e-9 of ‖R‖, ‖S‖ (10³–10⁴ in balanced coordinates), so a point
-#: accepted at gap 1e-8 has t < 0 and its controller fails the certificate (the residual tolerance is not
+#: level the margin t must be resolved far below 1e-8 of ‖R‖, ‖S‖ (10³–10⁵ in balanced coordinates): a point
+#: accepted at gap 1e-8 had t < 0 and its controller fails the certificate (the residual tolerance is not
 #: what decides: 1e-10 on it alone changed nothing on the plants measured). A solve that stalls before
 #: these is reported ``optimal_inaccurate`` by the reduced tolerances above and re-checked like any other.
 _FINE = {"CLARABEL": {"tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12}, "SCS": {}}

@@ -30,11 +30,11 @@ _SETTINGS = {
                  "max_threads": 1, "chordal_decomposition_enable": False},
     "SCS": {"max_iters": 20000, "eps_abs": 1e-6, "eps_rel": 1e-6},
 }
-#: Clarabel's duality-gap tolerances for an SDP whose margin must be resolved far below 1e-8 of its variables
-#: (the H∞ controller LMIs at one level, :mod:`lpvflow.synth.vertex_synthesis` step 5): near the optimal
-#: level the margin t must be resolved far below 1e-8 of ‖R‖, ‖S‖ (10³–10⁵ in balanced coordinates): a point
-#: accepted at gap 1e-8 had t < 0 and its controller fails the certificate (the residual tolerance is not
-#: what decides: 1e-10 on it alone changed nothing on the plants measured). A solve that stalls before
+#: Clarabel's duality-gap tolerances for the H∞ controller LMIs at one level
+#: (:mod:`lpvflow.synth.vertex_synthesis` step 5): near the optimal level their margin t must be resolved
+#: far below 1e-8 of ‖R‖, ‖S‖ (10³–10⁵ in balanced coordinates); points accepted at gap 1e-8 had t < 0 and
+#: controllers that failed the certificate (the residual tolerance is not what decides: 1e-10 on it alone
+#: changed nothing on the plants measured). A solve that stalls before
 #: these is reported ``optimal_inaccurate`` by the reduced tolerances above and re-checked like any other.
 _FINE = {"CLARABEL": {"tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12}, "SCS": {}}
 

@@ -20,8 +20,9 @@ from lpvflow.validate.norms import hinf_norm
 from tests.hinf_cases import polytopic_case, weighted_cases
 
 #: Share of random plants whose certified γ is within 1 % of SB10DD. The target is every one; measured
-#: 58 of 63 (seed 2027) and 14 of 14 (seed 2026): the gap is recorded in benchmarks/README.md.
-WITHIN_ONE_PERCENT = 0.9
+#: 62 of 63 (seed 2027; the other, a lightly damped plant, 4.8 % above) and 14 of 14 (seed 2026): the gap
+#: is recorded in benchmarks/README.md.
+WITHIN_ONE_PERCENT = 0.98
 
 
 def _vertex(P: control.StateSpace, nmeas: int, ncon: int) -> VertexPlant:
@@ -51,6 +52,17 @@ def test_random_weighted_plants_get_certified_controllers_near_the_riccati_optim
     frequency grid.)"""
     ratios = np.array(_outcomes(weighted_cases(14, 2026)))
     assert np.all(ratios <= 1.01), ratios
+
+
+def test_a_level_near_the_optimum_is_resolved_where_its_margin_is_tiny():
+    """Seed 2027, case 22 (an unstable plant, 4 states; Ts ≈ 10 ms): solved to Clarabel's default duality
+    gap 1e-8, the controller LMIs 0.26 % above the optimum returned t = −2.6e-5 (‖R‖ ≈ 2.7e3) as "optimal",
+    their controller failed the certificate and the synthesis ended 1.2 % above SB10DD; with the level
+    SDPs' gap at 1e-12 it must come within 0.5 %."""
+    case = weighted_cases(23, 2027)[22]
+    res = hinfsyn(case.P, case.nmeas, case.ncon)
+    assert min(res.certificate) > 0
+    assert res.gamma <= 1.005 * riccati_gamma(_vertex(case.P, case.nmeas, case.ncon), case.P.dt)
 
 
 @pytest.mark.slow

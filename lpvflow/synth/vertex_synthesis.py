@@ -51,7 +51,8 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
        Ψ_i = [B1_i + B2_iD̂_iD21_i; SB1_i + B̂_iD21_i],  Ω_i = [C1_iR + D12_iĈ_i   C1_i + D12_iD̂_iC2_i],
        Δ_i = D11_i + D12_iD̂_iD21_i,   [R I; I S] ⪰ t·I,  t ≤ 1,
 
-   compiled once with γ a cvxpy parameter; maximise t at the levels of
+   compiled once with γ a cvxpy parameter and solved to a duality gap of 1e-12 (near the optimal level t
+   must be resolved far below 1e-8 of ‖R‖, ‖S‖; :func:`lpvflow.synth.sdp.solve`); maximise t at the levels of
    :func:`lpvflow.synth.levels.lowest_certified_level` from γ̂ up to ``gamma_max``: a level passes when
    its controller passes the certificate of step 7.
 6. **Controller** per vertex (Scherer et al. 1997, eq. (35)): MNᵀ = I − RS by a balanced SVD,
@@ -224,7 +225,7 @@ class _LevelProblem:
     def solve(self, gamma: float, solver: str) -> SolveReport:
         """The SDP at γ (raises SynthesisError when the solver returns no point)."""
         self.gamma.value = gamma
-        return solve(self.problem, solver, f"the H∞ controller LMIs at γ = {gamma:.6g}")
+        return solve(self.problem, solver, f"the H∞ controller LMIs at γ = {gamma:.6g}", fine=True)
 
 
 def _controller(v: VertexPlant, R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray,

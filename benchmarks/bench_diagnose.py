@@ -286,8 +286,7 @@ def plant_records(seeds: tuple[int, ...], clean_seeds: tuple[int, ...], plants: 
         record = make_record(plant, effect, seed)
         start = time.perf_counter()
         try:
-            result = diagnose(record.data, record.structure, record.channels, controller=record.controller,
-                              scheduling=record.scheduling)
+            result = diagnose(record.data, record.structure, record.channels, **record.diagnose_arguments())
             cause = result.cause
             verdict = outcome(record, result.cause, result.parameters, result.not_identifiable)
         except LpvflowError as exc:

@@ -73,3 +73,35 @@ def test_a_gridded_laws_output_is_its_next_command_without_advancing_it(seed):
     first, again = law.output(r, y, p), law.output(r, y, p)
     np.testing.assert_array_equal(first, again)
     np.testing.assert_allclose(law.step(r, y, p), first, rtol=1e-13, atol=1e-13)
+
+
+def test_the_cli_diagnoses_in_the_gridded_loop_with_trim_and_offsets_removed(tmp_path):
+    """`diagnose --controller GRIDDED --remove-trim --remove-offsets` on an experiment's CSV (set-point
+    columns included) scores the nominal model exactly as diagnose() does on the record made by hand."""
+    import json
+
+    from lpvflow.pipeline.cli import main
+    from lpvflow.validate.diagnose import diagnose
+    from lpvflow.validate.extensions import Structure
+
+    c = _record(2)
+    csv, report = tmp_path / "d.csv", tmp_path / "r.json"
+    names = list(c)
+    np.savetxt(csv, np.column_stack([c[name] for name in names]), delimiter=",", header=",".join(names),
+               comments="")
+    assert main(["diagnose", str(csv), "--u", *INPUTS, "--y", *OUTPUTS, "--p", "y2", "--na", "2", "--nb", "2",
+                 "--basis", "poly:2", "--controller", str(MAGLEV_CONTROLLER), "--scheduling",
+                 "y2=upper_disk_position", "--remove-trim", "--remove-offsets", "--causes", "offset",
+                 "--json", str(report)]) == 0
+    K = load_experiment_controller(MAGLEV_CONTROLLER)
+    n = len(c["time"])
+    data = Dataset(np.column_stack([c[name] for name in INPUTS]) - K.trim_along(c, n),
+                   np.column_stack([c[name] for name in OUTPUTS]), c["y2"], 0.002, INPUTS, OUTPUTS,
+                   ["y2"]).remove_offsets()
+    setpoints = np.column_stack([np.full(n, np.nan), c["upper_disk_position_setpoint"]])
+    direct = diagnose(data, Structure(2, 2, 1, "poly:2"), causes=["offset"], controller=K,
+                      scheduling=MAGLEV_SCHEDULING, setpoints=setpoints, remove_trim=True)
+    written = json.loads(report.read_text())
+    np.testing.assert_allclose(written["bfr_before"], direct.bfr_before, atol=1e-6)
+    slopes = [[row["drift_slope"] for row in where["outputs"]] for where in (written["where"], direct.where)]
+    np.testing.assert_allclose(slopes[0], slopes[1], rtol=1e-6)  # the same nominal simulation error

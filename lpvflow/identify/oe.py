@@ -8,8 +8,9 @@ scipy.optimize.least_squares. The Jacobian is analytic: differentiating the simu
     ∂ŷ(k)/∂θ_m + Σ_i A_i(ψ) ∂ŷ(k−i)/∂θ_m = φ̃_m(k) e_r      (θ_m a parameter of output r),
 
 i.e. the sensitivity is the model's own LPV filter A⁻¹(q, ψ) (same form) applied to the regressor
-column φ̃_m — one compiled recursion per parameter. Started from IV-OE (thesis Alg. 4.1), which
-is consistent, so the local search starts in the right basin.
+column φ̃_m — one compiled recursion over all the parameters of an output (:func:`_filtered_columns`).
+Started from IV-OE (thesis Alg. 4.1), which is consistent, so the local search starts in the right
+basin.
 
 The search is Levenberg–Marquardt (:func:`levenberg_marquardt`) on the normal equations of the
 column-scaled Jacobian: with N·ny residuals and a hundred parameters, forming JᵀJ costs a few
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numba
 import numpy as np
 import scipy.linalg
 
@@ -29,7 +31,6 @@ from lpvflow.data import Dataset
 from lpvflow.errors import ModelError
 from lpvflow.identify.iv import Structure, identify_iv_oe, simulate_psi
 from lpvflow.lpvio import LPVIO
-from lpvflow.simulate import io_recursion
 
 #: Residual value used where a trial model's simulation diverges (steers the search back).
 DIVERGED_RESIDUAL = 1e6
@@ -43,17 +44,39 @@ def _split(struct: Structure, x: np.ndarray) -> list[np.ndarray]:
 def sensitivities(struct: Structure, io: LPVIO, y_sim: np.ndarray, u: np.ndarray,
                   psi: np.ndarray) -> np.ndarray:
     """∂ŷ/∂θ (N, ny, n_par) of the simulated output, parameters in :class:`Structure` order."""
-    shifted = struct.shifted
-    n = len(y_sim)
-    out = np.empty((n, struct.ny, sum(len(c) for c in struct.columns)))
-    column = 0
-    for r in range(struct.ny):
-        phi = struct.regressor(r, y_sim, u, psi)
-        forced = np.zeros((n, struct.ny))
-        for m in range(phi.shape[1]):
-            forced[:, r] = phi[:, m]
-            out[:, :, column] = io_recursion(forced, psi, io.A, shifted)
-            column += 1
+    parts = [_filtered_columns(np.ascontiguousarray(struct.regressor(r, y_sim, u, psi), dtype=float), psi,
+                               np.ascontiguousarray(io.A, dtype=float), struct.shifted, r)
+             for r in range(struct.ny)]
+    return np.concatenate(parts, axis=2)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _filtered_columns(phi: np.ndarray, psi: np.ndarray, A: np.ndarray, shifted: bool, r: int) -> np.ndarray:
+    """S (N, ny, m): S(k) = e_r φ(k) − Σ_i A_i(ψ(k−i) or ψ(k)) S(k−i) for every column of φ (N, m) at once,
+    zero initial past — the LPV filter of :func:`lpvflow.simulate.io_recursion` (same form convention)
+    with A_i(ψ) formed once per sample and lag for all the columns."""
+    n, m = phi.shape
+    na, n_psi, ny = A.shape[0], A.shape[1], A.shape[2]
+    out = np.zeros((n, ny, m))
+    a_k = np.zeros((ny, ny))
+    for k in range(n):
+        out[k, r, :] = phi[k, :]
+        for i in range(1, na + 1):
+            if k - i < 0:
+                break
+            t = k - i if shifted else k
+            for o in range(ny):
+                for c in range(ny):
+                    acc = 0.0
+                    for l in range(n_psi):
+                        acc += psi[t, l] * A[i - 1, l, o, c]
+                    a_k[o, c] = acc
+            for o in range(ny):
+                for c in range(ny):
+                    a = a_k[o, c]
+                    if a != 0.0:
+                        for j in range(m):
+                            out[k, o, j] -= a * out[k - i, c, j]
     return out
 
 

@@ -286,17 +286,18 @@ def plant_records(seeds: tuple[int, ...], clean_seeds: tuple[int, ...], plants: 
         record = make_record(plant, effect, seed)
         start = time.perf_counter()
         try:
-            result = diagnose(record.data, record.structure, record.channels, controller=record.controller,
-                              scheduling=record.scheduling)
+            result = diagnose(record.data, record.structure, record.channels, **record.diagnose_arguments())
             cause = result.cause
             verdict = outcome(record, result.cause, result.parameters, result.not_identifiable)
+            checked = result.parameters.get(record.check[0]) if record.check else None  # the checked value
         except LpvflowError as exc:
-            cause, verdict = f"error: {exc}", "error"
+            cause, verdict, checked = f"error: {exc}", "error", None
         seconds = time.perf_counter() - start
+        found = None if checked is None else np.asarray(checked, float).tolist()
         rows.append({"record": record.label, "expected": record.expected, "cause": cause, "outcome": verdict,
-                     "samples": record.data.N, "seconds": seconds})
-        print(f"{record.label}: expected {record.expected}, named {cause} ({verdict}, {seconds:.1f} s)",
-              flush=True)
+                     "parameter": found, "samples": record.data.N, "seconds": seconds})
+        print(f"{record.label}: expected {record.expected}, named {cause} ({verdict}"
+              f"{'' if found is None else f', {record.check[0]} = {found}'}, {seconds:.1f} s)", flush=True)
     kinds = {"in vocabulary": lambda r: r["expected"] not in ("none", "unexplained"),
              "clean": lambda r: r["expected"] == "none",
              "out of vocabulary": lambda r: r["expected"] == "unexplained"}

@@ -22,10 +22,15 @@ README or example):
 * adip — closed loop under fmu_plants/adip/stabilizing_controller.json, Ts = 5 ms, 40 s, multisine
   excitation on the voltage; y = (arm, pendulum), p = sin(arm), na = nb = 2, nk = 1, affine; angle
   noise 20 µrad.
-* maglev — open loop, random-phase multisines (0.1–20 Hz, 0.04 A rms) around the holding currents
-  of y1 = 1.5 cm, y2 = 8 cm, Ts = 2 ms, 16 s; y = both positions, p = y2; na = nb = 2, nk = 1,
-  poly:2 (lpvflow/pipeline/examples/maglev.toml); the recorded mean of every input and output is
-  removed (the example's remove_offsets); position noise 2 µm.
+* maglev — the bundled example's identification (lpvflow/pipeline/examples/maglev.toml): closed loop
+  under the gain-scheduled controller fmu_plants/maglev/scheduled_controller.json (lower disk held at
+  1.5 cm, trim u*(y2) = the holding currents), the upper disk's set-point a triangle 8 → 8.75 → 7.25 →
+  8 cm, random-phase multisines of 0.02 A rms (0.5–20 Hz) on both coils, Ts = 2 ms; y = both
+  positions, p = y2 (the measured upper disk position, recomputed from the simulated outputs in the
+  loop); na = nb = 2, nk = 1, poly:2; the model's inputs are the currents minus the trim
+  (``remove_trim``) and the record's means are removed (``remove_offsets``); every model is simulated
+  in the loop with the set-points as recorded. Duration and split: see ``PLANTS`` (the example
+  records 80 s with a 40 s sweep and estimates on 70 %); position noise 2 µm.
 
 All random choices come from the record's seed (signals through ``run_experiment``'s seed, the
 sensor noise from it, the wrappers' dropout times from ``numpy.random.default_rng(seed)``).
@@ -41,7 +46,8 @@ from pathlib import Path
 import numpy as np
 
 from lpvflow.data import Dataset
-from lpvflow.experiment.controller import LtiController, load_controller
+from lpvflow.experiment.controller import GriddedController, LtiController
+from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.experiment.plant import open_plant
 from lpvflow.experiment.run import run_experiment
 from lpvflow.validate.extensions import Structure
@@ -49,7 +55,11 @@ from lpvflow.validate.extensions import Structure
 ROOT = Path(__file__).resolve().parents[1]
 BUILD = ROOT / "fmu_plants" / "build"
 ADIP_CONTROLLER = ROOT / "fmu_plants" / "adip" / "stabilizing_controller.json"
+MAGLEV_CONTROLLER = ROOT / "fmu_plants" / "maglev" / "scheduled_controller.json"
+MAGLEV_SCHEDULING = {"y2": "upper_disk_position"}
 ADIP_SCHEDULING = {"sin_arm": "sin(arm_angle)"}
+#: Maglev record length [s], set-point sweep period [s] and estimation fraction (module docstring).
+MAGLEV_DURATION, MAGLEV_SWEEP, MAGLEV_SPLIT = 40.0, 20.0, 0.5
 #: Stall torque per volt at the ADIP arm shaft (fmu_plants/adip/README.md): F_c [N·m] / 0.1284 in V.
 SRV02_TORQUE_PER_VOLT = 0.9 * 70 * 0.69 * 7.68e-3 / 2.6
 ADIP_COULOMB_VOLTS = 0.04 / SRV02_TORQUE_PER_VOLT  # 0.04 N·m of Coulomb friction in input units
@@ -67,7 +77,11 @@ class PlantSetup:
     inputs: dict[str, str] = field(default_factory=dict)
     excitation: dict[str, str] = field(default_factory=dict)
     parameters: dict[str, float] = field(default_factory=dict)
-    closed_loop: bool = False
+    controller: Path | None = None  # closed loop under this controller file
+    scheduling: dict[str, str] = field(default_factory=dict)  # scheduling columns of the loop
+    setpoint: dict[str, str] = field(default_factory=dict)
+    remove_trim: bool = False  # model inputs: the recorded ones minus the controller's trim
+    split: float = 0.5  # estimation fraction of the diagnosis
 
 
 PLANTS = {
@@ -81,13 +95,16 @@ PLANTS = {
     "adip": PlantSetup("adip", 0.005, 40.0, Structure(2, 2, 1, "affine"),
                        {"arm_angle": 2e-5, "pendulum_angle": 2e-5},
                        excitation={"voltage": "multisine:f_lo=0.05,f_hi=20,rms=1.5,period=20,phases=random"},
-                       closed_loop=True),
+                       controller=ADIP_CONTROLLER, scheduling=ADIP_SCHEDULING),
     "maglev": PlantSetup(
-        "maglev", 0.002, 16.0, Structure(2, 2, 1, "poly:2"),
+        "maglev", 0.002, MAGLEV_DURATION, Structure(2, 2, 1, "poly:2"),
         {"lower_disk_position": 2e-6, "upper_disk_position": 2e-6},
-        inputs={"lower_coil_current": "multisine:f_lo=0.1,f_hi=20,rms=0.04,offset=0.927,phases=random",
-                "upper_coil_current": "multisine:f_lo=0.1,f_hi=20,rms=0.04,offset=-0.045,phases=random"},
-        parameters={"x0_lower_disk_position": 0.015, "x0_upper_disk_position": 0.08}),
+        excitation={"lower_coil_current": "multisine:f_lo=0.5,f_hi=20,rms=0.02,phases=random",
+                    "upper_coil_current": "multisine:f_lo=0.5,f_hi=20,rms=0.02,phases=random"},
+        parameters={"x0_lower_disk_position": 0.015, "x0_upper_disk_position": 0.08},
+        controller=MAGLEV_CONTROLLER, scheduling=MAGLEV_SCHEDULING,
+        setpoint={"upper_disk_position": f"triangle:amp=0.0075,period={MAGLEV_SWEEP},offset=0.08"},
+        remove_trim=True, split=MAGLEV_SPLIT),
 }
 
 
@@ -229,8 +246,17 @@ class Record:
     structure: Structure
     expected: str
     check: tuple[str, object] | None
-    controller: LtiController | None = None
+    controller: LtiController | GriddedController | None = None
     scheduling: dict[str, str] | None = None
+    setpoints: np.ndarray | None = None  # (N, outputs the controller reads), NaN where none
+    remove_trim: bool = False
+    split: float = 0.5
+
+    def diagnose_arguments(self) -> dict:
+        """The keyword arguments of :func:`~lpvflow.validate.diagnose.diagnose` for this record (the
+        user's set-up: its split, and the loop of a closed-loop record)."""
+        return {"controller": self.controller, "scheduling": self.scheduling, "setpoints": self.setpoints,
+                "remove_trim": self.remove_trim, "split": self.split}
 
     @property
     def label(self) -> str:
@@ -257,17 +283,25 @@ def make_record(plant: str, effect: str, seed: int) -> Record:
     n = round(setup.duration / setup.Ts)
     wrapped = (ImpairedPlant(inner, spec.wrapper, IMPAIRMENT[plant][_size_key(spec.wrapper)], n, seed)
                if spec.wrapper else inner)
-    controller = load_controller(ADIP_CONTROLLER) if setup.closed_loop else None
+    controller = load_experiment_controller(setup.controller) if setup.controller else None
     try:
         record = run_experiment(wrapped, setup.Ts, setup.duration, spec.inputs or setup.inputs or None,
-                                controller, setup.excitation or None,
-                                ADIP_SCHEDULING if setup.closed_loop else {}, seed, progress=False,
-                                noise=setup.noise)
+                                controller, setup.excitation or None, setup.scheduling, seed, progress=False,
+                                noise=setup.noise, setpoint=setup.setpoint or None)
     finally:
         wrapped.close()
-    data, channels = _dataset(plant, record.columns, record.Ts)
+    columns = dict(record.columns)
+    setpoints = None
+    if controller is not None:
+        setpoints = np.column_stack([columns.get(f"{name}_setpoint", np.full(len(columns["time"]), np.nan))
+                                     for name in controller.inputs])
+    if setup.remove_trim:
+        trim = controller.trim_along(columns, len(columns["time"]))
+        for j, name in enumerate(controller.outputs):
+            columns[name] = columns[name] - trim[:, j]
+    data, channels = _dataset(plant, columns, record.Ts)
     return Record(plant, effect, seed, data, channels, setup.structure, spec.expected, spec.check,
-                  controller, ADIP_SCHEDULING if setup.closed_loop else None)
+                  controller, setup.scheduling or None, setpoints, setup.remove_trim, setup.split)
 
 
 def _size_key(wrapper: str) -> str:
@@ -288,8 +322,8 @@ def _dataset(plant: str, c: dict[str, np.ndarray], Ts: float) -> tuple[Dataset, 
                        ["voltage"], ["arm_angle", "pendulum_angle"], ["sin_arm"]), {}
     u = np.column_stack([c["lower_coil_current"], c["upper_coil_current"]])
     y = np.column_stack([c["lower_disk_position"], c["upper_disk_position"]])
-    return Dataset(u - u.mean(axis=0), y - y.mean(axis=0), c["upper_disk_position"], Ts, ["i1", "i2"],
-                   ["y1", "y2"], ["y2"]), {}
+    return Dataset(u, y, c["upper_disk_position"], Ts, ["lower_coil_current", "upper_coil_current"],
+                   ["lower_disk_position", "upper_disk_position"], ["y2"]).remove_offsets(), {}
 
 
 def bench_records(seeds: tuple[int, ...], clean_seeds: tuple[int, ...]) -> list[tuple[str, str, int]]:

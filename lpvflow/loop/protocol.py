@@ -276,6 +276,12 @@ class GriddedLaw(_TrackingSetpoints):
         self._x = A @ self._x + B @ dy
         return u
 
+    def output(self, r: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """u(k) at the present state without advancing it (a plant with direct feedthrough:
+        :func:`lpvflow.loop.engine.close_loop`)."""
+        _, _, C, D, y_op, u_op = self.K.at(p[0])
+        return u_op + C @ self._x + D @ (y - _held(r, y_op))
+
     def trim(self, p: np.ndarray) -> np.ndarray:
         return self.K.at(p[0])[5]
 

@@ -6,11 +6,15 @@ import argparse
 import json
 import sys
 import textwrap
+from dataclasses import replace
 from pathlib import Path
+
+import numpy as np
 
 from lpvflow.data import Dataset, read_columns, time_column
 from lpvflow.errors import DataError, ModelError
-from lpvflow.experiment.controller import load_controller
+from lpvflow.experiment.controller import GriddedController, LtiController
+from lpvflow.experiment.loader import load_experiment_controller
 from lpvflow.experiment.run import sidecar_path
 from lpvflow.experiment.scheduling import parse_assignment
 from lpvflow.lpvio import LPVIO
@@ -69,8 +73,12 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--causes", nargs="+", choices=sorted(EXTENSIONS), help="test only these causes")
     p.add_argument("--split", type=float, default=0.5, help="estimation fraction (default 0.5)")
     p.add_argument("--controller", metavar="CONTROLLER.json",
-                   help="the LTI controller the data were recorded under (lpvflow/lti-controller): every "
-                        "model is then simulated in that loop")
+                   help="the controller the data were recorded under (lpvflow/lti-controller or "
+                        "lpvflow/gridded-controller): every model is then simulated in that loop, a gridded "
+                        "controller with the record's <output>_setpoint columns as its references")
+    p.add_argument("--remove-trim", action="store_true",
+                   help="with --controller: the model's inputs are the recorded ones minus the controller's "
+                        "trim (as a design's [identify] remove_trim); applied before --remove-offsets")
     p.add_argument("--scheduling", nargs="+", metavar="NAME=EXPR",
                    help="with --controller: scheduling columns computed from the outputs, recomputed from "
                         "the simulated outputs in the loop (default: the sidecar's 'scheduling', if any)")
@@ -109,6 +117,9 @@ def run_diagnose(args: argparse.Namespace) -> int:
         raise DataError("give the columns --u, --y and --p (or a MODEL whose columns are used)")
     table = read_columns(data_path)  # the file is read once: the dataset and the candidates come from it
     data = Dataset.from_columns(table, Path(data_path).name, u, y, p, args.time, args.Ts)
+    controller = _controller(args)
+    if args.remove_trim:
+        data = replace(data, u=data.u - _trim(controller, data, table))
     if args.remove_offsets:
         data = data.remove_offsets()
     used = {*u, *y, *p, args.time if args.time != "auto" else time_column(table)}
@@ -122,10 +133,15 @@ def run_diagnose(args: argparse.Namespace) -> int:
     structure = (Structure.of_model(io) if io is not None else
                  Structure(parse_order(args.na or "2"), parse_order(args.nb or "2"),
                            parse_order(args.nk or "1"), args.basis or "affine"))
-    controller = load_controller(args.controller) if args.controller else None
+    setpoints = None
+    if isinstance(controller, GriddedController):
+        setpoints = np.column_stack([np.asarray(table[f"{name}_setpoint"], float)[: data.N]
+                                     if f"{name}_setpoint" in table else np.full(data.N, np.nan)
+                                     for name in controller.inputs])
     result = diagnose(data, structure, {c: table[c] for c in names}, split=args.split, causes=args.causes,
                       controller=controller, scheduling=_scheduling(args, data_path) if controller else None,
-                      model=io, progress=sys.stderr.isatty())
+                      model=io, progress=sys.stderr.isatty(), setpoints=setpoints,
+                      remove_trim=args.remove_trim)
     report = report_header("diagnosis") | {"model": model_path} | result.to_dict()
     report["extended_model"] = None
     if result.winner is not None:
@@ -143,6 +159,31 @@ def run_diagnose(args: argparse.Namespace) -> int:
         plot_diagnosis(result, data, args.plot, args.split)
     print(result.summary)
     return 0
+
+
+def _controller(args: argparse.Namespace) -> LtiController | GriddedController | None:
+    """``--controller``: an LTI or gridded controller file; ``--remove-trim`` needs one."""
+    if not args.controller:
+        if args.remove_trim:
+            raise DataError("--remove-trim takes the trim of the controller the data were recorded under: "
+                            "give --controller")
+        return None
+    controller = load_experiment_controller(args.controller)
+    if not isinstance(controller, LtiController | GriddedController):
+        raise DataError(f"--controller {args.controller}: diagnose runs lpvflow/lti-controller and "
+                        "lpvflow/gridded-controller files in the loop; give one of those")
+    return controller
+
+
+def _trim(controller: LtiController | GriddedController, data: Dataset, table: dict) -> np.ndarray:
+    """The controller's trim over the record (N, inputs of ``data``; 0 on inputs it does not drive)."""
+    missing = [name for name in controller.outputs if name not in data.u_names]
+    if missing:
+        raise DataError(f"--remove-trim: the controller drives {missing}, which are not inputs "
+                        f"{data.u_names}")
+    trim = np.zeros_like(data.u)
+    trim[:, [data.u_names.index(name) for name in controller.outputs]] = controller.trim_along(table, data.N)
+    return trim
 
 
 def _scheduling(args: argparse.Namespace, data_path: str) -> dict[str, str]:

@@ -79,7 +79,7 @@ from tqdm.auto import tqdm
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, LpvflowError, ModelError
-from lpvflow.experiment.controller import LtiController
+from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.identify.arx import prediction_residuals
 from lpvflow.lpvio import LPVIO
 from lpvflow.validate import residuals
@@ -446,8 +446,9 @@ def _delay_before_order(cause: str, candidates: dict[str, Candidate], ranked: li
 def diagnose(
     data: Dataset, structure: Structure, channels: dict[str, np.ndarray] | None = None,
     split: float = 0.5, alpha: float = 1e-3, min_gain: float = 1.0, causes: list[str] | None = None,
-    controller: LtiController | None = None, scheduling: Mapping[str, str] | None = None,
-    model: LPVIO | None = None, progress: bool = False,
+    controller: LtiController | GriddedController | None = None, scheduling: Mapping[str, str] | None = None,
+    model: LPVIO | None = None, progress: bool = False, setpoints: np.ndarray | None = None,
+    remove_trim: bool = False,
 ) -> Diagnosis:
     """Fit ``structure`` on the first ``split`` of ``data``, diagnose its validation simulation.
 
@@ -456,8 +457,10 @@ def diagnose(
         alpha: significance level of the validation-error test; min_gain: smallest BFR gain (points)
             that counts.
         causes: restrict the extensions tried (default: all of the vocabulary).
-        controller: the LTI controller the data were recorded under: every model is then simulated
-            in that loop (module docstring), the excitation recovered as u − K(y).
+        controller: the LTI or gridded controller the data were recorded under: every model is then
+            simulated in that loop (module docstring), the excitation recovered as u − K(y)
+            (:class:`~lpvflow.validate.closed_loop.Loop`; with ``data.offsets`` the controller reads the
+            outputs plus the removed means).
         scheduling: scheduling column → expression in the output names (the experiment's sidecar
             ``scheduling``), recomputed from the simulated outputs in the loop; columns without an
             expression are taken as recorded.
@@ -465,6 +468,9 @@ def diagnose(
             nominal model as it is — its validation simulation is the reported nominal fit — instead
             of the structure refitted on the estimation split; the extensions are fitted there.
         progress: show a tqdm bar over the extensions (the CLI does on a terminal).
+        setpoints: with ``controller``, its recorded set-points (N, outputs it reads; NaN where none).
+        remove_trim: with ``controller``, the data's inputs are the plant's minus the controller's trim
+            (``[identify] remove_trim``); every loop takes the trim at its own scheduling off the command.
     """
     channels = channels or {}
     for name, values in channels.items():
@@ -479,7 +485,8 @@ def diagnose(
         raise DataError(f"unknown cause(s) {unknown}; choose from {sorted(EXTENSIONS)}")
     k = est.N
     split_channels = {c: (np.asarray(v, float)[:k], np.asarray(v, float)[k:]) for c, v in channels.items()}
-    loop = Loop.from_record(data, controller, scheduling) if controller is not None else None
+    loop = (Loop.from_record(data, controller, scheduling, setpoints, remove_trim)
+            if controller is not None else None)
     if model is None:
         basis = structure.basis_for(data.p.shape[1])
         nominal = fit(est, val, structure.na, structure.nb, structure.nk, basis, structure.form,

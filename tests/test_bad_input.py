@@ -212,6 +212,8 @@ CASES: dict[str, tuple[str, str]] = {
                                    "speed"),
     "diagnose data as controller": ("diagnose {d}/data.csv --u volt --y level --p theta --controller "
                                     "{d}/data.csv", "is not valid JSON"),
+    "diagnose lpv controller": ("diagnose {d}/data.csv --u volt --y level --p theta --controller "
+                                "{d}/k.json", "diagnose --controller runs"),
     "diagnose bad basis": ("diagnose {d}/data.csv --u volt --y level --p theta --basis round",
                            "bad basis spec"),
     # ---------------------------------------------------------------------------------------- synth

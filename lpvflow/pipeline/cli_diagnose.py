@@ -13,10 +13,10 @@ import numpy as np
 
 from lpvflow.data import Dataset, read_columns, time_column
 from lpvflow.errors import DataError, ModelError
-from lpvflow.experiment.controller import GriddedController, LtiController
-from lpvflow.experiment.loader import load_experiment_controller
+from lpvflow.experiment.controller import FORMAT, GRIDDED_FORMAT, GriddedController, LtiController
 from lpvflow.experiment.run import sidecar_path
 from lpvflow.experiment.scheduling import parse_assignment
+from lpvflow.loop.loader import load_controller_file
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import LPVSS, atomic_write_json, load, report_header
 from lpvflow.pipeline.cli_identify import parse_order
@@ -133,8 +133,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
     structure = (Structure.of_model(io) if io is not None else
                  Structure(parse_order(args.na or "2"), parse_order(args.nb or "2"),
                            parse_order(args.nk or "1"), args.basis or "affine"))
-    setpoints = None
-    if isinstance(controller, GriddedController):
+    setpoints = None  # the recorded set-points; a law that takes none as references ignores them
+    if controller is not None:
         setpoints = np.column_stack([np.asarray(table[f"{name}_setpoint"], float)[: data.N]
                                      if f"{name}_setpoint" in table else np.full(data.N, np.nan)
                                      for name in controller.inputs])
@@ -168,11 +168,7 @@ def _controller(args: argparse.Namespace) -> LtiController | GriddedController |
             raise DataError("--remove-trim takes the trim of the controller the data were recorded under: "
                             "give --controller")
         return None
-    controller = load_experiment_controller(args.controller)
-    if not isinstance(controller, LtiController | GriddedController):
-        raise DataError(f"--controller {args.controller}: diagnose runs lpvflow/lti-controller and "
-                        "lpvflow/gridded-controller files in the loop; give one of those")
-    return controller
+    return load_controller_file(args.controller, (FORMAT, GRIDDED_FORMAT), "diagnose --controller")
 
 
 def _trim(controller: LtiController | GriddedController, data: Dataset, table: dict) -> np.ndarray:

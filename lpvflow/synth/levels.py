@@ -53,7 +53,13 @@ def lowest_certified_level(certified: Callable[[float], Any | None], start: floa
                 failed = gamma
             else:
                 best, k = better, k + 1
-    floor = failed if failed is not None else 0.0
+    return bisect_levels(certified, failed if failed is not None else 0.0, best, suboptimality)
+
+
+def bisect_levels(certified: Callable[[float], Any | None], floor: float, best: Any, suboptimality: float
+                  ) -> Any:
+    """Step 3 of the module docstring: geometric bisection between ``floor`` (a failing level or a proven
+    lower bound; 0: none) and ``best`` (a passing result) to a relative width δ = ``suboptimality``."""
     while floor > 0 and best.gamma / floor > 1 + suboptimality:
         mid = float(np.sqrt(floor * best.gamma))
         better = certified(mid)

@@ -41,7 +41,9 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
    at most :data:`MAX_REBALANCE` times. There step 5's strictness is relative: ⪯ −t·D_i, D_i = |diag| of
    that level's matrix i written in the new coordinates (the congruence diag(T⁻¹, Tᵀ, I) of its rows
    [R-side; S-side; w, z]), floored at 1e-9 of its largest entry, so a lightly damped direction whose
-   diagonal is small is not held to the margin of the largest one.
+   diagonal is small is not held to the margin of the largest one. When no other coordinates give a lower
+   passing level, the bracket of the starting coordinates (their highest failing level, the passing one)
+   is bisected there (:func:`lpvflow.synth.levels.bisect_levels`).
 5. **Certified level.** The change-of-variables LMIs of Scherer, Gahinet & Chilali (1997, eq. (33)),
    per vertex with common R, S and vertex variables (Â_i, B̂_i, Ĉ_i, D̂_i),
 
@@ -69,7 +71,7 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import control
@@ -87,7 +89,7 @@ from lpvflow.synth.bilinear import (
 )
 from lpvflow.synth.controller import LPVController, mix
 from lpvflow.synth.eliminated import estimate, infeasible_at, preconditioned, sym
-from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
+from lpvflow.synth.levels import GAMMA_MAX, bisect_levels, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
 from lpvflow.synth.riccati import riccati_gamma
 from lpvflow.synth.sdp import SolveReport, solve
@@ -290,44 +292,68 @@ class _Search:
     no_point: list[str] = field(default_factory=list)
     infeasible: int = 0
     rejected: int = 0
+    failed_levels: list[float] = field(default_factory=list)  # of the latest run
 
     def run(self, coords: Coordinates, start: float, suboptimality: float, gamma_max: float,
             rebalance: bool, scales: list[np.ndarray] | None) -> tuple[HinfResult | None, _Rebalance | None]:
         """:func:`lowest_certified_level` in ``coords`` (strictness ``scales``, :class:`_LevelProblem`):
         the lowest passing result, or with ``rebalance`` the first passing one whose R, S are further from
         balanced than cond REBALANCE_CONDITION, with the state transform that balances them and the scales
-        there (else None): the levels below it are better searched there."""
+        there (else None): the levels below it are better searched there. ``failed_levels`` holds the
+        levels of this run that did not pass."""
+        self.failed_levels = []
+        certified = self._certifier(coords, rebalance, scales)
+        try:
+            return lowest_certified_level(certified, start, suboptimality, gamma_max, self.gamma_lower), None
+        except _Unbalanced as found:
+            return found.result, found.rebalance
+
+    def bisect(self, coords: Coordinates, floor: float, best: HinfResult, suboptimality: float,
+               scales: list[np.ndarray] | None) -> HinfResult:
+        """:func:`bisect_levels` in ``coords`` between the failing level ``floor`` and ``best``."""
+        return bisect_levels(self._certifier(coords, False, scales), floor, best, suboptimality)
+
+    def _certifier(self, coords: Coordinates, rebalance: bool, scales: list[np.ndarray] | None
+                   ) -> Callable[[float], HinfResult | None]:
+        """γ ↦ the certified result of the level SDP in ``coords``, or None (recorded as failed); with
+        ``rebalance`` a passing level whose R, S call for other coordinates raises :class:`_Unbalanced`."""
         level = _LevelProblem([coords.apply(vc) for vc in self.cayleys], scales)
 
         def certified(gamma: float) -> HinfResult | None:
-            try:
-                level_report = level.solve(gamma, self.solver)
-            except SynthesisError as exc:
-                self.attempts.append((self.solver.upper(), exc.category, 0.0))
-                if exc.category == "infeasible":
-                    self.infeasible += 1
-                else:
-                    self.no_point.append(str(exc))
-                return None
-            self.attempts += level_report.attempts
-            try:
-                result = _reconstruct(self.vertices, level, coords, gamma, self.gamma_lower, self.Ts,
-                                      level_report)
-            except np.linalg.LinAlgError:
-                self.rejected += 1
-                return None
-            if min(result.certificate) <= 0:
-                self.rejected += 1
+            result = self._level(level, coords, gamma)
+            if result is None:
+                self.failed_levels.append(gamma)
                 return None
             T = balancing_transform(level.R.value, level.S.value) if rebalance else None
             if T is not None and np.linalg.cond(T) > REBALANCE_CONDITION:
                 raise _Unbalanced(result, _Rebalance(T, _scales_in(level, T)))
             return result
 
+        return certified
+
+    def _level(self, level: _LevelProblem, coords: Coordinates, gamma: float) -> HinfResult | None:
+        """The SDP at γ and the controller rebuilt from it when it passes the certificate, else None (the
+        failure counted by kind)."""
         try:
-            return lowest_certified_level(certified, start, suboptimality, gamma_max, self.gamma_lower), None
-        except _Unbalanced as found:
-            return found.result, found.rebalance
+            level_report = level.solve(gamma, self.solver)
+        except SynthesisError as exc:
+            self.attempts.append((self.solver.upper(), exc.category, 0.0))
+            if exc.category == "infeasible":
+                self.infeasible += 1
+            else:
+                self.no_point.append(str(exc))
+            return None
+        self.attempts += level_report.attempts
+        try:
+            result = _reconstruct(self.vertices, level, coords, gamma, self.gamma_lower, self.Ts,
+                                  level_report)
+        except np.linalg.LinAlgError:
+            self.rejected += 1
+            return None
+        if min(result.certificate) <= 0:
+            self.rejected += 1
+            return None
+        return result
 
 
 class _Unbalanced(Exception):  # a control-flow signal of _Search.run, never raised to users
@@ -376,6 +402,8 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     search = _Search(vertices, cayleys, Ts, solver, pre.gamma_lower, list(pre.attempts))
     coords = pre.coordinates
     best, rebalance = search.run(coords, min(estimate.gamma, gamma_max), suboptimality, gamma_max, True, None)
+    first, interrupted = (coords, best), rebalance is not None
+    first_floor = max((g for g in search.failed_levels if best is not None and g < best.gamma), default=0.0)
     for round_ in range(MAX_REBALANCE):
         if rebalance is None:
             break
@@ -387,6 +415,8 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
         again, rebalance = search.run(coords, min(start_again, best.gamma), suboptimality, best.gamma,
                                       round_ + 1 < MAX_REBALANCE, rebalance.scales)
         best = again if again is not None and again.gamma < best.gamma else best
+    if interrupted and best is first[1] and first_floor > 0:  # no other coordinates did better: bisect here
+        best = search.bisect(first[0], first_floor, best, suboptimality, None)
     if best is None:
         if infeasible_at(pre.vertices, gamma_max, solver):
             category = "infeasible"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 
 from lpvflow.errors import DataError
 from lpvflow.experiment import run_fmu_experiment
@@ -11,45 +10,20 @@ from lpvflow.experiment.record import check_output_path, sidecar_path, write_rec
 from lpvflow.experiment.scheduling import parse_assignment
 from lpvflow.experiment.specs import __doc__ as SPEC_HELP
 from lpvflow.pipeline.cli_paths import declare
-
-
-def _assignments(items: list[str] | None, what: str, example: str) -> dict[str, str]:
-    """Repeated ``NAME=VALUE`` options -> dict; the value may itself contain '='."""
-    result: dict[str, str] = {}
-    for item in items or []:
-        name, eq, value = item.partition("=")
-        name, value = name.strip(), value.strip()
-        if not eq or not name or not value:
-            raise DataError(f"{what} {item!r} must read NAME=VALUE, e.g. {example}")
-        if name in result:
-            raise DataError(f"{what} for {name!r} given twice")
-        result[name] = value
-    return result
-
-
-def _numbers(items: dict[str, str], option: str = "--set") -> dict[str, float]:
-    values = {}
-    for name, text in items.items():
-        try:
-            values[name] = float(text)
-        except ValueError:
-            raise DataError(f"{option} {name}={text!r}: the value is not a number") from None
-        if not math.isfinite(values[name]):
-            raise DataError(f"{option} {name}={text}: the value must be finite")
-    return values
+from lpvflow.pipeline.cli_values import assignments, numbers
 
 
 def run(args: argparse.Namespace) -> int:
     inputs_of_run = [args.fmu, *([args.controller] if args.controller else [])]
     check_output_path(args.output, inputs_of_run)  # before the run: a wrong name costs nothing
-    inputs = _assignments(args.input, "--input", "throttle=multisine:f_lo=0.1,f_hi=5,rms=0.1")
-    excitation = _assignments(args.excitation, "--excitation", "voltage=multisine:f_lo=0.1,f_hi=5,rms=0.2")
-    setpoint = _assignments(args.setpoint, "--setpoint",
+    inputs = assignments(args.input, "--input", "throttle=multisine:f_lo=0.1,f_hi=5,rms=0.1")
+    excitation = assignments(args.excitation, "--excitation", "voltage=multisine:f_lo=0.1,f_hi=5,rms=0.2")
+    setpoint = assignments(args.setpoint, "--setpoint",
                             "arm_angle=levels:lo=-0.3,hi=0.3,min_hold=2,max_hold=4,ramp=0.5")
-    parameters = _numbers(_assignments(args.set, "--set", "effect_noise_std=0.01"))
-    quantization = _numbers(_assignments(args.quantization, "--quantization", "arm_angle=0.001534"),
+    parameters = numbers(assignments(args.set, "--set", "effect_noise_std=0.01"), "--set")
+    quantization = numbers(assignments(args.quantization, "--quantization", "arm_angle=0.001534"),
                             "--quantization")
-    noise = _numbers(_assignments(args.noise, "--noise", "arm_angle=1e-4"), "--noise")
+    noise = numbers(assignments(args.noise, "--noise", "arm_angle=1e-4"), "--noise")
     scheduling = None
     if args.scheduling:
         scheduling = dict(parse_assignment(item) for item in args.scheduling)

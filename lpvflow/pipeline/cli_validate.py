@@ -26,12 +26,12 @@ import numpy as np
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment.controller import FORMAT as LTI_CONTROLLER_FORMAT
-from lpvflow.experiment.scheduling import parse_assignment
 from lpvflow.loop.loader import LPV_FORMAT, load_controller_file
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import LPVSS, atomic_write_json, load, report_header
 from lpvflow.pipeline.cli_identify import add_data_arguments, simulate_any
 from lpvflow.pipeline.cli_paths import check_paths, declare
+from lpvflow.pipeline.cli_values import assignments, numbers
 from lpvflow.validate.fmu_reference import FmuLinearization, FmuLocalModels
 from lpvflow.validate.frozen import compare_frozen, scheduling_grid
 from lpvflow.validate.metrics import fit_report
@@ -176,8 +176,8 @@ def _reference(args: argparse.Namespace, model: LPVSS) -> tuple[object, str | No
         if not args.fmu_scheduling or len(args.fmu_scheduling) != model.basis.n_p:
             raise DataError("an FMU reference needs --fmu-scheduling with one expression per scheduling "
                             f"signal of the model ({model.basis.n_p}), e.g. --fmu-scheduling diag_scheduling")
-        start = _numbers("--fmu-start", args.fmu_start)
-        hold = _numbers("--fmu-hold", args.fmu_hold)
+        start, hold = (numbers(assignments(texts, option, "lower_disk_position=0.015"), option)
+                       for option, texts in (("--fmu-start", args.fmu_start), ("--fmu-hold", args.fmu_hold)))
         kind = FmuLinearization if args.fmu_reference == "linearization" else FmuLocalModels
         reference = kind(args.reference, model.Ts, args.fmu_scheduling, start, hold=hold)
         return reference, (f"{args.reference} ({args.fmu_reference} at equilibria with scheduling "
@@ -191,18 +191,6 @@ def _reference(args: argparse.Namespace, model: LPVSS) -> tuple[object, str | No
                          f"scheduling signal(s), the model {model.ny}x{model.nu} with {model.basis.n_p}; "
                          "give a matching one")
     return reference, f"{args.reference} (frozen LPV model)"
-
-
-def _numbers(option: str, texts: list[str]) -> dict[str, float]:
-    """NAME=VALUE assignments of ``option`` as a name → number map."""
-    values = {}
-    for text in texts:
-        name, value = parse_assignment(text)
-        try:
-            values[name] = float(value)
-        except ValueError:
-            raise DataError(f"{option} {text!r}: {value!r} is not a number") from None
-    return values
 
 
 def _frozen_callable(reference: object) -> object:

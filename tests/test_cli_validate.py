@@ -170,7 +170,7 @@ def test_fmu_reference_gives_the_gap_to_the_linearization(tanks_model, tmp_path)
         (["--reference", "{fmu}", "--fmu-scheduling", "diag_scheduling", "--fmu-hold", "nowhere=0.1",
           "--json", "{out}"], "held outputs nowhere are not outputs"),
         (["--reference", "{fmu}", "--fmu-scheduling", "diag_scheduling", "--fmu-hold", "lower_level=high",
-          "--json", "{out}"], "'high' is not a number"),
+          "--json", "{out}"], "lower_level='high': the value is not a number"),
         (["--reference", "{model}", "--fmu-hold", "lower_level=0.1", "--json", "{out}"],
          "apply only to an FMU reference"),
         (["--controller", "{model}", "--json", "{out}"], "holds no controller"),

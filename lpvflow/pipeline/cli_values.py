@@ -29,7 +29,7 @@ def numbers(items: dict[str, str], option: str) -> dict[str, float]:
         try:
             values[name] = float(text)
         except ValueError:
-            raise DataError(f"{option} {name}={text}: {text!r} is not a number") from None
+            raise DataError(f"{option} {name}={text!r}: the value is not a number") from None
         if not math.isfinite(values[name]):
             raise DataError(f"{option} {name}={text}: the value must be finite")
     return values

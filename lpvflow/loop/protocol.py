@@ -268,9 +268,18 @@ class GriddedLaw(_TrackingSetpoints):
 
     def reset(self) -> None:
         self._x = np.zeros(self.K.order)
+        self._matrices: tuple[float, tuple[np.ndarray, ...]] | None = None
+
+    def _at(self, p: np.ndarray) -> tuple[np.ndarray, ...]:
+        """K.at(θ = p[0]), interpolated once per θ: a loop asks for it up to three times a sample
+        (:meth:`output`, :meth:`step`, :meth:`trim`)."""
+        theta = float(p[0])
+        if self._matrices is None or self._matrices[0] != theta:
+            self._matrices = theta, self.K.at(theta)
+        return self._matrices[1]
 
     def step(self, r: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray:
-        A, B, C, D, y_op, u_op = self.K.at(p[0])
+        A, B, C, D, y_op, u_op = self._at(p)
         dy = y - _held(r, y_op)
         u = u_op + C @ self._x + D @ dy
         self._x = A @ self._x + B @ dy
@@ -279,11 +288,11 @@ class GriddedLaw(_TrackingSetpoints):
     def output(self, r: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray:
         """u(k) at the present state without advancing it (a plant with direct feedthrough:
         :func:`lpvflow.loop.engine.close_loop`)."""
-        _, _, C, D, y_op, u_op = self.K.at(p[0])
+        _, _, C, D, y_op, u_op = self._at(p)
         return u_op + C @ self._x + D @ (y - _held(r, y_op))
 
     def trim(self, p: np.ndarray) -> np.ndarray:
-        return self.K.at(p[0])[5]
+        return self._at(p)[5]
 
     def check_plant(self, output_names: Sequence[str], input_names: Sequence[str], model: str) -> None:
         check_signals(self, output_names, input_names, model)

@@ -12,19 +12,16 @@ column φ̃_m — one compiled recursion over all the parameters of an output (:
 Started from IV-OE (thesis Alg. 4.1), which is consistent, so the local search starts in the right
 basin.
 
-The search is Levenberg–Marquardt (:func:`levenberg_marquardt`) on the normal equations of the
-column-scaled Jacobian: with N·ny residuals and a hundred parameters, forming JᵀJ costs a few
-milliseconds where the SVD of J that ``scipy.optimize.least_squares``' trust-region step takes costs
-30 times as much (2×2 maglev refit: most of the search's time).
+The search is MINPACK's Levenberg–Marquardt (``scipy.optimize.least_squares(method="lm")``, variables
+scaled by the Jacobian's column norms): a QR of J per Jacobian, where the trust-region method's step took an
+SVD of J (2×2 maglev refit: most of the search's time).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numba
 import numpy as np
-import scipy.linalg
+import scipy.optimize
 
 from lpvflow.basis import Basis
 from lpvflow.data import Dataset
@@ -80,56 +77,6 @@ def _filtered_columns(phi: np.ndarray, psi: np.ndarray, A: np.ndarray, shifted: 
     return out
 
 
-def levenberg_marquardt(residual: Callable[[np.ndarray], np.ndarray],
-                        jacobian: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, max_nfev: int,
-                        xtol: float, ftol: float = 1e-8, gtol: float = 1e-8) -> np.ndarray:
-    """Minimise ½‖f(x)‖² by Levenberg–Marquardt with Nielsen's damping update (Madsen, Nielsen &
-    Tingleff 2004, "Methods for non-linear least squares problems", Sec. 3.2, Alg. 3.16).
-
-    In the variables scaled by the Jacobian's column norms D (non-decreasing over the iterations, as
-    ``least_squares``' ``x_scale="jac"``), J_h = J D⁻¹, the step h solves (J_hᵀJ_h + μI) h = −J_hᵀf through
-    the eigendecomposition J_hᵀJ_h = V diag(w) Vᵀ (one per Jacobian, every trial μ then costs a
-    product); a step is taken when the cost drops, μ ← μ·max(1/3, 1 − (2ρ − 1)³) with ρ the actual over
-    the predicted reduction, else μ ← μ·ν, ν ← 2ν. μ₀ = 10⁻³·max w. Stops after ``max_nfev`` evaluations
-    of f, or when a step changes the cost by less than ``ftol``·cost, moves x by less than
-    ``xtol``·(``xtol`` + ‖x‖), or ‖Jᵀf‖∞ < ``gtol`` (``least_squares``' tests).
-    """
-    x, f = np.array(x0, dtype=float), residual(x0)
-    cost, nfev, scale, mu, nu = 0.5 * f @ f, 1, np.zeros(len(x0)), None, 2.0
-    while nfev < max_nfev:
-        J = jacobian(x)
-        scale = np.maximum(scale, np.linalg.norm(J, axis=0))
-        d = 1.0 / np.where(scale > 0, scale, 1.0)
-        J_h = J * d
-        g_h = J_h.T @ f
-        if np.linalg.norm(g_h / d, np.inf) < gtol:
-            break
-        w, V = scipy.linalg.eigh(J_h.T @ J_h)
-        w = np.maximum(w, 0.0)
-        g_v = V.T @ g_h
-        mu = 1e-3 * w[-1] if mu is None else mu
-        while nfev < max_nfev:
-            q = -g_v / (w + mu)
-            step = d * (V @ q)
-            f_new = residual(x + step)
-            nfev += 1
-            cost_new = 0.5 * f_new @ f_new
-            predicted = -(g_v @ q + 0.5 * (w * q) @ q)
-            if cost_new < cost:
-                rho = (cost - cost_new) / predicted if predicted > 0 else 1.0
-                mu, nu = mu * max(1 / 3, 1 - (2 * rho - 1) ** 3), 2.0
-                converged = (cost - cost_new < ftol * cost
-                             or np.linalg.norm(step) < xtol * (xtol + np.linalg.norm(x)))
-                x, f, cost = x + step, f_new, cost_new
-                break
-            mu, nu = mu * nu, 2 * nu
-        else:
-            break
-        if converged:
-            break
-    return x
-
-
 def identify_oe(data: Dataset, na: int | np.ndarray, nb: int | np.ndarray, nk: int | np.ndarray,
                 basis: Basis | str = "affine", form: str = "shifted", init: LPVIO | None = None,
                 max_nfev: int = 50, xtol: float = 1e-10) -> LPVIO:
@@ -138,7 +85,7 @@ def identify_oe(data: Dataset, na: int | np.ndarray, nb: int | np.ndarray, nk: i
     Args:
         init: starting model with the same structure (default: IV-OE on the same data).
         max_nfev, xtol: evaluations of the simulation error and step tolerance of the search
-            (:func:`levenberg_marquardt`).
+            (``scipy.optimize.least_squares``, method "lm").
 
     Returns:
         The minimising :class:`LPVIO`; ``noise_cov`` is the simulation-error covariance.
@@ -169,7 +116,9 @@ def identify_oe(data: Dataset, na: int | np.ndarray, nb: int | np.ndarray, nk: i
         jac = -sensitivities(struct, io, y_sim, data.u, psi)[start:].reshape(-1, len(x))
         return np.where(np.isfinite(jac), jac, 0.0)
 
-    io, y_sim = simulate(levenberg_marquardt(residual, jacobian, x0, max_nfev, xtol))
+    sol = scipy.optimize.least_squares(residual, x0, jac=jacobian, method="lm", x_scale="jac",
+                                       max_nfev=max_nfev, xtol=xtol)
+    io, y_sim = simulate(sol.x)
     err = (data.y - y_sim)[start:]
     if not np.isfinite(err).all():
         raise ModelError("output-error search ended on a model whose simulation diverges; "

@@ -183,8 +183,10 @@ def loop_shaping(plants: Sequence[object], W1: Sequence[object], W2: object, *,
     else:
         result = hinfsyn(generalized, p, m, breakpoints=breakpoints, rate_bound=rate_bound, **hinfsyn_options)
     Ts = shaped[0].dt
-    K_vertices = result.K_vertices if breakpoints is not None else [
-        in_plant_coordinates(K, result.lyapunov_factor.T @ result.lyapunov_factor) for K in result.K_vertices]
+    K_vertices = result.K_vertices
+    if breakpoints is None:  # one certificate 𝒳 = FᵀF for every vertex
+        lyapunov = result.lyapunov_factor.T @ result.lyapunov_factor
+        K_vertices = [in_plant_coordinates(K, lyapunov) for K in K_vertices]
     K_inf = [control.ss(*K, Ts) for K in K_vertices]
     W2 = as_statespace(W2, "W2")
     feedback = [as_statespace(W, "W1") * K * W2 for W, K in zip(W1, K_inf, strict=True)]

@@ -402,7 +402,7 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     search = _Search(vertices, cayleys, Ts, solver, pre.gamma_lower, list(pre.attempts))
     coords = pre.coordinates
     best, rebalance = search.run(coords, min(estimate.gamma, gamma_max), suboptimality, gamma_max, True, None)
-    first, interrupted = (coords, best), rebalance is not None
+    first_coords, first_best, interrupted = coords, best, rebalance is not None
     first_floor = max((g for g in search.failed_levels if best is not None and g < best.gamma), default=0.0)
     for round_ in range(MAX_REBALANCE):
         if rebalance is None:
@@ -415,8 +415,8 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
         again, rebalance = search.run(coords, min(start_again, best.gamma), suboptimality, best.gamma,
                                       round_ + 1 < MAX_REBALANCE, rebalance.scales)
         best = again if again is not None and again.gamma < best.gamma else best
-    if interrupted and best is first[1] and first_floor > 0:  # no other coordinates did better: bisect here
-        best = search.bisect(first[0], first_floor, best, suboptimality, None)
+    if interrupted and best is first_best and first_floor > 0:  # no other coordinates did better
+        best = search.bisect(first_coords, first_floor, best, suboptimality, None)
     if best is None:
         if infeasible_at(pre.vertices, gamma_max, solver):
             category = "infeasible"

@@ -215,11 +215,13 @@ def _present(k, u_k, y_k, A, B, exponents, signal, knot, p, computed, codes, arg
         v[k, a] = value
     for e in range(n_extra):
         v[k, nu + e] = extra[k, e]
-    if sign_of >= 0:
+    if sign_of >= 0:  # velocity_sign of the simulated output; none before the first sample
         now = y_k[sign_of]
-        before = y_model[k - 1, sign_of] if k >= 1 else now
-        earlier = y_model[k - 2, sign_of] if k >= 2 else (y_model[0, sign_of] if k == 1 else now)
-        v[k, nu + n_extra] = np.sign(2 * now - 3 * before + earlier)
+        if k == 0:
+            v[k, nu + n_extra] = 0.0
+        else:
+            earlier = y_model[k - 2, sign_of] if k >= 2 else y_model[0, sign_of]
+            v[k, nu + n_extra] = np.sign(2 * now - 3 * y_model[k - 1, sign_of] + earlier)
     direct = np.zeros(ny)
     for r in range(ny):
         acc = 0.0

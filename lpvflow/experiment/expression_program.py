@@ -127,3 +127,13 @@ def run_program(codes: np.ndarray, arguments: np.ndarray, sample: np.ndarray, st
                 r = np.tanh(a)
             stack[top - 1] = r
     return stack[0]
+
+
+@numba.njit(cache=True)
+def program_values(codes: np.ndarray, arguments: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """The program's value on every row of ``samples`` (n, signals)."""
+    stack = np.empty(codes.shape[0] + 1)
+    values = np.empty(samples.shape[0])
+    for k in range(samples.shape[0]):
+        values[k] = run_program(codes, arguments, samples[k], stack)
+    return values

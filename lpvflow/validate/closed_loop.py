@@ -31,7 +31,7 @@ the loop's signals the same way.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -40,8 +40,7 @@ from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import GriddedController, LtiController
-from lpvflow.experiment.expression_program import expression_program
-from lpvflow.experiment.scheduling import compile_expression
+from lpvflow.experiment.expression_program import expression_program, program_values
 from lpvflow.loop.protocol import LoopController
 from lpvflow.lpvio import LPVIO
 from lpvflow.validate.loop_recursion import (
@@ -185,7 +184,7 @@ class InLoopModel:
                             "velocity sign)")
         u_index, computed = _wiring(data, loop)
         columns = [i for i, _ in computed]
-        programs = [expression_program(loop.scheduling[data.p_names[i]], data.y_names) for i in columns]
+        programs = [program for _, program in computed]
         codes = np.concatenate([c for c, _ in programs] + [np.zeros(0, np.int64)])
         arguments = np.concatenate([a for _, a in programs] + [np.zeros(0)])
         starts = np.cumsum([0] + [len(c) for c, _ in programs]).astype(np.int64)
@@ -250,8 +249,9 @@ def loop_signals(y: np.ndarray, data: Dataset, loop: Loop) -> tuple[np.ndarray, 
     u_index, computed = _wiring(data, loop)
     u, p = data.u.copy(), data.p.copy()
     u[:, u_index] = _commands(loop, y, data) + loop.excitation[: data.N]
-    for i, expression in computed:
-        p[:, i] = [expression(row) for row in loop.plant_outputs(y)]
+    plant = np.ascontiguousarray(loop.plant_outputs(np.asarray(y, float)))
+    for i, program in computed:
+        p[:, i] = program_values(*program, plant)
     return u, p
 
 
@@ -274,10 +274,11 @@ def _references(loop: Loop, n: int) -> np.ndarray:
     return loop.references[:n]
 
 
-def _wiring(data: Dataset, loop: Loop) -> tuple[list[int], list[tuple[int, Callable]]]:
+def _wiring(data: Dataset, loop: Loop) -> tuple[list[int], list[tuple[int, tuple[np.ndarray, np.ndarray]]]]:
     """Columns of the controller's driven inputs in ``data.u``, and the scheduling columns recomputed in
-    the loop with their compiled expressions."""
+    the loop with their expressions' programs in the output names
+    (:func:`~lpvflow.experiment.expression_program.expression_program`)."""
     u_index = [data.u_names.index(name) for name in loop.controller.outputs]
-    computed = [(i, compile_expression(loop.scheduling[name], data.y_names))
+    computed = [(i, expression_program(loop.scheduling[name], data.y_names))
                 for i, name in enumerate(data.p_names) if name in loop.scheduling]
     return u_index, computed

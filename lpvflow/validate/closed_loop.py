@@ -128,8 +128,8 @@ def simulate_in_loop(
     The model's input vector is [input_map(u(k)), exogenous(k), sign(y_i(k) − y_i(k−1))] with u the
     plant input (controller output + excitation on the driven inputs, recorded values on the others),
     the last term only with ``sign_of`` = i (Coulomb friction against the motion of output i:
-    :func:`velocity_sign` of the simulated output). A model whose closed loop diverges gets ``inf``
-    from then on.
+    :func:`velocity_sign` of the simulated output, 0 at the first sample). A model whose closed loop
+    diverges gets ``inf`` from then on.
 
     Shifted (LPR) form only: the coefficient of lag j is evaluated at ψ(p(k−j)), so y(k) follows
     from the past; a lag-0 term, B_0(ψ(k)) v(k), is resolved by three fixed-point passes (p(k) and

@@ -92,11 +92,6 @@ class Loop:
         u_index = [data.u_names.index(n) for n in controller.outputs]
         return replace(loop, excitation=data.u[:, u_index] - _commands(loop, data.y, data))
 
-    def command(self, law: LoopController, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """The command in the model's input coordinates: ``u_c`` less the trim at θ = ``p`` when the
-        trim is removed."""
-        return u_c - law.trim(p) if self.trim_removed else u_c
-
     def plant_outputs(self, y: np.ndarray) -> np.ndarray:
         """The data's outputs ``y`` in the plant's signals (the removed output means added back)."""
         return y if self.output_offset is None else y + self.output_offset
@@ -258,7 +253,7 @@ def loop_signals(y: np.ndarray, data: Dataset, loop: Loop) -> tuple[np.ndarray, 
 def _commands(loop: Loop, y: np.ndarray, data: Dataset) -> np.ndarray:
     """(N, len(controller.outputs)) commands of ``loop``'s controller run from rest on the outputs ``y``
     (N, ny) (names ``data.y_names``, in the plant's signals :meth:`Loop.plant_outputs`) and the loop's
-    references, less the trim when it is removed (:meth:`Loop.command`); NaN after a non-finite command
+    references, less the trim u_op(θ) when it is removed; NaN after a non-finite command
     (:func:`lpvflow.validate.loop_recursion.controller_commands`)."""
     read = [data.y_names.index(name) for name in loop.controller.inputs]
     read_outputs = np.ascontiguousarray(loop.plant_outputs(np.asarray(y, float))[:, read])

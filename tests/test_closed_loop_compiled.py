@@ -19,7 +19,7 @@ from lpvflow.experiment.expression_program import CALLS, expression_program, run
 from lpvflow.experiment.scheduling import CONSTANTS, FUNCTIONS, compile_expression
 from lpvflow.lpvio import LPVIO
 from lpvflow.validate.closed_loop import InputMap, Loop, loop_signals, simulate_in_loop
-from lpvflow.validate.signal_maps import dead_zone, saturation
+from lpvflow.validate.signal_maps import saturation
 
 BASES = ("affine", "poly:2", "spline:-0.5,0.5")
 
@@ -94,11 +94,11 @@ def test_an_lti_model_in_an_lti_loop_is_the_frozen_loops_response(seed):
 
 
 def reference_loop(model: LPVIO, data: Dataset, K: GriddedController, r: np.ndarray, s: np.ndarray,
-                   offset: np.ndarray, trim_removed: bool, map_level: float, sign_of: int,
+                   offset: np.ndarray, trim_removed: bool, input_map: InputMap, sign_of: int,
                    extra: np.ndarray, passes: int) -> np.ndarray:
     """The loop's equations sample by sample in plain numpy: p(k) = sin(y0 + offset0) + 0.5 (y1 + offset1)
     of the output last given; θ = y1 + 0.3·s; ȳ = y_op(θ) or s where given; u_c from (A, B, C, D, y_op,
-    u_op) interpolated at θ (K.at); u = u_c − trim + r; v = [deadzone(u0), u1, extra, velocity sign], the
+    u_op) interpolated at θ (K.at); u = u_c − trim + r; v = [input_map(u), extra, velocity sign], the
     sign of 2 y(k) − 3 y(k−1) + y(k−2) (missing past samples: the first one; 0 at k = 0)."""
     n, ny = data.N, data.y.shape[1]
     y_model, v_hist, psi_hist = np.zeros((n, ny)), [], []
@@ -118,7 +118,7 @@ def reference_loop(model: LPVIO, data: Dataset, K: GriddedController, r: np.ndar
         p = np.sin(y_last[0] + offset[0]) + 0.5 * (y_last[1] + offset[1])
         vel = 0.0 if k == 0 else np.sign(2 * y_last[sign_of] - 3 * y_model[k - 1, sign_of]
                                          + y_model[max(k - 2, 0), sign_of])
-        return basis_at(model, p), np.concatenate([[dead_zone(u[0], map_level)], u[1:], extra[k], [vel]])
+        return basis_at(model, p), np.concatenate([input_map(u), extra[k], [vel]])
 
     for k in range(n):
         past = np.zeros(ny)
@@ -145,12 +145,12 @@ def basis_at(model: LPVIO, p: float) -> np.ndarray:
     return model.basis.eval(np.array([[p]]), check_range=False)[0]
 
 
-@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("seed", range(8))
 def test_a_scheduled_loop_follows_its_equations_sample_by_sample(seed):
     """A gridded controller scheduled on an output and its set-point (NaN set-points in part), a
-    scheduling column computed from the outputs, removed output offsets and trim, a dead zone on the first
-    input, an exogenous input and the velocity sign of an output, with or without a lag-0 term: the
-    compiled loop equals :func:`reference_loop` over 60 samples."""
+    scheduling column computed from the outputs, removed output offsets and trim, a dead zone or a
+    saturation on an input, an exogenous input and the velocity sign of an output, with or without a
+    lag-0 term: the compiled loop equals :func:`reference_loop` over 60 samples."""
     rng = np.random.default_rng(1000 + seed)
     n, ny, nu, nx, G = 60, 2, 2, int(rng.integers(1, 4)), int(rng.integers(1, 5))
     grid = np.sort(rng.uniform(-0.5, 0.5, G)) + np.arange(G) * 1e-3
@@ -166,11 +166,11 @@ def test_a_scheduled_loop_follows_its_equations_sample_by_sample(seed):
                    0.01, ["u0", "u1"], ["y0", "y1"], ["p"])
     offset = 0.2 * rng.standard_normal(ny)
     s = np.where(rng.uniform(size=(n, ny)) < 0.4, np.nan, 0.1 * rng.standard_normal((n, ny)))
-    r, extra, level = rng.standard_normal((n, nu)), rng.standard_normal((n, 1)), 0.3
+    r, extra = rng.standard_normal((n, nu)), rng.standard_normal((n, 1))
+    input_map = InputMap(("dead_zone", "saturation")[seed // 2 % 2], int(rng.integers(0, nu)), 0.3)
     loop = Loop(K, r, {"p": "sin(y0) + 0.5 * y1"}, s, trim_removed, offset)
-    y = simulate_in_loop(model, data, loop, input_map=InputMap("dead_zone", 0, level), exogenous=extra,
-                         sign_of=sign_of)
-    expected = reference_loop(model, data, K, r, s, offset, trim_removed, level, sign_of, extra, 3 * lag0)
+    y = simulate_in_loop(model, data, loop, input_map=input_map, exogenous=extra, sign_of=sign_of)
+    expected = reference_loop(model, data, K, r, s, offset, trim_removed, input_map, sign_of, extra, 3 * lag0)
     assert np.all(np.isfinite(expected))
     np.testing.assert_allclose(y, expected, rtol=0, atol=1e-12 * max(1.0, np.max(np.abs(expected))))
 

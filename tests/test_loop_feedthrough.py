@@ -1,6 +1,6 @@
-"""The diagnosis' closed loop through the one loop engine: a model with a lag-0 input term (direct
-feedthrough) against the closed-form solution of its algebraic loop, the controller's command evaluated
-without advancing its state, and the loop's signals rebuilt from a record's own outputs."""
+"""The diagnosis' closed loop (compiled, lpvflow.validate.loop_recursion): a model with a lag-0 input
+term (direct feedthrough) against the closed-form solution of its algebraic loop, the controller's command
+evaluated without advancing its state, and the loop's signals rebuilt from a record's own outputs."""
 
 from __future__ import annotations
 

@@ -1,11 +1,12 @@
 """The one closed-loop engine: a controller of the protocol (:mod:`lpvflow.loop.protocol`) and a plant
 (an FMU, :class:`lpvflow.experiment.plant.Plant`, or an identified model,
 :class:`lpvflow.loop.model_plant.ModelPlant`) stepped
-together at the controller's Ts. The experiment, the model-in-the-loop validation, verification and the
-diagnosis (an input-output model in the identification loop, :mod:`lpvflow.validate.closed_loop`) all
+together at the controller's Ts. The experiment, the model-in-the-loop validation and verification
 close their loops here; what differs between them (sensor models and disturbances on the measurement,
 excitation, limits and disturbances on the command, stopping rules, what is recorded) enters through
-the hooks of :func:`close_loop`.
+the hooks of :func:`close_loop`. The diagnosis' input-output model in the identification loop
+(:mod:`lpvflow.validate.closed_loop`) runs this sampling convention compiled
+(:mod:`lpvflow.validate.loop_recursion`): dozens of whole-record loops per diagnosis.
 
 Sampling convention: at t_k = k Ts read the plant outputs y(k), compute the scheduling p(k) and the
 command u(k) = K.step(r(k), y_K(k), p(k)), hold the plant inputs from t_k to t_k + Ts.

@@ -21,25 +21,36 @@ the trim at the loop's own θ taken off the command; data with their offsets rem
 (``Dataset.offsets``) are run with the controller and the scheduling expressions reading the outputs
 plus the removed output means (the plant's signals), the removed input means being part of r.
 
-Every loop here is :func:`lpvflow.loop.engine.close_loop` with the controller's protocol object
-(:class:`lpvflow.loop.protocol.LtiLaw`): the model in the loop as the plant :class:`InLoopModel`, the
-record's outputs played back (:class:`PlayedBack`) to recover the excitation and the loop's signals.
+The loop runs compiled (:mod:`lpvflow.validate.loop_recursion`, numba): the model's recursion, the
+scheduling expressions (:mod:`lpvflow.experiment.expression_program`), the controller's law as
+:class:`lpvflow.loop.protocol.LtiLaw`/:class:`~lpvflow.loop.protocol.GriddedLaw` state it and the
+sampling convention of :func:`lpvflow.loop.engine.close_loop`, at a few microseconds per sample instead
+of that engine's Python step; the controller alone on the record's outputs recovers the excitation and
+the loop's signals the same way.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from lpvflow.basis import Basis
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError
 from lpvflow.experiment.controller import GriddedController, LtiController
-from lpvflow.experiment.scheduling import compile_expression
-from lpvflow.loop.engine import close_loop
+from lpvflow.experiment.expression_program import expression_program, program_values
 from lpvflow.loop.protocol import LoopController
 from lpvflow.lpvio import LPVIO
+from lpvflow.validate.loop_recursion import (
+    DEAD_ZONE,
+    NO_MAP,
+    SATURATION,
+    controller_commands,
+    simulate_loop,
+)
+from lpvflow.validate.signal_maps import dead_zone, saturation
 
 #: A simulated state beyond this magnitude means the model's closed loop diverged.
 DIVERGED = 1e12
@@ -81,11 +92,6 @@ class Loop:
         u_index = [data.u_names.index(n) for n in controller.outputs]
         return replace(loop, excitation=data.u[:, u_index] - _commands(loop, data.y, data))
 
-    def command(self, law: LoopController, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """The command in the model's input coordinates: ``u_c`` less the trim at θ = ``p`` when the
-        trim is removed."""
-        return u_c - law.trim(p) if self.trim_removed else u_c
-
     def plant_outputs(self, y: np.ndarray) -> np.ndarray:
         """The data's outputs ``y`` in the plant's signals (the removed output means added back)."""
         return y if self.output_offset is None else y + self.output_offset
@@ -108,7 +114,7 @@ def velocity_sign(y: np.ndarray) -> np.ndarray:
 
 def simulate_in_loop(
     model: LPVIO, data: Dataset, loop: Loop,
-    input_map: Callable[[np.ndarray], np.ndarray] | None = None,
+    input_map: InputMap | None = None,
     exogenous: np.ndarray | None = None,
     sign_of: int | None = None,
 ) -> np.ndarray:
@@ -117,111 +123,115 @@ def simulate_in_loop(
     The model's input vector is [input_map(u(k)), exogenous(k), sign(y_i(k) − y_i(k−1))] with u the
     plant input (controller output + excitation on the driven inputs, recorded values on the others),
     the last term only with ``sign_of`` = i (Coulomb friction against the motion of output i:
-    :func:`velocity_sign` of the simulated output). A model whose closed loop diverges gets ``inf``
-    from then on.
+    :func:`velocity_sign` of the simulated output, 0 at the first sample). A model whose closed loop
+    diverges gets ``inf`` from then on.
 
     Shifted (LPR) form only: the coefficient of lag j is evaluated at ψ(p(k−j)), so y(k) follows
     from the past; a lag-0 term, B_0(ψ(k)) v(k), is resolved by three fixed-point passes (p(k) and
-    u(k) depend on y(k)).
+    u(k) depend on y(k)). The recursion is compiled (:func:`lpvflow.validate.loop_recursion.simulate_loop`).
     """
     if model.form != "shifted":
         raise DataError("closed-loop simulation needs the shifted (LPR) form: in the static form the "
                         "coefficients of past outputs depend on the current, simulated scheduling")
     law = loop.controller.loop_law()
-    plant = InLoopModel(model, data, loop, input_map, exogenous, sign_of, law)
-    y = np.full((data.N, data.y.shape[1]), np.inf)
-    offset = loop.plant_outputs(np.zeros(data.y.shape[1]))
+    return InLoopModel(model, data, loop, input_map, exogenous, sign_of, law).simulate()
 
-    def record(k: int, y_k: np.ndarray, p: np.ndarray, u_c: np.ndarray, u: np.ndarray | None) -> None:
-        if u is not None:  # a non-finite command ends the run: the model's loop diverged at k
-            y[k] = y_k - offset
 
-    close_loop(law, plant, data.N, _references(loop, data.N), actuate=plant.actuate, record=record,
-               respond=plant.respond, passes=plant.passes,
-               stop=lambda k, y_k: None if np.all(np.abs(y_k - offset) < DIVERGED) else "diverged")
-    return y
+@dataclass(frozen=True)
+class InputMap:
+    """A memoryless map of plant input ``index`` in the loop: ``"dead_zone"`` of half-width ``level``,
+    sign(u)·max(|u| − w, 0), or ``"saturation"`` at ±``level``; called on one plant-input vector."""
+
+    kind: str
+    index: int
+    level: float
+
+    def __post_init__(self) -> None:
+        if self.kind not in _INPUT_MAPS:
+            raise DataError(f"input map {self.kind!r} in the loop; use one of {', '.join(_INPUT_MAPS)}")
+
+    def __call__(self, u: np.ndarray) -> np.ndarray:
+        u = np.array(u, dtype=float)
+        u[self.index] = (dead_zone if self.kind == "dead_zone" else saturation)(u[self.index], self.level)
+        return u
+
+
+_INPUT_MAPS = {"dead_zone": DEAD_ZONE, "saturation": SATURATION}
 
 
 class InLoopModel:
-    """A shifted-form LPVIO as the plant of :func:`lpvflow.loop.engine.close_loop` over a record (its
-    outputs in the plant's signals, :meth:`Loop.plant_outputs`; the recursion in the data's):
-    ``outputs()`` is y(k) from the past, −Σ_i A_i(ψ(k−i)) y(k−i) + Σ_{j≥1} B_j(ψ(k−j)) v(k−j);
-    ``respond(k, u)`` adds B_0(ψ(k)) v(k) for the present plant input u, with ψ(k) of the scheduling
-    recomputed from the output the plant last gave and v(k) = [input_map(u), exogenous(k),
-    :func:`velocity_sign` of output ``sign_of``]. ``passes`` (3 with a lag-0 term, else 0) resolves
-    that term; a plant whose output was resolved so keeps, at its step, the input it was resolved with
-    (the model equation holds at the output the loop saw), otherwise ``step(u)`` makes u its present
-    input. ``actuate`` puts the controller's command plus the excitation on the driven inputs and the
-    recorded values on the others, less the trim when it is removed (:func:`simulate_in_loop`)."""
+    """A shifted-form LPVIO in the loop of a record, as the arrays of the compiled recursion
+    (:func:`lpvflow.validate.loop_recursion.simulate_loop`): the model's coefficients and basis, the
+    record's inputs and scheduling (the columns with an expression recomputed from the simulated
+    outputs in the plant's signals, :meth:`Loop.plant_outputs`), the model's extra inputs
+    [``exogenous``, velocity sign of output ``sign_of``] after ``input_map``, and ``law``'s controller
+    (an LTI controller as a one-point grid) with the loop's references, excitation and trim; 3
+    fixed-point passes with a lag-0 term, else none (:func:`simulate_in_loop`)."""
 
-    def __init__(self, model: LPVIO, data: Dataset, loop: Loop,
-                 input_map: Callable[[np.ndarray], np.ndarray] | None,
+    def __init__(self, model: LPVIO, data: Dataset, loop: Loop, input_map: InputMap | None,
                  exogenous: np.ndarray | None, sign_of: int | None, law: LoopController) -> None:
         n, ny = data.N, data.y.shape[1]
-        self.model, self.loop, self.input_map, self.sign_of = model, loop, input_map, sign_of
-        self.law, self._offset = law, loop.plant_outputs(np.zeros(ny))
-        self.input_names, self.output_names = list(data.u_names), list(data.y_names)
-        self._u_index, self._computed = _wiring(data, loop)
-        self._extra = np.zeros((n, 0)) if exogenous is None else np.asarray(exogenous, float).reshape(n, -1)
-        n_a, n_b, n_psi = model.A.shape[0], model.B.shape[0], model.basis.n_psi
-        self._a_flat = np.moveaxis(model.A, 1, 0).reshape(n_psi, -1)  # ψ @ a_flat: A_1 … A_na at ψ
-        self._b_flat = np.moveaxis(model.B, 1, 0).reshape(n_psi, -1)
-        self._a_at = np.zeros((n, n_a, ny, ny))  # A_i(ψ(k)) and B_j(ψ(k)) of every sample
-        self._b_at = np.zeros((n, n_b, ny, model.nu))
+        extra = np.zeros((n, 0)) if exogenous is None else np.asarray(exogenous, float).reshape(n, -1)
+        nv = data.u.shape[1] + extra.shape[1] + (sign_of is not None)
+        if model.nu != nv:
+            raise DataError(f"the model has {model.nu} inputs; the loop gives it {nv} (the record's "
+                            f"{data.u.shape[1]}, {extra.shape[1]} exogenous, {int(sign_of is not None)} "
+                            "velocity sign)")
+        u_index, computed = _wiring(data, loop)
+        columns = [i for i, _ in computed]
+        programs = [program for _, program in computed]
+        codes = np.concatenate([c for c, _ in programs] + [np.zeros(0, np.int64)])
+        arguments = np.concatenate([a for _, a in programs] + [np.zeros(0)])
+        starts = np.cumsum([0] + [len(c) for c, _ in programs]).astype(np.int64)
+        mapped = ((NO_MAP, -1, 0.0) if input_map is None
+                  else (_INPUT_MAPS[input_map.kind], input_map.index, float(input_map.level)))
         self.passes = 3 if np.any(model.B[0]) else 0
-        self._u, self._p = data.u.copy(), data.p.copy()
-        self._v = np.zeros((n, model.nu))
-        self._y = np.full((n, ny), np.inf)
-        self._k, self._past, self._resolved = 0, np.zeros(ny), False
-        self._last = self._past
+        self._arguments = (
+            np.ascontiguousarray(model.A, float), np.ascontiguousarray(model.B, float),
+            _basis_program(model.basis), np.array(data.p, dtype=float, order="C"),
+            np.array(columns, dtype=np.int64), (codes, arguments, starts),
+            np.ascontiguousarray(data.u, float), np.ascontiguousarray(extra),
+            np.asarray(loop.plant_outputs(np.zeros(ny)), float),
+            (np.int64(mapped[0]), np.int64(mapped[1]), mapped[2]),
+            np.int64(-1 if sign_of is None else sign_of), controller_arrays(law.K),
+            np.array([data.y_names.index(name) for name in law.inputs], dtype=np.int64),
+            np.array(u_index, dtype=np.int64), np.ascontiguousarray(_references(loop, n), float),
+            np.ascontiguousarray(loop.excitation[:n], float), bool(loop.trim_removed))
 
-    def outputs(self) -> np.ndarray:
-        self._last = self._past
-        return self._past + self._offset
+    def simulate(self) -> np.ndarray:
+        """Outputs (N, ny) of the model in the loop, ``inf`` from a divergence on."""
+        return simulate_loop(*self._arguments, np.int64(self.passes), float(DIVERGED))
 
-    def actuate(self, k: int, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
-        u = self._u[k].copy()
-        u[self._u_index] = self.loop.command(self.law, u_c, p) + self.loop.excitation[k]
-        return u
 
-    def respond(self, k: int, u: np.ndarray) -> np.ndarray:
-        self._last = self._past + self._present(u)
-        self._resolved = True
-        return self._last + self._offset
+def controller_arrays(K: LtiController | GriddedController) -> tuple:
+    """(grid, A, B, C, D, y_op, u_op, codes, arguments) of K for the compiled recursion: a gridded
+    controller's grid and its scheduling program in [outputs read, their set-points]; an LTI controller
+    as one grid point (θ = 0)."""
+    if isinstance(K, GriddedController):
+        codes, arguments = expression_program(K.scheduling, K.scheduling_names)
+        mats = (K.grid, K.A, K.B, K.C, K.D, K.y_op, K.u_op)
+    else:
+        codes, arguments = expression_program("0", [])
+        mats = (np.zeros(1), *(np.asarray(M, float)[None] for M in (K.A, K.B, K.C, K.D, K.y_op, K.u_op)))
+    return (*(np.ascontiguousarray(M, float) for M in mats), codes, arguments)
 
-    def step(self, u: np.ndarray, t: float, dt: float) -> None:
-        if not self._resolved:
-            self._present(u)
-        k = self._k
-        self._y[k], self._k, self._resolved = self._last, k + 1, False
-        self._past = self._from_past(k + 1)
 
-    def _present(self, u: np.ndarray) -> np.ndarray:
-        """Scheduling, plant input and model input at the present sample for the plant input u and the
-        output last given; B_0(ψ(k)) v(k)."""
-        k, y_k = self._k, self._last
-        for i, expression in self._computed:
-            self._p[k, i] = expression(y_k + self._offset)
-        psi = self.model.basis.eval(self._p[k], check_range=False)[0]
-        self._a_at[k] = (psi @ self._a_flat).reshape(self._a_at.shape[1:])
-        self._b_at[k] = (psi @ self._b_flat).reshape(self._b_at.shape[1:])
-        self._u[k] = u
-        parts = [self.input_map(u) if self.input_map is not None else u, self._extra[k]]
-        if self.sign_of is not None:
-            i = self.sign_of
-            recent = np.concatenate([self._y[max(k - 2, 0) : k, i], y_k[i : i + 1]])
-            parts.append(velocity_sign(recent)[-1:])
-        self._v[k] = np.concatenate(parts)
-        return self._b_at[k, 0] @ self._v[k]
-
-    def _from_past(self, k: int) -> np.ndarray:
-        """−Σ_i A_i(ψ(k−i)) y(k−i) + Σ_{j≥1} B_j(ψ(k−j)) v(k−j)."""
-        past = np.zeros(self._y.shape[1])
-        for i in range(1, min(self._a_at.shape[1], k) + 1):
-            past -= self._a_at[k - i, i - 1] @ self._y[k - i]
-        for j in range(1, min(self._b_at.shape[1] - 1, k) + 1):
-            past += self._b_at[k - j, j] @ self._v[k - j]
-        return past
+def _basis_program(basis: Basis) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(exponents, signal, knot) of ψ for :func:`~lpvflow.validate.loop_recursion.simulate_loop`: a
+    monomial Π_i p_i^e_i (signal −1) or a spline term |p_signal − knot|³ per basis function."""
+    if basis.kind != "spline":
+        exponents = np.array(basis.exponents, dtype=np.int64).reshape(basis.n_psi, basis.n_p)
+        return exponents, np.full(basis.n_psi, -1, np.int64), np.zeros(basis.n_psi)
+    exponents, signal, knot = [np.zeros(basis.n_p, np.int64)], [-1], [0.0]
+    for i, knots in enumerate(basis.knots):
+        exponents.append(np.eye(basis.n_p, dtype=np.int64)[i])
+        signal.append(-1)
+        knot.append(0.0)
+        for eta in knots:
+            exponents.append(np.zeros(basis.n_p, np.int64))
+            signal.append(i)
+            knot.append(float(eta))
+    return np.array(exponents), np.array(signal, dtype=np.int64), np.array(knot)
 
 
 def loop_signals(y: np.ndarray, data: Dataset, loop: Loop) -> tuple[np.ndarray, np.ndarray]:
@@ -234,39 +244,22 @@ def loop_signals(y: np.ndarray, data: Dataset, loop: Loop) -> tuple[np.ndarray, 
     u_index, computed = _wiring(data, loop)
     u, p = data.u.copy(), data.p.copy()
     u[:, u_index] = _commands(loop, y, data) + loop.excitation[: data.N]
-    for i, expression in computed:
-        p[:, i] = [expression(row) for row in loop.plant_outputs(y)]
+    plant = np.ascontiguousarray(loop.plant_outputs(np.asarray(y, float)))
+    for i, program in computed:
+        p[:, i] = program_values(*program, plant)
     return u, p
-
-
-class PlayedBack:
-    """Output trajectories (N, ny) played back as a plant of :func:`lpvflow.loop.engine.close_loop`:
-    ``outputs()`` is the k-th row, the input is ignored."""
-
-    def __init__(self, y: np.ndarray, data: Dataset) -> None:
-        self.output_names, self.input_names = list(data.y_names), list(data.u_names)
-        self._y, self._k = y, 0
-
-    def outputs(self) -> np.ndarray:
-        return self._y[self._k]
-
-    def step(self, u: np.ndarray, t: float, dt: float) -> None:
-        self._k += 1
 
 
 def _commands(loop: Loop, y: np.ndarray, data: Dataset) -> np.ndarray:
     """(N, len(controller.outputs)) commands of ``loop``'s controller run from rest on the outputs ``y``
     (N, ny) (names ``data.y_names``, in the plant's signals :meth:`Loop.plant_outputs`) and the loop's
-    references, less the trim when it is removed (:meth:`Loop.command`); NaN after a non-finite command."""
-    law = loop.controller.loop_law()
-    commands = np.full((len(y), len(loop.controller.outputs)), np.nan)
-
-    def record(k: int, y_k: np.ndarray, p: np.ndarray, u_c: np.ndarray, u: np.ndarray | None) -> None:
-        commands[k] = loop.command(law, u_c, p)
-
-    close_loop(law, PlayedBack(loop.plant_outputs(y), data), len(y), _references(loop, len(y)),
-               actuate=lambda k, u_c, p: u_c, record=record)
-    return commands
+    references, less the trim u_op(θ) when it is removed; NaN after a non-finite command
+    (:func:`lpvflow.validate.loop_recursion.controller_commands`)."""
+    read = [data.y_names.index(name) for name in loop.controller.inputs]
+    read_outputs = np.ascontiguousarray(loop.plant_outputs(np.asarray(y, float))[:, read])
+    references = np.ascontiguousarray(_references(loop, len(y)), float)
+    return controller_commands(controller_arrays(loop.controller), read_outputs, references,
+                               bool(loop.trim_removed))
 
 
 def _references(loop: Loop, n: int) -> np.ndarray:
@@ -276,10 +269,11 @@ def _references(loop: Loop, n: int) -> np.ndarray:
     return loop.references[:n]
 
 
-def _wiring(data: Dataset, loop: Loop) -> tuple[list[int], list[tuple[int, Callable]]]:
+def _wiring(data: Dataset, loop: Loop) -> tuple[list[int], list[tuple[int, tuple[np.ndarray, np.ndarray]]]]:
     """Columns of the controller's driven inputs in ``data.u``, and the scheduling columns recomputed in
-    the loop with their compiled expressions."""
+    the loop with their expressions' programs in the output names
+    (:func:`~lpvflow.experiment.expression_program.expression_program`)."""
     u_index = [data.u_names.index(name) for name in loop.controller.outputs]
-    computed = [(i, compile_expression(loop.scheduling[name], data.y_names))
+    computed = [(i, expression_program(loop.scheduling[name], data.y_names))
                 for i, name in enumerate(data.p_names) if name in loop.scheduling]
     return u_index, computed

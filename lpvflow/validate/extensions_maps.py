@@ -13,7 +13,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import LpvflowError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.lpvio import LPVIO
-from lpvflow.validate.closed_loop import velocity_sign
+from lpvflow.validate.closed_loop import InputMap, velocity_sign
 from lpvflow.validate.extended_model import ModelMap
 from lpvflow.validate.extension_core import (
     Candidate,
@@ -60,13 +60,10 @@ def _mapped_input_fit(ctx: Context, j: int, kind: str, level: float, estimator: 
     u = model_map.inputs(joined(ctx.est, ctx.val).u, ctx.est.u_names)
     est, val = replace(ctx.est, u=u[: ctx.est.N]), replace(ctx.val, u=u[ctx.est.N :])
 
-    def mapped(row: np.ndarray) -> np.ndarray:  # the map on the input the loop produces
-        return model_map.inputs(row[None, :], ctx.est.u_names)[0]
-
     if ctx.loop is None:
         simulate = lambda m: model_map.simulate_validation(m, ctx.est, ctx.val)  # noqa: E731
-    else:
-        simulate = ctx.in_loop(input_map=mapped)
+    else:  # the map on the input the loop produces
+        simulate = ctx.in_loop(input_map=InputMap(kind, j, level))
     return fit(est, val, na, nb, nk, basis, ctx.structure.form, simulate, estimator)
 
 

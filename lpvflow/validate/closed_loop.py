@@ -104,12 +104,15 @@ def velocity_sign(y: np.ndarray) -> np.ndarray:
     [k, k+1]. The backward difference y(k) − y(k−1) lags by a sample: on the ADIP arm under its
     stabilizing loop (5 ms, 0.04 N·m Coulomb torque) it has the wrong sign at 5.2 % of the samples
     and the fitted level is 0.24 V for 0.31 V; the extrapolated one at 0.4 %, level 0.306 V.
-    Missing past samples repeat the first one.
+    Missing past samples repeat the first one; the first sample, with no past motion, gets 0 (not
+    the sign of 2 y(0) − 3 y(0) + y(0)'s rounding), as in the compiled loop.
     """
     y = np.asarray(y, float)
     y1 = np.concatenate([y[:1], y[:-1]])
     y2 = np.concatenate([y[:1], y1[:-1]])
-    return np.sign(2 * y - 3 * y1 + y2)
+    sign = np.sign(2 * y - 3 * y1 + y2)
+    sign[:1] = 0.0
+    return sign
 
 
 def simulate_in_loop(

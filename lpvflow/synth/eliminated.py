@@ -2,8 +2,9 @@
 
 Steps 2–4 of :mod:`lpvflow.synth.hinf` (the method is stated there), shared with the rate-bounded design
 (:mod:`lpvflow.synth.rate_bounded`), which balances its coordinates on the breakpoint nearest the centre
-and starts its level search at the largest frozen estimate. The eliminated conditions of Gahinet &
-Apkarian (1994, Thm. 4.3) are posed on the Cayley image of every vertex (:mod:`lpvflow.synth.bilinear`).
+and starts its level search at the largest frozen estimate (its floor when every one is accurate). The
+eliminated conditions of Gahinet & Apkarian (1994, Thm. 4.3) are posed on the Cayley image of every vertex
+(:mod:`lpvflow.synth.bilinear`).
 Every preconditioning step is validated before it is used: a failed check leaves the coordinates plain.
 
 The minimum γ̂ is an *estimate*, never a lower bound, even when the solver reports full accuracy: near the

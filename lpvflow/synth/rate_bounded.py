@@ -424,7 +424,7 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
         result.report = level_report
         return result if min(result.margins) > 0 else None
 
-    best = lowest_certified_level(certified, first, suboptimality, gamma_max)
+    best = lowest_certified_level(certified, first, suboptimality, gamma_max, gamma_estimate)
     if best is None:
         polytopic = "none" if common is None else f"{common:.4g}"
         raise SynthesisError(f"{what}: no level from {first * (1 + suboptimality):.4g} (frozen estimate "

@@ -25,9 +25,11 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
        N_S,iᵀ [A_iᵀS + SA_i   SB1_i   C1_iᵀ ;  B1_iᵀS   −γI   D11_iᵀ ;  C1_i   D11_i   −γI] N_S,i ⪯ 0,
        [R I; I S] ⪰ 0,
 
-   minimise γ → γ̂. γ̂ starts the level search of step 5 and is reported as ``gamma_estimate`` when the
-   solver reached full accuracy, but it is not a lower bound (:mod:`lpvflow.synth.eliminated`: the
-   infimum is not attained, and "optimal" solves were measured up to 0.8 % above SB10DD's level).
+   minimise γ → γ̂. γ̂ starts the level search of step 5; when the solver reached full accuracy it is
+   also the search's floor (no level below it is tried) and is reported as ``gamma_estimate``. It is not
+   a lower bound (:mod:`lpvflow.synth.eliminated`: the infimum is not attained, and "optimal" solves were
+   measured up to 0.8 % above SB10DD's level), so the certified γ is within 1 + δ of a failing level or
+   of that estimate, not necessarily of the optimum.
 4. **Balancing, validated.** The γ-optimal R, S are singular (RS − I loses rank); the matrices of step 3
    at :data:`lpvflow.synth.eliminated.BALANCING_FACTOR`·γ̂ with the largest margin t (projected LMIs
    ⪯ −t·D_k, D_k their Jacobi diagonals at the estimate; [R I; I S] ⪰ t·I) give a centred pair, and
@@ -305,7 +307,8 @@ class _Search:
         self.failed_levels = []
         certified = self._certifier(coords, rebalance, scales)
         try:
-            return lowest_certified_level(certified, start, suboptimality, gamma_max), None
+            return (lowest_certified_level(certified, start, suboptimality, gamma_max, self.gamma_estimate),
+                    None)
         except _Unbalanced as found:
             return found.result, found.rebalance
 

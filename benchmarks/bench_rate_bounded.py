@@ -1,5 +1,5 @@
 """Rate-bounded gain-scheduled H∞ synthesis (lpvflow.synth.rate_bounded): wall time against the number and
-the largest of its SDP solves, and γ against the frozen lower bound.
+the largest of its SDP solves, and γ against the frozen estimate.
 
 Cases (``tests/rate_bounded_cases.random_scheduled_plant``: a random stable, down to lightly damped, plant
 of ``states`` states with one scheduling signal p ∈ [−1, 1], mixed-sensitivity weights W_S, W_K and an
@@ -7,9 +7,10 @@ actuator lag W_B, Ts = 10 ms, |Δp| ≤ 0.05 per sample, the frozen plants at eq
 ``order`` is the generalized plant's (states + 2). The 13-breakpoint case of an 8-state plant is run in a
 child process stopped after ``LIMIT`` seconds; a row that did not finish says so.
 
-Columns: γ certified; ``lower`` the frozen lower bound (``ScheduledResult.gamma_lower``); ``s`` wall time;
-``SDPs`` every cvxpy solve of the synthesis (frozen estimates, the common-Lyapunov bracket, the levels);
-``largest`` the longest single one; ``ratio`` = s / largest. One thread (OPENBLAS_NUM_THREADS=1), one run.
+Columns: γ certified; ``estimate`` the largest frozen estimate (``ScheduledResult.gamma_estimate``, not a
+bound); ``s`` wall time; ``SDPs`` every cvxpy solve of the synthesis (frozen estimates, the
+common-Lyapunov bracket, the levels); ``largest`` the longest single one; ``ratio`` = s / largest. One
+thread (OPENBLAS_NUM_THREADS=1), one run.
 
 The limit on the ADIP (issue 23's ±75° test): the exact linearizations at −75°, 0°, 75° with the bundled
 weights (1-DOF, ``tests/adip_cases.py``), breakpoints at sin φ1, and the largest margin t of the LMIs
@@ -77,7 +78,7 @@ def _run(seed: int, states: int, breakpoints: int, out) -> None:
     start = time.perf_counter()
     try:
         result = rate_bounded.synthesize_scheduled(vertices, b, TS, rate_bound=RATE)
-        row = {"gamma": result.gamma, "gamma_lower": result.gamma_lower}
+        row = {"gamma": result.gamma, "gamma_estimate": result.gamma_estimate}
     except rate_bounded.SynthesisError as exc:
         row = {"error": str(exc)[:300]}
     seconds = time.perf_counter() - start
@@ -116,7 +117,7 @@ def adip_margin(rate_bound: float) -> dict:
     levels.gamma.value = 2.0 * bound
     start = time.perf_counter()
     rate_bounded.solve(levels.margin_problem, "CLARABEL", "the ADIP margin SDP")
-    return {"rate_bound": rate_bound, "frozen_lower_bound": bound, "gamma": 2.0 * bound,
+    return {"rate_bound": rate_bound, "frozen_estimate": bound, "gamma": 2.0 * bound,
             "margin_t": float(levels.t.value), "seconds": time.perf_counter() - start}
 
 
@@ -159,18 +160,18 @@ def main() -> None:
     interpolated = adip_interpolated(0.0006)
     OUT.write_text(json.dumps({"rows": rows, "adip": adip, "adip_interpolated": interpolated}, indent=1,
                               default=float) + "\n")
-    heads = ("case", "bps", "order", "γ", "lower", "s", "SDPs", "largest", "ratio")
+    heads = ("case", "bps", "order", "γ", "estimate", "s", "SDPs", "largest", "ratio")
     print(f"{heads[0]:>26} " + " ".join(f"{h:>8}" for h in heads[1:]))
     for r in rows:
         lead = f"{r['case']:>26} {r['breakpoints']:>8} {r['order']:>8} "
         if "error" in r:
             print(lead + f"{r['seconds']:.0f} s: {r['error']}")
             continue
-        lower = "—" if r["gamma_lower"] is None else f"{r['gamma_lower']:.4g}"
-        print(lead + f"{r['gamma']:8.4g} {lower:>8} {r['seconds']:8.1f} {r['sdps']:>8} "
+        estimate = "—" if r["gamma_estimate"] is None else f"{r['gamma_estimate']:.4g}"
+        print(lead + f"{r['gamma']:8.4g} {estimate:>8} {r['seconds']:8.1f} {r['sdps']:>8} "
               f"{r['largest_sdp']:8.2f} {r['ratio']:8.1f}")
     for r in adip:
-        print(f"ADIP ±75°, ν = {r['rate_bound']:g}: γ = 2 × {r['frozen_lower_bound']:.4g}, margin t = "
+        print(f"ADIP ±75°, ν = {r['rate_bound']:g}: γ = 2 × {r['frozen_estimate']:.4g}, margin t = "
               f"{r['margin_t']:.3g} ({r['seconds']:.0f} s)")
     r = interpolated
     print(f"ADIP ±75°, interpolated SB10DD ({r['breakpoints']} breakpoints): worst frozen Riccati optimum "

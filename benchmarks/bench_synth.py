@@ -118,7 +118,7 @@ def measure(name: str, vertices: list, Ts: float) -> dict:
         return row | {"error": f"{exc.category}: {str(exc)[:200]}"}
     seconds = time.perf_counter() - start
     one = max(a[2] for a in result.report.attempts)
-    row |= {"gamma": result.gamma, "gamma_lower": result.gamma_lower, "seconds": seconds,
+    row |= {"gamma": result.gamma, "gamma_estimate": result.gamma_estimate, "seconds": seconds,
             "sdps": len(result.report.attempts), "one_sdp_seconds": one, "ratio": seconds / one}
     if len(vertices) == 1:
         row["riccati_gamma"] = riccati_gamma(vertices[0], Ts)

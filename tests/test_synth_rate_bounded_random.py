@@ -42,7 +42,7 @@ def check(case: dict) -> None:
     result = case["result"]
     assert case["frozen"] * (1 - 1e-2) <= result.gamma <= case["common"] * (1 + 1e-2), \
         (case["frozen"], result.gamma, case["common"])
-    assert result.gamma_lower is not None and result.gamma_lower <= result.gamma
+    assert result.gamma_estimate is not None and result.gamma_estimate <= result.gamma
     assert min(result.margins) > 0
     assert rate_bounded.fine_check(result)[0] > 0
     assert case["statuses"] and set(case["statuses"]) <= {"optimal", "infeasible"}, case["statuses"]

@@ -44,7 +44,9 @@ class Check(Protocol):
 @dataclass
 class Design:
     """A checked controller and what the report states about it: ``gamma`` the certified level (LMI
-    methods) or the largest frozen ‖T_zw‖∞ (observer, ``gamma_lower`` None); ``antiwindup_gains`` the
+    methods) or the largest frozen ‖T_zw‖∞ (observer); ``gamma_lower`` a proven lower bound where the
+    method has one, else None (the LMI syntheses' eliminated-conditions minimum is only an estimate:
+    :mod:`lpvflow.synth.eliminated`); ``antiwindup_gains`` the
     design's own anti-windup gains (observer), None for the generic
     :func:`lpvflow.synth.controller.observer_gains`."""
 
@@ -87,8 +89,8 @@ def design_common(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, 
     """``method = "common"``: :func:`lpvflow.synth.hinf.synthesize` (one Lyapunov matrix, any polytope),
     certified by :func:`lpvflow.synth.certify.certify`."""
     result = synthesize(plant, settings["solver"])
-    return Design(result.controller, result.gamma, result.gamma_lower,
-                  certify(result, frozen_model), plant, result.report.seconds)
+    return Design(result.controller, result.gamma, None, certify(result, frozen_model), plant,
+                  result.report.seconds)
 
 
 def design_rate_bounded(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
@@ -98,7 +100,7 @@ def design_rate_bounded(model: LPVSS, plant: GeneralizedPlant, settings: Mapping
     :func:`lpvflow.synth.certify.certify_rate_bounded`."""
     result, controller = synthesize_rate_bounded(plant, settings["rate_bound"], settings["solver"])
     certificate = certify_rate_bounded(result, frozen_model, plant.weights, settings["structure"])
-    return Design(controller, result.gamma, result.gamma_lower, certificate, plant, result.report.seconds)
+    return Design(controller, result.gamma, None, certificate, plant, result.report.seconds)
 
 
 def design_observer(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],

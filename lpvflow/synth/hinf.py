@@ -55,7 +55,8 @@ def hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, nc
 
     Args:
         suboptimality: δ of its step 5: the certified γ is within a factor 1 + δ of the highest level that
-            failed, or of ``gamma_lower`` (default 2.5e-3; 1e-2 for the rate-bounded design).
+            failed, or of ``gamma_estimate`` below which no level is tried (default 2.5e-3; 1e-2 for the
+            rate-bounded design).
         gamma_max: the largest level tried (default :data:`lpvflow.synth.levels.GAMMA_MAX`, 1e6).
         solver: the SDP solver for every SDP, ``"CLARABEL"`` (default) or ``"SCS"``; no fallback.
         breakpoints, rate_bound: the rate-bounded design (above).
@@ -96,7 +97,7 @@ def synthesize(plant: GeneralizedPlant, solver: str = "CLARABEL", gamma_max: flo
     K = result.K_vertices
     if plant.input_filter is not None:
         K = [series_input_filter(k, plant.input_filter) for k in K]
-    info = {"method": "common", "gamma": result.gamma, "gamma_lower": result.gamma_lower,
+    info = {"method": "common", "gamma": result.gamma, "gamma_estimate": result.gamma_estimate,
             "solver": result.report.solver, "status": result.report.status,
             "solve_seconds": result.report.seconds, "polytope": plant.polytope.kind}
     stacks = [np.array([k[m] for k in K]) for m in range(4)]

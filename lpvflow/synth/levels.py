@@ -6,9 +6,9 @@ proves nothing (the solver may have stalled), so the search never stops at a mul
 
 1. **Up** from ``start``: γ_k = start·(1 + δ·4^k), k = 0, 1, … (the last one ``gamma_max``) until a level
    passes; none up to ``gamma_max`` → None.
-2. **Down**, only when the first level passed and no proven lower bound is known: γ = start/(1 + δ·4^k)
+2. **Down**, only when the first level passed and no floor is given: γ = start/(1 + δ·4^k)
    until a level fails (the estimate ``start`` may lie above the optimum).
-3. **Bisection** (geometric) between the highest failing level — or the proven lower bound — and the
+3. **Bisection** (geometric) between the highest failing level — or the floor — and the
    lowest passing one, to a relative width δ.
 """
 
@@ -32,7 +32,9 @@ def lowest_certified_level(certified: Callable[[float], Any | None], start: floa
         start: the first level's base (an estimate of the optimum, > 0).
         suboptimality: δ, the relative width of the final bracket.
         gamma_max: the largest level tried.
-        lower: a proven lower bound on every passing level (no downward search, bisection floor).
+        lower: a floor: no level below it is tried (no downward search; the bisection's lower end) —
+            a proven lower bound on every passing level, or an estimate of the optimum (then the result
+            is within 1 + δ of it or of a failing level, not necessarily of the optimum).
     """
     start = min(start, gamma_max)
     best, failed, k = None, lower, 0
@@ -58,8 +60,8 @@ def lowest_certified_level(certified: Callable[[float], Any | None], start: floa
 
 def bisect_levels(certified: Callable[[float], Any | None], floor: float, best: Any, suboptimality: float
                   ) -> Any:
-    """Step 3 of the module docstring: geometric bisection between ``floor`` (a failing level or a proven
-    lower bound; 0: none) and ``best`` (a passing result) to a relative width δ = ``suboptimality``."""
+    """Step 3 of the module docstring: geometric bisection between ``floor`` (a failing level or the
+    search's floor; 0: none) and ``best`` (a passing result) to a relative width δ = ``suboptimality``."""
     while floor > 0 and best.gamma / floor > 1 + suboptimality:
         mid = float(np.sqrt(floor * best.gamma))
         better = certified(mid)

@@ -97,7 +97,7 @@ class LoopShapingDesign:
             coordinates (:func:`in_plant_coordinates`), with breakpoints as the rate-bounded design returns
             them.
         feedback: the feedback(s) K = W1·K∞·W2 for the plant itself (u = K y), at the breakpoints.
-        result: what hinfsyn returned (its ``certificate``, ``gamma_lower``, …).
+        result: what hinfsyn returned (its ``certificate``, ``gamma_estimate``, …).
     """
 
     gamma: float

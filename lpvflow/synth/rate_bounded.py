@@ -214,9 +214,9 @@ class ScheduledResult:
     """Certified rate-bounded design.
 
     Attributes:
-        gamma: the certified level; gamma_lower: the largest frozen γ lower bound over the breakpoints
+        gamma: the certified level; gamma_estimate: the largest frozen estimate over the breakpoints
             (:func:`lpvflow.synth.eliminated.preconditioned`; None unless every one of those solves was
-            accurate): no controller of any kind does better.
+            accurate): an estimate of the frozen optimum, not a bound (:mod:`lpvflow.synth.eliminated`).
         K_vertices: discrete vertex controllers (A_K, B_K, C_K, D_K) from y to u at the breakpoints.
         schedule: breakpoints and rate bound; vertices: the generalized plant at the breakpoints.
         lyapunov: P̂ = 𝒯ᵀ𝒫𝒯 at the breakpoints (:class:`Slack`); slack: the slack and coordinates.
@@ -224,7 +224,7 @@ class ScheduledResult:
     """
 
     gamma: float
-    gamma_lower: float | None
+    gamma_estimate: float | None
     K_vertices: list[tuple[np.ndarray, ...]]
     schedule: Schedule
     vertices: list[VertexPlant]
@@ -337,7 +337,7 @@ class _Levels:
 
 
 def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: Coordinates, schedule: Schedule,
-                 gamma: float, gamma_lower: float | None, Ts: float) -> ScheduledResult:
+                 gamma: float, gamma_estimate: float | None, Ts: float) -> ScheduledResult:
     """Controller of the module docstring at every breakpoint, 𝒫 and 𝒢 in the scaled state, and the
     certificate margins rebuilt from the returned discrete numbers."""
     X, Y, S = (np.asarray(V.value, dtype=float) for V in (levels.X, levels.Y, levels.S))
@@ -353,7 +353,7 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: Coordinat
         Ak = np.linalg.solve(V, np.linalg.solve(U.T, core.T).T)
         K_vertices.append(coords.controller((Ak, Bk, Ck, Dk)))
     lyapunov = [0.5 * (P.value + P.value.T) for P in levels.P]
-    result = ScheduledResult(gamma, gamma_lower, K_vertices, schedule, vertices, Ts, lyapunov,
+    result = ScheduledResult(gamma, gamma_estimate, K_vertices, schedule, vertices, Ts, lyapunov,
                              Slack(X, Y, U, V, np.asarray(coords.T)))
     result.margins = [result.margin(result.plant_at(p), p, q) for p, nexts in levels.pairs for q in nexts]
     return result
@@ -393,13 +393,13 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
         raise ModelError(f"{len(vertices)} vertex plants for {len(schedule.breakpoints)} breakpoints")
     check_a3(vertices)
     start = time.perf_counter()
-    # per breakpoint: the frozen γ lower bound (no controller does better there, so none does over the
-    # range) and the balanced coordinates; the LMIs are posed in those of the breakpoint nearest the centre
+    # per breakpoint: the frozen estimate (the search starts at the largest) and the balanced coordinates;
+    # the LMIs are posed in those of the breakpoint nearest the centre
     frozen = [preconditioned([cayley_vertex(v)], gamma_max, solver) for v in vertices]
     centre = int(np.argmin(np.abs(schedule.breakpoints - schedule.breakpoints.mean())))
     coords = frozen[centre].coordinates.discrete()
-    lowers = [f.gamma_lower for f in frozen]
-    gamma_lower = None if None in lowers else max(lowers)
+    accurate = [f.estimate.gamma for f in frozen if f.estimate.accurate]
+    gamma_estimate = max(accurate) if len(accurate) == len(frozen) else None
     estimate = max(f.estimate.gamma for f in frozen)
     attempts = [a for f in frozen for a in f.attempts]
     common = _common_lyapunov_level(vertices, Ts, suboptimality, gamma_max, solver, attempts)
@@ -418,13 +418,13 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
             return None
         attempts.extend(level_report.attempts)
         try:
-            result = _reconstruct(levels, vertices, coords, schedule, gamma, gamma_lower, Ts)
+            result = _reconstruct(levels, vertices, coords, schedule, gamma, gamma_estimate, Ts)
         except np.linalg.LinAlgError:
             return None
         result.report = level_report
         return result if min(result.margins) > 0 else None
 
-    best = lowest_certified_level(certified, first, suboptimality, gamma_max, gamma_lower)
+    best = lowest_certified_level(certified, first, suboptimality, gamma_max, gamma_estimate)
     if best is None:
         polytopic = "none" if common is None else f"{common:.4g}"
         raise SynthesisError(f"{what}: no level from {first * (1 + suboptimality):.4g} (frozen estimate "
@@ -506,7 +506,7 @@ def synthesize_rate_bounded(plant: GeneralizedPlant, rate_bound: float | None, s
     if plant.input_filter is not None:
         K = [series_input_filter(k, plant.input_filter) for k in K]
     info = {"method": "rate-bounded", "rate_bound": rate_bound, "gamma": result.gamma,
-            "gamma_lower": result.gamma_lower, "solver": solver, "solve_seconds": result.report.seconds,
+            "gamma_estimate": result.gamma_estimate, "solver": solver, "solve_seconds": result.report.seconds,
             "polytope": poly.kind, "breakpoints": [float(b) for b in breakpoints]}
     stacks = [np.array([k[m] for k in K]) for m in range(4)]
     return result, LPVController(*stacks, poly, plant.basis, plant.Ts, info=info, structure=plant.structure)

@@ -25,8 +25,11 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
        N_S,iᵀ [A_iᵀS + SA_i   SB1_i   C1_iᵀ ;  B1_iᵀS   −γI   D11_iᵀ ;  C1_i   D11_i   −γI] N_S,i ⪯ 0,
        [R I; I S] ⪰ 0,
 
-   minimise γ → γ̂. Its value is reported as ``gamma_lower`` (no controller of this class does better)
-   only when the solver reached full accuracy; otherwise γ̂ only starts the level search of step 5.
+   minimise γ → γ̂. γ̂ starts the level search of step 5; when the solver reached full accuracy it is
+   also the search's floor (no level below it is tried) and is reported as ``gamma_estimate``. It is not
+   a lower bound (:mod:`lpvflow.synth.eliminated`: the infimum is not attained, and "optimal" solves were
+   measured up to 0.8 % above SB10DD's level), so the certified γ is within 1 + δ of a failing level or
+   of that estimate, not necessarily of the optimum.
 4. **Balancing, validated.** The γ-optimal R, S are singular (RS − I loses rank); the matrices of step 3
    at :data:`lpvflow.synth.eliminated.BALANCING_FACTOR`·γ̂ with the largest margin t (projected LMIs
    ⪯ −t·D_k, D_k their Jacobi diagonals at the estimate; [R I; I S] ⪰ t·I) give a centred pair, and
@@ -123,8 +126,8 @@ class HinfResult:
     Attributes:
         gamma: level certified at every vertex by the closed-loop Lyapunov matrix 𝒳 = FᵀF
             (``lyapunov_factor``).
-        gamma_lower: minimum of the eliminated LMIs (step 3) when that solve was accurate: no controller
-            of this class does better; None otherwise.
+        gamma_estimate: the lowest minimum of the eliminated LMIs (step 3) among the solves that reported
+            full accuracy, None when none did; an estimate of the optimum, not a bound (step 3).
         K_vertices: discrete (Ak_i, Bk_i, Ck_i, Dk_i) from y to u.
         vertex_controllers: the same as ``control.StateSpace`` objects (dt = Ts).
         controller: one ``StateSpace`` for an LTI design, else a :class:`VertexController`; from
@@ -139,7 +142,7 @@ class HinfResult:
     """
 
     gamma: float
-    gamma_lower: float | None
+    gamma_estimate: float | None
     K_vertices: list[tuple[np.ndarray, ...]]
     vertex_controllers: list[control.StateSpace]
     controller: control.StateSpace | VertexController | LPVController
@@ -259,7 +262,7 @@ def _lyapunov(R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray) -> np.
 
 
 def _reconstruct(vertices: list[VertexPlant], level: _LevelProblem, coords: Coordinates, gamma: float,
-                 gamma_lower: float | None, Ts: float, report: SolveReport) -> HinfResult:
+                 gamma_estimate: float | None, Ts: float, report: SolveReport) -> HinfResult:
     """Steps 6 and 7 in the original discrete coordinates (raises LinAlgError when I − RS or 𝒳 is
     singular in floating point)."""
     R, S = (0.5 * (V.value + V.value.T) for V in (level.R, level.S))
@@ -275,7 +278,7 @@ def _reconstruct(vertices: list[VertexPlant], level: _LevelProblem, coords: Coor
     certificate = [certificate_margin(v, K, F, gamma) for v, K in zip(vertices, K_vertices, strict=True)]
     ss = [control.ss(*K, Ts) for K in K_vertices]
     controller = ss[0] if len(ss) == 1 else VertexController(K_vertices, Ts)
-    return HinfResult(gamma, gamma_lower, K_vertices, ss, controller, certificate, F, vertices, Ts, report)
+    return HinfResult(gamma, gamma_estimate, K_vertices, ss, controller, certificate, F, vertices, Ts, report)
 
 
 @dataclass
@@ -287,7 +290,7 @@ class _Search:
     cayleys: list[VertexPlant]
     Ts: float
     solver: str
-    gamma_lower: float | None
+    gamma_estimate: float | None
     attempts: list[tuple[str, str, float]] = field(default_factory=list)
     no_point: list[str] = field(default_factory=list)
     infeasible: int = 0
@@ -304,7 +307,8 @@ class _Search:
         self.failed_levels = []
         certified = self._certifier(coords, rebalance, scales)
         try:
-            return lowest_certified_level(certified, start, suboptimality, gamma_max, self.gamma_lower), None
+            return (lowest_certified_level(certified, start, suboptimality, gamma_max, self.gamma_estimate),
+                    None)
         except _Unbalanced as found:
             return found.result, found.rebalance
 
@@ -345,7 +349,7 @@ class _Search:
             return None
         self.attempts += level_report.attempts
         try:
-            result = _reconstruct(self.vertices, level, coords, gamma, self.gamma_lower, self.Ts,
+            result = _reconstruct(self.vertices, level, coords, gamma, self.gamma_estimate, self.Ts,
                                   level_report)
         except np.linalg.LinAlgError:
             self.rejected += 1
@@ -399,7 +403,8 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
         raise SynthesisError(_failure(exc.category, str(exc), vertices, Ts, gamma_max),
                              category=exc.category) from None
     estimate = pre.estimate
-    search = _Search(vertices, cayleys, Ts, solver, pre.gamma_lower, list(pre.attempts))
+    search = _Search(vertices, cayleys, Ts, solver, estimate.gamma if estimate.accurate else None,
+                     list(pre.attempts))
     coords = pre.coordinates
     best, rebalance = search.run(coords, min(estimate.gamma, gamma_max), suboptimality, gamma_max, True, None)
     first_coords, first_best, interrupted = coords, best, rebalance is not None
@@ -409,9 +414,9 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
             break
         coords = coords.transformed(rebalance.T)
         guess, accurate = estimate_in([coords.apply(vc) for vc in cayleys], gamma_max, solver, search)
-        if accurate and (search.gamma_lower is None or guess < search.gamma_lower):
-            search.gamma_lower = guess
-        start_again = search.gamma_lower if search.gamma_lower is not None else (guess or best.gamma)
+        if accurate and (search.gamma_estimate is None or guess < search.gamma_estimate):
+            search.gamma_estimate = guess
+        start_again = search.gamma_estimate if search.gamma_estimate is not None else (guess or best.gamma)
         again, rebalance = search.run(coords, min(start_again, best.gamma), suboptimality, best.gamma,
                                       round_ + 1 < MAX_REBALANCE, rebalance.scales)
         best = again if again is not None and again.gamma < best.gamma else best

@@ -104,6 +104,12 @@ class LtiController(ExperimentController):
     def close(self) -> None:
         """Nothing to release (the controller holds no instance or file)."""
 
+    def as_gridded(self) -> GriddedController:
+        """The same law as a gridded controller of one grid point (θ = 0, scheduling "0")."""
+        return GriddedController(grid=np.zeros(1), A=self.A[None], B=self.B[None], C=self.C[None],
+                                 D=self.D[None], y_op=self.y_op[None], u_op=self.u_op[None], Ts=self.Ts,
+                                 inputs=self.inputs, outputs=self.outputs, scheduling="0")
+
     def frozen(self, p: np.ndarray) -> control.StateSpace:
         """The law on e = r − y (its operating points dropped), the same at every p: K in u = −K y over
         its own signals (:meth:`negative_feedback`), as :meth:`LPVController.frozen` of a 1-DOF law."""
@@ -316,6 +322,10 @@ class GriddedController(ExperimentController):
         from lpvflow.experiment.scheduling import compile_expression
 
         return compile_expression(self.scheduling, self.scheduling_names)
+
+    def as_gridded(self) -> GriddedController:
+        """Itself (:meth:`LtiController.as_gridded` gives an LTI controller's one-point grid)."""
+        return self
 
     def frozen_at(self, theta: float) -> LtiController:
         """The LTI controller frozen at θ, with that point's operating points."""

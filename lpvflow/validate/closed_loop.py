@@ -207,15 +207,12 @@ class InLoopModel:
 
 
 def controller_arrays(K: LtiController | GriddedController) -> tuple:
-    """(grid, A, B, C, D, y_op, u_op, codes, arguments) of K for the compiled recursion: a gridded
-    controller's grid and its scheduling program in [outputs read, their set-points]; an LTI controller
-    as one grid point (θ = 0)."""
-    if isinstance(K, GriddedController):
-        codes, arguments = expression_program(K.scheduling, K.scheduling_names)
-        mats = (K.grid, K.A, K.B, K.C, K.D, K.y_op, K.u_op)
-    else:
-        codes, arguments = expression_program("0", [])
-        mats = (np.zeros(1), *(np.asarray(M, float)[None] for M in (K.A, K.B, K.C, K.D, K.y_op, K.u_op)))
+    """(grid, A, B, C, D, y_op, u_op, codes, arguments) of K for the compiled recursion: its grid
+    (:meth:`~lpvflow.experiment.controller.LtiController.as_gridded`: an LTI controller is one grid
+    point) and its scheduling program in [outputs read, their set-points]."""
+    G = K.as_gridded()
+    codes, arguments = expression_program(G.scheduling, G.scheduling_names)
+    mats = (G.grid, G.A, G.B, G.C, G.D, G.y_op, G.u_op)
     return (*(np.ascontiguousarray(M, float) for M in mats), codes, arguments)
 
 

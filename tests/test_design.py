@@ -317,7 +317,7 @@ def test_lti_baseline_defaults_to_the_centre_of_the_box(tmp_path, monkeypatch):
     def fake_synthesize(plant, solver):
         boxes.append(plant.polytope.box.tolist())
         controller = SimpleNamespace(save=lambda path: None, order=0, info={})
-        return SimpleNamespace(gamma=1.0, gamma_lower=1.0, controller=controller,
+        return SimpleNamespace(gamma=1.0, controller=controller,
                                report=SimpleNamespace(seconds=0.0), plant=plant)
 
     monkeypatch.setattr(lpvflow.synth.design, "synthesize", fake_synthesize)

@@ -80,7 +80,7 @@ def test_the_synth_stage_gives_the_lpv_controller_and_the_baseline_the_trim(
     import lpvflow.synth.design
 
     def fake_synthesize(plant: object, solver: str) -> SimpleNamespace:  # a controller, no SDP
-        return SimpleNamespace(gamma=1.0, gamma_lower=1.0, controller=_controller(1),
+        return SimpleNamespace(gamma=1.0, controller=_controller(1),
                                report=SimpleNamespace(seconds=0.0), plant=plant)
 
     monkeypatch.setattr(lpvflow.synth.design, "synthesize", fake_synthesize)

@@ -60,8 +60,7 @@ def run(args: argparse.Namespace) -> int:
     keys = "".join(f" ({key} = {settings[key]})" for key in method.keys if settings[key] is not None)
     print(f"{method.summary}{keys}, polytope {poly.kind} with {poly.n_vertices} vertices, "
           f"{settings['structure']}")
-    bound = "" if design.gamma_lower is None else f", lower bound {design.gamma_lower:.6g}"
-    print(f"gamma = {design.gamma:.6g}  ({method.gamma_is}{bound}, {design.seconds:.2f} s)")
+    print(f"gamma = {design.gamma:.6g}  ({method.gamma_is}, {design.seconds:.2f} s)")
     for line in design.certificate.lines():
         print(line)
     if design.controller.info.get("status") == "optimal_inaccurate":

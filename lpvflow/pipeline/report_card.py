@@ -195,8 +195,6 @@ def _gamma_line(synth: dict) -> str:
                 "(b(Gs_i, K∞_i) ≥ 1/γ_i; not comparable with a mixed-sensitivity γ)")
     elif synth.get("method") == "observer":
         text += " (largest frozen closed-loop ‖T_zw‖∞ of the observer design; no LMI bound)"
-    elif synth.get("gamma_lower") is not None:
-        text += f" (LMI lower bound {synth['gamma_lower']:.4g})"
     if synth.get("baseline_gamma") is not None:
         at = ", ".join(f"{v:.3g}" for v in synth.get("baseline_at") or [])
         kind = " (the same loop shaping at one point)" if synth.get("method") == "loop-shaping" else ""

@@ -48,7 +48,6 @@ LABELS = {
     ("synth", "method"): "synthesis method",
     ("synth", "structure"): "controller structure",
     ("synth", "gamma"): "γ, LPV controller",
-    ("synth", "gamma_lower"): "γ lower bound (LMI)",
     ("synth", "baseline_gamma"): "γ, LTI baseline",
     ("synth", "baseline_at"): "LTI baseline designed at",
     ("synth", "certificate"): "certificate",

@@ -264,7 +264,7 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     baseline.controller.antiwindup = antiwindup(baseline.controller, loop, design.controller.info["signals"])
     baseline.controller.save(ctx.path("baseline.json"))
     return ({"method": cfg["method"], "structure": cfg["structure"], "gamma": design.gamma,
-             "gamma_lower": design.gamma_lower, "baseline_gamma": baseline.gamma, "baseline_at": at,
+             "baseline_gamma": baseline.gamma, "baseline_at": at,
              "certificate": design.certificate.lines(), "certificate_ok": bool(design.certificate.ok),
              "solve_seconds": design.seconds, "order": design.controller.order,
              "polytope": design.plant.polytope.kind, "box_note": extrapolation_note(model, cfg["box"])},

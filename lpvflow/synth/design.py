@@ -44,15 +44,14 @@ class Check(Protocol):
 @dataclass
 class Design:
     """A checked controller and what the report states about it: ``gamma`` the certified level (LMI
-    methods) or the largest frozen ‖T_zw‖∞ (observer); ``gamma_lower`` a proven lower bound where the
-    method has one, else None (the LMI syntheses' eliminated-conditions minimum is only an estimate:
-    :mod:`lpvflow.synth.eliminated`); ``antiwindup_gains`` the
+    methods) or the largest frozen ‖T_zw‖∞ (observer) — no method states a lower bound: the LMI
+    syntheses' eliminated-conditions minimum is only an estimate (:mod:`lpvflow.synth.eliminated`),
+    kept in ``controller.info["gamma_estimate"]``; ``antiwindup_gains`` the
     design's own anti-windup gains (observer), None for the generic
     :func:`lpvflow.synth.controller.observer_gains`."""
 
     controller: LPVController
     gamma: float
-    gamma_lower: float | None
     certificate: Check
     plant: GeneralizedPlant
     seconds: float
@@ -89,7 +88,7 @@ def design_common(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, 
     """``method = "common"``: :func:`lpvflow.synth.hinf.synthesize` (one Lyapunov matrix, any polytope),
     certified by :func:`lpvflow.synth.certify.certify`."""
     result = synthesize(plant, settings["solver"])
-    return Design(result.controller, result.gamma, None, certify(result, frozen_model), plant,
+    return Design(result.controller, result.gamma, certify(result, frozen_model), plant,
                   result.report.seconds)
 
 
@@ -100,7 +99,7 @@ def design_rate_bounded(model: LPVSS, plant: GeneralizedPlant, settings: Mapping
     :func:`lpvflow.synth.certify.certify_rate_bounded`."""
     result, controller = synthesize_rate_bounded(plant, settings["rate_bound"], settings["solver"])
     certificate = certify_rate_bounded(result, frozen_model, plant.weights, settings["structure"])
-    return Design(controller, result.gamma, None, certificate, plant, result.report.seconds)
+    return Design(controller, result.gamma, certificate, plant, result.report.seconds)
 
 
 def design_observer(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
@@ -112,7 +111,7 @@ def design_observer(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str
     observer = observer_design(plant, model, ObserverSettings(
         **(settings.get("observer") or {}), filter_bandwidth=filt.get("bandwidth"),
         filter_damping=filt.get("damping", 1.0)))
-    return Design(observer.controller, observer.check.hinf_max, None, observer.check, plant,
+    return Design(observer.controller, observer.check.hinf_max, observer.check, plant,
                   time.perf_counter() - start, observer.antiwindup_gains)
 
 

@@ -243,8 +243,8 @@ def with_reference_model(K_fb: tuple[np.ndarray, ...], model_mats: tuple[np.ndar
 def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
            frozen_model: LPVSS | None) -> Design:
     """The loop-shaping controller of the module docstring at the vertices of ``plant``'s polytope;
-    ``Design.gamma`` the largest vertex level γ_i (1/γ_i the guaranteed b of the shaped loop), no
-    ``gamma_lower``. ``frozen_model`` is not used: the check runs on the model interpolated like the plant.
+    ``Design.gamma`` the largest vertex level γ_i (1/γ_i the guaranteed b of the shaped loop).
+    ``frozen_model`` is not used: the check runs on the model interpolated like the plant.
 
     Raises:
         ModelError: a crossover above the weight's usable band, a model with feed-through, a ``scaling``
@@ -306,4 +306,4 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     # saturates (x_m⁺ += B(u_a − u), :func:`lpvflow.synth.observer.antiwindup_gains`)
     gains = None if reference is None else antiwindup_gains([B for _, B, _, _ in model_vertices],
                                                             controller.order)
-    return Design(controller, max(gammas), None, check, plant, time.perf_counter() - start, gains)
+    return Design(controller, max(gammas), check, plant, time.perf_counter() - start, gains)

@@ -157,6 +157,7 @@ IMPAIRMENT = {
     "tanks": {"rate": 0.1, "gain": 1.4, "dropout": 30.0, "hysteresis": 5e-3},
     "airpath": {"rate": 100.0, "gain": 1.4, "dropout": 0.3, "hysteresis": 3.0},
     "maglev": {"rate": 1.0, "gain": 1.4, "dropout": 0.2, "hysteresis": 2e-4},
+    "adip": {"rate": 150.0, "gain": 1.4, "dropout": 0.02, "hysteresis": 2e-3},
 }
 
 

@@ -120,6 +120,7 @@ def test_diagnose_in_the_loop_says_unexplained_for_an_effect_outside_its_vocabul
                       causes=["input_delay", "model_order", "output_noise_bias"])
     assert result.cause == "unexplained", (result.cause, result.ranking, result.adequacy)
     assert result.adequacy["significant"] and "loop_settling_samples" in result.adequacy
+    assert "the loop's excitation" in result.summary  # not "the input history": u is fed back
     clean = diagnose(_record(a, b, gain, 7), Structure(1, 1, 1, "affine"), controller=_controller(gain),
                      causes=["input_delay", "model_order", "output_noise_bias"])
     assert clean.cause != "unexplained", (clean.cause, clean.adequacy)

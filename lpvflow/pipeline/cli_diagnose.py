@@ -43,8 +43,9 @@ VERDICTS = {
                          "(noise level reported)",
     "colored_noise": "coloured output noise biases least squares (AR noise model and spectrum reported)",
     "ambiguous": "two causes gain significantly and no test separates them: both are reported",
-    "unexplained": "the model is inadequate but no cause of the vocabulary explains it (or an extension "
-                   "explains only part of the error)",
+    "unexplained": "the model is inadequate but no cause of the vocabulary explains it (or the best "
+                   "extension leaves the adequacy test failing); with --controller the error is tested "
+                   "against the loop's excitation and set-points",
 }
 
 

@@ -56,12 +56,16 @@ reversing) is scored as the plant ran.
    instruments from the model's own loop simulation), and the noise round — every extension refitted
    the same way with its own drive in the loop — runs whenever that refit gains significantly; its
    verdict is ``output_noise_bias`` (no noise model is fitted in the loop).
-6. Adequacy (open loop): is the error input-explained? Output noise is independent of the inputs, so the
+6. Adequacy: is the error input-explained? Output noise is independent of the inputs, so the
    simulation error of an adequate model has no part a function of the input history explains
    (:func:`input_explained`, on the nominal model or, after a noise round, its output-error refit).
-   When that part is significant (gain ≥ ``min_gain``, p < ``alpha``) and no structural cause was
-   named, the verdict is ``unexplained``, with that test as its evidence: ``none`` means the model
-   is adequate, not only that no extension of the vocabulary helped; and a noise verdict needs the
+   When that part is significant (gain ≥ ADEQUACY_GAIN·``min_gain``, p < ``alpha``) and no cause was
+   named, the verdict is ``unexplained``, with that test as its evidence; a named cause must pass the
+   same test with its extended model (:func:`~lpvflow.validate.diagnose_adequacy.final_verdict`).
+   Closed loop: the plant input is fed back from the error, so the error is tested against the loop's
+   exogenous history instead — the excitation, set-points and the model's own loop signals, over lags
+   that reach the loop's settling time (:mod:`lpvflow.validate.loop_adequacy`). ``none`` means the
+   model is adequate, not only that no extension of the vocabulary helped; and a noise verdict needs the
    consistent refit to be adequate (the even input map of the synthetic out-of-vocabulary case,
    seed 1001: LS materially biased, the refit gains 1.4 points, its error still input-explained by
    22 points — unexplained, not colored_noise).
@@ -84,6 +88,12 @@ from lpvflow.identify.arx import prediction_residuals
 from lpvflow.lpvio import LPVIO
 from lpvflow.validate import residuals
 from lpvflow.validate.closed_loop import Loop, simulate_in_loop
+from lpvflow.validate.diagnose_adequacy import (  # noqa: F401  (ADEQUACY_GAIN, INADEQUATE_ALPHA: re-exported)
+    ADEQUACY_GAIN,
+    INADEQUATE_ALPHA,
+    INADEQUATE_GAIN,
+    final_verdict,
+)
 from lpvflow.validate.diagnose_evidence import evidence, where
 from lpvflow.validate.diagnose_summary import AMBIGUOUS, NOISE, summary, verdict_parameters
 from lpvflow.validate.extensions import (
@@ -113,19 +123,6 @@ from lpvflow.validate.noise_analysis import (  # noqa: F401  (frozen_response, M
 MIN_VALIDATION = 200
 #: Gains within this fraction of the best one count as practically equivalent.
 EQUIVALENCE = 0.05
-#: An extension gaining at least this many BFR points at block p < INADEQUATE_ALPHA shows the model
-#: inadequate even when no cause can be named (not significant at ``alpha``, or a tie broken to none).
-INADEQUATE_GAIN = 5.0
-INADEQUATE_ALPHA = 0.01
-#: The adequacy test (:func:`~lpvflow.validate.noise_analysis.input_explained`) asks this many times
-#: ``min_gain``: with lags up to the settling time and the model's own simulation among the features,
-#: a correction finds the small misfit of a structure that is adequate for a user — the noise-free
-#: tanks FMU under its poly:3 structure: +2.3 points (seeds 1, 2) — while sensor hysteresis of 5 mm
-#: costs +3.3 (tests/diagnosis_fmu_cases.py, seed 0): the margin is thin.
-ADEQUACY_GAIN = 3.0
-#: A named extension whose extended model leaves an input-explained error of at least this share of
-#: its own gain is partial (:func:`_final_verdict`).
-PARTIAL_SHARE = 0.2
 #: model_order on top of a named dead time must gain this share of the delay's gain to win
 #: (:func:`_delay_before_order`).
 DELAY_SHARE = 0.2
@@ -155,7 +152,7 @@ class Diagnosis:
     refit_ranking: list[dict] = field(default_factory=list)  # the noise round (_choose), else empty
     noise_round: bool = False  # the extensions were refitted consistently (module docstring, step 5)
     noise: dict | None = None  # noise_analysis; None in closed loop or without an OE refit
-    adequacy: dict | None = None  # input_explained of the final model; None in closed loop
+    adequacy: dict | None = None  # input_explained of the final model (in closed loop: explained_in_loop)
     simulation: str = "open loop"  # or "closed loop": in the identification loop (module docstring)
     loop_scheduling: dict[str, str] = field(default_factory=dict)  # recomputed in the loop
     untested: list[str] = field(default_factory=list)  # extensions that could not be fitted (reasons below)
@@ -515,7 +512,7 @@ def diagnose(
     noise_round = refit_ranked is not None
     used = refit_ranked if noise_round else ranked
     final = candidates[NOISE].fit if noise_round else nominal
-    cause, adequacy = _final_verdict(ctx, cause, final, pool, used, min_gain, alpha)
+    cause, adequacy = final_verdict(ctx, cause, final, pool, used, min_gain, alpha)
     _refuse_diverged(cause, nominal, candidates)
     winner = pool.get(NOISE if cause == "colored_noise" else cause)
     after = winner.fit.y_val if winner else nominal.y_val
@@ -537,44 +534,6 @@ def diagnose(
     )
     result.summary = summary(result, winner)
     return result
-
-
-def _final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidate], used: list[dict],
-                   min_gain: float, alpha: float) -> tuple[str, dict | None]:
-    """The verdict after the adequacy tests (module docstring, step 6), and the adequacy it rests on.
-
-    * ``none`` or a noise verdict whose model (``final``: the nominal, or its consistent refit) leaves
-      an error the input history explains (:func:`input_explained`, ≥ ADEQUACY_GAIN·``min_gain``) is
-      ``unexplained``; so is ``none`` when an extension gains strongly without being named
-      (INADEQUATE_GAIN at INADEQUATE_ALPHA: a gain just short of significance, a tie broken to none).
-    * A named extension must explain the error: when the extended model still leaves an error the
-      input history explains (:func:`explained_within_validation`) by at least PARTIAL_SHARE of the
-      extension's own gain, the extension is partial and the cause ``unexplained`` (a rate limiter
-      half explained by a dead time, a drifting gain by an offset). Open loop only: in closed loop
-      the models are judged in the loop, where the input history is not exogenous.
-    """
-    if ctx.loop is not None:
-        return cause, None
-    lags = adequacy_lags(final.model, ctx.est.p, ctx.est.N)
-    adequacy = input_explained(ctx.est, ctx.val, final.model, final.y_val, ADEQUACY_GAIN * min_gain, alpha)
-    if cause in ("none", NOISE, "colored_noise") and adequacy["significant"]:
-        return "unexplained", adequacy
-    strong = [r for r in used if "ruled_out" not in r and not r["diverged"]
-              and r["bfr_gain"] >= INADEQUATE_GAIN and r["p_value"] < INADEQUATE_ALPHA]
-    if cause == "none" and strong:  # inadequate, but no cause stands out: not "none"
-        top = strong[0]
-        return "unexplained", adequacy | {"unnamed_extension": {
-            "cause": top["cause"], "bfr_gain": top["bfr_gain"], "p_value": top["p_value"]}}
-    if cause in pool and cause not in (NOISE, "colored_noise"):
-        left = explained_within_validation(ctx.est, ctx.val, pool[cause].fit.y_val, lags,
-                                           ADEQUACY_GAIN * min_gain, alpha)
-        gain = next(r["bfr_gain"] for r in used if r["cause"] == cause)
-        adequacy["extended_model"] = left
-        if left["significant"] and left["bfr_gain"] >= PARTIAL_SHARE * gain:
-            return "unexplained", adequacy | {"partial_extension": {
-                "cause": cause, "bfr_gain": gain, "left_input_explained_bfr_gain": left["bfr_gain"],
-                "p_value": left["p_value"]}}
-    return cause, adequacy
 
 
 def _refuse_diverged(cause: str, nominal: Fit, candidates: dict[str, Candidate]) -> None:

@@ -66,16 +66,18 @@ def _verdict_line(result: Diagnosis, winner: Candidate | None) -> str:
         return (f"validation BFR {before:.1f} %; the model is inadequate — {ext['cause']} gains "
                 f"{ext['bfr_gain']:.1f} points (p = {ext['p_value']:.2g}) — but no cause of the vocabulary "
                 "is significant and unambiguous: cause unexplained")
+    history = ("the input history" if result.simulation == "open loop"
+               else "the loop's excitation and set-points (and the model's loop signals)")
     if result.cause == "unexplained" and "partial_extension" in result.parameters:
         ext = result.parameters["partial_extension"]
         left = ext["left_input_explained_bfr_gain"]
         return (f"validation BFR {before:.1f} %; {ext['cause']} gains {ext['bfr_gain']:.1f} points but its "
-                f"model still leaves an error the input history explains (+{left:.1f} points, "
+                f"model still leaves an error {history} explains (+{left:.1f} points, "
                 f"p = {ext['p_value']:.2g}): a partial explanation, cause unexplained")
     if result.cause == "unexplained":
         a = result.adequacy
         return (f"validation BFR {before:.1f} %; the simulation error is larger than the output noise "
-                f"explains — a correction from the input history alone gains {a['bfr_gain']:.1f} points "
+                f"explains — a correction from {history} alone gains {a['bfr_gain']:.1f} points "
                 f"(p = {a['p_value']:.2g}) — and no extension of the vocabulary gains significantly: "
                 "cause unexplained")
     if winner is None:

@@ -133,7 +133,8 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
         raise DataError(f"[diagnose] needs an input-output model; [identify] method = {ident['method']!r} "
                         "gives a state-space one: use an IO method (lpr-arx, oe, iv-oe, ...)")
     io = load(ctx.path("model_full.json")).io
-    controller = (loop_controller(experiment["controller"], "[diagnose] (with the [experiment] controller)")
+    controller = (loop_controller(experiment["controller"],
+                                  "[diagnose], which simulates the [experiment] controller's loop,")
                   if experiment["controller"] else None)
     result, data = diagnose_model(
         ctx.columns(), ctx.dataset(ident["u"], ident["y"], ident["p"]), Structure.of_model(io),

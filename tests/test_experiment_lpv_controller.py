@@ -257,10 +257,13 @@ def test_the_design_pipeline_identifies_under_an_lpv_controller_file(adip, tmp_p
 
     (tmp_path / "design.toml").write_text(DESIGN.format(
         plant=adip, out=tmp_path, controller=controller,
-        extra='[diagnose]\ncandidates = ["sin_arm"]\n').replace("remove_trim = true", ""))
+        extra='[diagnose]\ncandidates = ["sin_arm"]\n'))
     summary = run_design(tmp_path / "design.toml", log=lambda line: None)
     assert summary["failed"]["stage"] == "diagnose"
-    assert "lpvflow/lti-controller only" in summary["failed"]["error"]
+    error = summary["failed"]["error"]
+    assert "is an lpvflow/lpv-controller file; [diagnose], which simulates the [experiment] controller's " \
+           "loop, runs 'lpvflow/lti-controller' or 'lpvflow/gridded-controller' controllers" in error
+    assert "\n" not in error
 
 
 def test_cli_experiment_takes_an_lpv_controller(adip, tmp_path, capsys):

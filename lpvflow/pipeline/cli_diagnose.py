@@ -6,22 +6,17 @@ import argparse
 import json
 import sys
 import textwrap
-from dataclasses import replace
 from pathlib import Path
-
-import numpy as np
 
 from lpvflow.data import Dataset, read_columns, time_column
 from lpvflow.errors import DataError, ModelError
-from lpvflow.experiment.controller import FORMAT, GRIDDED_FORMAT, GriddedController, LtiController
 from lpvflow.experiment.run import sidecar_path
 from lpvflow.experiment.scheduling import parse_assignment
-from lpvflow.loop.loader import load_controller_file
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import LPVSS, atomic_write_json, load, report_header
 from lpvflow.pipeline.cli_identify import parse_order
 from lpvflow.pipeline.cli_paths import check_paths
-from lpvflow.validate.diagnose import MIN_VALIDATION, diagnose
+from lpvflow.pipeline.model_diagnosis import diagnose_model, loop_controller
 from lpvflow.validate.extended_model import ExtendedModel
 from lpvflow.validate.extensions import EXTENSIONS, Structure
 
@@ -118,31 +113,16 @@ def run_diagnose(args: argparse.Namespace) -> int:
         raise DataError("give the columns --u, --y and --p (or a MODEL whose columns are used)")
     table = read_columns(data_path)  # the file is read once: the dataset and the candidates come from it
     data = Dataset.from_columns(table, Path(data_path).name, u, y, p, args.time, args.Ts)
-    controller = _controller(args)
-    if args.remove_trim:
-        data = replace(data, u=data.u - _trim(controller, data, table))
-    if args.remove_offsets:
-        data = data.remove_offsets()
     used = {*u, *y, *p, args.time if args.time != "auto" else time_column(table)}
     names = args.candidates if args.candidates is not None else [c for c in table if c not in used]
-    missing = [c for c in names if c not in table]
-    if missing:
-        raise DataError(f"candidate column(s) {missing} not found; available: {sorted(table)}")
-    if data.N * (1 - args.split) < MIN_VALIDATION:
-        raise DataError(f"{data.N} samples leave fewer than {MIN_VALIDATION} for validation at split "
-                        f"{args.split}: record longer data or lower --split")
     structure = (Structure.of_model(io) if io is not None else
                  Structure(parse_order(args.na or "2"), parse_order(args.nb or "2"),
                            parse_order(args.nk or "1"), args.basis or "affine"))
-    setpoints = None  # the recorded set-points; a law that takes none as references ignores them
-    if controller is not None:
-        setpoints = np.column_stack([np.asarray(table[f"{name}_setpoint"], float)[: data.N]
-                                     if f"{name}_setpoint" in table else np.full(data.N, np.nan)
-                                     for name in controller.inputs])
-    result = diagnose(data, structure, {c: table[c] for c in names}, split=args.split, causes=args.causes,
-                      controller=controller, scheduling=_scheduling(args, data_path) if controller else None,
-                      model=io, progress=sys.stderr.isatty(), setpoints=setpoints,
-                      remove_trim=args.remove_trim)
+    controller = loop_controller(args.controller, "diagnose --controller") if args.controller else None
+    result, data = diagnose_model(
+        table, data, structure, split=args.split, candidates=names, model=io, controller=controller,
+        scheduling=_scheduling(args, data_path) if controller else None, remove_trim=args.remove_trim,
+        remove_offsets=args.remove_offsets, causes=args.causes, progress=sys.stderr.isatty())
     report = report_header("diagnosis") | {"model": model_path} | result.to_dict()
     report["extended_model"] = None
     if result.winner is not None:
@@ -160,27 +140,6 @@ def run_diagnose(args: argparse.Namespace) -> int:
         plot_diagnosis(result, data, args.plot, args.split)
     print(result.summary)
     return 0
-
-
-def _controller(args: argparse.Namespace) -> LtiController | GriddedController | None:
-    """``--controller``: an LTI or gridded controller file; ``--remove-trim`` needs one."""
-    if not args.controller:
-        if args.remove_trim:
-            raise DataError("--remove-trim takes the trim of the controller the data were recorded under: "
-                            "give --controller")
-        return None
-    return load_controller_file(args.controller, (FORMAT, GRIDDED_FORMAT), "diagnose --controller")
-
-
-def _trim(controller: LtiController | GriddedController, data: Dataset, table: dict) -> np.ndarray:
-    """The controller's trim over the record (N, inputs of ``data``; 0 on inputs it does not drive)."""
-    missing = [name for name in controller.outputs if name not in data.u_names]
-    if missing:
-        raise DataError(f"--remove-trim: the controller drives {missing}, which are not inputs "
-                        f"{data.u_names}")
-    trim = np.zeros_like(data.u)
-    trim[:, [data.u_names.index(name) for name in controller.outputs]] = controller.trim_along(table, data.N)
-    return trim
 
 
 def _scheduling(args: argparse.Namespace, data_path: str) -> dict[str, str]:

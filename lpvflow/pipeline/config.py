@@ -119,9 +119,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
                       "last round's record (last) or from the estimation parts of every round's (all)"),
     },
     "diagnose": {
-        "adopt": Key(False, boolean, "let the diagnosed extension replace the identified model"),
-        "candidates": Key([], names(empty=True), "extra data columns a cause may be explained by"),
-        "split": Key(0.5, number(0.0, 1.0, open_low=True, open_high=True), "estimation fraction, in (0, 1)"),
+        "adopt": Key(False, boolean, "let the diagnosed extension replace the identified model (extensions "
+                     "that keep its inputs, outputs and signals)"),
+        "candidates": Key([], names(empty=True), "extra data columns that may be missing scheduling "
+                          "variables"),
     },
     "reduce": {
         "order": Key(None, integer(1), "model order after reduction (default: automatic)"),

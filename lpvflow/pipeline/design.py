@@ -72,7 +72,7 @@ IDENTIFY = Stage("identify", stages.identify, ("identify",),
                  {"identify": ALL, "experiment": ("controller",), "design": ("plant",)},
                  ("experiment",), _PLANT + _CONTROLLER)
 DIAGNOSE = Stage("diagnose", stages.diagnose, ("diagnose", "identify"),
-                 {"diagnose": ALL, "identify": (*_SIGNALS, "increments", "na", "nb", "nk", "basis"),
+                 {"diagnose": ALL, "identify": (*_SIGNALS, "increments", "method"),
                   "experiment": ("controller", "scheduling")}, ("identify",), _CONTROLLER)
 REDUCE = Stage("reduce", stages.reduce_model, ("reduce",), {"reduce": ALL}, ("identify", "diagnose"))
 VALIDATE = Stage("validate", stages.validate, ("validate", "identify", "experiment"),

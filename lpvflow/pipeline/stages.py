@@ -29,7 +29,7 @@ from lpvflow.pipeline.antiwindup import antiwindup
 from lpvflow.pipeline.cli_identify import plot_fit
 from lpvflow.pipeline.context import DATA_FILE, StageContext
 from lpvflow.pipeline.controller_design import design_controller, extrapolation_note
-from lpvflow.pipeline.coordinates import estimation_records, read_data, two_step_excitation, without_offsets
+from lpvflow.pipeline.coordinates import estimation_records, read_data, two_step_excitation
 from lpvflow.pipeline.export import export_controller
 from lpvflow.pipeline.frozen_references import (
     fmu_reference,
@@ -38,13 +38,13 @@ from lpvflow.pipeline.frozen_references import (
     trim_closed,
 )
 from lpvflow.pipeline.gate import gate_verdict
+from lpvflow.pipeline.model_diagnosis import diagnose_model, loop_controller
 from lpvflow.pipeline.model_loop import closed_loop_simulation
 from lpvflow.pipeline.residual_plot import one_step_residuals
 from lpvflow.pipeline.step_sweep import largest_steps
 from lpvflow.pipeline.verify import fmu_units, plot_runs, run_verification
 from lpvflow.synth.design import synthesize_design
 from lpvflow.synth.polytope import scheduling_box
-from lpvflow.validate.diagnose import diagnose as run_diagnosis
 from lpvflow.validate.diagnose_plot import plot_diagnosis
 from lpvflow.validate.extensions import Structure
 from lpvflow.validate.frozen import compare_frozen
@@ -116,43 +116,32 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
 
 
 def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
-    """Diagnosis of the identify structure on the experiment data; with ``adopt`` the
-    extended model replaces the identified one for the rest of the design.
-
-    Only extensions that keep the model's inputs and outputs can be adopted (a dead time, orders, a
-    richer basis, another estimator): offset, friction, actuator-map, backlash and sensor-saturation
-    extensions add inputs or are fitted on mapped signals (an input map, a play operator, a clipped
-    output, y − offset) a controller design model cannot carry, so they are reported but not adopted.
-
-    With an experiment controller (closed-loop data) every model is simulated in the identification
-    loop with the experiment's scheduling expressions (as :func:`closed_loop_simulation` does).
-    With ``remove_offsets`` the diagnosed record has the same offsets subtracted as the identify stage's
-    data (:func:`read_data`, :func:`without_offsets`), so an adopted model works in the same deviation
-    coordinates.
-    """
-    cfg, ident = ctx.config["diagnose"], ctx.config["identify"]
-    if ident["remove_trim"] or ident["increments"]:
-        raise DataError("[diagnose] works on the measured signals: it cannot be combined with [identify] "
-                        "remove_trim or increments")
-    table = ctx.columns()
-    data = ctx.dataset(ident["u"], ident["y"], ident["p"])
-    experiment = ctx.config["experiment"]
-    if ident["remove_offsets"]:
-        if experiment["controller"]:
-            raise DataError("[diagnose] with [identify] remove_offsets needs open-loop data (the experiment "
-                            "controller acts on the measured signals, not on deviations)")
-        data = without_offsets(data, data.split(ident["split"])[0])  # the identify stage's operating point
-    missing = [c for c in cfg["candidates"] if c not in table]
-    if missing:
-        raise DataError(f"[diagnose] candidate column(s) {missing} are not in the experiment data")
-    structure = Structure(ident["na"], ident["nb"], ident["nk"], ident["basis"])
-    controller = load_experiment_controller(experiment["controller"]) if experiment["controller"] else None
-    if controller is not None and controller.scheduled:
-        raise DataError("[diagnose] simulates the identification loop with an lpvflow/lti-controller only; "
-                        f"the [experiment] controller is a scheduled one ({controller.to_dict()['format']})")
-    result = run_diagnosis(data, structure, {c: table[c] for c in cfg["candidates"]}, split=cfg["split"],
-                           controller=controller, scheduling=experiment["scheduling"])
-    plot_diagnosis(result, data, ctx.path("diagnosis.png"), cfg["split"])
+    """Diagnosis of the identified model (the identify stage's input-output model, before reduction) on
+    its validation part, through the path of `lpvflow diagnose`
+    (:func:`~lpvflow.pipeline.model_diagnosis.diagnose_model`): the record in the model's signals
+    (``remove_trim``, ``remove_offsets`` about the estimation part's means, as identify used them), every
+    model simulated in the loop of the experiment controller (LTI or gridded; set-points as recorded,
+    the experiment's scheduling expressions recomputed from the simulated outputs). With ``adopt`` the
+    extended model replaces the identified one for the rest of the design when
+    :func:`~lpvflow.pipeline.adoption.adoption_refusal` lets it (it keeps the model's inputs, outputs
+    and signal maps)."""
+    cfg, ident, experiment = ctx.config["diagnose"], ctx.config["identify"], ctx.config["experiment"]
+    if ident["increments"]:
+        raise DataError("[diagnose] cannot diagnose a model identified through [identify] increments (it "
+                        "diagnoses the measured outputs): drop increments or the [diagnose] table")
+    if method_of(ident["method"]).result != "io":
+        raise DataError(f"[diagnose] needs an input-output model; [identify] method = {ident['method']!r} "
+                        "gives a state-space one: use an IO method (lpr-arx, oe, iv-oe, ...)")
+    io = load(ctx.path("model_full.json")).io
+    controller = (loop_controller(experiment["controller"],
+                                  "[diagnose], which simulates the [experiment] controller's loop,")
+                  if experiment["controller"] else None)
+    result, data = diagnose_model(
+        ctx.columns(), ctx.dataset(ident["u"], ident["y"], ident["p"]), Structure.of_model(io),
+        split=ident["split"], candidates=cfg["candidates"], model=io, controller=controller,
+        scheduling=experiment["scheduling"], remove_trim=ident["remove_trim"],
+        remove_offsets=ident["remove_offsets"], operating_point=ident["split"])
+    plot_diagnosis(result, data, ctx.path("diagnosis.png"), ident["split"])
     outputs = {"cause": result.cause, "parameters": result.parameters, "summary": result.summary,
                "bfr_before": result.bfr_before, "bfr_after": result.bfr_after,
                "ranking": [{k: r[k] for k in ("cause", "bfr_gain", "p_value")} for r in result.ranking],

@@ -200,7 +200,8 @@ def test_adopted_dead_time_gives_a_controller_that_tracks_the_fmu_plant_better(t
     101 s, overshoots 3.5 % instead of 8.0 % and its IAE is 11.2 % lower (0.667 vs 0.752 m·s). On
     the 3 cm step down it is not better: no overshoot (2.0 % before) but it settles in 66 s instead
     of 48 s, IAE 3.1 % higher. Sum of IAE −5.4 %. Over seeds 1–5 and the affine and poly:2 bases
-    (benchmarks/README.md) the step up and the sum are better in all ten cases (sum −4.7 to −20.5 %),
+    (benchmarks/README.md, adopted then in all ten, now in six) the step up and the sum were better in
+    all ten cases (sum −4.7 to −20.5 %),
     the step down in five: the step up and the sum are asserted."""
     summary = run_design(dead_time_design(tmp_path, tanks_fmu), log=lambda _: None)
     assert summary["failed"] is None

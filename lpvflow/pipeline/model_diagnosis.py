@@ -54,7 +54,7 @@ def diagnose_model(
     if remove_trim:
         if controller is None:
             raise DataError("remove_trim takes off the trim of the controller the data were recorded under: "
-                            "give that controller (--controller)")
+                            "give that controller (--controller; in a design [experiment] controller)")
         data = replace(data, u=data.u - _trim(controller, data, table))
     if remove_offsets:
         data = without_offsets(data, data if operating_point is None else data.split(operating_point)[0])

@@ -544,7 +544,8 @@ def _refuse_diverged(cause: str, nominal: Fit, candidates: dict[str, Candidate])
     if cause == "none" and nominal.diverged:
         raise ModelError("the nominal model's validation simulation diverges, so its adequacy cannot be "
                          "judged: check the orders and the basis, remove the signals' offsets "
-                         "(--remove-offsets), or give the controller of closed-loop data (--controller)")
+                         "(--remove-offsets; in a design [identify] remove_offsets), or give the "
+                         "controller of closed-loop data (--controller; in a design [experiment] controller)")
     if cause in (NOISE, "colored_noise") and refit is not None and refit.fit.diverged:
         raise ModelError("the output-error refit of the nominal structure diverges in simulation, so the "
                          "noise cannot be judged: check the orders and the basis")

@@ -26,6 +26,7 @@ import numba
 import numpy as np
 
 from lpvflow.experiment.expression_program import run_program
+from lpvflow.validate.signal_maps import dead_zone, saturation
 
 #: Input map codes of :func:`simulate_loop`.
 NO_MAP, DEAD_ZONE, SATURATION = 0, 1, 2
@@ -208,10 +209,10 @@ def _present(k, u_k, y_k, A, B, exponents, signal, knot, p, computed, codes, arg
                 b_at[k, lag, r, c] = acc
     for a in range(nu):
         value = u_k[a]
-        if a == map_input and map_kind == 1 and not np.isnan(value):  # dead zone
-            value = np.sign(value) * max(abs(value) - level, 0.0)
-        elif a == map_input and map_kind == 2 and not np.isnan(value):  # saturation
-            value = min(max(value, -level), level)
+        if a == map_input and map_kind == DEAD_ZONE:
+            value = dead_zone(value, level)
+        elif a == map_input and map_kind == SATURATION:
+            value = saturation(value, level)
         v[k, a] = value
     for e in range(n_extra):
         v[k, nu + e] = extra[k, e]

@@ -11,14 +11,21 @@ import numpy as np
 from lpvflow.lpvio import LPVIO
 
 
-def dead_zone(u: np.ndarray, width: float) -> np.ndarray:
-    """Dead zone of half-width w: sign(u)·max(|u| − w, 0)."""
-    return np.sign(u) * np.maximum(np.abs(u) - width, 0.0)
+@numba.vectorize(["float64(float64, float64)"], cache=True)
+def dead_zone(u: float, width: float) -> float:
+    """Dead zone of half-width w: sign(u)·max(|u| − w, 0); a ufunc, so the compiled loop
+    (:mod:`lpvflow.validate.loop_recursion`) calls the same map on one sample; NaN stays NaN."""
+    if np.isnan(u):
+        return u
+    return np.sign(u) * max(abs(u) - width, 0.0)
 
 
-def saturation(u: np.ndarray, limit: float) -> np.ndarray:
-    """Saturation at ±limit."""
-    return np.clip(u, -limit, limit)
+@numba.vectorize(["float64(float64, float64)"], cache=True)
+def saturation(u: float, limit: float) -> float:
+    """Saturation at ±limit (a ufunc, as :func:`dead_zone`); NaN stays NaN."""
+    if np.isnan(u):
+        return u
+    return min(max(u, -limit), limit)
 
 
 @numba.njit(cache=True)

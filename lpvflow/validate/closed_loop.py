@@ -90,7 +90,8 @@ class Loop:
         loop = cls(controller, np.zeros((data.N, len(controller.outputs))), dict(scheduling or {}),
                    law.references_of(np.asarray(given, dtype=float)), trim_removed, offset)
         u_index = [data.u_names.index(n) for n in controller.outputs]
-        return replace(loop, excitation=data.u[:, u_index] - _commands(loop, data.y, data))
+        commands = _commands(loop, loop.plant_outputs(data.y), data)
+        return replace(loop, excitation=data.u[:, u_index] - commands)
 
     def plant_outputs(self, y: np.ndarray) -> np.ndarray:
         """The data's outputs ``y`` in the plant's signals (the removed output means added back)."""
@@ -243,21 +244,21 @@ def loop_signals(y: np.ndarray, data: Dataset, loop: Loop) -> tuple[np.ndarray, 
     """
     u_index, computed = _wiring(data, loop)
     u, p = data.u.copy(), data.p.copy()
-    u[:, u_index] = _commands(loop, y, data) + loop.excitation[: data.N]
     plant = np.ascontiguousarray(loop.plant_outputs(np.asarray(y, float)))
+    u[:, u_index] = _commands(loop, plant, data) + loop.excitation[: data.N]
     for i, program in computed:
         p[:, i] = program_values(*program, plant)
     return u, p
 
 
-def _commands(loop: Loop, y: np.ndarray, data: Dataset) -> np.ndarray:
-    """(N, len(controller.outputs)) commands of ``loop``'s controller run from rest on the outputs ``y``
-    (N, ny) (names ``data.y_names``, in the plant's signals :meth:`Loop.plant_outputs`) and the loop's
-    references, less the trim u_op(θ) when it is removed; NaN after a non-finite command
+def _commands(loop: Loop, plant: np.ndarray, data: Dataset) -> np.ndarray:
+    """(N, len(controller.outputs)) commands of ``loop``'s controller run from rest on the plant outputs
+    ``plant`` (N, ny) (names ``data.y_names``, already in the plant's signals :meth:`Loop.plant_outputs`)
+    and the loop's references, less the trim u_op(θ) when it is removed; NaN after a non-finite command
     (:func:`lpvflow.validate.loop_recursion.controller_commands`)."""
     read = [data.y_names.index(name) for name in loop.controller.inputs]
-    read_outputs = np.ascontiguousarray(loop.plant_outputs(np.asarray(y, float))[:, read])
-    references = np.ascontiguousarray(_references(loop, len(y)), float)
+    read_outputs = np.ascontiguousarray(plant[:, read])
+    references = np.ascontiguousarray(_references(loop, len(plant)), float)
     return controller_commands(controller_arrays(loop.controller), read_outputs, references,
                                bool(loop.trim_removed))
 

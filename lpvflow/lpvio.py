@@ -40,6 +40,9 @@ class LPVIO:
         noise_cov: (ny, ny) residual covariance of the fit, if identified.
         param_cov: per output, the covariance of its free parameters (same order as
             :meth:`free_parameters`), if identified.
+        operating_point: the means subtracted from the data it was identified on, ``{"u": u₀, "y": y₀}``
+            (``identify --remove-offsets`` / ``[identify] remove_offsets``): the model maps u − u₀ to
+            y − y₀; empty when identified in the recorded signals.
     """
 
     A: np.ndarray
@@ -56,6 +59,7 @@ class LPVIO:
     p_names: list[str] = field(default_factory=list)
     noise_cov: np.ndarray | None = None
     param_cov: list[np.ndarray] | None = None
+    operating_point: dict[str, list[float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.A = np.asarray(self.A, dtype=float)
@@ -76,6 +80,7 @@ class LPVIO:
         if self.Ts <= 0:
             raise ModelError(f"sampling time must be positive, got Ts={self.Ts}")
         default_names(self, nu, ny, self.basis.n_p)
+        self.operating_point = checked_operating_point(self.operating_point, nu, ny)
 
     @property
     def ny(self) -> int:
@@ -128,6 +133,8 @@ class LPVIO:
                 d[name] = np.asarray(value).tolist()
         if self.param_cov is not None:
             d["param_cov"] = [np.asarray(c).tolist() for c in self.param_cov]
+        if self.operating_point:
+            d["operating_point"] = self.operating_point
         return d
 
     @classmethod
@@ -146,7 +153,24 @@ class LPVIO:
         cov = [np.asarray(c, dtype=float) for c in d["param_cov"]] if "param_cov" in d else None
         return cls(stack("A", ny), B, basis, float(d["Ts"]), C=stack("C", ny), form=d["form"],
                    u_names=d["u_names"], y_names=d["y_names"], p_names=d["p_names"],
-                   param_cov=cov, **opt)
+                   param_cov=cov, operating_point=d.get("operating_point", {}), **opt)
 
     def save(self, path: str | os.PathLike) -> None:
         atomic_write_json(path, self.to_dict())
+
+
+def checked_operating_point(point: object, nu: int, ny: int) -> dict[str, list[float]]:
+    """``point`` as ``{"u": nu finite numbers, "y": ny finite numbers}`` (or empty); ModelError otherwise."""
+    if not point:
+        return {}
+    if not isinstance(point, dict) or set(point) != {"u", "y"}:
+        raise ModelError("operating_point must give the input and output means as {'u': [...], 'y': [...]}, "
+                         f"got {point!r}")
+    checked = {}
+    for key, size in (("u", nu), ("y", ny)):
+        values = np.asarray(point[key], dtype=float).ravel()
+        if values.size != size or not np.all(np.isfinite(values)):
+            raise ModelError(f"operating_point[{key!r}] must hold {size} finite number(s), "
+                             f"got {point[key]!r}")
+        checked[key] = values.tolist()
+    return checked

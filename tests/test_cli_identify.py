@@ -1,6 +1,7 @@
 """`lpvflow identify` / `lpvflow simulate` end to end on CSV data."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ import lpvflow
 from lpvflow.basis import Basis
 from lpvflow.lpvio import LPVIO
 from lpvflow.pipeline.cli import main
+from lpvflow.validate.metrics import bfr
 
 
 @pytest.fixture
@@ -116,3 +118,46 @@ def test_armax_on_data_with_innovation_noise(tmp_path, capsys):
     loaded = lpvflow.load(model)
     assert loaded.K is not None  # the innovation gain of Schulz eq. (4)
     assert loaded.io.C[0, 0, 0, 0] == pytest.approx(0.5, abs=0.05)
+
+
+def test_a_model_identified_in_deviations_records_its_operating_point(tmp_path, lpr_csv):
+    """`identify --remove-offsets` on a record with large input and output offsets writes the record's
+    means into the model (``operating_point``), and `simulate` on the recorded signals gives
+    y₀ + G(u − u₀): its BFR is that formula's, not the deviation model's on the raw signals."""
+    path, _ = lpr_csv
+    table = np.loadtxt(path, delimiter=",", skiprows=1)
+    table[:, 1] += 3.0  # volt around 3
+    table[:, 3] += -40.0  # angle around −40
+    shifted = tmp_path / "shifted.csv"
+    np.savetxt(shifted, table, delimiter=",", header="time,volt,theta,angle", comments="")
+    model, fit = tmp_path / "model.json", tmp_path / "fit.json"
+    cols = ["--u", "volt", "--y", "angle", "--p", "theta"]
+    assert main(["identify", str(shifted), *cols, "--basis", "poly:2", "--remove-offsets",
+                 "-o", str(model)]) == 0
+    io = lpvflow.load(model).io
+    u, p, y = table[:, 1:2], table[:, 2:3], table[:, 3:4]
+    np.testing.assert_allclose(io.operating_point["u"], u.mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(io.operating_point["y"], y.mean(axis=0), rtol=1e-12)
+    assert main(["simulate", str(model), str(shifted), *cols, "--json", str(fit)]) == 0
+    reported = json.loads(fit.read_text())["bfr"][0]
+    expected = bfr(y, y.mean(axis=0) + io.simulate(u - u.mean(axis=0), p))
+    assert reported == pytest.approx(expected, abs=1e-9)
+    assert reported > 95.0 > bfr(y, io.simulate(u, p))
+
+
+@pytest.mark.parametrize("point, message", [
+    ({"u": [1.0]}, "operating_point must give the input and output means"),
+    ({"u": [1.0, 2.0], "y": [0.0]}, "operating_point['u'] must hold 1 finite number(s)"),
+    ({"u": [1.0], "y": [float("nan")]}, "operating_point['y'] must hold 1 finite number(s)"),
+])
+def test_a_bad_operating_point_is_one_line(point, message):
+    with pytest.raises(lpvflow.errors.ModelError, match=re.escape(message)):
+        LPVIO(np.zeros((1, 2, 1, 1)), np.ones((2, 2, 1, 1)), Basis.poly(1), 0.1, operating_point=point)
+
+
+def test_the_operating_point_survives_the_model_file(tmp_path):
+    io = LPVIO(np.full((1, 2, 1, 1), -0.2), np.ones((2, 2, 1, 1)), Basis.poly(1), 0.1,
+               operating_point={"u": [2.0], "y": [-1.5]})
+    io.save(tmp_path / "io.json")
+    assert lpvflow.load(tmp_path / "io.json").operating_point == {"u": [2.0], "y": [-1.5]}
+    assert "operating_point" not in LPVIO(io.A, io.B, io.basis, io.Ts).to_dict()

@@ -97,20 +97,25 @@ def test_the_stage_reports_the_identified_models_validation_fit(tanks_runs):
 
 def test_the_stage_and_the_cli_give_the_same_diagnosis(tanks_runs, tmp_path):
     """`lpvflow diagnose model_full.json data.csv --split S` on the design's own files: the same verdict,
-    parameters, nominal and extended fits and ranking as the stage (the cases without offsets: the CLI's
-    --remove-offsets takes the whole record's means, as `lpvflow identify --remove-offsets` does)."""
+    parameters, nominal and extended fits and ranking as the stage — with remove_offsets too, since the
+    model records the estimation part's means it was identified about (``operating_point``)."""
     compared = 0
     for (_, dead_time, split, offsets), folder, outputs in tanks_runs:
+        io = lpvflow.load(folder / "model_full.json").io
         if offsets:
-            continue
+            data = Dataset.read(folder / "data.csv", ["pump_voltage"], ["lower_level"], ["level"])
+            est = data.split(split)[0]
+            np.testing.assert_allclose(io.operating_point["y"], est.y.mean(axis=0), rtol=1e-12)
+        else:
+            assert io.operating_point == {}
         report = tmp_path / f"r{compared}.json"
         assert main(["diagnose", str(folder / "model_full.json"), str(folder / "data.csv"), "--split",
                      str(split), "--json", str(report)]) == 0
         _assert_same(json.loads(report.read_text()), outputs)
-        if dead_time >= 2.0:
+        if dead_time >= 2.0 and not offsets:
             assert outputs["cause"] == "input_delay" and outputs["parameters"]["nk"] == 1 + int(dead_time)
         compared += 1
-    assert compared == 2
+    assert compared == 4
 
 
 def _assert_same(cli: dict, stage: dict) -> None:

@@ -63,7 +63,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     for name, default, text in structure:
         p.add_argument(f"--{name}", help=f"{text} of the structure without MODEL (default {default})")
     p.add_argument("--remove-offsets", action="store_true",
-                   help="subtract the record's mean inputs and outputs (as `identify --remove-offsets`)")
+                   help="subtract the record's mean inputs and outputs (as `identify --remove-offsets`); "
+                        "a MODEL identified that way is always diagnosed about the means it records")
     p.add_argument("--candidates", nargs="+", metavar="COL",
                    help="recorded channels that may be scheduling variables (default: all unused columns)")
     p.add_argument("--causes", nargs="+", choices=sorted(EXTENSIONS), help="test only these causes")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +60,8 @@ def configure_identify(p: argparse.ArgumentParser) -> None:
                    help="state order: reduce the realization to it (IO methods) or the model order "
                         "(pbsid, cva, kcca-lfr)")
     p.add_argument("--remove-offsets", action="store_true",
-                   help="subtract the record's mean inputs and outputs (the model works in deviations)")
+                   help="subtract the record's mean inputs and outputs: the model works in deviations and "
+                        "records the means, which simulate, validate and diagnose add back")
     p.add_argument("--controller", metavar="CONTROLLER.json",
                    help="closed-loop data recorded under this lpvflow/lti-controller: the fit is checked by "
                         "simulating the model in that loop (scheduling expressions from the data's sidecar)")
@@ -106,7 +108,7 @@ def run_identify(args: argparse.Namespace) -> int:
         model = _estimate(args, data)
         description = f"state order {getattr(model, 'nx', '?')}"
     else:
-        io = _estimate(args, data)
+        io = replace(_estimate(args, data), operating_point=data.offsets)  # --remove-offsets' means
         if io.form == "static":
             if args.order is not None:
                 raise DataError("--order needs a realizable model; use --method lpr-arx")
@@ -165,12 +167,18 @@ def _fit_status(method: str, fit: dict) -> int:
 
 
 def simulate_any(model: LPVSS | LPVIO | LPVLFR, data: Dataset) -> np.ndarray:
+    """The model's simulated output on ``data``; a model that records the operating point (u₀, y₀) it was
+    identified about (``LPVIO.operating_point``, also an LPVSS's ``io``) gives y₀ + G(u − u₀)."""
     if model.nu != data.u.shape[1] or model.ny != data.y.shape[1] or model.basis.n_p != data.p.shape[1]:
         raise DataError(
             f"the model is {model.ny}x{model.nu} with {model.basis.n_p} scheduling signal(s); the data "
             f"columns give {data.y.shape[1]}x{data.u.shape[1]} with {data.p.shape[1]}"
         )
-    return model.simulate(data.u, data.p)
+    io = model if isinstance(model, LPVIO) else getattr(model, "io", None)
+    point = io.operating_point if io is not None else {}
+    if not point:
+        return model.simulate(data.u, data.p)
+    return np.asarray(point["y"]) + model.simulate(data.u - np.asarray(point["u"]), data.p)
 
 
 def run_simulate(args: argparse.Namespace) -> int:

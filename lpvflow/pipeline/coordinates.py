@@ -113,3 +113,13 @@ def without_offsets(data: Dataset, est: Dataset) -> Dataset:
     ``offsets``."""
     u0, y0 = est.u.mean(axis=0), est.y.mean(axis=0)
     return replace(data, u=data.u - u0, y=data.y - y0, offsets={"u": u0.tolist(), "y": y0.tolist()})
+
+
+def about_operating_point(data: Dataset, point: dict[str, list[float]]) -> Dataset:
+    """``data`` minus a model's recorded operating point (``LPVIO.operating_point``: the input and output
+    means it was identified about), recorded in ``offsets``."""
+    u0, y0 = np.asarray(point["u"]), np.asarray(point["y"])
+    if u0.size != data.u.shape[1] or y0.size != data.y.shape[1]:
+        raise DataError(f"the model's operating point has {u0.size} input(s) and {y0.size} output(s); the "
+                        f"data have {data.u.shape[1]} and {data.y.shape[1]}: give the model's columns")
+    return replace(data, u=data.u - u0, y=data.y - y0, offsets={"u": u0.tolist(), "y": y0.tolist()})

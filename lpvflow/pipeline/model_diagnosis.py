@@ -17,7 +17,7 @@ from lpvflow.errors import DataError
 from lpvflow.experiment.controller import FORMAT, GRIDDED_FORMAT, GriddedController, LtiController
 from lpvflow.loop.loader import load_controller_file
 from lpvflow.lpvio import LPVIO
-from lpvflow.pipeline.coordinates import without_offsets
+from lpvflow.pipeline.coordinates import about_operating_point, without_offsets
 from lpvflow.validate.diagnose import MIN_VALIDATION, Diagnosis, diagnose
 from lpvflow.validate.extensions import Structure
 
@@ -49,14 +49,18 @@ def diagnose_model(
             u_op(θ(k)) (its ``trim_along`` the recorded columns), as ``[identify] remove_trim``.
         remove_offsets: subtract the operating point's mean inputs and outputs (after the trim): the means
             of the first ``operating_point`` fraction of the record (the design's estimation part), of
-            the whole record when None (``lpvflow identify --remove-offsets``).
+            the whole record when None (``lpvflow identify --remove-offsets``). A ``model`` that records
+            the operating point it was identified about (``LPVIO.operating_point``) is always diagnosed
+            about that one.
     """
     if remove_trim:
         if controller is None:
             raise DataError("remove_trim takes off the trim of the controller the data were recorded under: "
                             "give that controller (--controller; in a design [experiment] controller)")
         data = replace(data, u=data.u - _trim(controller, data, table))
-    if remove_offsets:
+    if model is not None and model.operating_point:
+        data = about_operating_point(data, model.operating_point)
+    elif remove_offsets:
         data = without_offsets(data, data if operating_point is None else data.split(operating_point)[0])
     missing = [c for c in candidates if c not in table]
     if missing:

@@ -10,6 +10,7 @@ caches them (:mod:`lpvflow.pipeline.cache`) and reports them; the adoption stage
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -97,6 +98,7 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
         outputs["estimation_records"] = [record.N for record in records]
     artifacts = ["model_full.json"]
     if method_of(method).result == "io":
+        model = replace(model, operating_point=est.offsets)  # what remove_offsets took off (or nothing)
         ss, units = model.to_ss(), fmu_units(ctx.config["design"]["plant"])
         outputs |= one_step_residuals(model, val, ctx.path("residuals.png"), units)
         artifacts.append("residuals.png")

@@ -132,7 +132,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
         removed = {k: data.offsets[k] for k in "uy" if k in data.offsets}  # --remove-offsets
         ExtendedModel(extended, result.winner.model_map, data.u_names, data.y_names,
                       extended.p_names or data.p_names, result.cause, validation_start, result.bfr_after,
-                      result.simulation, removed).save(model_out)
+                      result.simulation, removed, result.loop_scheduling,
+                      bool(controller is not None and args.remove_trim)).save(model_out)
         report["extended_model"] = model_out
     atomic_write_json(args.json_out, report)
     if args.plot:

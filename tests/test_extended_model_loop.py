@@ -148,3 +148,10 @@ def test_a_closed_loop_file_without_its_loop_is_refused(tmp_path):
     with pytest.raises(ModelError, match="does not record the loop"):
         load(older)
     assert isinstance(load(report["extended_model"]), ExtendedModel)
+
+
+def test_simulate_help_names_the_controller_option(capsys):
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--controller CONTROLLER.json" in text and "closed-loop diagnosis" in text

@@ -17,6 +17,7 @@ from lpvflow.errors import ModelError
 from lpvflow.experiment.fmu_experiment import run_fmu_experiment
 from lpvflow.models import load
 from lpvflow.pipeline.cli import main
+from lpvflow.pipeline.design import run_design
 from lpvflow.validate.extended_model import ExtendedModel
 from tests.diagnosis_fmu_cases import (
     ADIP_CONTROLLER,
@@ -155,3 +156,52 @@ def test_simulate_help_names_the_controller_option(capsys):
         main(["simulate", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "--controller CONTROLLER.json" in text and "closed-loop diagnosis" in text
+
+
+def test_the_design_stage_saves_the_file_simulate_runs_in_its_loop(tmp_path):
+    """A short ADIP design with a hidden 15 ms dead time and a [diagnose] table: the stage saves the
+    extended model as `lpvflow diagnose` does (diagnosis.extended.json, its loop recorded), and `lpvflow
+    simulate --controller` on the design's record reproduces the stage's validation BFR."""
+    seed = int(np.random.default_rng(351).integers(1, 1000))
+    path = tmp_path / "design.toml"
+    path.write_text(f"""
+[design]
+name = "adip"
+plant = "{BUILD / 'adip.fmu'}"
+output_dir = "{tmp_path / 'out'}"
+
+[experiment]
+Ts = 0.005
+duration = 10.0
+controller = "{ADIP_CONTROLLER}"
+excitation = {{ voltage = "{ADIP_EXCITATION}" }}
+scheduling = {{ sin_arm = "sin(arm_angle)" }}
+noise = {{ arm_angle = 2e-5, pendulum_angle = 2e-5 }}
+parameters = {{ effect_input_delay = 0.015 }}
+seed = {seed}
+""" + """
+[identify]
+u = ["voltage"]
+y = ["arm_angle", "pendulum_angle"]
+p = ["sin_arm"]
+split = 0.5
+
+[reduce]
+
+[validate]
+grid = 2
+
+[diagnose]
+""")
+    summary = run_design(path, log=lambda _: None)
+    assert summary["failed"] is None, summary["failed"]
+    outputs = summary["stages"]["diagnose"]["outputs"]
+    assert outputs["cause"] == "input_delay", outputs["summary"]
+    folder = tmp_path / "out" / "adip"
+    extended = load(folder / outputs["extended_model"])
+    assert extended.loop_scheduling == ADIP_SCHEDULING and not extended.remove_trim
+    simulated = tmp_path / "simulation.json"
+    assert main(["simulate", str(folder / outputs["extended_model"]), str(folder / "data.csv"), *ADIP_COLUMNS,
+                 "--controller", str(ADIP_CONTROLLER), "--json", str(simulated)]) == 0
+    np.testing.assert_allclose(json.loads(simulated.read_text())["validation"]["bfr"], outputs["bfr_after"],
+                               atol=0.1)

@@ -77,6 +77,22 @@ def diagnose_model(
     return result, data
 
 
+def extended_model(result: Diagnosis, data: Dataset, split: float, remove_trim: bool) -> ExtendedModel | None:
+    """The extended model of the diagnosis' named cause (None when it names none), as `lpvflow diagnose`
+    and the design's ``[diagnose]`` stage save it: the winner's model and map, the columns of the
+    diagnosed record ``data`` (an added scheduling channel included), the validation part of ``split``
+    with the reported fit, the removed means, and — closed loop — the loop it was scored in (its
+    scheduling expressions, ``remove_trim``)."""
+    if result.winner is None:
+        return None
+    model = result.winner.fit.model
+    p_names = model.p_names or data.p_names  # the model's scheduling includes an added channel
+    removed = {k: data.offsets[k] for k in "uy" if k in data.offsets}
+    return ExtendedModel(model, result.winner.model_map, data.u_names, data.y_names, p_names, result.cause,
+                         data.split(split)[0].N, result.bfr_after, result.simulation, removed,
+                         result.loop_scheduling, remove_trim and result.simulation == "closed loop")
+
+
 def recorded_setpoints(table: Mapping[str, np.ndarray], controller: LtiController | GriddedController,
                        n: int) -> np.ndarray:
     """The set-points of the outputs ``controller`` reads, (n, its inputs), from the record's

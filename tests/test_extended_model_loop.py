@@ -18,7 +18,7 @@ from lpvflow.experiment.fmu_experiment import run_fmu_experiment
 from lpvflow.models import load
 from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.design import run_design
-from lpvflow.validate.extended_model import ExtendedModel
+from lpvflow.validate.extended_model import ExtendedModel, ModelMap
 from tests.diagnosis_fmu_cases import (
     ADIP_CONTROLLER,
     ADIP_SCHEDULING,
@@ -205,3 +205,12 @@ grid = 2
                  "--controller", str(ADIP_CONTROLLER), "--json", str(simulated)]) == 0
     np.testing.assert_allclose(json.loads(simulated.read_text())["validation"]["bfr"], outputs["bfr_after"],
                                atol=0.1)
+
+
+@pytest.mark.parametrize("model_map", [ModelMap("backlash", "u", {"level": 0.2}),
+                                       ModelMap("sensor_offset", "y", {"offset": 0.1}),
+                                       ModelMap("sensor_clip", "y", {"lower": None, "upper": 1.0}),
+                                       ModelMap("friction", "y", {"motion": "velocity"})])
+def test_a_map_the_loop_does_not_apply_is_one_line(model_map):
+    with pytest.raises(ModelError, match=f"the {model_map.kind} map is not simulated in the identification"):
+        model_map.loop_drive(np.zeros((10, 1)), ["u"], ["y"])

@@ -16,8 +16,7 @@ from lpvflow.lpvio import LPVIO
 from lpvflow.models import LPVSS, atomic_write_json, load, report_header
 from lpvflow.pipeline.cli_identify import parse_order
 from lpvflow.pipeline.cli_paths import check_paths
-from lpvflow.pipeline.model_diagnosis import diagnose_model, loop_controller
-from lpvflow.validate.extended_model import ExtendedModel
+from lpvflow.pipeline.model_diagnosis import diagnose_model, extended_model, loop_controller
 from lpvflow.validate.extensions import EXTENSIONS, Structure
 
 #: Every verdict and what it means (``lpvflow diagnose --help``).
@@ -126,13 +125,9 @@ def run_diagnose(args: argparse.Namespace) -> int:
         remove_offsets=args.remove_offsets, causes=args.causes, progress=sys.stderr.isatty())
     report = report_header("diagnosis") | {"model": model_path} | result.to_dict()
     report["extended_model"] = None
-    if result.winner is not None:
-        extended = result.winner.fit.model  # its scheduling includes an added channel
-        validation_start = data.split(args.split)[0].N
-        removed = {k: data.offsets[k] for k in "uy" if k in data.offsets}  # --remove-offsets
-        ExtendedModel(extended, result.winner.model_map, data.u_names, data.y_names,
-                      extended.p_names or data.p_names, result.cause, validation_start, result.bfr_after,
-                      result.simulation, removed).save(model_out)
+    extended = extended_model(result, data, args.split, args.remove_trim)
+    if extended is not None:
+        extended.save(model_out)
         report["extended_model"] = model_out
     atomic_write_json(args.json_out, report)
     if args.plot:

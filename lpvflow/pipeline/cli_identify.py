@@ -71,12 +71,18 @@ def configure_identify(p: argparse.ArgumentParser) -> None:
 
 
 def configure_simulate(s: argparse.ArgumentParser) -> None:
-    s.add_argument("model", help="model file written by `lpvflow identify`")
+    s.add_argument("model", help="model file written by `lpvflow identify`, or the extended model `lpvflow "
+                                 "diagnose` saves (with its input/output map; its validation part is "
+                                 "reported next to the diagnosed BFR)")
     add_data_arguments(s)
+    s.add_argument("--controller", metavar="CONTROLLER.json",
+                   help="an extended model of a closed-loop diagnosis runs in the loop it was scored in: "
+                        "give the controller file diagnose took (the record's <output>_setpoint columns are "
+                        "its references); required for such a model, refused for any other")
     s.add_argument("--json", dest="json_out", help="write the fit report here")
     s.add_argument("--plot", help="write a PNG of measured vs simulated outputs here")
     s.set_defaults(func=run_simulate)
-    declare(s, inputs=("model", "data"), outputs=("json_out", "plot"))
+    declare(s, inputs=("model", "data", "controller"), outputs=("json_out", "plot"))
 
 
 def _estimate(args: argparse.Namespace, data: Dataset) -> LPVIO | LPVSS | LPVLFR:
@@ -187,8 +193,14 @@ def run_simulate(args: argparse.Namespace) -> int:
     model = load(args.model)
     if not isinstance(model, LPVSS | LPVIO | LPVLFR | ExtendedModel):
         raise ModelError(f"{args.model} holds no LPV model (it is a {type(model).__name__})")
-    data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
-    y_sim = model.simulate(data) if isinstance(model, ExtendedModel) else simulate_any(model, data)
+    if args.controller and not isinstance(model, ExtendedModel):
+        raise DataError("--controller runs the extended model of a closed-loop diagnosis in its loop; "
+                        f"{args.model} is an identified model, simulated open loop: drop --controller")
+    if isinstance(model, ExtendedModel):
+        y_sim, data = _simulate_extended(model, args)
+    else:
+        data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
+        y_sim = simulate_any(model, data)
     report = fit_report(data.y, y_sim, data.y_names)
     for name, b, v, m in zip(report["outputs"], report["bfr"], report["vaf"], report["mse"], strict=True):
         print(f"{name}: BFR {b:.2f} %  VAF {v:.2f} %  MSE {m:.4g}")
@@ -201,6 +213,21 @@ def run_simulate(args: argparse.Namespace) -> int:
         plot_fit(args.plot, data, y_sim)
         print(f"plot written to {args.plot}", file=sys.stderr)
     return 0
+
+
+def _simulate_extended(model, args: argparse.Namespace) -> tuple[np.ndarray, Dataset]:
+    """The extended model's simulation of the record ``args.data`` and the record: open loop, or in the
+    loop of ``args.controller`` (:func:`~lpvflow.pipeline.model_diagnosis.simulate_extended`)."""
+    from lpvflow.pipeline.model_diagnosis import loop_controller, simulate_extended
+
+    model.check_controller(bool(args.controller))
+    if not args.controller:
+        data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
+        return model.simulate(data), data
+    table = read_columns(args.data)  # the set-point columns (and the trim's) come from it too
+    data = Dataset.from_columns(table, Path(args.data).name, args.u, args.y, args.p, args.time, args.Ts)
+    controller = loop_controller(args.controller, "simulate --controller")
+    return simulate_extended(model, table, data, controller), data
 
 
 def _diagnosed_validation(model, data: Dataset, y_sim: np.ndarray) -> dict:

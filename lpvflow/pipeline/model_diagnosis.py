@@ -2,7 +2,8 @@
 stage both run it: the record put in the signals the model was identified in (the loop controller's
 trim u_op(θ(k)) taken off the inputs, then the operating point's means off inputs and outputs), the
 recorded set-points and the candidate channels read from the record, then
-:func:`lpvflow.validate.diagnose.diagnose` in the controller's loop."""
+:func:`lpvflow.validate.diagnose.diagnose` in the controller's loop; and the extended model it saves
+run on the record in the same signals and loop (:func:`simulate_extended`, `lpvflow simulate`)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from lpvflow.loop.loader import load_controller_file
 from lpvflow.lpvio import LPVIO
 from lpvflow.pipeline.coordinates import about_operating_point, without_offsets
 from lpvflow.validate.diagnose import MIN_VALIDATION, Diagnosis, diagnose
+from lpvflow.validate.extended_model import ExtendedModel
 from lpvflow.validate.extensions import Structure
 
 
@@ -57,7 +59,7 @@ def diagnose_model(
         if controller is None:
             raise DataError("remove_trim takes off the trim of the controller the data were recorded under: "
                             "give that controller (--controller; in a design [experiment] controller)")
-        data = replace(data, u=data.u - _trim(controller, data, table))
+        data = replace(data, u=data.u - recorded_trim(controller, data, table))
     if model is not None and model.operating_point:
         data = about_operating_point(data, model.operating_point)
     elif remove_offsets:
@@ -68,18 +70,51 @@ def diagnose_model(
     if data.N * (1 - split) < MIN_VALIDATION:
         raise DataError(f"{data.N} samples leave fewer than {MIN_VALIDATION} for validation at split "
                         f"{split}: record longer data or lower the split")
-    setpoints = None  # the recorded set-points; a law that takes none as references ignores them
-    if controller is not None:
-        setpoints = np.column_stack([np.asarray(table[f"{name}_setpoint"], float)[: data.N]
-                                     if f"{name}_setpoint" in table else np.full(data.N, np.nan)
-                                     for name in controller.inputs])
+    setpoints = recorded_setpoints(table, controller, data.N) if controller is not None else None
     result = diagnose(data, structure, {c: table[c] for c in candidates}, split=split, causes=causes,
                       controller=controller, scheduling=scheduling if controller is not None else None,
                       model=model, progress=progress, setpoints=setpoints, remove_trim=remove_trim)
     return result, data
 
 
-def _trim(controller: LtiController | GriddedController, data: Dataset, table: Mapping) -> np.ndarray:
+def extended_model(result: Diagnosis, data: Dataset, split: float, remove_trim: bool) -> ExtendedModel | None:
+    """The extended model of the diagnosis' named cause (None when it names none), as `lpvflow diagnose`
+    and the design's ``[diagnose]`` stage save it: the winner's model and map, the columns of the
+    diagnosed record ``data`` (an added scheduling channel included), the validation part of ``split``
+    with the reported fit, the removed means, and — closed loop — the loop it was scored in (its
+    scheduling expressions, ``remove_trim``)."""
+    if result.winner is None:
+        return None
+    model = result.winner.fit.model
+    p_names = model.p_names or data.p_names  # the model's scheduling includes an added channel
+    removed = {k: data.offsets[k] for k in "uy" if k in data.offsets}
+    return ExtendedModel(model, result.winner.model_map, data.u_names, data.y_names, p_names, result.cause,
+                         data.split(split)[0].N, result.bfr_after, result.simulation, removed,
+                         result.loop_scheduling, remove_trim and result.simulation == "closed loop")
+
+
+def recorded_setpoints(table: Mapping[str, np.ndarray], controller: LtiController | GriddedController,
+                       n: int) -> np.ndarray:
+    """The set-points of the outputs ``controller`` reads, (n, its inputs), from the record's
+    ``<output>_setpoint`` columns (NaN where there is none; a law that takes none as references ignores
+    them)."""
+    return np.column_stack([np.asarray(table[f"{name}_setpoint"], float)[:n]
+                            if f"{name}_setpoint" in table else np.full(n, np.nan)
+                            for name in controller.inputs])
+
+
+def simulate_extended(extended: ExtendedModel, table: Mapping[str, np.ndarray], data: Dataset,
+                      controller: LtiController | GriddedController) -> np.ndarray:
+    """The simulation of a closed-loop diagnosis' extended model on the record ``data`` read from
+    ``table`` (recorded signals) in the loop of ``controller``, the one it was diagnosed under, as
+    :func:`diagnose_model` scored it: the controller's trim off the inputs when it was removed, the
+    recorded set-points (:meth:`~lpvflow.validate.extended_model.ExtendedModel.simulate`; an open-loop
+    model is one DataError line)."""
+    trim = recorded_trim(controller, data, table) if extended.remove_trim else None
+    return extended.simulate(data, controller, recorded_setpoints(table, controller, data.N), trim)
+
+
+def recorded_trim(controller: LtiController | GriddedController, data: Dataset, table: Mapping) -> np.ndarray:
     """The controller's trim over the record (N, inputs of ``data``; 0 on inputs it does not drive)."""
     missing = [name for name in controller.outputs if name not in data.u_names]
     if missing:

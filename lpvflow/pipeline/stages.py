@@ -39,7 +39,7 @@ from lpvflow.pipeline.frozen_references import (
     trim_closed,
 )
 from lpvflow.pipeline.gate import gate_verdict
-from lpvflow.pipeline.model_diagnosis import diagnose_model, loop_controller
+from lpvflow.pipeline.model_diagnosis import diagnose_model, extended_model, loop_controller
 from lpvflow.pipeline.model_loop import closed_loop_simulation
 from lpvflow.pipeline.residual_plot import one_step_residuals
 from lpvflow.pipeline.step_sweep import largest_steps
@@ -123,7 +123,9 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     (:func:`~lpvflow.pipeline.model_diagnosis.diagnose_model`): the record in the model's signals
     (``remove_trim``, ``remove_offsets`` about the estimation part's means, as identify used them), every
     model simulated in the loop of the experiment controller (LTI or gridded; set-points as recorded,
-    the experiment's scheduling expressions recomputed from the simulated outputs). With ``adopt`` the
+    the experiment's scheduling expressions recomputed from the simulated outputs). The named cause's
+    extended model is saved as `lpvflow diagnose` saves it (``diagnosis.extended.json``,
+    :func:`~lpvflow.pipeline.model_diagnosis.extended_model`). With ``adopt`` the
     extended model replaces the identified one for the rest of the design when
     :func:`~lpvflow.pipeline.adoption.adoption_refusal` lets it (it keeps the model's inputs, outputs
     and signal maps)."""
@@ -147,7 +149,11 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     outputs = {"cause": result.cause, "parameters": result.parameters, "summary": result.summary,
                "bfr_before": result.bfr_before, "bfr_after": result.bfr_after,
                "ranking": [{k: r[k] for k in ("cause", "bfr_gain", "p_value")} for r in result.ranking],
-               "adopted": False, "model": "model_full.json"}
+               "adopted": False, "model": "model_full.json", "extended_model": None}
+    extended = extended_model(result, data, ident["split"], ident["remove_trim"])
+    if extended is not None:  # `lpvflow simulate` runs it (--controller: in the experiment's loop)
+        extended.save(ctx.path("diagnosis.extended.json"))
+        outputs["extended_model"] = "diagnosis.extended.json"
     if cfg["adopt"] and result.winner is not None:
         refusal = adoption_refusal(result)
         if refusal:
@@ -155,7 +161,8 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
         else:
             result.winner.fit.model.to_ss().save(ctx.path("model_extended.json"))
             outputs.update(adopted=True, model="model_extended.json")
-    artifacts = ["diagnosis.png"] + (["model_extended.json"] if outputs["adopted"] else [])
+    artifacts = (["diagnosis.png"] + (["diagnosis.extended.json"] if extended is not None else [])
+                 + (["model_extended.json"] if outputs["adopted"] else []))
     return outputs, artifacts
 
 

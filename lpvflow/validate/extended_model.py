@@ -16,20 +16,34 @@ simulation from a zero past:
 The diagnosis scores its open-loop extensions with :meth:`ModelMap.simulate` itself, so the saved
 file reproduces the reported validation fit: simulate the whole record, score from sample
 ``validation_start``.
+
+A closed-loop diagnosis (``simulation = "closed loop"``) scored every model in the identification loop
+of the record's controller (:func:`~lpvflow.validate.closed_loop.simulate_in_loop`); its file records
+that loop (``loop``: the scheduling expressions recomputed from the simulated outputs, and whether the
+model's inputs are without the controller's trim) and runs there again, given the same controller:
+:func:`simulate_mapped_in_loop` is the one simulation both the diagnosis and the file use, the map
+becoming the loop's drive (:meth:`ModelMap.loop_drive`):
+
+    dead_zone / saturation   the map on the plant input the loop produces
+    offset_inputs            the constant (and trend) inputs as exogenous inputs
+    friction (position)      the sign of the simulated motion
+                             (:func:`~lpvflow.validate.closed_loop.velocity_sign`)
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from lpvflow.data import Dataset
 from lpvflow.errors import DataError, ModelError
+from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import atomic_write_json, check_format
+from lpvflow.validate.closed_loop import InputMap, Loop, simulate_in_loop
 from lpvflow.validate.signal_maps import dead_zone, friction_simulation, play, saturation
 
 FORMAT = "extended-model"
@@ -83,6 +97,20 @@ class ModelMap:
         u, p = np.vstack([est.u, val.u]), np.vstack([est.p, val.p])
         return self.simulate(model, u, p, est.u_names, est.y_names)[est.N :]
 
+    def loop_drive(self, u: np.ndarray, u_names: list[str], y_names: list[str]) -> dict[str, Any]:
+        """The map as the drive of :func:`~lpvflow.validate.closed_loop.simulate_in_loop` on a record
+        with inputs ``u`` (whole record, names ``u_names``) and outputs ``y_names`` (module docstring);
+        a map the loop does not apply (one with memory, a sensor map, a velocity output's friction) is
+        one ModelError line."""
+        if self.kind in ("dead_zone", "saturation"):
+            return {"input_map": InputMap(self.kind, u_names.index(self.channel), self.values["level"])}
+        if self.kind == "offset_inputs":
+            return {"exogenous": self.inputs(u, u_names)[:, len(u_names) :]}
+        if self.kind == "friction" and self.values["motion"] == "position":
+            return {"sign_of": y_names.index(self.channel)}
+        raise ModelError(f"the {self.kind} map is not simulated in the identification loop (it applies "
+                         "memoryless input maps, exogenous inputs and the sign of a position's motion)")
+
     def to_dict(self) -> dict:
         return {"kind": self.kind, "channel": self.channel, "values": self.values}
 
@@ -91,6 +119,17 @@ class ModelMap:
         if d.get("kind") not in KINDS:
             raise ModelError(f"unknown model map {d.get('kind')!r}; this lpvflow knows {', '.join(KINDS)}")
         return cls(d["kind"], d.get("channel"), dict(d.get("values", {})))
+
+
+def simulate_mapped_in_loop(model: LPVIO, model_map: ModelMap | None, data: Dataset,
+                            loop: Loop) -> np.ndarray:
+    """Outputs (N, ny) of ``model`` with ``model_map`` (None: the model alone) in ``loop`` over the whole
+    record ``data`` from a zero past: :func:`~lpvflow.validate.closed_loop.simulate_in_loop` with the
+    map's :meth:`ModelMap.loop_drive`. The diagnosis scores its closed-loop extensions with it
+    (:class:`~lpvflow.validate.extension_core.LoopSimulation`) and :meth:`ExtendedModel.simulate` runs
+    the saved file with it."""
+    drive = {} if model_map is None else model_map.loop_drive(data.u, data.u_names, data.y_names)
+    return simulate_in_loop(model, data, loop, **drive)
 
 
 @dataclass
@@ -110,6 +149,25 @@ class ExtendedModel:
     #: Means the diagnosis removed (``--remove-offsets``), {"u": [...], "y": [...]}: the model runs on
     #: u − ū and its output is shifted back by ȳ, so it takes the recorded signals.
     offsets: dict[str, list[float]] = field(default_factory=dict)
+    #: Closed loop: scheduling column → expression in the output names, recomputed in the loop.
+    loop_scheduling: dict[str, str] = field(default_factory=dict)
+    #: Closed loop: the model's inputs are the recorded ones minus the controller's trim u_op(θ(k)).
+    remove_trim: bool = False
+
+    @property
+    def closed_loop(self) -> bool:
+        return self.simulation == "closed loop"
+
+    def check_controller(self, given: bool) -> None:
+        """Refuse (one line) a closed-loop model without its controller (``given``), or a controller given
+        for an open-loop one."""
+        if self.closed_loop and not given:
+            raise DataError(f"the extended model ({self.cause}) was diagnosed in the loop of the controller "
+                            "the data were recorded under: pass --controller CONTROLLER.json, the one "
+                            "diagnose took")
+        if given and not self.closed_loop:
+            raise DataError(f"the extended model ({self.cause}) was diagnosed open loop and runs open loop: "
+                            "drop --controller")
 
     def check_columns(self, data: Dataset) -> None:
         """Refuse (one line) data whose inputs, outputs or scheduling are not the model's columns."""
@@ -120,31 +178,53 @@ class ExtendedModel:
                 raise DataError(f"the extended model ({self.cause}) runs on the {what} column(s) {wanted}, "
                                 f"the data give {list(given)}: pass --{flag} {' '.join(wanted)}")
 
-    def simulate(self, data: Dataset) -> np.ndarray:
-        """Simulation of the whole record from a zero past, with the map (and the removed means)."""
+    def simulate(self, data: Dataset, controller: LtiController | GriddedController | None = None,
+                 setpoints: np.ndarray | None = None, trim: np.ndarray | None = None) -> np.ndarray:
+        """Simulation of the whole record from a zero past, with the map (and the removed means).
+
+        Closed loop (:attr:`closed_loop`): in the loop of ``controller`` (the one the data were recorded
+        and diagnosed under) with its recorded ``setpoints`` (N, outputs it reads; NaN: none), on the
+        record in the diagnosed signals — the inputs less ``trim`` (the controller's trim over the record,
+        N × inputs, when :attr:`remove_trim`), then less the removed means — through
+        :func:`simulate_mapped_in_loop`, as the diagnosis scored it."""
         self.check_columns(data)
+        self.check_controller(controller is not None)
         u = data.u - np.asarray(self.offsets.get("u", 0.0))
-        if self.map is None:
+        y0 = np.asarray(self.offsets.get("y", 0.0))
+        if self.closed_loop:
+            model_data = replace(data, u=u - (0.0 if trim is None else trim), y=data.y - y0,
+                                 offsets=dict(self.offsets))
+            loop = Loop.from_record(model_data, controller, self.loop_scheduling, setpoints, self.remove_trim)
+            y = simulate_mapped_in_loop(self.model, self.map, model_data, loop)
+        elif self.map is None:
             y = self.model.simulate(u, data.p)
         else:
             y = self.map.simulate(self.model, u, data.p, data.u_names, data.y_names)
-        return y + np.asarray(self.offsets.get("y", 0.0))
+        return y + y0
 
     def to_dict(self) -> dict[str, Any]:
         return {"format": f"lpvflow/{FORMAT}", "version": VERSION, "cause": self.cause,
                 "model": self.model.to_dict(), "map": self.map.to_dict() if self.map else None,
                 "u_names": self.u_names, "y_names": self.y_names, "p_names": self.p_names,
                 "simulation": self.simulation, "offsets": self.offsets,
+                "loop": ({"scheduling": self.loop_scheduling, "remove_trim": self.remove_trim}
+                         if self.closed_loop else None),
                 "validation": {"start": self.validation_start, "bfr": self.validation_bfr}}
 
     @classmethod
     def from_dict(cls, d: dict) -> ExtendedModel:
         check_format(d, FORMAT, VERSION)
         try:
+            loop = d.get("loop") or {}
+            if d["simulation"] == "closed loop" and not loop:
+                raise ModelError("this closed-loop extended model does not record the loop it was diagnosed "
+                                 "in (an older lpvflow wrote it): run diagnose again")
             return cls(LPVIO.from_dict(d["model"]), ModelMap.from_dict(d["map"]) if d["map"] else None,
                        list(d["u_names"]), list(d["y_names"]), list(d["p_names"]), d["cause"],
                        int(d["validation"]["start"]), [float(b) for b in d["validation"]["bfr"]],
-                       d["simulation"], {k: [float(v) for v in d["offsets"][k]] for k in d["offsets"]})
+                       d["simulation"], {k: [float(v) for v in d["offsets"][k]] for k in d["offsets"]},
+                       {str(k): str(v) for k, v in loop.get("scheduling", {}).items()},
+                       bool(loop.get("remove_trim", False)))
         except (KeyError, TypeError) as exc:
             raise ModelError(f"lpvflow/{FORMAT} file lacks or mangles the field {exc.args[0]!r}") from None
 

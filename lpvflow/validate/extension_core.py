@@ -19,8 +19,8 @@ from lpvflow.data import Dataset
 from lpvflow.errors import ModelError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.lpvio import LPVIO
-from lpvflow.validate.closed_loop import Loop, simulate_in_loop
-from lpvflow.validate.extended_model import ModelMap
+from lpvflow.validate.closed_loop import Loop
+from lpvflow.validate.extended_model import ModelMap, simulate_mapped_in_loop
 
 
 @dataclass(frozen=True)
@@ -150,40 +150,50 @@ class Context:
         """:func:`fit` with this context's form and estimator."""
         return fit(est, val, na, nb, nk, basis, self.structure.form, simulate, self.estimator)
 
-    def in_loop(self, **drive) -> Callable[[LPVIO], np.ndarray] | None:
+    def in_loop(self, model_map: ModelMap | None = None, p: np.ndarray | None = None,
+                p_names: list[str] | None = None) -> Callable[[LPVIO], np.ndarray] | None:
         """:func:`loop_simulator` of this context (None on open-loop data)."""
-        return loop_simulator(self.est, self.val, self.loop, **drive)
+        return loop_simulator(self.est, self.val, self.loop, model_map, p, p_names)
 
 
-def loop_simulator(est: Dataset, val: Dataset, loop: Loop | None, p: np.ndarray | None = None,
-                   p_names: list[str] | None = None, **drive) -> Callable[[LPVIO], np.ndarray] | None:
-    """Validation part of a model's whole-record simulation in ``loop`` (None without a loop).
+def loop_simulator(est: Dataset, val: Dataset, loop: Loop | None, model_map: ModelMap | None = None,
+                   p: np.ndarray | None = None, p_names: list[str] | None = None,
+                   ) -> Callable[[LPVIO], np.ndarray] | None:
+    """Validation part of a model's whole-record simulation in ``loop`` (None without a loop), with the
+    extension's ``model_map`` (None: the model alone) as its drive.
 
-    ``p``/``p_names`` replace the scheduling of the whole record (an added scheduling channel);
-    ``drive`` holds the extension's ``input_map``, ``exogenous`` inputs or ``sign_of`` output
-    (:func:`~lpvflow.validate.closed_loop.simulate_in_loop`).
+    ``p``/``p_names`` replace the scheduling of the whole record (an added scheduling channel).
     """
     if loop is None:
         return None
     whole = joined(est, val)
     if p is not None:
         whole = replace(whole, p=p, p_names=p_names)
-    return LoopSimulation(whole, loop, drive, est.N, rescheduled=p is not None)
+    return LoopSimulation(whole, loop, model_map, est.N, rescheduled=p is not None)
 
 
 @dataclass
 class LoopSimulation:
     """``model`` → the validation part (from sample ``start``) of its simulation over ``whole`` in
-    ``loop`` with the extension's ``drive``; :func:`refit_in_loop` reads the drive back."""
+    ``loop`` with the extension's ``model_map``, by
+    :func:`~lpvflow.validate.extended_model.simulate_mapped_in_loop` — the function the saved extended
+    model runs with; :func:`refit_in_loop` reads the map's :attr:`drive` back."""
 
     whole: Dataset
     loop: Loop
-    drive: dict
+    model_map: ModelMap | None
     start: int
     rescheduled: bool = False  # the scheduling of the record was replaced (an added channel)
 
+    @property
+    def drive(self) -> dict:
+        """The map's drive of :func:`~lpvflow.validate.closed_loop.simulate_in_loop` over ``whole``."""
+        if self.model_map is None:
+            return {}
+        return self.model_map.loop_drive(self.whole.u, self.whole.u_names, self.whole.y_names)
+
     def __call__(self, model: LPVIO) -> np.ndarray:
-        return simulate_in_loop(model, self.whole, self.loop, **self.drive)[self.start :]
+        return simulate_mapped_in_loop(model, self.model_map, self.whole, self.loop)[self.start :]
 
 
 def fit(est: Dataset, val: Dataset, na, nb, nk, basis: Basis | str, form: str = "shifted",

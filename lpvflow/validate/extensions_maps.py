@@ -13,7 +13,7 @@ from lpvflow.data import Dataset
 from lpvflow.errors import LpvflowError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.lpvio import LPVIO
-from lpvflow.validate.closed_loop import InputMap, velocity_sign
+from lpvflow.validate.closed_loop import velocity_sign
 from lpvflow.validate.extended_model import ModelMap
 from lpvflow.validate.extension_core import (
     Candidate,
@@ -63,7 +63,7 @@ def _mapped_input_fit(ctx: Context, j: int, kind: str, level: float, estimator: 
     if ctx.loop is None:
         simulate = lambda m: model_map.simulate_validation(m, ctx.est, ctx.val)  # noqa: E731
     else:  # the map on the input the loop produces
-        simulate = ctx.in_loop(input_map=InputMap(kind, j, level))
+        simulate = ctx.in_loop(model_map)
     return fit(est, val, na, nb, nk, basis, ctx.structure.form, simulate, estimator)
 
 
@@ -156,7 +156,8 @@ def friction(ctx: Context) -> Candidate | None:
         if ctx.loop is not None:
             try:
                 est = with_inputs(ctx.est, velocity_sign(ctx.est.y[:, i])[:, None], [name])
-                result = ctx.fit(est, ctx.val, na, nb_f, nk_f, basis, ctx.in_loop(sign_of=i))
+                own = ModelMap("friction", ctx.est.y_names[i], {"motion": "position"})
+                result = ctx.fit(est, ctx.val, na, nb_f, nk_f, basis, ctx.in_loop(own))
             except LpvflowError:
                 continue
             trials.append((result, i, "position", result.model))

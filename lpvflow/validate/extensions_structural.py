@@ -179,7 +179,7 @@ def offset(ctx: Context) -> Candidate | None:
         est = with_inputs(ctx.est, model_map.inputs(ctx.est.u, [])[:, ctx.nu :], names)
         val = with_inputs(ctx.val, model_map.inputs(ctx.val.u, [], ctx.est.N)[:, ctx.nu :], names)
         nb_o, nk_o = extend_orders(nb, nk, 1, 0, len(names))
-        simulate = (ctx.in_loop(exogenous=joined(est, val).u[:, ctx.nu :]) if ctx.loop is not None else
+        simulate = (ctx.in_loop(model_map) if ctx.loop is not None else
                     lambda m, model_map=model_map: model_map.simulate_validation(m, ctx.est, ctx.val))
         try:
             maps[tuple(names)] = ctx.fit(est, val, na, nb_o, nk_o, basis, simulate), model_map

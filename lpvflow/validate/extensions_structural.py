@@ -50,8 +50,7 @@ def input_delay(ctx: Context) -> Candidate | None:
                 return None
         return scores[key]
 
-    shifts = [nk + s for s in range(-min(3, int(nk.min())), 11)]
-    common = [(t, f) for t in shifts if (f := score(t)) is not None]
+    common = [(t, f) for t in delay_range(nk) if (f := score(t)) is not None]
     if not common:
         return None
     best_nk, best = min(common, key=lambda tf: tf[1].loss)
@@ -63,11 +62,28 @@ def input_delay(ctx: Context) -> Candidate | None:
             f = score(trial)
             if f is not None and f.loss < best.loss - penalty:
                 best_nk, best = trial, f
-    if np.array_equal(best_nk, nk):
+    return delay_candidate(ctx, best_nk, best)
+
+
+#: Largest shift of a dead time from the modelled nk, in samples.
+MAX_DELAY_SHIFT = 10
+
+
+def delay_range(nk: np.ndarray) -> list[np.ndarray]:
+    """The delays :func:`input_delay` tries: the modelled ``nk`` shifted by s ∈ [−3, MAX_DELAY_SHIFT]
+    on every input (never below zero)."""
+    return [nk + s for s in range(-min(3, int(nk.min())), MAX_DELAY_SHIFT + 1)]
+
+
+def delay_candidate(ctx: Context, nk: np.ndarray, fitted: Fit) -> Candidate | None:
+    """The ``input_delay`` candidate of the delays ``nk`` with its ``fitted`` model (None: the modelled
+    delays)."""
+    modelled_nk = ctx.structure.orders(ctx.ny, ctx.nu)[2]
+    if np.array_equal(nk, modelled_nk):
         return None
-    found = best_nk[0].tolist() if ctx.nu > 1 else int(best_nk[0, 0])
-    modelled = nk[0].tolist() if ctx.nu > 1 else int(nk[0, 0])
-    return Candidate("input_delay", {"nk": found, "modelled_nk": modelled}, best,
+    found = nk[0].tolist() if ctx.nu > 1 else int(nk[0, 0])
+    modelled = modelled_nk[0].tolist() if ctx.nu > 1 else int(modelled_nk[0, 0])
+    return Candidate("input_delay", {"nk": found, "modelled_nk": modelled}, fitted,
                      f"modelled dead time {modelled}, data says {found}; extending nk to {found}",
                      choices=ctx.nu)
 

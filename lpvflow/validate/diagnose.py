@@ -107,6 +107,7 @@ from lpvflow.validate.extensions import (
     loop_simulator,
     refit_in_loop,
 )
+from lpvflow.validate.extensions_structural import delayed_splits
 from lpvflow.validate.metrics import bfr, vaf
 from lpvflow.validate.noise_analysis import (  # noqa: F401  (frozen_response, MATERIAL_CHANGE: re-exported)
     FEATURE_LAGS,
@@ -453,9 +454,12 @@ def _delay_before_order(cause: str, candidates: dict[str, Candidate], ranked: li
     if cause != "model_order" or "input_delay" not in significant:
         return cause
     delay = candidates["input_delay"]
-    nk = delay.parameters["nk"]
-    delayed = replace(ctx, structure=replace(ctx.structure, nk=np.asarray(nk)),
-                      nominal=delay.fit)
+    if delay.model_map is None:
+        delayed = replace(ctx, structure=replace(ctx.structure, nk=np.asarray(delay.parameters["nk"])),
+                          nominal=delay.fit)
+    else:  # the inputs and scheduling images delayed in the data, the structure's nk kept
+        est, val = delayed_splits(ctx, delay.model_map)
+        delayed = replace(ctx, est=est, val=val, nominal=delay.fit)
     try:
         order = EXTENSIONS["model_order"](delayed)
     except LpvflowError:

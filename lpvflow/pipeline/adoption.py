@@ -21,7 +21,7 @@ def adoption_refusal(result) -> str | None:
     not carry, or it is not in shifted form."""
     mapped = result.cause in ("input_nonlinearity", "backlash", "sensor_saturation") or (
         result.cause == "offset" and result.parameters.get("kind") == "sensor") or (
-        result.winner.model_map is not None and result.winner.model_map.kind == "actuator_delay")
+        result.cause == "input_delay" and result.parameters.get("delayed_scheduling"))
     if result.winner.inputs_added or mapped or result.winner.fit.model.form != "shifted":
         return (f"the {result.cause} extension changes the model's inputs or is fitted on a mapped input "
                 "or output; the design model stays as identified")

@@ -47,15 +47,17 @@ reversing) is scored as the plant ran.
    noise_bias_change ≥ MATERIAL_CHANGE, ρ ≥ OUTPUT_NOISE_RATIO), step 4 would compare biased fits:
    every extension significant among the LS fits (open loop; :func:`_noise_round`) is refitted by
    output error — its level or delay then chosen by the output-error loss — and scored against the
-   output-error refit of the nominal structure (``refit_ranking``). A structural cause that still
-   gains is named; otherwise
+   output-error refit of the nominal structure (``refit_ranking``); a dead time chosen there counts as
+   significant at p < ``alpha`` whatever its gain (:func:`_dead_time_by_significance`). A structural
+   cause that still gains is named; otherwise
    ``colored_noise`` (biased, and the AR noise model predicts significantly better than white
    noise; the AR coefficients and spectrum are its parameters) or ``output_noise_bias`` (biased,
    white, the refit gains significantly in simulation: "refit by OE/IV"), else ``none``.
    Closed loop: the consistent refit is closed-loop IV (:func:`~lpvflow.validate.extensions.closed_loop_iv`,
    instruments from the model's own loop simulation), and the noise round — every extension refitted
-   the same way with its own drive in the loop — runs whenever that refit gains significantly; its
-   verdict is ``output_noise_bias`` (no noise model is fitted in the loop).
+   the same way with its own drive in the loop, a dead time chosen again by that refit's loss
+   (:func:`~lpvflow.validate.extensions.input_delay_in_loop`) — runs whenever that refit gains
+   significantly; its verdict is ``output_noise_bias`` (no noise model is fitted in the loop).
 6. Adequacy: is the error input-explained? Output noise is independent of the inputs, so the
    simulation error of an adequate model has no part a function of the input history explains
    (:func:`input_explained`, on the nominal model or, after a noise round, its output-error refit).
@@ -258,9 +260,10 @@ def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[s
       noise is immaterial: noise-free, equation-error noise (inside the ARX model set) or sensor
       noise too small for the bias to cost ``min_gain``. That is where the no-false-alarm control
       (≥ 95 % ``none``) is stated;
-    * an effect that only LS resolves — the tanks' 3 s dead time gains 9 points noise-free but
-      0.2 point between output-error fits, because a third-order model absorbs 3 samples of delay on
-      a 15 s plant — is not named under material noise: the larger effect, the noise bias, is.
+    * a dead time is the exception to ``min_gain`` there: chosen again by the output-error loss it adds
+      no coefficient, so a significant gain of any size names it (:func:`_dead_time_by_significance`:
+      the tanks' 3 s dead time gains 9 points noise-free but 0.2 point between output-error fits,
+      because a third-order model absorbs 3 samples of delay on a 15 s plant).
     """
     ranked = [r for r in ranked if "ruled_out" not in r]
     significant = [r for r in ranked if r["significant"]]

@@ -366,6 +366,8 @@ def test_a_failed_verdict_names_where_the_scheduling_left_the_design_box():
 
 @pytest.mark.parametrize(("cause", "parameters", "inputs_added", "refused"), [
     ("dead_time", {"delay": 2}, False, False),
+    ("input_delay", {"nk": 4, "modelled_nk": 1}, False, False),
+    ("input_delay", {"nk": 4, "modelled_nk": 1, "delayed_scheduling": ["p"]}, False, True),
     ("backlash", {"width": 0.3}, False, True),
     ("sensor_saturation", {"upper": 1.0}, False, True),
     ("offset", {"kind": "sensor", "output_offset": 0.5}, False, True),

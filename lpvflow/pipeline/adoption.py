@@ -17,9 +17,11 @@ StageFunction = Callable[[StageContext], tuple[dict, list[str]]]
 def adoption_refusal(result) -> str | None:
     """Why a diagnosis' extended model cannot replace the design model (None: it can): it adds inputs,
     or it is fitted on a mapped input or output (an input map, a play operator, a clipped output,
-    y − sensor offset) that a controller design model does not carry, or it is not in shifted form."""
+    y − sensor offset, inputs and scheduling delayed in the data) that a controller design model does
+    not carry, or it is not in shifted form."""
     mapped = result.cause in ("input_nonlinearity", "backlash", "sensor_saturation") or (
-        result.cause == "offset" and result.parameters.get("kind") == "sensor")
+        result.cause == "offset" and result.parameters.get("kind") == "sensor") or (
+        result.cause == "input_delay" and result.parameters.get("delayed_scheduling"))
     if result.winner.inputs_added or mapped or result.winner.fit.model.form != "shifted":
         return (f"the {result.cause} extension changes the model's inputs or is fitted on a mapped input "
                 "or output; the design model stays as identified")

@@ -7,6 +7,8 @@ simulation from a zero past:
     dead_zone / saturation / backlash   u_j ← f(u_j) on the named input before the model
     offset_inputs                       u ← [u, 1 (, t/N)]: the constant (and trend) inputs, N the
                                         diagnosed record's length
+    actuator_delay                      u_j ← u_j(k − d_j) on every input and p_c ← p_c(k − d_c) on
+                                        the scheduling columns computed from a delayed input
     sensor_offset                       y_meas = y + o on the named output
     sensor_clip                         y_meas = clip(y_i, lo, hi) on the named output
     friction                            the last input sign v(k), v the motion of output i taken
@@ -44,12 +46,12 @@ from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.lpvio import LPVIO
 from lpvflow.models import atomic_write_json, check_format
 from lpvflow.validate.closed_loop import InputMap, Loop, simulate_in_loop
-from lpvflow.validate.signal_maps import dead_zone, friction_simulation, play, saturation
+from lpvflow.validate.signal_maps import dead_zone, delayed, friction_simulation, play, saturation
 
 FORMAT = "extended-model"
 VERSION = 1
 INPUT_MAPS = ("dead_zone", "saturation", "backlash")
-KINDS = (*INPUT_MAPS, "offset_inputs", "sensor_offset", "sensor_clip", "friction")
+KINDS = (*INPUT_MAPS, "offset_inputs", "actuator_delay", "sensor_offset", "sensor_clip", "friction")
 
 
 @dataclass(frozen=True)
@@ -75,7 +77,16 @@ class ModelMap:
             k = np.arange(start, start + len(u))
             columns = {"const": np.ones(len(k)), "trend": k / self.values["record_length"]}
             return np.hstack([u, np.column_stack([columns[name] for name in self.values["inputs"]])])
+        if self.kind == "actuator_delay":
+            return delayed(u, self.values["input_delays"])
         return u
+
+    def scheduling(self, p: np.ndarray) -> np.ndarray:
+        """The model's scheduling for the record's ``p`` (whole record): the columns computed from a
+        delayed input delayed with it (``actuator_delay``), else ``p`` itself."""
+        if self.kind == "actuator_delay":
+            return delayed(p, self.values["scheduling_delays"])
+        return np.asarray(p, dtype=float)
 
     def simulate(self, model: LPVIO, u: np.ndarray, p: np.ndarray, u_names: list[str],
                  y_names: list[str]) -> np.ndarray:
@@ -84,7 +95,7 @@ class ModelMap:
 
             return friction_simulation(model, u, p, y_names.index(self.channel),
                                        self.values["motion"] == "velocity")
-        y = model.simulate(self.inputs(u, u_names), p)
+        y = model.simulate(self.inputs(u, u_names), self.scheduling(p))
         if self.kind == "sensor_offset":
             return y + self.values["offset"]
         if self.kind == "sensor_clip":

@@ -56,7 +56,12 @@ from lpvflow.validate.extensions_maps import (  # noqa: F401
     saturation,
     sensor_saturation,
 )
-from lpvflow.validate.extensions_noise import closed_loop_iv, output_noise_bias, refit_in_loop  # noqa: F401
+from lpvflow.validate.extensions_noise import (  # noqa: F401
+    closed_loop_iv,
+    input_delay_in_loop,
+    output_noise_bias,
+    refit_in_loop,
+)
 from lpvflow.validate.extensions_structural import (  # noqa: F401
     input_delay,
     model_order,

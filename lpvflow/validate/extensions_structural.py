@@ -11,6 +11,7 @@ import numpy as np
 import scipy.stats
 
 from lpvflow.basis import Basis, SchedulingRangeWarning
+from lpvflow.data import Dataset
 from lpvflow.errors import LpvflowError
 from lpvflow.lpvio import LPVIO
 from lpvflow.validate.closed_loop import simulate_in_loop
@@ -36,22 +37,35 @@ def input_delay(ctx: Context) -> Candidate | None:
     own delay from there, kept only when it lowers n_eff·V by more than ln n_eff (BIC of one more
     choice). Per-input search alone shifted the input searched first to absorb a common delay and
     sent a weakly excited one far off (airpath FMU, 3-sample dead time: throttle 4, valve lift 9).
+
+    A scheduling column computed from an input (an affine image of it, open loop: the airpath's
+    throttle fraction = throttle / 100) is the *commanded* value, and a dead time at the actuator
+    delays the value the plant runs at as well. The extension then delays the inputs and those
+    columns in the data, u_j(k − s_j) and p_c(k − s_j), and fits the user's structure (its nk) to
+    them — the model map ``actuator_delay`` (:class:`~lpvflow.validate.extended_model.ModelMap`).
+    In the shifted form nk' = nk + s alone evaluates A_i at the commanded scheduling p(k − i), s
+    samples ahead of the applied one: airpath, 30 ms (3 samples), seed 0, validation BFR 84.2 % with
+    nk' = [4, 4] against 90.6 % delaying the throttle fraction with it (91.1 % on the record without
+    dead time).
     """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
-    scores: dict[tuple, Fit] = {}
+    images = scheduling_images(joined(ctx.est, ctx.val)) if ctx.loop is None else {}
+    scores: dict[tuple, tuple[Fit, ModelMap | None]] = {}
 
     def score(trial: np.ndarray) -> Fit | None:
         key = tuple(trial[0])
         if key not in scores:
+            model_map = actuator_delay_map(trial[0] - nk[0], images, ctx.est.p.shape[1]) if images else None
             try:
-                scores[key] = ctx.fit(ctx.est, ctx.val, na, nb, trial, basis, ctx.in_loop())
+                fitted = (ctx.fit(ctx.est, ctx.val, na, nb, trial, basis, ctx.in_loop()) if model_map is None
+                          else _delayed_fit(ctx, model_map, na, nb, nk, basis))
+                scores[key] = fitted, model_map
             except LpvflowError:
                 return None
-        return scores[key]
+        return scores[key][0]
 
-    shifts = [nk + s for s in range(-min(3, int(nk.min())), 11)]
-    common = [(t, f) for t in shifts if (f := score(t)) is not None]
+    common = [(t, f) for t in delay_range(nk) if (f := score(t)) is not None]
     if not common:
         return None
     best_nk, best = min(common, key=lambda tf: tf[1].loss)
@@ -63,13 +77,75 @@ def input_delay(ctx: Context) -> Candidate | None:
             f = score(trial)
             if f is not None and f.loss < best.loss - penalty:
                 best_nk, best = trial, f
-    if np.array_equal(best_nk, nk):
+    return delay_candidate(ctx, best_nk, best, scores[tuple(best_nk[0])][1])
+
+
+def scheduling_images(data: Dataset) -> dict[int, int]:
+    """Scheduling column → the input column it is an affine image of (|correlation| ≥ 1 − 10⁻⁹ over
+    the record: p computed from the commanded input)."""
+    images = {}
+    for c in range(data.p.shape[1]):
+        for j in range(data.u.shape[1]):
+            p, u = data.p[:, c], data.u[:, j]
+            if np.std(p) > 0 and np.std(u) > 0 and abs(np.corrcoef(p, u)[0, 1]) >= 1 - 1e-9:
+                images[c] = j
+                break
+    return images
+
+
+def actuator_delay_map(shifts: np.ndarray, images: dict[int, int], n_p: int) -> ModelMap:
+    """The ``actuator_delay`` map of input delays ``shifts`` (samples beyond the modelled nk), each
+    scheduling image delayed with its input (:func:`scheduling_images`)."""
+    return ModelMap("actuator_delay", None, {
+        "input_delays": [int(d) for d in shifts],
+        "scheduling_delays": [int(shifts[images[c]]) if c in images else 0 for c in range(n_p)]})
+
+
+def _delayed_fit(ctx: Context, model_map: ModelMap, na: np.ndarray, nb: np.ndarray, nk: np.ndarray,
+                 basis: Basis) -> Fit:
+    """The structure fitted to the record's inputs and scheduling delayed by ``model_map``, scored by
+    the map's simulation (the delays act on the whole record, then it is split as before)."""
+    est, val = delayed_splits(ctx, model_map)
+    return ctx.fit(est, val, na, nb, nk, basis, lambda m: model_map.simulate_validation(m, ctx.est, ctx.val))
+
+
+def delayed_splits(ctx: Context, model_map: ModelMap) -> tuple[Dataset, Dataset]:
+    """The estimation and validation splits with the inputs and scheduling of ``model_map``
+    (``actuator_delay``), delayed over the whole record."""
+    whole, n = joined(ctx.est, ctx.val), ctx.est.N
+    u, p = model_map.inputs(whole.u, whole.u_names), model_map.scheduling(whole.p)
+    return replace(ctx.est, u=u[:n], p=p[:n]), replace(ctx.val, u=u[n:], p=p[n:])
+
+
+#: Largest shift of a dead time from the modelled nk, in samples.
+MAX_DELAY_SHIFT = 10
+
+
+def delay_range(nk: np.ndarray) -> list[np.ndarray]:
+    """The delays :func:`input_delay` tries: the modelled ``nk`` shifted by s ∈ [−3, MAX_DELAY_SHIFT]
+    on every input (never below zero)."""
+    return [nk + s for s in range(-min(3, int(nk.min())), MAX_DELAY_SHIFT + 1)]
+
+
+def delay_candidate(ctx: Context, nk: np.ndarray, fitted: Fit,
+                    model_map: ModelMap | None = None) -> Candidate | None:
+    """The ``input_delay`` candidate of the delays ``nk`` with its ``fitted`` model and its
+    ``actuator_delay`` map, if any (None: the modelled delays)."""
+    modelled_nk = ctx.structure.orders(ctx.ny, ctx.nu)[2]
+    if np.array_equal(nk, modelled_nk):
         return None
-    found = best_nk[0].tolist() if ctx.nu > 1 else int(best_nk[0, 0])
-    modelled = nk[0].tolist() if ctx.nu > 1 else int(nk[0, 0])
-    return Candidate("input_delay", {"nk": found, "modelled_nk": modelled}, best,
-                     f"modelled dead time {modelled}, data says {found}; extending nk to {found}",
-                     choices=ctx.nu)
+    found = nk[0].tolist() if ctx.nu > 1 else int(nk[0, 0])
+    modelled = modelled_nk[0].tolist() if ctx.nu > 1 else int(modelled_nk[0, 0])
+    parameters: dict = {"nk": found, "modelled_nk": modelled}
+    what = f"extending nk to {found}"
+    if model_map is not None:
+        delayed = [ctx.est.p_names[c] for c, d in enumerate(model_map.values["scheduling_delays"]) if d]
+        parameters["delayed_scheduling"] = delayed
+        what = (f"delaying the inputs{' and the scheduling ' + ', '.join(delayed) if delayed else ''} "
+                f"by {model_map.values['input_delays']} samples")
+    return Candidate("input_delay", parameters, fitted,
+                     f"modelled dead time {modelled}, data says {found}; {what}", choices=ctx.nu,
+                     model_map=model_map)
 
 
 def simulation_bic(ctx: Context, candidate: Fit) -> float:

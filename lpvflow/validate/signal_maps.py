@@ -1,7 +1,8 @@
 """The memoryless and hysteretic signal maps of the diagnosis' extensions — dead zone, saturation,
-backlash (play operator) — and the simulation of a model with a Coulomb-friction input: the functions an
-extended model applies to a user's data (:mod:`lpvflow.validate.extended_model`) and the extensions fit
-(:mod:`lpvflow.validate.extensions_maps`); a leaf module, so both can import it."""
+backlash (play operator), a delay per column — and the simulation of a model with a Coulomb-friction
+input: the functions an extended model applies to a user's data
+(:mod:`lpvflow.validate.extended_model`) and the extensions fit (:mod:`lpvflow.validate.extensions_maps`);
+a leaf module, so both can import it."""
 
 from __future__ import annotations
 
@@ -26,6 +27,20 @@ def saturation(u: float, limit: float) -> float:
     if np.isnan(u):
         return u
     return min(max(u, -limit), limit)
+
+
+def delayed(x: np.ndarray, delays: list[int]) -> np.ndarray:
+    """Each column j of ``x`` (N, n) delayed by ``delays[j]`` samples, x_j(k − d_j); the first d_j
+    samples repeat x_j(0) (the value present before the record), a negative d_j advances the column and
+    repeats its last value."""
+    x = np.array(x, dtype=float)
+    out = x.copy()
+    for j, d in enumerate(delays):
+        if d > 0:
+            out[:, j] = np.r_[np.full(d, x[0, j]), x[: len(x) - d, j]]
+        elif d < 0:
+            out[:, j] = np.r_[x[-d:, j], np.full(-d, x[-1, j])]
+    return out
 
 
 @numba.njit(cache=True)

@@ -141,14 +141,16 @@ def friction(ctx: Context) -> Candidate | None:
     Closed-loop data: position outputs only, the sign of the velocity over the next sample,
     extrapolated from the last three outputs (:func:`~lpvflow.validate.closed_loop.velocity_sign`),
     fitted on the measured output and simulated in the identification loop from the simulated
-    output at each step (causal, no iterations). The output is the one whose friction model
-    simulates best in the loop on estimation data (:func:`_loop_loss`), not the smallest one-step
-    loss: sensor noise flips the measured sign wherever the motion is slow, and the one-step loss
-    then favours the wrong output — maglev FMU, 0.02 N on both disks, 2 µm position noise
-    (tests/diagnosis_fmu_cases.py, seeds 0–2): the one-step loss took the upper disk, whose
-    extension refitted by closed-loop IV gained 0.9–1.2 points; the loop simulation takes the lower
-    disk, +6.4 to +7.2 points (noise-free, the lower disk gains +6.7). Open-loop data:
-    :func:`friction_simulation`.
+    output at each step (causal, no iterations). The output is the one whose friction model,
+    refined by closed-loop IV, simulates best in the loop on estimation data (:func:`_loop_loss`),
+    not the smallest one-step loss: sensor noise flips the measured sign wherever the motion is
+    slow, and the one-step loss then favours the wrong output — maglev FMU, 0.02 N on both disks,
+    2 µm position noise (tests/diagnosis_fmu_cases.py, seeds 0–2): the one-step loss took the upper
+    disk, whose extension refitted by closed-loop IV gained 0.9–1.2 points; this criterion takes the
+    lower disk, +6.4 to +7.2 points (noise-free, the lower disk gains +6.7). The loop loss of the LS
+    fit alone is biased by the same noise: on the ADIP with 0.1 mrad of angle noise it took the
+    pendulum (+1.7 points refitted) over the arm (+7.6; tests/test_diagnose_fmu.py). Open-loop
+    data: :func:`friction_simulation`.
     """
     na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
     basis = ctx.structure.basis_for(ctx.est.p.shape[1])
@@ -196,7 +198,7 @@ def friction(ctx: Context) -> Candidate | None:
     if not trials:
         return None
     if ctx.loop is not None:
-        best, i, kind, measured = min(trials, key=lambda t: _loop_loss(ctx, t[0].model, t[1]))
+        best, i, kind, measured = min(trials, key=lambda t: _loop_loss(ctx, t[0], t[1]))
     else:
         best, i, kind, measured = min(trials, key=lambda t: t[0].loss)
     name = ctx.est.y_names[i]
@@ -209,15 +211,20 @@ def friction(ctx: Context) -> Candidate | None:
                      model_map=ModelMap("friction", name, {"motion": kind}))
 
 
-def _loop_loss(ctx: Context, model: LPVIO, i: int) -> float:
-    """log det of the estimation-data error of ``model`` simulated in the identification loop with
-    the friction input of output i taken from its own simulated motion (inf when it diverges)."""
-    with np.errstate(all="ignore"):
-        y_sim = simulate_in_loop(model, ctx.est, ctx.loop, sign_of=i)
-    if not np.all(np.isfinite(y_sim)):
-        return np.inf
-    sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov((ctx.est.y - y_sim).T)))
-    return float(logdet) if sign > 0 else np.inf
+def _loop_loss(ctx: Context, fitted: Fit, i: int) -> float:
+    """log det of the estimation-data loop-simulation error of the friction model of output i after
+    closed-loop IV (:func:`~lpvflow.validate.extensions_noise.closed_loop_iv`, its sign input from
+    the simulated motion), consistent under sensor noise where the LS fit is not; the LS fit's own
+    loop loss when the IV step cannot be solved."""
+    from lpvflow.validate.extensions_noise import closed_loop_iv
+
+    try:
+        return closed_loop_iv(ctx.est, ctx.loop, fitted.model, data=fitted.data, sign_of=i)[1]
+    except (LpvflowError, np.linalg.LinAlgError):
+        with np.errstate(all="ignore"):
+            y_sim = simulate_in_loop(fitted.model, ctx.est, ctx.loop, sign_of=i)
+        sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov((ctx.est.y - y_sim).T)))
+        return float(logdet) if sign > 0 and np.all(np.isfinite(y_sim)) else np.inf
 
 
 def sensor_saturation(ctx: Context) -> Candidate | None:

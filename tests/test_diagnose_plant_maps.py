@@ -45,8 +45,8 @@ def test_coulomb_friction_on_the_maglev_under_sensor_noise_is_named_on_the_disk_
     failed its instrument test (ζᵀφ looked singular through the poly:2 basis' collinearity), so no
     consistent round ran; and the friction output was chosen by the one-step loss on the noisy
     measured sign (the upper disk). Now the round runs and the friction extension, on the disk whose
-    friction model simulates best in the loop, gains over the refit."""
-    record, result = _diagnose("maglev", "Coulomb friction 0.02 N", 0)
+    friction model simulates best in the loop after closed-loop IV, gains over the refit."""
+    _, result = _diagnose("maglev", "Coulomb friction 0.02 N", 0)
     assert result.noise_round
     assert result.cause == "friction", result.refit_ranking
     assert result.parameters["output"] == "lower_disk_position"

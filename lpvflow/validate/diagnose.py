@@ -49,8 +49,8 @@ reversing) is scored as the plant ran.
    output error — its level or delay then chosen by the output-error loss — and scored against the
    output-error refit of the nominal structure (``refit_ranking``). So is every extension when the
    LS nominal simulation fails (BFR 0 on an output) and its output-error refit gains significantly
-   (:func:`_ls_simulation_failed`): against a failed nominal the LS ranking shows no gain at all. A structural cause that still
-   gains is named; otherwise
+   (:func:`_ls_simulation_failed`): against a failed nominal the LS ranking shows no gain at all.
+   A structural cause that still gains is named; otherwise
    ``colored_noise`` (biased, and the AR noise model predicts significantly better than white
    noise; the AR coefficients and spectrum are its parameters) or ``output_noise_bias`` (biased,
    white, the refit gains significantly in simulation: "refit by OE/IV"), else ``none``.

@@ -102,3 +102,42 @@ def test_bad_requests_raise_one_line_errors():
         identify_riv(data, 1, 1, 1, "affine")
     with pytest.raises(DataError, match="form"):
         identify_iv_arx(data, 1, 1, 1, "affine", form="dynamic")
+
+
+def test_instrumental_solve_accepts_good_instruments_of_an_ill_conditioned_regressor():
+    """The test is on the canonical correlations of instruments and regressors, not on the
+    condition of ζᵀφ, which squares the regressor's collinearity (a monomial basis in a signal far
+    from zero, slow outputs): instruments spanning the regressors' space, ζ = φG, give the IV
+    estimate, though the normal matrix looks singular to a condition test."""
+    from lpvflow.identify.iv import IV_RCOND, solve_instrumental
+
+    rng = np.random.default_rng(11)
+    n, m = 3000, 12
+    for _ in range(5):
+        u = np.linalg.qr(rng.normal(size=(n, m)))[0]
+        v = np.linalg.qr(rng.normal(size=(m, m)))[0]
+        phi = (u * np.geomspace(1.0, 3e-7, m)) @ v.T  # cond(φ) ≈ 3·10⁶
+        zeta = phi @ (np.eye(m) + 0.3 * rng.normal(size=(m, m)) / np.sqrt(m))
+        theta = rng.normal(size=m)
+        scaled_z, scaled_p = zeta / np.linalg.norm(zeta, axis=0), phi / np.linalg.norm(phi, axis=0)
+        s = np.linalg.svd(scaled_z.T @ scaled_p, compute_uv=False)
+        assert s[-1] / s[0] <= IV_RCOND  # the case: the normal matrix's condition test refuses it
+        np.testing.assert_allclose(solve_instrumental(zeta, phi, phi @ theta), theta, rtol=1e-6)
+
+
+def test_instrumental_solve_refuses_instruments_that_miss_a_regressor_direction():
+    from lpvflow.identify.iv import solve_instrumental
+
+    rng = np.random.default_rng(12)
+    phi = rng.normal(size=(2000, 6))
+    zeta = phi.copy()
+    zeta[:, -1] = rng.normal(size=2000)
+    q, _ = np.linalg.qr(phi)
+    zeta[:, -1] -= q @ (q.T @ zeta[:, -1])  # orthogonal to every regressor: ζᵀφ is singular
+    zeta[:, -1] /= np.linalg.norm(zeta[:, -1])
+    zeta[:, :-1] = phi[:, :-1]
+    with pytest.raises(DataError, match="instrument matrix is singular"):
+        solve_instrumental(zeta, phi, phi @ np.ones(6))
+    zeta[:, 0] = 0.0  # an instrument without excitation
+    with pytest.raises(DataError, match="instrument matrix is singular"):
+        solve_instrumental(phi[:, :3] * 0 + zeta[:, :3], phi[:, :3], phi[:, 0])

@@ -45,13 +45,14 @@ reversing) is scored as the plant ran.
    simulation error is output noise at all (:func:`prediction_ratio`: an ARX predictor does not
    beat the Box–Jenkins-type one). When LS is biased by output noise (Wald p < ``alpha``,
    noise_bias_change ≥ MATERIAL_CHANGE, ρ ≥ OUTPUT_NOISE_RATIO), step 4 would compare biased fits:
-   every extension significant among the LS fits (open loop; :func:`_noise_round`) is refitted by
-   output error — its level or delay then chosen by the output-error loss — and scored against the
-   output-error refit of the nominal structure (``refit_ranking``); a dead time chosen there counts as
-   significant at p < ``alpha`` whatever its gain (:func:`_dead_time_by_significance`). So is every
-   extension refitted when the LS nominal simulation fails (BFR 0 on an output) and its output-error
-   refit gains significantly (:func:`_ls_simulation_failed`): against a failed nominal the LS ranking
-   shows no gain at all. A structural cause that still gains is named; otherwise
+   every extension significant among the LS fits (open loop;
+   :func:`~lpvflow.validate.diagnose_noise_round.noise_round`) is refitted by output error — its level or
+   delay then chosen by the output-error loss — and scored against the output-error refit of the nominal
+   structure (``refit_ranking``); a dead time chosen there counts as significant at p < ``alpha`` whatever
+   its gain (:func:`_dead_time_by_significance`). So is every extension refitted when the LS nominal
+   simulation fails (BFR 0 on an output) and its output-error refit gains significantly
+   (:func:`~lpvflow.validate.diagnose_noise_round.ls_simulation_failed`): against a failed nominal the LS
+   ranking shows no gain at all. A structural cause that still gains is named; otherwise
    ``colored_noise`` (biased, and the AR noise model predicts significantly better than white
    noise; the AR coefficients and spectrum are its parameters) or ``output_noise_bias`` (biased,
    white, the refit gains significantly in simulation: "refit by OE/IV"), else ``none``.
@@ -91,7 +92,7 @@ from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.identify.arx import prediction_residuals
 from lpvflow.lpvio import LPVIO
 from lpvflow.validate import residuals
-from lpvflow.validate.closed_loop import Loop, simulate_in_loop
+from lpvflow.validate.closed_loop import Loop
 from lpvflow.validate.diagnose_adequacy import (  # noqa: F401  (ADEQUACY_GAIN, INADEQUATE_ALPHA: re-exported)
     ADEQUACY_GAIN,
     INADEQUATE_ALPHA,
@@ -99,6 +100,7 @@ from lpvflow.validate.diagnose_adequacy import (  # noqa: F401  (ADEQUACY_GAIN, 
     final_verdict,
 )
 from lpvflow.validate.diagnose_evidence import evidence, where
+from lpvflow.validate.diagnose_noise_round import noise_round, oe_context, refits_by_output_error
 from lpvflow.validate.diagnose_summary import AMBIGUOUS, NOISE, summary, verdict_parameters
 from lpvflow.validate.extensions import (
     EXTENSIONS,
@@ -107,9 +109,7 @@ from lpvflow.validate.extensions import (
     Fit,
     Structure,
     fit,
-    input_delay_in_loop,
     loop_simulator,
-    refit_in_loop,
 )
 from lpvflow.validate.extensions_structural import delayed_splits
 from lpvflow.validate.metrics import bfr, vaf
@@ -202,42 +202,6 @@ def _rank(est: Dataset, val: Dataset, nominal: Fit, candidates: dict[str, Candid
 
 
 
-def _refits_in_loop(candidates: dict[str, Candidate], ctx: Context) -> dict[str, Candidate]:
-    """Closed loop: every extension refitted by closed-loop IV with its own drive in the loop
-    (:func:`~lpvflow.validate.extensions.refit_in_loop`), the dead time chosen again by that refit's
-    loss (:func:`~lpvflow.validate.extensions.input_delay_in_loop`); the nominal refit's loop
-    simulation gives the first instruments of an extension whose LS fit diverges there."""
-    refits = {}
-    with warnings.catch_warnings(), np.errstate(all="ignore"):
-        warnings.simplefilter("ignore", SchedulingRangeWarning)
-        fallback = simulate_in_loop(candidates[NOISE].fit.model, ctx.est, ctx.loop)
-        for c, cand in candidates.items():
-            if c == NOISE:
-                continue
-            refit = (input_delay_in_loop(cand, ctx, fallback) if c == "input_delay"
-                     else refit_in_loop(cand, ctx.est, ctx.loop, fallback))
-            if refit is not None:
-                refits[c] = refit
-    return refits
-
-
-def _refits_by_output_error(candidates: dict[str, Candidate], ctx_oe: Context) -> dict[str, Candidate]:
-    """Open loop: every extension fitted again with ``ctx_oe`` (its variants refined by output error)."""
-    refits = {}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SchedulingRangeWarning)
-        for c in candidates:
-            if c == NOISE:
-                continue
-            try:
-                cand = EXTENSIONS[c](ctx_oe)
-            except LpvflowError:
-                continue
-            if cand is not None:
-                refits[c] = cand
-    return refits
-
-
 def _choose(ranked: list[dict], candidates: dict[str, Candidate], losses: dict[str, np.ndarray]) -> str:
     """The verdict (module docstring, steps 4–5) from the ranking, best gain first.
 
@@ -318,64 +282,6 @@ def _is_structural(cause: str, candidates: dict[str, Candidate]) -> bool:
     return cause in STRUCTURAL and candidates[cause].parameters.get("kind") != "sensor"
 
 
-def _noise_round(candidates: dict[str, Candidate], ctx: Context, noisy: dict | None,
-                 noise: dict | None, ranked: list[dict], min_gain: float,
-                 alpha: float) -> dict[str, Candidate] | None:
-    """The extensions refitted consistently (module docstring, step 5), or None when the round does
-    not run: open loop when the LS estimate of the nominal structure is materially biased
-    (:func:`biased`) or its simulation failed where the consistent refit's did not
-    (:func:`_ls_simulation_failed`: then every extension is refitted), closed loop when the
-    closed-loop IV refit gains significantly.
-
-    Open loop, only the causes significant among the LS fits are refitted. Output noise makes LS
-    comparisons *favour* extensions (the extra parameters absorb part of the bias), it does not hide
-    a real effect; an extension that gains only between output-error refits is the refits
-    redistributing a model error — neither a cause nor evidence against one. Synthetic plant with an
-    unmodelled pole at 0.7 under 30 dB equation noise (seed 1000): the missing order gains 4.6 points
-    among LS fits and 1.3 among output-error refits, where friction — not significant among LS fits
-    (p = 0.004) — gained 1.6. The output-error refits are most of a diagnosis' cost (maglev FMU, two
-    outputs: 22 of 24 s refitting every extension). Not in closed loop: on the ADIP, 0.1 mrad of sensor
-    noise drops the LS loop simulation to 13/40 % and no LS extension gains, while friction refitted
-    by closed-loop IV gains 7.4 points.
-    """
-    if ctx.loop is not None:
-        significant = noisy is not None and noisy["significant"]
-        return _refits_in_loop(candidates, ctx) if significant else None
-    failed = _ls_simulation_failed(ctx, candidates, noisy, min_gain, alpha)
-    if not failed and (noise is None or not noise["biased"]):
-        return None
-    gained = set(candidates) if failed else {r["cause"] for r in ranked if r["significant"]}
-    return _refits_by_output_error({c: cand for c, cand in candidates.items() if c in gained},
-                                   _oe_context(ctx, candidates))
-
-
-def _ls_simulation_failed(ctx: Context, candidates: dict[str, Candidate], noisy: dict | None,
-                          min_gain: float, alpha: float) -> bool:
-    """Open loop: the LS nominal model's validation simulation fails — BFR 0 on some output, an
-    error at least the output's own variation — while the output-error refit of the same structure
-    gains significantly over it (≥ ``min_gain`` points at block p < ``alpha``).
-
-    A gain is measured against the nominal simulation and BFR is floored at 0, so against a failed
-    nominal an extension whose LS fit fails too shows a gain of 0 whatever its consistent refit
-    would gain: the LS ranking carries no evidence, for or against any cause. Tanks FMU, pump
-    saturation 8 V under 0.2 mm level noise (tests/diagnosis_fmu_cases.py, seed 0): the LS nominal
-    and the LS saturation fit both simulate at 0 %, the output-error refit of the nominal at 85 %,
-    and the saturation refitted by output error gains +13.4 points over it (p = 10⁻⁶, limit
-    7.98 V); the noise bias is not judged material there (prediction ratio 0.84, the refit's error
-    is the saturation's model error, not noise), so without this rule no round ran.
-    """
-    if noisy is None or NOISE not in candidates:
-        return False
-    failed = np.any(bfr(ctx.val.y, ctx.nominal.y_val) <= 0)
-    return bool(failed and noisy["bfr_gain"] >= min_gain and noisy["p_value"] < alpha
-                and not candidates[NOISE].fit.diverged)
-
-
-def _oe_context(ctx: Context, candidates: dict[str, Candidate]) -> Context:
-    """``ctx`` with every variant refined by output error, the refit of the nominal as nominal."""
-    return replace(ctx, nominal=candidates[NOISE].fit, estimator="oe")
-
-
 def _confirmed_by_output_error(cause: str, candidates: dict[str, Candidate], ctx: Context,
                                min_gain: float, alpha: float) -> str:
     """``cause``, or ``none`` when its extension refitted by output error does not gain significantly
@@ -389,7 +295,7 @@ def _confirmed_by_output_error(cause: str, candidates: dict[str, Candidate], ctx
     ≥ ``min_gain`` at p < CONFIRM_ALPHA (friction under 30 dB equation noise, seed 1003: +5.1 points
     refitted, p = 0.0012).
     """
-    refit = _refits_by_output_error({cause: candidates[cause]}, _oe_context(ctx, candidates))
+    refit = refits_by_output_error({cause: candidates[cause]}, oe_context(ctx, candidates))
     if cause not in refit:
         return cause
     row = _rank(ctx.est, ctx.val, candidates[NOISE].fit, refit, min_gain, alpha)[0][0]
@@ -431,7 +337,7 @@ def _decide(ctx: Context, candidates: dict[str, Candidate], ranked: list[dict], 
             alpha: float) -> tuple[str, dict[str, Candidate], list[dict] | None]:
     """The verdict before the adequacy test (module docstring, steps 4–5): (cause, the candidates it
     names from, the noise round's ranking — None when the round did not run)."""
-    refits = _noise_round(candidates, ctx, noisy, noise, ranked, min_gain, alpha)
+    refits = noise_round(candidates, ctx, noisy, noise, ranked, min_gain, alpha)
     if refits is None:
         cause = _choose(ranked, candidates, losses)
         suspect = (noise is not None and noise["bias"]["p_value"] < alpha

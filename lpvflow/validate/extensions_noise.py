@@ -121,6 +121,8 @@ def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop,
     if not isinstance(run, LoopSimulation) or run.rescheduled or cand.fit.data is None:
         return None
     drive = run.drive
+    if "sensor_offset" in drive:  # fitted to the shifted outputs; the IV step knows no sensor offset
+        return None
     exogenous = drive.get("exogenous")
     try:
         model, loss = closed_loop_iv(est, loop, cand.fit.model, data=cand.fit.data,

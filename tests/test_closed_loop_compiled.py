@@ -95,11 +95,14 @@ def test_an_lti_model_in_an_lti_loop_is_the_frozen_loops_response(seed):
 
 def reference_loop(model: LPVIO, data: Dataset, K: GriddedController, r: np.ndarray, s: np.ndarray,
                    offset: np.ndarray, trim_removed: bool, input_map: InputMap, sign_of: int,
-                   extra: np.ndarray, passes: int) -> np.ndarray:
+                   extra: np.ndarray, passes: int, sensor: np.ndarray | None = None) -> np.ndarray:
     """The loop's equations sample by sample in plain numpy: p(k) = sin(y0 + offset0) + 0.5 (y1 + offset1)
     of the output last given; θ = y1 + 0.3·s; ȳ = y_op(θ) or s where given; u_c from (A, B, C, D, y_op,
     u_op) interpolated at θ (K.at); u = u_c − trim + r; v = [input_map(u), extra, velocity sign], the
-    sign of 2 y(k) − 3 y(k−1) + y(k−2) (missing past samples: the first one; 0 at k = 0)."""
+    sign of 2 y(k) − 3 y(k−1) + y(k−2) (missing past samples: the first one; 0 at k = 0). A sensor
+    offset o (``sensor``): the controller reads y + offset + o (also in θ), the scheduling y + offset,
+    and y + o is returned."""
+    sensor = np.zeros(data.y.shape[1]) if sensor is None else sensor
     n, ny = data.N, data.y.shape[1]
     y_model, v_hist, psi_hist = np.zeros((n, ny)), [], []
     out = np.full((n, ny), np.inf)
@@ -128,16 +131,17 @@ def reference_loop(model: LPVIO, data: Dataset, K: GriddedController, r: np.ndar
             past += np.einsum("l,lrc->rc", psi_hist[k - j], model.B[j]) @ v_hist[k - j]
         last = past
         for _ in range(passes):
-            u, _ = command(last + offset, k, False)
+            u, _ = command(last + offset + sensor, k, False)
             psi, v = model_input(k, u, last)
             last = past + np.einsum("l,lrc->rc", psi, model.B[0]) @ v
-        u, x_next = command(last + offset, k, True)
+        u, x_next = command(last + offset + sensor, k, True)
         if passes == 0:
             psi, v = model_input(k, u, last)
         x = x_next
         psi_hist.append(psi)
         v_hist.append(v)
-        y_model[k] = out[k] = last
+        y_model[k] = last
+        out[k] = last + sensor
     return out
 
 
@@ -145,13 +149,9 @@ def basis_at(model: LPVIO, p: float) -> np.ndarray:
     return model.basis.eval(np.array([[p]]), check_range=False)[0]
 
 
-@pytest.mark.parametrize("seed", range(8))
-def test_a_scheduled_loop_follows_its_equations_sample_by_sample(seed):
-    """A gridded controller scheduled on an output and its set-point (NaN set-points in part), a
-    scheduling column computed from the outputs, removed output offsets and trim, a dead zone or a
-    saturation on an input, an exogenous input and the velocity sign of an output, with or without a
-    lag-0 term: the compiled loop equals :func:`reference_loop` over 60 samples."""
-    rng = np.random.default_rng(1000 + seed)
+def scheduled_case(rng: np.random.Generator, seed: int) -> tuple[LPVIO, Dataset, Loop, dict, tuple]:
+    """A random scheduled loop (:func:`test_a_scheduled_loop_follows_its_equations_sample_by_sample`):
+    (model, data, loop, the drive of simulate_in_loop, the arguments of :func:`reference_loop`)."""
     n, ny, nu, nx, G = 60, 2, 2, int(rng.integers(1, 4)), int(rng.integers(1, 5))
     grid = np.sort(rng.uniform(-0.5, 0.5, G)) + np.arange(G) * 1e-3
     K = GriddedController(grid=grid, A=np.stack([stable(rng, nx, 0.6) for _ in range(G)]),
@@ -169,10 +169,36 @@ def test_a_scheduled_loop_follows_its_equations_sample_by_sample(seed):
     r, extra = rng.standard_normal((n, nu)), rng.standard_normal((n, 1))
     input_map = InputMap(("dead_zone", "saturation")[seed // 2 % 2], int(rng.integers(0, nu)), 0.3)
     loop = Loop(K, r, {"p": "sin(y0) + 0.5 * y1"}, s, trim_removed, offset)
-    y = simulate_in_loop(model, data, loop, input_map=input_map, exogenous=extra, sign_of=sign_of)
-    expected = reference_loop(model, data, K, r, s, offset, trim_removed, input_map, sign_of, extra, 3 * lag0)
+    drive = {"input_map": input_map, "exogenous": extra, "sign_of": sign_of}
+    return model, data, loop, drive, (K, r, s, offset, trim_removed, input_map, sign_of, extra, 3 * lag0)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_a_scheduled_loop_follows_its_equations_sample_by_sample(seed):
+    """A gridded controller scheduled on an output and its set-point (NaN set-points in part), a
+    scheduling column computed from the outputs, removed output offsets and trim, a dead zone or a
+    saturation on an input, an exogenous input and the velocity sign of an output, with or without a
+    lag-0 term: the compiled loop equals :func:`reference_loop` over 60 samples."""
+    model, data, loop, drive, arguments = scheduled_case(np.random.default_rng(1000 + seed), seed)
+    y = simulate_in_loop(model, data, loop, **drive)
+    expected = reference_loop(model, data, *arguments)
     assert np.all(np.isfinite(expected))
     np.testing.assert_allclose(y, expected, rtol=0, atol=1e-12 * max(1.0, np.max(np.abs(expected))))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_sensor_offset_is_read_by_the_controller_not_by_the_dynamics(seed):
+    """The scheduled loop with a sensor offset o on the outputs (y_meas = y + o): the compiled loop equals
+    :func:`reference_loop` with the controller (and its scheduling θ) reading y + o, the model's
+    scheduling column computed from y, and y + o returned — not the loop without o shifted by o."""
+    rng = np.random.default_rng(3000 + seed)
+    model, data, loop, drive, arguments = scheduled_case(rng, seed)
+    sensor = 0.2 * rng.standard_normal(data.y.shape[1])
+    y = simulate_in_loop(model, data, loop, **drive, sensor_offset=sensor)
+    expected = reference_loop(model, data, *arguments, sensor=sensor)
+    assert np.all(np.isfinite(expected))
+    np.testing.assert_allclose(y, expected, rtol=0, atol=1e-12 * max(1.0, np.max(np.abs(expected))))
+    assert np.max(np.abs(y - sensor - simulate_in_loop(model, data, loop, **drive))) > 1e-3
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -86,6 +86,21 @@ def test_a_sensor_offset_the_data_determine_is_named_small_or_large():
         assert result.parameters["output_offset"] == pytest.approx(offset, rel=0.2)
 
 
+@pytest.mark.parametrize("seed", [3, 4])
+def test_an_angle_sensor_offset_in_the_loop_is_a_sensor_offset_on_both_angles(seed):
+    """ADIP under its LTI controller, 10 mrad on both measured angles (the FMU's effect_sensor_offset):
+    the controller reads the offset angles, the dynamics act on the true ones. The closed-loop offset
+    extension fits that sensor offset, not an equation constant (whose output-equivalent came out
+    10.1 and 11.7–11.9 mrad on these seeds and 12.2 mrad on the pendulum on seed 2), and the saved
+    map is the sensor offset the loop simulation applies."""
+    record = make_record("adip", "angle sensor offset 10 mrad", seed)
+    result = diagnose(record.data, record.structure, record.channels, **record.diagnose_arguments())
+    assert result.cause == "offset", result.summary
+    assert result.parameters["kind"] == "sensor"
+    assert result.parameters["output_offset"] == pytest.approx([0.01, 0.01], rel=0.2)
+    assert result.winner.model_map.kind == "sensor_offset"
+
+
 def test_a_physical_fault_is_named_only_when_it_beats_every_structural_fix():
     """Structure first: friction on top of the ranking is named only when its squared simulation errors
     are clearly smaller (block test) than those of every structural fix with a positive gain; when a

@@ -44,7 +44,7 @@ CASES = {
     "adip dead zone": ("adip", {"effect_deadzone": 0.8}, 20.0, ["input_nonlinearity"], "input_nonlinearity",
                        "dead_zone"),
     "adip sensor offset": ("adip", {"effect_sensor_offset": 0.01}, 10.0, ["offset"], "offset",
-                           "offset_inputs"),
+                           "sensor_offset"),
     "adip dead time": ("adip", {"effect_input_delay": 0.015}, 10.0, ["input_delay"], "input_delay", None),
     "maglev dead time": ("maglev", {"effect_input_delay": 0.006}, 10.0, ["input_delay"], "input_delay", None),
 }

@@ -121,6 +121,7 @@ def simulate_in_loop(
     input_map: InputMap | None = None,
     exogenous: np.ndarray | None = None,
     sign_of: int | None = None,
+    sensor_offset: np.ndarray | None = None,
 ) -> np.ndarray:
     """Outputs (N, ny) of ``model`` in ``loop`` over the whole record ``data``, from a zero past.
 
@@ -130,6 +131,10 @@ def simulate_in_loop(
     :func:`velocity_sign` of the simulated output, 0 at the first sample). A model whose closed loop
     diverges gets ``inf`` from then on.
 
+    ``sensor_offset`` o (ny,): constant sensor offsets, y_meas = y + o. The model's dynamics and the
+    scheduling expressions act on its output y, the controller reads y_meas, and y_meas is returned:
+    in the loop the offset acts twice (the controller regulates the measured, not the plant's, output).
+
     Shifted (LPR) form only: the coefficient of lag j is evaluated at ψ(p(k−j)), so y(k) follows
     from the past; a lag-0 term, B_0(ψ(k)) v(k), is resolved by three fixed-point passes (p(k) and
     u(k) depend on y(k)). The recursion is compiled (:func:`lpvflow.validate.loop_recursion.simulate_loop`).
@@ -138,7 +143,8 @@ def simulate_in_loop(
         raise DataError("closed-loop simulation needs the shifted (LPR) form: in the static form the "
                         "coefficients of past outputs depend on the current, simulated scheduling")
     law = loop.controller.loop_law()
-    return InLoopModel(model, data, loop, input_map, exogenous, sign_of, law).simulate()
+    y = InLoopModel(model, data, loop, input_map, exogenous, sign_of, law, sensor_offset).simulate()
+    return y if sensor_offset is None else y + np.asarray(sensor_offset, float)
 
 
 @dataclass(frozen=True)
@@ -169,11 +175,13 @@ class InLoopModel:
     record's inputs and scheduling (the columns with an expression recomputed from the simulated
     outputs in the plant's signals, :meth:`Loop.plant_outputs`), the model's extra inputs
     [``exogenous``, velocity sign of output ``sign_of``] after ``input_map``, and ``law``'s controller
-    (an LTI controller as a one-point grid) with the loop's references, excitation and trim; 3
+    (an LTI controller as a one-point grid, reading the outputs plus ``sensor_offset``) with the
+    loop's references, excitation and trim; 3
     fixed-point passes with a lag-0 term, else none (:func:`simulate_in_loop`)."""
 
     def __init__(self, model: LPVIO, data: Dataset, loop: Loop, input_map: InputMap | None,
-                 exogenous: np.ndarray | None, sign_of: int | None, law: LoopController) -> None:
+                 exogenous: np.ndarray | None, sign_of: int | None, law: LoopController,
+                 sensor_offset: np.ndarray | None = None) -> None:
         n, ny = data.N, data.y.shape[1]
         extra = np.zeros((n, 0)) if exogenous is None else np.asarray(exogenous, float).reshape(n, -1)
         nv = data.u.shape[1] + extra.shape[1] + (sign_of is not None)
@@ -196,6 +204,7 @@ class InLoopModel:
             np.array(columns, dtype=np.int64), (codes, arguments, starts),
             np.ascontiguousarray(data.u, float), np.ascontiguousarray(extra),
             np.asarray(loop.plant_outputs(np.zeros(ny)), float),
+            np.zeros(ny) if sensor_offset is None else np.asarray(sensor_offset, float).reshape(ny),
             (np.int64(mapped[0]), np.int64(mapped[1]), mapped[2]),
             np.int64(-1 if sign_of is None else sign_of), controller_arrays(law.K),
             np.array([data.y_names.index(name) for name in law.inputs], dtype=np.int64),
@@ -242,13 +251,22 @@ def loop_signals(y: np.ndarray, data: Dataset, loop: Loop) -> tuple[np.ndarray, 
     with an expression recomputed from y, the others as recorded: the signals :func:`simulate_in_loop`
     fed its model, rebuilt from its output.
     """
-    u_index, computed = _wiring(data, loop)
-    u, p = data.u.copy(), data.p.copy()
+    u_index = _wiring(data, loop)[0]
+    u = data.u.copy()
     plant = np.ascontiguousarray(loop.plant_outputs(np.asarray(y, float)))
     u[:, u_index] = _commands(loop, plant, data) + loop.excitation[: data.N]
-    for i, program in computed:
+    return u, loop_scheduling(y, data, loop)
+
+
+def loop_scheduling(y: np.ndarray, data: Dataset, loop: Loop) -> np.ndarray:
+    """The scheduling of ``data`` with the columns that have an expression in ``loop`` recomputed from
+    the output trajectory ``y`` (N, ny) (in the plant's signals, :meth:`Loop.plant_outputs`), the others
+    as recorded."""
+    p = data.p.copy()
+    plant = np.ascontiguousarray(loop.plant_outputs(np.asarray(y, float)))
+    for i, program in _wiring(data, loop)[1]:
         p[:, i] = program_values(*program, plant)
-    return u, p
+    return p
 
 
 def _commands(loop: Loop, plant: np.ndarray, data: Dataset) -> np.ndarray:

@@ -9,7 +9,8 @@ simulation from a zero past:
                                         diagnosed record's length
     actuator_delay                      u_j ← u_j(k − d_j) on every input and p_c ← p_c(k − d_c) on
                                         the scheduling columns computed from a delayed input
-    sensor_offset                       y_meas = y + o on the named output
+    sensor_offset                       y_meas = y + o on the named output (no name: o (ny,) on
+                                        every output)
     sensor_clip                         y_meas = clip(y_i, lo, hi) on the named output
     friction                            the last input sign v(k), v the motion of output i taken
                                         from the model's own simulated output
@@ -30,6 +31,8 @@ becoming the loop's drive (:meth:`ModelMap.loop_drive`):
     offset_inputs            the constant (and trend) inputs as exogenous inputs
     friction (position)      the sign of the simulated motion
                              (:func:`~lpvflow.validate.closed_loop.velocity_sign`)
+    sensor_offset            the controller reads y + o, the output returned is y + o
+                             (every output; ``simulate_in_loop``'s ``sensor_offset``)
 """
 
 from __future__ import annotations
@@ -97,7 +100,7 @@ class ModelMap:
                                        self.values["motion"] == "velocity")
         y = model.simulate(self.inputs(u, u_names), self.scheduling(p))
         if self.kind == "sensor_offset":
-            return y + self.values["offset"]
+            return y + np.asarray(self.values["offset"], float)
         if self.kind == "sensor_clip":
             i, lo, hi = y_names.index(self.channel), self.values["lower"], self.values["upper"]
             y[:, i] = np.clip(y[:, i], -np.inf if lo is None else lo, np.inf if hi is None else hi)
@@ -111,14 +114,16 @@ class ModelMap:
     def loop_drive(self, u: np.ndarray, u_names: list[str], y_names: list[str]) -> dict[str, Any]:
         """The map as the drive of :func:`~lpvflow.validate.closed_loop.simulate_in_loop` on a record
         with inputs ``u`` (whole record, names ``u_names``) and outputs ``y_names`` (module docstring);
-        a map the loop does not apply (one with memory, a sensor map, a velocity output's friction) is
-        one ModelError line."""
+        a map the loop does not apply (one with memory, a sensor map other than an offset on every
+        output, a velocity output's friction) is one ModelError line."""
         if self.kind in ("dead_zone", "saturation"):
             return {"input_map": InputMap(self.kind, u_names.index(self.channel), self.values["level"])}
         if self.kind == "offset_inputs":
             return {"exogenous": self.inputs(u, u_names)[:, len(u_names) :]}
         if self.kind == "friction" and self.values["motion"] == "position":
             return {"sign_of": y_names.index(self.channel)}
+        if self.kind == "sensor_offset" and self.channel is None:
+            return {"sensor_offset": np.broadcast_to(np.asarray(self.values["offset"], float), len(y_names))}
         raise ModelError(f"the {self.kind} map is not simulated in the identification loop (it applies "
                          "memoryless input maps, exogenous inputs and the sign of a position's motion)")
 

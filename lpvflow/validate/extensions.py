@@ -19,12 +19,14 @@ Coulomb friction enters as an extra input sign(v(k)) with the input's lags, v(k)
 for a position output or v(k) = y(k) for a velocity output; its validation simulation takes v
 from the model's *own* simulated output, sample by sample (:func:`friction_simulation`), never
 from the measured output.
-Offset adds the inputs 1 and t/N with a lag-0 constant coefficient: c₀ + c₁·t/N.
+Offset adds the inputs 1 and t/N with a lag-0 constant coefficient: c₀ + c₁·t/N, or is a sensor
+offset y_meas = y + o (the model fitted to y_meas − o; in closed loop the controller reads y + o).
 
 Closed-loop data (``Context.loop`` set, :mod:`lpvflow.validate.closed_loop`): every model is
 simulated in the identification loop instead, with the extension's input map, extra inputs and
 velocity sign applied to the input the loop produces; the choices made on estimation data stay the
-same (one-step loss and BIC), except the model order's simulation BIC, also run in the loop.
+same (one-step loss and BIC), except the model order's simulation BIC and the sensor offset's level
+and BIC (the estimation-data loop-simulation loss), also run in the loop.
 Simulations run on first use of a fit's validation output (:class:`Fit`): a diagnosis fits about a
 hundred variants and scores one per cause.
 """

@@ -32,7 +32,8 @@ CLOSED_LOOP_IV_ITERATIONS = 4
 def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLOSED_LOOP_IV_ITERATIONS,
                    data: Dataset | None = None, input_map: Callable | None = None,
                    exogenous: np.ndarray | None = None, sign_of: int | None = None,
-                   fallback: np.ndarray | None = None) -> tuple[LPVIO, float]:
+                   fallback: np.ndarray | None = None,
+                   sensor_offset: np.ndarray | None = None) -> tuple[LPVIO, float]:
     """IV estimate of ``start``'s structure on closed-loop data, and its loss (log det of the
     covariance of its loop-simulation error on ``est``).
 
@@ -50,19 +51,23 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLO
     inputs made from the simulated loop. A velocity-sign input (``sign_of``) is taken from the
     simulated motion in the regressor as well: the sign of a noisy measured velocity is attenuated
     near zero speed (errors in variables), which inflated the Coulomb level by 11–12 % on the ADIP
-    under 0.1 mrad of noise (0.35 V for 0.31 V; from the simulated sign 0.287 V).
+    under 0.1 mrad of noise (0.35 V for 0.31 V; from the simulated sign 0.287 V). A sensor offset o
+    (``sensor_offset``, ``data`` the outputs less o): the loop simulation gives y + o, which the
+    controller read; the instruments and the scheduling are made from the model's own output y.
     ``fallback``: a loop simulation on ``est`` (of another model) whose signals serve as the first
     instruments when ``start`` itself diverges in the loop.
     """
     from lpvflow.identify.iv import Structure as IvStructure
     from lpvflow.identify.iv import solve_instrumental
-    from lpvflow.validate.closed_loop import loop_signals
+    from lpvflow.validate.closed_loop import loop_scheduling, loop_signals
 
     data = est if data is None else data
     struct = IvStructure.from_data(data, start.na, start.nb, start.nk, start.basis, start.form)
     psi = struct.basis.eval(data.p, check_range=False)
     phis = [struct.regressor(r, data.y, data.u, psi)[struct.max_lag :] for r in range(struct.ny)]
-    drive = {"input_map": input_map, "exogenous": exogenous, "sign_of": sign_of}
+    drive = {"input_map": input_map, "exogenous": exogenous, "sign_of": sign_of,
+             "sensor_offset": sensor_offset}
+    o = np.zeros(struct.ny) if sensor_offset is None else np.asarray(sensor_offset, float)
 
     def model_inputs(u_sim: np.ndarray, y_sim: np.ndarray) -> np.ndarray:
         parts = [np.array([input_map(row) for row in u_sim]) if input_map is not None else u_sim]
@@ -88,15 +93,16 @@ def closed_loop_iv(est: Dataset, loop: Loop, start: LPVIO, iterations: int = CLO
             raise LpvflowError("closed-loop IV: the starting model diverges in the loop")
         best_theta, y_best = None, fallback
     for _ in range(iterations):
-        u_sim, p_sim = loop_signals(y_best, est, loop)
+        u_sim = loop_signals(y_best, est, loop)[0]
+        p_sim = loop_scheduling(y_best - o, est, loop)
         psi_sim = struct.basis.eval(p_sim, check_range=False)
         v_sim = model_inputs(u_sim, y_best)
         if sign_of is not None:  # the friction column of φ: the sign of the simulated motion too
             u_phi = data.u.copy()
             u_phi[:, -1] = v_sim[:, -1]
             phis = [struct.regressor(r, data.y, u_phi, psi)[struct.max_lag :] for r in range(struct.ny)]
-        target = [solve_instrumental(struct.regressor(r, y_best, v_sim, psi_sim)[struct.max_lag :], phis[r],
-                         est.y[struct.max_lag :, r]) for r in range(struct.ny)]
+        target = [solve_instrumental(struct.regressor(r, y_best - o, v_sim, psi_sim)[struct.max_lag :],
+                                     phis[r], data.y[struct.max_lag :, r]) for r in range(struct.ny)]
         step, improved = 1.0, False
         for _ in range(4):  # the IV step, halved until the loop-simulation error decreases
             theta = target if best_theta is None else [
@@ -126,7 +132,7 @@ def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop,
         model, loss = closed_loop_iv(est, loop, cand.fit.model, data=cand.fit.data,
                                      input_map=drive.get("input_map"), sign_of=drive.get("sign_of"),
                                      exogenous=None if exogenous is None else exogenous[: est.N],
-                                     fallback=fallback)
+                                     fallback=fallback, sensor_offset=drive.get("sensor_offset"))
     except (LpvflowError, np.linalg.LinAlgError):
         return None
     refit = Fit.scored(model, loss, cand.fit.n_params, est.N, run, cand.fit.reference, cand.fit.data)
@@ -134,7 +140,7 @@ def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop,
     if cand.cause == "friction":
         level = coulomb_level(model, drive["sign_of"])
         params |= {"coulomb_level_input_units": level, "level_in_extended_model": level}
-    elif cand.cause == "offset":
+    elif cand.cause == "offset" and params.get("kind") != "sensor":
         params = offset_parameters(model, est.p, est.u.shape[1], "trend" in cand.inputs_added)
     return Candidate(cand.cause, params, refit, cand.description + " (refitted by closed-loop IV)",
                      cand.inputs_added, model_map=cand.model_map)

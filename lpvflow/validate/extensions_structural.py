@@ -14,8 +14,8 @@ from lpvflow.basis import Basis, SchedulingRangeWarning
 from lpvflow.data import Dataset
 from lpvflow.errors import LpvflowError
 from lpvflow.lpvio import LPVIO
-from lpvflow.validate.closed_loop import simulate_in_loop
-from lpvflow.validate.extended_model import ModelMap
+from lpvflow.validate.closed_loop import loop_scheduling, simulate_in_loop
+from lpvflow.validate.extended_model import ModelMap, simulate_mapped_in_loop
 from lpvflow.validate.extension_core import (
     Candidate,
     Context,
@@ -237,7 +237,9 @@ def scheduling_variable(ctx: Context) -> Candidate | None:
 def offset(ctx: Context) -> Candidate | None:
     """Constant or drifting bias: extra inputs 1 (and t/N) with a lag-0 constant coefficient, or
     (SISO, open loop) a constant sensor offset (:func:`_sensor_offset`), whichever has the smaller
-    BIC (the sensor offset's chosen value counted as a parameter).
+    BIC (the sensor offset's chosen value counted as a parameter); on closed-loop data a sensor
+    offset common to every output (:func:`_sensor_offset_in_loop`), the two compared by the BIC of
+    the estimation-data loop-simulation loss (:func:`_loop_bic`).
 
     The constant-only and constant-plus-trend variants compete by estimation BIC, so a trend is kept
     only when the estimation data support it (a spurious one would be extrapolated into validation).
@@ -264,6 +266,14 @@ def offset(ctx: Context) -> Candidate | None:
     if not maps:
         return None
     names, (best, model_map) = min(maps.items(), key=lambda item: item[1][0].bic)
+    if ctx.loop is not None:
+        sensor = _sensor_offset_in_loop(ctx)
+        if sensor is not None and sensor[2] < _loop_bic(ctx, best, model_map, ctx.ny):
+            fitted, level, _ = sensor
+            levels = [level] * ctx.ny
+            return Candidate("offset", {"kind": "sensor", "output_offset": levels}, fitted,
+                             f"a sensor offset of {level:.4g} on every output ({', '.join(ctx.est.y_names)})",
+                             choices=1, model_map=ModelMap("sensor_offset", None, {"offset": levels}))
     sensor = _sensor_offset(ctx) if ctx.loop is None and ctx.ny == 1 else None
     if sensor is not None and sensor[0].bic + np.log(ctx.est.N) < best.bic:  # + its one chosen value
         fitted, level = sensor
@@ -343,6 +353,84 @@ def _sensor_offset(ctx: Context) -> tuple[Fit, float] | None:
         return None
     result.reference = ctx.val.y
     return result, level
+
+
+def _loop_loss(ctx: Context, model: LPVIO, model_map: ModelMap) -> float:
+    """log det of the covariance of the estimation-data loop-simulation error of ``model`` with
+    ``model_map`` (the whole record simulated in the loop, its estimation part scored); ∞ when the
+    loop diverges there."""
+    whole = joined(ctx.est, ctx.val)
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore", SchedulingRangeWarning)
+        y_sim = simulate_mapped_in_loop(model, model_map, whole, ctx.loop)[: ctx.est.N]
+    if not np.all(np.isfinite(y_sim)):
+        return np.inf
+    return log_det(np.atleast_2d(np.cov((ctx.est.y - y_sim).T)))
+
+
+def _loop_bic(ctx: Context, fitted: Fit, model_map: ModelMap, added: int) -> float:
+    """n_eff·(loop-simulation loss, :func:`_loop_loss`) + ``added``·ln n_eff: the BIC by which the
+    closed-loop offset variants compete (an equation constant per output against one sensor offset)."""
+    n_eff = ctx.est.N - fitted.model.max_lag
+    return n_eff * _loop_loss(ctx, fitted.model, model_map) + added * np.log(n_eff)
+
+
+def _sensor_offset_in_loop(ctx: Context) -> tuple[Fit, float, float] | None:
+    """A constant sensor offset o on every output, closed loop: (fit, o, its :func:`_loop_bic`).
+
+    In the loop the offset acts twice: the plant's dynamics (and the scheduling expressions) act on
+    its output y, the controller reads y_meas = y + o, and the record holds y_meas. The structure is
+    fitted to y_meas − o with the scheduling recomputed from it
+    (:func:`~lpvflow.validate.closed_loop.loop_scheduling`) and simulated in the loop with the
+    controller reading y + o (:func:`~lpvflow.validate.closed_loop.simulate_in_loop`'s
+    ``sensor_offset``), its output y + o scored. An equation constant (the ``const`` input) is not
+    this: its output-equivalent A(1, ψ)⁻¹c varies with the scheduling, and the controller's reading is
+    not shifted. o is chosen by :func:`search_level` on the estimation-data loop-simulation loss
+    (:func:`_loop_loss`) over 0 and ±s·OFFSET_FRACTIONS, s the largest 98 % quantile of the outputs'
+    magnitudes, one o for every output (the fmu_plants sensors' ``effect_sensor_offset``; the ADIP
+    arm angle alone barely determines it: the loop holds the measured arm where the controller wants
+    it whatever o, and only sin(arm) changes). The identifiability statement is that of
+    :func:`_sensor_offset` on this loss (None and ``ctx.not_identifiable["offset"]``)."""
+    na, nb, nk = ctx.structure.orders(ctx.ny, ctx.nu)
+    basis = ctx.structure.basis_for(ctx.est.p.shape[1])
+    whole = joined(ctx.est, ctx.val)
+    n = ctx.est.N
+
+    def sensor(o: float) -> ModelMap:
+        return ModelMap("sensor_offset", None, {"offset": [float(o)] * ctx.ny})
+
+    @cache
+    def trial(o: float) -> Fit:
+        y = whole.y - o
+        p = loop_scheduling(y, whole, ctx.loop)
+        est, val = replace(ctx.est, y=y[:n], p=p[:n]), replace(ctx.val, y=y[n:], p=p[n:])
+        result = ctx.fit(est, val, na, nb, nk, basis, ctx.in_loop(sensor(o)))
+        result.reference = ctx.val.y
+        return result
+
+    @cache
+    def loss(o: float) -> float:
+        try:
+            return _loop_loss(ctx, trial(o).model, sensor(o))
+        except LpvflowError:
+            return np.inf
+
+    extent = float(np.quantile(np.abs(ctx.est.y), 0.98, axis=0).max())
+    grid = np.r_[-extent * OFFSET_FRACTIONS[::-1], 0.0, extent * OFFSET_FRACTIONS]
+    level = search_level(loss, grid)
+    losses = np.array([loss(o) for o in grid])
+    if not np.isfinite(loss(level)):
+        return None
+    n_eff = n - ctx.nominal.model.max_lag
+    inside = grid[n_eff * (losses - min(loss(level), losses.min())) <= OFFSET_CONFIDENCE]
+    if grid[0] in inside or grid[-1] in inside:
+        ctx.not_identifiable["offset"] = (
+            f"a sensor offset on {', '.join(ctx.est.y_names)} is not identifiable from these data: every "
+            f"offset from {min(inside):.4g} to {max(inside):.4g} simulates equally well in the loop "
+            f"(likelihood-ratio confidence set at 10⁻³ reaches the searched range ±{extent:.4g})")
+        return None
+    fitted = trial(level)
+    return fitted, level, n_eff * loss(level) + np.log(n_eff)
 
 
 def _schedules_on_output(ctx: Context) -> bool:

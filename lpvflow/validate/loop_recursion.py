@@ -120,14 +120,16 @@ def _basis(p: np.ndarray, exponents: np.ndarray, signal: np.ndarray, knot: np.nd
 
 
 @numba.njit(cache=True, error_model="numpy")
-def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, input_map, sign_of, controller,
-                  y_index, u_index, references, excitation, trim_removed, passes, diverged):
+def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, sensor, input_map, sign_of,
+                  controller, y_index, u_index, references, excitation, trim_removed, passes, diverged):
     """Outputs (n, ny) of the model in the loop (module docstring), ``inf`` from a stop on.
 
     A (n_a, n_ψ, ny, ny), B (n_b, n_ψ, ny, nv): the model's coefficients; ``basis`` (exponents, signal,
     knot) of :func:`_basis`; p (n, n_p) the scheduling (overwritten in the columns ``computed`` by the
-    programs (codes, arguments, starts) of the plant outputs, the model's plus ``offset``); u (n, nu) the
-    record's inputs; extra (n, ·) exogenous model inputs; input_map (code, input, level) on u;
+    programs (codes, arguments, starts) of the plant outputs, the model's plus ``offset``); ``sensor``
+    (ny,) the sensor offsets o the controller reads on top of the plant outputs (it reads y + o, the
+    dynamics and the scheduling act on y); u (n, nu) the record's inputs; extra (n, ·) exogenous model
+    inputs; input_map (code, input, level) on u;
     sign_of the output whose velocity sign ends v (−1: none); controller (grid, A, B, C, D, y_op, u_op,
     codes, arguments) reading the plant outputs ``y_index`` and driving the inputs ``u_index``."""
     n, ny = p.shape[0], offset.shape[0]
@@ -150,7 +152,7 @@ def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, input_ma
         out = last + offset
         resolved = False
         for _ in range(passes):
-            u_c, trim = _law(controller, x, out[y_index], references[k], stack, False)
+            u_c, trim = _law(controller, x, (out + sensor)[y_index], references[k], stack, False)
             u_k = _actuate(u[k], u_c, trim, u_index, excitation[k], trim_removed)
             last = past + _present(k, u_k, last, A, B, exponents, signal, knot, p, computed, codes, arguments,
                                    starts, offset, extra, map_kind, map_input, level, sign_of, y_model,
@@ -159,7 +161,7 @@ def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, input_ma
             out = last + offset
         if not np.all(np.abs(out - offset) < diverged):
             break
-        u_c, trim = _law(controller, x, out[y_index], references[k], stack, True)
+        u_c, trim = _law(controller, x, (out + sensor)[y_index], references[k], stack, True)
         if not np.all(np.isfinite(u_c)):
             break
         u_k = _actuate(u[k], u_c, trim, u_index, excitation[k], trim_removed)

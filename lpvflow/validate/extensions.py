@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from lpvflow.validate.closed_loop_iv import closed_loop_iv  # noqa: F401
 from lpvflow.validate.extension_core import (  # noqa: F401  (the diagnosis' building blocks, re-exported)
     Candidate,
     Context,
@@ -59,7 +60,6 @@ from lpvflow.validate.extensions_maps import (  # noqa: F401
     sensor_saturation,
 )
 from lpvflow.validate.extensions_noise import (  # noqa: F401
-    closed_loop_iv,
     input_delay_in_loop,
     output_noise_bias,
     refit_in_loop,

@@ -14,6 +14,7 @@ from lpvflow.errors import LpvflowError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.lpvio import LPVIO
 from lpvflow.validate.closed_loop import simulate_in_loop, velocity_sign
+from lpvflow.validate.closed_loop_iv import closed_loop_iv
 from lpvflow.validate.extended_model import ModelMap
 from lpvflow.validate.extension_core import (
     Candidate,
@@ -214,11 +215,9 @@ def friction(ctx: Context) -> Candidate | None:
 
 def _loop_loss(ctx: Context, fitted: Fit, i: int) -> float:
     """log det of the estimation-data loop-simulation error of the friction model of output i after
-    closed-loop IV (:func:`~lpvflow.validate.extensions_noise.closed_loop_iv`, its sign input from
+    closed-loop IV (:func:`~lpvflow.validate.closed_loop_iv.closed_loop_iv`, its sign input from
     the simulated motion), consistent under sensor noise where the LS fit is not; the LS fit's own
     loop loss when the IV step cannot be solved."""
-    from lpvflow.validate.extensions_noise import closed_loop_iv
-
     try:
         return closed_loop_iv(ctx.est, ctx.loop, fitted.model, data=fitted.data, sign_of=i)[1]
     except (LpvflowError, np.linalg.LinAlgError):

@@ -18,7 +18,8 @@ from lpvflow.experiment.fmu_experiment import run_fmu_experiment
 from lpvflow.models import load
 from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.design import run_design
-from lpvflow.validate.extended_model import ExtendedModel, ModelMap
+from lpvflow.experiment.controller import load_controller
+from lpvflow.validate.extended_model import ExtendedModel, ModelMap, controller_fingerprint
 from tests.diagnosis_fmu_cases import (
     ADIP_CONTROLLER,
     ADIP_SCHEDULING,
@@ -134,6 +135,17 @@ def test_the_controller_is_required_exactly_for_a_closed_loop_model(tmp_path, ca
     replace(extended, simulation="open loop", loop_scheduling={}).save(open_loop)
     _refused(capsys, ["simulate", str(open_loop), str(csv), *columns, "--controller", str(controller)], out,
              "open loop", "drop --controller")
+    other = tmp_path / "other_controller.json"  # the same law but one gain 0.1 % larger
+    document = json.loads(Path(controller).read_text())
+    document["C"][0][0] *= 1.001
+    other.write_text(json.dumps(document))
+    _refused(capsys, ["simulate", report["extended_model"], str(csv), *columns, "--controller", str(other)],
+             out, "diagnosed in the loop of controller", "pass the controller file diagnose took")
+    same = tmp_path / "same_controller.json"  # the same law written again (indented): accepted
+    same.write_text(json.dumps(json.loads(Path(controller).read_text()), indent=4))
+    assert main(["simulate", report["extended_model"], str(csv), *columns, "--controller", str(same),
+                 "--json", str(out)]) == 0
+    out.unlink()
     model = tmp_path / "model.json"
     main(["identify", str(csv), *columns, "-o", str(model)])
     _refused(capsys, ["simulate", str(model), str(csv), *columns, "--controller", str(controller)], out,
@@ -143,7 +155,8 @@ def test_the_controller_is_required_exactly_for_a_closed_loop_model(tmp_path, ca
 def test_a_closed_loop_file_without_its_loop_is_refused(tmp_path):
     _, report, _, _ = diagnose(tmp_path, "adip dead time")
     document = json.loads(Path(report["extended_model"]).read_text())
-    assert document["loop"] == {"scheduling": ADIP_SCHEDULING, "remove_trim": False}
+    assert document["loop"] == {"scheduling": ADIP_SCHEDULING, "remove_trim": False,
+                                "controller": controller_fingerprint(load_controller(ADIP_CONTROLLER))}
     older = tmp_path / "older.json"
     older.write_text(json.dumps(document | {"loop": None}))
     with pytest.raises(ModelError, match="does not record the loop"):

@@ -125,7 +125,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
         remove_offsets=args.remove_offsets, causes=args.causes, progress=sys.stderr.isatty())
     report = report_header("diagnosis") | {"model": model_path} | result.to_dict()
     report["extended_model"] = None
-    extended = extended_model(result, data, args.split, args.remove_trim)
+    extended = extended_model(result, data, args.split, args.remove_trim, controller)
     if extended is not None:
         extended.save(model_out)
         report["extended_model"] = model_out

@@ -220,13 +220,13 @@ def _simulate_extended(model, args: argparse.Namespace) -> tuple[np.ndarray, Dat
     loop of ``args.controller`` (:func:`~lpvflow.pipeline.model_diagnosis.simulate_extended`)."""
     from lpvflow.pipeline.model_diagnosis import loop_controller, simulate_extended
 
-    model.check_controller(bool(args.controller))
-    if not args.controller:
+    controller = loop_controller(args.controller, "simulate --controller") if args.controller else None
+    model.check_controller(controller)
+    if controller is None:
         data = Dataset.read(args.data, args.u, args.y, args.p, time=args.time, Ts=args.Ts)
         return model.simulate(data), data
     table = read_columns(args.data)  # the set-point columns (and the trim's) come from it too
     data = Dataset.from_columns(table, Path(args.data).name, args.u, args.y, args.p, args.time, args.Ts)
-    controller = loop_controller(args.controller, "simulate --controller")
     return simulate_extended(model, table, data, controller), data
 
 

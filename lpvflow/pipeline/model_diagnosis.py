@@ -20,7 +20,7 @@ from lpvflow.loop.loader import load_controller_file
 from lpvflow.lpvio import LPVIO
 from lpvflow.pipeline.coordinates import about_operating_point, without_offsets
 from lpvflow.validate.diagnose import MIN_VALIDATION, Diagnosis, diagnose
-from lpvflow.validate.extended_model import ExtendedModel
+from lpvflow.validate.extended_model import ExtendedModel, controller_fingerprint
 from lpvflow.validate.extensions import Structure
 
 
@@ -77,12 +77,13 @@ def diagnose_model(
     return result, data
 
 
-def extended_model(result: Diagnosis, data: Dataset, split: float, remove_trim: bool) -> ExtendedModel | None:
+def extended_model(result: Diagnosis, data: Dataset, split: float, remove_trim: bool,
+                   controller: LtiController | GriddedController | None = None) -> ExtendedModel | None:
     """The extended model of the diagnosis' named cause (None when it names none), as `lpvflow diagnose`
     and the design's ``[diagnose]`` stage save it: the winner's model and map, the columns of the
     diagnosed record ``data`` (an added scheduling channel included), the validation part of ``split``
     with the reported fit, the removed means, and — closed loop — the loop it was scored in (its
-    scheduling expressions, ``remove_trim``)."""
+    scheduling expressions, ``remove_trim``, the fingerprint of ``controller``, the one it ran)."""
     if result.winner is None:
         return None
     model = result.winner.fit.model
@@ -90,7 +91,8 @@ def extended_model(result: Diagnosis, data: Dataset, split: float, remove_trim: 
     removed = {k: data.offsets[k] for k in "uy" if k in data.offsets}
     return ExtendedModel(model, result.winner.model_map, data.u_names, data.y_names, p_names, result.cause,
                          data.split(split)[0].N, result.bfr_after, result.simulation, removed,
-                         result.loop_scheduling, remove_trim and result.simulation == "closed loop")
+                         result.loop_scheduling, remove_trim and result.simulation == "closed loop",
+                         controller_fingerprint(controller) if result.simulation == "closed loop" else None)
 
 
 def recorded_setpoints(table: Mapping[str, np.ndarray], controller: LtiController | GriddedController,

@@ -150,7 +150,7 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
                "bfr_before": result.bfr_before, "bfr_after": result.bfr_after,
                "ranking": [{k: r[k] for k in ("cause", "bfr_gain", "p_value")} for r in result.ranking],
                "adopted": False, "model": "model_full.json", "extended_model": None}
-    extended = extended_model(result, data, ident["split"], ident["remove_trim"])
+    extended = extended_model(result, data, ident["split"], ident["remove_trim"], controller)
     if extended is not None:  # `lpvflow simulate` runs it (--controller: in the experiment's loop)
         extended.save(ctx.path("diagnosis.extended.json"))
         outputs["extended_model"] = "diagnosis.extended.json"

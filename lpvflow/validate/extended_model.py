@@ -23,7 +23,8 @@ file reproduces the reported validation fit: simulate the whole record, score fr
 A closed-loop diagnosis (``simulation = "closed loop"``) scored every model in the identification loop
 of the record's controller (:func:`~lpvflow.validate.closed_loop.simulate_in_loop`); its file records
 that loop (``loop``: the scheduling expressions recomputed from the simulated outputs, and whether the
-model's inputs are without the controller's trim) and runs there again, given the same controller:
+model's inputs are without the controller's trim, and the controller's fingerprint
+:func:`controller_fingerprint`) and runs there again, given the same controller:
 :func:`simulate_mapped_in_loop` is the one simulation both the diagnosis and the file use, the map
 becoming the loop's drive (:meth:`ModelMap.loop_drive`):
 
@@ -37,6 +38,8 @@ becoming the loop's drive (:meth:`ModelMap.loop_drive`):
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -148,6 +151,14 @@ def simulate_mapped_in_loop(model: LPVIO, model_map: ModelMap | None, data: Data
     return simulate_in_loop(model, data, loop, **drive)
 
 
+def controller_fingerprint(controller: LtiController | GriddedController) -> str:
+    """The SHA-256 of the controller's file document (``to_dict()``, keys sorted, floats as Python writes
+    them), first 16 hex digits: the same law read back from its file has the same fingerprint, another
+    law (one gain changed) another."""
+    text = json.dumps(controller.to_dict(), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 @dataclass
 class ExtendedModel:
     """A diagnosis' extended model: ``model`` with its ``map`` (None: the model alone), the columns
@@ -169,14 +180,18 @@ class ExtendedModel:
     loop_scheduling: dict[str, str] = field(default_factory=dict)
     #: Closed loop: the model's inputs are the recorded ones minus the controller's trim u_op(θ(k)).
     remove_trim: bool = False
+    #: Closed loop: :func:`controller_fingerprint` of the controller the diagnosis ran (None in files
+    #: written before it was recorded: any controller is taken).
+    controller: str | None = None
 
     @property
     def closed_loop(self) -> bool:
         return self.simulation == "closed loop"
 
-    def check_controller(self, given: bool) -> None:
-        """Refuse (one line) a closed-loop model without its controller (``given``), or a controller given
-        for an open-loop one."""
+    def check_controller(self, controller: LtiController | GriddedController | None) -> None:
+        """Refuse (one line) a closed-loop model without its controller, a controller given for an
+        open-loop one, or a controller other than the one the diagnosis ran (its fingerprint differs)."""
+        given = controller is not None
         if self.closed_loop and not given:
             raise DataError(f"the extended model ({self.cause}) was diagnosed in the loop of the controller "
                             "the data were recorded under: pass --controller CONTROLLER.json, the one "
@@ -184,6 +199,10 @@ class ExtendedModel:
         if given and not self.closed_loop:
             raise DataError(f"the extended model ({self.cause}) was diagnosed open loop and runs open loop: "
                             "drop --controller")
+        if given and self.controller is not None and controller_fingerprint(controller) != self.controller:
+            raise DataError(f"the extended model ({self.cause}) was diagnosed in the loop of controller "
+                            f"{self.controller} (fingerprint), the one given is "
+                            f"{controller_fingerprint(controller)}: pass the controller file diagnose took")
 
     def check_columns(self, data: Dataset) -> None:
         """Refuse (one line) data whose inputs, outputs or scheduling are not the model's columns."""
@@ -204,7 +223,7 @@ class ExtendedModel:
         N × inputs, when :attr:`remove_trim`), then less the removed means — through
         :func:`simulate_mapped_in_loop`, as the diagnosis scored it."""
         self.check_columns(data)
-        self.check_controller(controller is not None)
+        self.check_controller(controller)
         u = data.u - np.asarray(self.offsets.get("u", 0.0))
         y0 = np.asarray(self.offsets.get("y", 0.0))
         if self.closed_loop:
@@ -223,8 +242,8 @@ class ExtendedModel:
                 "model": self.model.to_dict(), "map": self.map.to_dict() if self.map else None,
                 "u_names": self.u_names, "y_names": self.y_names, "p_names": self.p_names,
                 "simulation": self.simulation, "offsets": self.offsets,
-                "loop": ({"scheduling": self.loop_scheduling, "remove_trim": self.remove_trim}
-                         if self.closed_loop else None),
+                "loop": ({"scheduling": self.loop_scheduling, "remove_trim": self.remove_trim,
+                          "controller": self.controller} if self.closed_loop else None),
                 "validation": {"start": self.validation_start, "bfr": self.validation_bfr}}
 
     @classmethod
@@ -240,7 +259,7 @@ class ExtendedModel:
                        int(d["validation"]["start"]), [float(b) for b in d["validation"]["bfr"]],
                        d["simulation"], {k: [float(v) for v in d["offsets"][k]] for k in d["offsets"]},
                        {str(k): str(v) for k, v in loop.get("scheduling", {}).items()},
-                       bool(loop.get("remove_trim", False)))
+                       bool(loop.get("remove_trim", False)), loop.get("controller"))
         except (KeyError, TypeError) as exc:
             raise ModelError(f"lpvflow/{FORMAT} file lacks or mangles the field {exc.args[0]!r}") from None
 

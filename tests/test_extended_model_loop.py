@@ -48,7 +48,10 @@ CASES = {
                            "sensor_offset"),
     "adip dead time": ("adip", {"effect_input_delay": 0.015}, 10.0, ["input_delay"], "input_delay", None),
     "maglev dead time": ("maglev", {"effect_input_delay": 0.006}, 10.0, ["input_delay"], "input_delay", None),
+    "adip model order": ("adip", {}, 10.0, ["model_order"], "model_order", None),
 }
+#: Orders na = nb diagnosed (2 unless stated): first order is short for the ADIP's two angles.
+ORDERS = {"adip model order": "1"}
 #: Experiment seeds, drawn once at random (fixed seed).
 SEEDS = dict(zip(CASES, np.random.default_rng(35).integers(1, 1000, len(CASES)).tolist(), strict=True))
 
@@ -82,7 +85,8 @@ def diagnose(folder: Path, case: str) -> tuple[Path, dict, list[str], Path]:
                            else (MAGLEV_COLUMNS, MAGLEV_CONTROLLER))
     options = [] if plant == "adip" else ["--basis", "poly:2", "--remove-trim", "--remove-offsets"]
     report = folder / "diagnosis.json"
-    assert main(["diagnose", str(csv), *columns, "--na", "2", "--nb", "2", "--nk", "1", *options,
+    order = ORDERS.get(case, "2")
+    assert main(["diagnose", str(csv), *columns, "--na", order, "--nb", order, "--nk", "1", *options,
                  "--controller", str(controller), "--causes", *causes, "--json", str(report)]) == 0
     return csv, json.loads(report.read_text()), columns, controller
 

@@ -131,6 +131,10 @@ def test_diagnosed_dead_time_is_adopted_and_improves_the_validation_fit(tmp_path
     assert diag["cause"] == "input_delay" and diag["parameters"]["nk"] == 4 and diag["adopted"]
     reduced = lpvflow.load(tmp_path / "out" / "adopted" / "model.json")
     assert reduced.io.nk.tolist() == [[4]]
+    saved = lpvflow.load(tmp_path / "out" / "adopted" / "diagnosis.extended.json").model  # what simulate runs
+    adopted_model = lpvflow.load(tmp_path / "out" / "adopted" / "model_extended.json").io
+    for name in ("A", "B"):
+        np.testing.assert_array_equal(getattr(adopted_model, name), getattr(saved, name))
     fit_before = before["stages"]["validate"]["outputs"]["fit"]["bfr"][0]
     fit_after = after["stages"]["validate"]["outputs"]["fit"]["bfr"][0]
     assert fit_after > fit_before + 1.0

@@ -125,8 +125,9 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
     model simulated in the loop of the experiment controller (LTI or gridded; set-points as recorded,
     the experiment's scheduling expressions recomputed from the simulated outputs). The named cause's
     extended model is saved as `lpvflow diagnose` saves it (``diagnosis.extended.json``,
-    :func:`~lpvflow.pipeline.model_diagnosis.extended_model`). With ``adopt`` the
-    extended model replaces the identified one for the rest of the design when
+    :func:`~lpvflow.pipeline.model_diagnosis.extended_model`). With ``adopt`` the model of that
+    file (realized in state space, ``model_extended.json``) replaces the identified one for the rest of
+    the design when
     :func:`~lpvflow.pipeline.adoption.adoption_refusal` lets it (it keeps the model's inputs, outputs
     and signal maps)."""
     cfg, ident, experiment = ctx.config["diagnose"], ctx.config["identify"], ctx.config["experiment"]
@@ -159,7 +160,7 @@ def diagnose(ctx: StageContext) -> tuple[dict, list[str]]:
         if refusal:
             outputs["adoption_refused"] = refusal
         else:
-            result.winner.fit.model.to_ss().save(ctx.path("model_extended.json"))
+            load(ctx.path("diagnosis.extended.json")).model.to_ss().save(ctx.path("model_extended.json"))
             outputs.update(adopted=True, model="model_extended.json")
     artifacts = (["diagnosis.png"] + (["diagnosis.extended.json"] if extended is not None else [])
                  + (["model_extended.json"] if outputs["adopted"] else []))

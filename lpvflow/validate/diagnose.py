@@ -29,6 +29,10 @@ reversing) is scored as the plant ran.
    lags is still a dead time); a tie between different causes is ``none``. Otherwise ``none``.
    Structure first (:func:`_structure_first`): a physical fault is named only when it also clearly
    beats every structural fix (orders, basis, scheduling variable, equation constant) that gains.
+   One parameter (:mod:`lpvflow.validate.diagnose_consistency`): a dead time named among least-squares
+   fits in open loop must hold on the equations after small and after large input moves (a
+   likelihood-ratio test per group at α/2); the delay that imitates a rate limiter grows with the move,
+   and such a verdict is ``unexplained``.
    A parameter the data cannot determine (a sensor offset whose likelihood-ratio set is unbounded,
    :func:`~lpvflow.validate.extensions_structural._sensor_offset`) is stated in ``not_identifiable``
    instead of a guess (the sensor-offset variant is then not offered).

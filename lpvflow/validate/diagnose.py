@@ -513,7 +513,7 @@ def _one_dead_time(ctx: Context, cause: str, pool: dict[str, Candidate], noise_r
                    adequacy: dict | None, alpha: float) -> tuple[str, dict | None]:
     """A dead time named among least-squares fits on open-loop data must be one dead time: re-estimated
     on the equations after small and after large input moves, the named delay must be inside the
-    likelihood-ratio set of each at ``alpha``
+    likelihood-ratio set of each at ``alpha``/2
     (:func:`~lpvflow.validate.diagnose_consistency.delay_consistency`); otherwise the delay stands in
     for an effect outside the vocabulary (a rate limiter, whose equivalent delay grows with the move)
     and the cause is ``unexplained``."""

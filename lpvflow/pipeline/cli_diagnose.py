@@ -38,7 +38,8 @@ VERDICTS = {
     "colored_noise": "coloured output noise biases least squares (AR noise model and spectrum reported)",
     "ambiguous": "two causes gain significantly and no test separates them: both are reported",
     "unexplained": "the model is inadequate but no cause of the vocabulary explains it (or the best "
-                   "extension leaves the adequacy test failing); with --controller the error is tested "
+                   "extension leaves the adequacy test failing, or a named dead time does not hold after "
+                   "small and large input moves alike); with --controller the error is tested "
                    "against the loop's excitation and set-points",
 }
 

@@ -29,6 +29,10 @@ reversing) is scored as the plant ran.
    lags is still a dead time); a tie between different causes is ``none``. Otherwise ``none``.
    Structure first (:func:`_structure_first`): a physical fault is named only when it also clearly
    beats every structural fix (orders, basis, scheduling variable, equation constant) that gains.
+   One parameter (:mod:`lpvflow.validate.diagnose_consistency`): a dead time named among least-squares
+   fits in open loop must hold on the equations after small and after large input moves (a
+   likelihood-ratio test per group at α/2); the delay that imitates a rate limiter grows with the move,
+   and such a verdict is ``unexplained``.
    A parameter the data cannot determine (a sensor offset whose likelihood-ratio set is unbounded,
    :func:`~lpvflow.validate.extensions_structural._sensor_offset`) is stated in ``not_identifiable``
    instead of a guess (the sensor-offset variant is then not offered).
@@ -99,6 +103,7 @@ from lpvflow.validate.diagnose_adequacy import (  # noqa: F401  (ADEQUACY_GAIN, 
     INADEQUATE_GAIN,
     final_verdict,
 )
+from lpvflow.validate.diagnose_consistency import delay_consistency
 from lpvflow.validate.diagnose_evidence import evidence, where
 from lpvflow.validate.diagnose_noise_round import noise_round, oe_context, refits_by_output_error
 from lpvflow.validate.diagnose_summary import AMBIGUOUS, NOISE, summary, verdict_parameters
@@ -480,6 +485,7 @@ def diagnose(
     used = refit_ranked if noise_round else ranked
     final = candidates[NOISE].fit if noise_round else nominal
     cause, adequacy = final_verdict(ctx, cause, final, pool, used, min_gain, alpha)
+    cause, adequacy = _one_dead_time(ctx, cause, pool, noise_round, adequacy, alpha)
     _refuse_diverged(cause, nominal, candidates)
     winner = pool.get(NOISE if cause == "colored_noise" else cause)
     after = winner.fit.y_val if winner else nominal.y_val
@@ -501,6 +507,22 @@ def diagnose(
     )
     result.summary = summary(result, winner)
     return result
+
+
+def _one_dead_time(ctx: Context, cause: str, pool: dict[str, Candidate], noise_round: bool,
+                   adequacy: dict | None, alpha: float) -> tuple[str, dict | None]:
+    """A dead time named among least-squares fits on open-loop data must be one dead time: re-estimated
+    on the equations after small and after large input moves, the named delay must be inside the
+    likelihood-ratio set of each at ``alpha``/2
+    (:func:`~lpvflow.validate.diagnose_consistency.delay_consistency`); otherwise the delay stands in
+    for an effect outside the vocabulary (a rate limiter, whose equivalent delay grows with the move)
+    and the cause is ``unexplained``."""
+    if cause != "input_delay" or noise_round or ctx.loop is not None:
+        return cause, adequacy
+    check = delay_consistency(ctx, pool[cause], alpha)
+    if check is None or not check["inconsistent"]:
+        return cause, adequacy
+    return "unexplained", (adequacy or {}) | {"inconsistent_parameter": check}
 
 
 def _refuse_diverged(cause: str, nominal: Fit, candidates: dict[str, Candidate]) -> None:

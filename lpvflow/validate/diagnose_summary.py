@@ -23,7 +23,7 @@ def verdict_parameters(cause: str, winner: Candidate | None, noise: dict | None,
     verdict, the adequacy test for ``unexplained``, both tied extensions for ``ambiguous``."""
     if cause == "unexplained":
         params = {"input_explained_bfr_gain": adequacy["bfr_gain"], "p_value": adequacy["p_value"]}
-        for key in ("unnamed_extension", "partial_extension"):
+        for key in ("unnamed_extension", "partial_extension", "inconsistent_parameter"):
             if key in adequacy:
                 params[key] = adequacy[key]
         return params
@@ -74,6 +74,13 @@ def _verdict_line(result: Diagnosis, winner: Candidate | None) -> str:
         return (f"validation BFR {before:.1f} %; {ext['cause']} gains {ext['bfr_gain']:.1f} points but its "
                 f"model still leaves an error {history} explains (+{left:.1f} points, "
                 f"p = {ext['p_value']:.2g}): a partial explanation, cause unexplained")
+    if result.cause == "unexplained" and "inconsistent_parameter" in result.parameters:
+        check = result.parameters["inconsistent_parameter"]
+        return (f"validation BFR {before:.1f} %; {check['cause']} gains, but the named {check['parameter']} "
+                f"{check['named']} does not hold after small and large input moves alike (re-estimated "
+                f"{check['small_moves']} and {check['large_moves']}, likelihood ratios "
+                f"{', '.join(f'{v:.1f}' for v in check['likelihood_ratio'])} at α = {check['alpha']:g}): "
+                "no single dead time explains the data, cause unexplained")
     if result.cause == "unexplained":
         a = result.adequacy
         return (f"validation BFR {before:.1f} %; the simulation error is larger than the output noise "

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from lpvflow.errors import ModelError
+from lpvflow.experiment.controller import load_controller
 from lpvflow.experiment.fmu_experiment import run_fmu_experiment
 from lpvflow.models import load
 from lpvflow.pipeline.cli import main
 from lpvflow.pipeline.design import run_design
-from lpvflow.experiment.controller import load_controller
 from lpvflow.validate.extended_model import ExtendedModel, ModelMap, controller_fingerprint
 from tests.diagnosis_fmu_cases import (
     ADIP_CONTROLLER,

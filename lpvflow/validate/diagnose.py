@@ -101,6 +101,7 @@ from lpvflow.validate.diagnose_adequacy import (  # noqa: F401  (ADEQUACY_GAIN, 
 )
 from lpvflow.validate.diagnose_evidence import evidence, where
 from lpvflow.validate.diagnose_noise_round import noise_round, oe_context, refits_by_output_error
+from lpvflow.validate.diagnose_prediction import material_in_prediction
 from lpvflow.validate.diagnose_summary import AMBIGUOUS, NOISE, summary, verdict_parameters
 from lpvflow.validate.extensions import (
     EXTENSIONS,
@@ -345,15 +346,26 @@ def _decide(ctx: Context, candidates: dict[str, Candidate], ranked: list[dict], 
                    and noise["bias"]["noise_bias_change"] >= NOTICEABLE_CHANGE)
         if suspect and cause in candidates:
             cause = _confirmed_by_output_error(cause, candidates, ctx, min_gain, alpha)
-        return _delay_before_order(cause, candidates, ranked, ctx, min_gain, alpha), candidates, None
+        cause = _delay_before_order(cause, candidates, ranked, ctx, min_gain, alpha)
+        in_prediction = material_in_prediction(ctx, candidates, cause, alpha)
+        if in_prediction is None:
+            return cause, candidates, None
+        return in_prediction.cause, candidates | {in_prediction.cause: in_prediction}, None
     # The noise round (module docstring, step 5; docstring of _choose): every extension refitted
     # consistently, scored against the consistent refit of the nominal structure.
     refit_ranked, refit_losses = _rank(ctx.est, ctx.val, candidates[NOISE].fit, refits, min_gain, alpha)
     _dead_time_by_significance(refit_ranked, alpha)
     cause = _choose(refit_ranked, refits, refit_losses)
-    if cause == "none":
-        return _noise_verdict(noisy, noise), candidates, refit_ranked
-    return cause, refits, refit_ranked
+    if cause != "none":
+        return cause, refits, refit_ranked
+    cause = _noise_verdict(noisy, noise)
+    in_prediction = material_in_prediction(ctx, candidates, cause, alpha)
+    if in_prediction is None:
+        return cause, candidates, refit_ranked
+    row = _rank(ctx.est, ctx.val, candidates[NOISE].fit, {in_prediction.cause: in_prediction}, min_gain,
+                alpha)[0][0]
+    refit_ranked = [r for r in refit_ranked if r["cause"] != in_prediction.cause] + [row]
+    return in_prediction.cause, candidates | {in_prediction.cause: in_prediction}, refit_ranked
 
 
 def _dead_time_by_significance(refit_ranked: list[dict], alpha: float) -> None:

@@ -491,7 +491,7 @@ def diagnose(
     noise_round = refit_ranked is not None
     used = refit_ranked if noise_round else ranked
     final = candidates[NOISE].fit if noise_round else nominal
-    cause, adequacy = final_verdict(ctx, cause, final, pool, used, min_gain, alpha)
+    cause, adequacy, pool = final_verdict(ctx, cause, final, pool, used, min_gain, alpha)
     _refuse_diverged(cause, nominal, candidates)
     winner = pool.get(NOISE if cause == "colored_noise" else cause)
     after = winner.fit.y_val if winner else nominal.y_val

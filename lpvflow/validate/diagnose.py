@@ -55,7 +55,10 @@ reversing) is scored as the plant ran.
    ranking shows no gain at all. A structural cause that still gains is named; otherwise
    ``colored_noise`` (biased, and the AR noise model predicts significantly better than white
    noise; the AR coefficients and spectrum are its parameters) or ``output_noise_bias`` (biased,
-   white, the refit gains significantly in simulation: "refit by OE/IV"), else ``none``.
+   white, the refit gains significantly in simulation: "refit by OE/IV"), else ``none``. Open loop, a
+   ``none`` or noise verdict gives way to a dead zone or saturation material in one-step prediction
+   whose output-error refit keeps its level and loses nothing in simulation
+   (:func:`~lpvflow.validate.diagnose_prediction.material_in_prediction`).
    Closed loop: the consistent refit is closed-loop IV (:func:`~lpvflow.validate.extensions.closed_loop_iv`,
    instruments from the model's own loop simulation), and the noise round — every extension refitted
    the same way with its own drive in the loop, a dead time chosen again by that refit's loss

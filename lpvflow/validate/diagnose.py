@@ -59,7 +59,10 @@ reversing) is scored as the plant ran.
    ranking shows no gain at all. A structural cause that still gains is named; otherwise
    ``colored_noise`` (biased, and the AR noise model predicts significantly better than white
    noise; the AR coefficients and spectrum are its parameters) or ``output_noise_bias`` (biased,
-   white, the refit gains significantly in simulation: "refit by OE/IV"), else ``none``.
+   white, the refit gains significantly in simulation: "refit by OE/IV"), else ``none``. Open loop, a
+   ``none`` or noise verdict gives way to a dead zone or saturation material in one-step prediction
+   whose output-error refit keeps its level and loses nothing in simulation
+   (:func:`~lpvflow.validate.diagnose_prediction.material_in_prediction`).
    Closed loop: the consistent refit is closed-loop IV (:func:`~lpvflow.validate.extensions.closed_loop_iv`,
    instruments from the model's own loop simulation), and the noise round — every extension refitted
    the same way with its own drive in the loop, a dead time chosen again by that refit's loss
@@ -106,6 +109,7 @@ from lpvflow.validate.diagnose_adequacy import (  # noqa: F401  (ADEQUACY_GAIN, 
 from lpvflow.validate.diagnose_consistency import delay_consistency
 from lpvflow.validate.diagnose_evidence import evidence, where
 from lpvflow.validate.diagnose_noise_round import noise_round, oe_context, refits_by_output_error
+from lpvflow.validate.diagnose_prediction import material_in_prediction
 from lpvflow.validate.diagnose_summary import AMBIGUOUS, NOISE, summary, verdict_parameters
 from lpvflow.validate.extensions import (
     EXTENSIONS,
@@ -350,15 +354,26 @@ def _decide(ctx: Context, candidates: dict[str, Candidate], ranked: list[dict], 
                    and noise["bias"]["noise_bias_change"] >= NOTICEABLE_CHANGE)
         if suspect and cause in candidates:
             cause = _confirmed_by_output_error(cause, candidates, ctx, min_gain, alpha)
-        return _delay_before_order(cause, candidates, ranked, ctx, min_gain, alpha), candidates, None
+        cause = _delay_before_order(cause, candidates, ranked, ctx, min_gain, alpha)
+        in_prediction = material_in_prediction(ctx, candidates, cause, alpha)
+        if in_prediction is None:
+            return cause, candidates, None
+        return in_prediction.cause, candidates | {in_prediction.cause: in_prediction}, None
     # The noise round (module docstring, step 5; docstring of _choose): every extension refitted
     # consistently, scored against the consistent refit of the nominal structure.
     refit_ranked, refit_losses = _rank(ctx.est, ctx.val, candidates[NOISE].fit, refits, min_gain, alpha)
     _dead_time_by_significance(refit_ranked, alpha)
     cause = _choose(refit_ranked, refits, refit_losses)
-    if cause == "none":
-        return _noise_verdict(noisy, noise), candidates, refit_ranked
-    return cause, refits, refit_ranked
+    if cause != "none":
+        return cause, refits, refit_ranked
+    cause = _noise_verdict(noisy, noise)
+    in_prediction = material_in_prediction(ctx, candidates, cause, alpha)
+    if in_prediction is None:
+        return cause, candidates, refit_ranked
+    row = _rank(ctx.est, ctx.val, candidates[NOISE].fit, {in_prediction.cause: in_prediction}, min_gain,
+                alpha)[0][0]
+    refit_ranked = [r for r in refit_ranked if r["cause"] != in_prediction.cause] + [row]
+    return in_prediction.cause, candidates | {in_prediction.cause: in_prediction}, refit_ranked
 
 
 def _dead_time_by_significance(refit_ranked: list[dict], alpha: float) -> None:
@@ -484,7 +499,7 @@ def diagnose(
     noise_round = refit_ranked is not None
     used = refit_ranked if noise_round else ranked
     final = candidates[NOISE].fit if noise_round else nominal
-    cause, adequacy = final_verdict(ctx, cause, final, pool, used, min_gain, alpha)
+    cause, adequacy, pool = final_verdict(ctx, cause, final, pool, used, min_gain, alpha)
     cause, adequacy = _one_dead_time(ctx, cause, pool, noise_round, adequacy, alpha)
     _refuse_diverged(cause, nominal, candidates)
     winner = pool.get(NOISE if cause == "colored_noise" else cause)

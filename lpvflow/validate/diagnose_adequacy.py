@@ -3,9 +3,17 @@ final model adequate, and does a named extension make it so."""
 
 from __future__ import annotations
 
+import numpy as np
+
 from lpvflow.validate.diagnose_summary import NOISE
 from lpvflow.validate.extensions import Candidate, Context, Fit, joined
-from lpvflow.validate.loop_adequacy import explained_in_loop, model_loop
+from lpvflow.validate.loop_adequacy import (
+    LoopReference,
+    correlated_with_excitation,
+    exogenous_signals,
+    explained_in_loop,
+    model_loop,
+)
 from lpvflow.validate.noise_analysis import adequacy_lags, explained_within_validation, input_explained
 
 #: An extension gaining at least this many BFR points at block p < INADEQUATE_ALPHA shows the model
@@ -50,8 +58,7 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
                                    alpha)
     else:
         reference = model_loop(final.model, joined(ctx.est, ctx.val), ctx.loop, ctx.est.N, final.y_val)
-        adequacy = explained_in_loop(ctx.est, ctx.val, reference, final.y_val, ADEQUACY_GAIN * min_gain,
-                                     alpha)
+        adequacy = _in_loop(ctx, reference, final.y_val, min_gain, alpha)
     if cause in ("none", NOISE, "colored_noise") and adequacy["significant"]:
         return "unexplained", adequacy
     strong = [r for r in used if "ruled_out" not in r and not r["diverged"]
@@ -64,7 +71,7 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
         y_ext = pool[cause].fit.y_val
         left = (explained_within_validation(ctx.est, ctx.val, y_ext, lags, ADEQUACY_GAIN * min_gain, alpha)
                 if ctx.loop is None else
-                explained_in_loop(ctx.est, ctx.val, reference, y_ext, ADEQUACY_GAIN * min_gain, alpha))
+                _in_loop(ctx, reference, y_ext, min_gain, alpha))
         gain = next(r["bfr_gain"] for r in used if r["cause"] == cause)
         adequacy["extended_model"] = left
         if left["significant"]:
@@ -72,3 +79,16 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
                 "cause": cause, "bfr_gain": gain, "left_input_explained_bfr_gain": left["bfr_gain"],
                 "p_value": left["p_value"]}}
     return cause, adequacy
+
+
+def _in_loop(ctx: Context, reference: LoopReference, y_val: np.ndarray, min_gain: float,
+             alpha: float) -> dict:
+    """The closed-loop adequacy of the model simulated as ``y_val`` on the validation split: the
+    regression test (:func:`explained_in_loop`, ADEQUACY_GAIN·``min_gain`` at ``alpha``) or the
+    residual cross-correlation test against the excitation and set-points
+    (:func:`correlated_with_excitation` at ``alpha``) fails."""
+    result = explained_in_loop(ctx.est, ctx.val, reference, y_val, ADEQUACY_GAIN * min_gain, alpha)
+    exogenous = exogenous_signals(joined(ctx.est, ctx.val), ctx.loop)[0][ctx.est.N :]
+    correlation = correlated_with_excitation(ctx.val.y, y_val, exogenous, alpha)
+    return result | {"excitation_correlation": correlation,
+                     "significant": result["significant"] or correlation["significant"]}

@@ -47,8 +47,11 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
     * Closed loop: the same tests with the *exogenous* history of the loop — excitation, set-points,
       recorded signals the loop takes as given — in place of the input history, over lags that reach
       the model's loop settling time (:mod:`lpvflow.validate.loop_adequacy`); the plant input is
-      correlated with the error through the controller. A model whose loop simulation diverged is
-      not judged here (the diagnosis refuses such a verdict with its reason).
+      correlated with the error through the controller; and the residual cross-correlation test of
+      the prewhitened in-loop error against the excitation and set-points at ``alpha``
+      (:func:`~lpvflow.validate.loop_adequacy.correlated_with_excitation`): either failing makes the
+      model inadequate. A model whose loop simulation diverged is not judged here (the diagnosis
+      refuses such a verdict with its reason).
     """
     if ctx.loop is not None and final.diverged:
         return cause, None

@@ -3,9 +3,17 @@ final model adequate, and does a named extension make it so."""
 
 from __future__ import annotations
 
+import numpy as np
+
 from lpvflow.validate.diagnose_summary import NOISE
 from lpvflow.validate.extensions import Candidate, Context, Fit, joined, refit_in_loop
-from lpvflow.validate.loop_adequacy import explained_in_loop, model_loop
+from lpvflow.validate.loop_adequacy import (
+    LoopReference,
+    correlated_with_excitation,
+    exogenous_signals,
+    explained_in_loop,
+    model_loop,
+)
 from lpvflow.validate.noise_analysis import adequacy_lags, explained_within_validation, input_explained
 
 #: An extension gaining at least this many BFR points at block p < INADEQUATE_ALPHA shows the model
@@ -40,15 +48,18 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
     * Closed loop: the same tests with the *exogenous* history of the loop — excitation, set-points,
       recorded signals the loop takes as given — in place of the input history, over lags that reach
       the model's loop settling time (:mod:`lpvflow.validate.loop_adequacy`); the plant input is
-      correlated with the error through the controller. A named extension whose LS model leaves a
-      significant part is refitted by closed-loop IV (:func:`~lpvflow.validate.extensions.refit_in_loop`,
-      consistent under the sensor noise the controller feeds back) and tested again; when the refit
-      leaves nothing significant it is the extended model. The noise round did not run there because
-      the IV refit of the *nominal* structure gained nothing, its error being the missing cause's: ADIP
-      FMU, 10 mrad angle sensor offset (``tests/diagnosis_fmu_cases.py``, seed 0): the offset's LS model
-      simulates at 88.0 / 91.2 % and leaves 4.7 points explained (p = 2·10⁻⁴), its IV refit simulates
-      at 95.2 / 95.9 % and leaves −1.8 (p = 1.0). A model whose loop simulation diverged is
-      not judged here (the diagnosis refuses such a verdict with its reason).
+      correlated with the error through the controller; and the residual cross-correlation test of
+      the prewhitened in-loop error against the excitation and set-points at ``alpha``
+      (:func:`~lpvflow.validate.loop_adequacy.correlated_with_excitation`): either failing makes the
+      model inadequate. A named extension whose LS model fails them is refitted by closed-loop IV
+      (:func:`~lpvflow.validate.extensions.refit_in_loop`, consistent under the sensor noise the
+      controller feeds back) and tested again; when the refit passes it is the extended model. The
+      noise round did not run there because the IV refit of the *nominal* structure gained nothing, its
+      error being the missing cause's: ADIP FMU, 10 mrad angle sensor offset
+      (``tests/diagnosis_fmu_cases.py``, seed 0): the offset's LS model simulates at 88.0 / 91.2 % and
+      leaves 4.7 points explained (p = 2·10⁻⁴), its IV refit simulates at 95.2 / 95.9 % and leaves
+      −1.8 (p = 1.0). A model whose loop simulation diverged is not judged here (the diagnosis refuses
+      such a verdict with its reason).
     """
     if ctx.loop is not None and final.diverged:
         return cause, None, pool
@@ -58,8 +69,7 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
                                    alpha)
     else:
         reference = model_loop(final.model, joined(ctx.est, ctx.val), ctx.loop, ctx.est.N, final.y_val)
-        adequacy = explained_in_loop(ctx.est, ctx.val, reference, final.y_val, ADEQUACY_GAIN * min_gain,
-                                     alpha)
+        adequacy = _in_loop(ctx, reference, final.y_val, min_gain, alpha)
     if cause in ("none", NOISE, "colored_noise") and adequacy["significant"]:
         return "unexplained", adequacy, pool
     strong = [r for r in used if "ruled_out" not in r and not r["diverged"]
@@ -72,12 +82,11 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
         y_ext = pool[cause].fit.y_val
         left = (explained_within_validation(ctx.est, ctx.val, y_ext, lags, ADEQUACY_GAIN * min_gain, alpha)
                 if ctx.loop is None else
-                explained_in_loop(ctx.est, ctx.val, reference, y_ext, ADEQUACY_GAIN * min_gain, alpha))
+                _in_loop(ctx, reference, y_ext, min_gain, alpha))
         if left["significant"] and ctx.loop is not None:
             refit = refit_in_loop(pool[cause], ctx.est, ctx.loop)
             if refit is not None and not refit.fit.diverged:
-                left_refit = explained_in_loop(ctx.est, ctx.val, reference, refit.fit.y_val,
-                                               ADEQUACY_GAIN * min_gain, alpha)
+                left_refit = _in_loop(ctx, reference, refit.fit.y_val, min_gain, alpha)
                 if not left_refit["significant"]:
                     left = left_refit | {"least_squares_extended_model": left}
                     pool = pool | {cause: refit}
@@ -88,3 +97,16 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
                 "cause": cause, "bfr_gain": gain, "left_input_explained_bfr_gain": left["bfr_gain"],
                 "p_value": left["p_value"]}}, pool
     return cause, adequacy, pool
+
+
+def _in_loop(ctx: Context, reference: LoopReference, y_val: np.ndarray, min_gain: float,
+             alpha: float) -> dict:
+    """The closed-loop adequacy of the model simulated as ``y_val`` on the validation split: the
+    regression test (:func:`explained_in_loop`, ADEQUACY_GAIN·``min_gain`` at ``alpha``) or the
+    residual cross-correlation test against the excitation and set-points
+    (:func:`correlated_with_excitation` at ``alpha``) fails."""
+    result = explained_in_loop(ctx.est, ctx.val, reference, y_val, ADEQUACY_GAIN * min_gain, alpha)
+    exogenous = exogenous_signals(joined(ctx.est, ctx.val), ctx.loop)[0][ctx.est.N :]
+    correlation = correlated_with_excitation(ctx.val.y, y_val, exogenous, alpha)
+    return result | {"excitation_correlation": correlation,
+                     "significant": result["significant"] or correlation["significant"]}

@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.stats import norm
 
 from lpvflow.data import Dataset
 from lpvflow.lpvio import LPVIO
@@ -149,3 +150,51 @@ def _scored(y: np.ndarray, y_sim: np.ndarray, corrected: np.ndarray, names: list
             "features": n_features, "lags": [int(lags.min()), int(lags.max())],
             "regressors": "excitation, set-points, recorded signals and the model's loop signals",
             "significant": any(g >= min_gain and q < alpha for g, q in zip(gains, p_values, strict=True))}
+
+
+#: Lags 0 … CORRELATION_LAGS of the residual cross-correlation test (:func:`correlated_with_excitation`).
+CORRELATION_LAGS = 20
+#: Order of the autoregressive filter that whitens the in-loop error before that test.
+WHITENING_ORDER = 20
+
+
+def _lagged(x: np.ndarray, order: int) -> np.ndarray:
+    return np.column_stack([np.r_[np.zeros(k), x[:-k]] for k in range(1, order + 1)])
+
+
+def correlated_with_excitation(y: np.ndarray, y_sim: np.ndarray, exogenous: np.ndarray, alpha: float) -> dict:
+    """The residual cross-correlation test of the in-loop simulation error ε = y − ŷ against the
+    loop's exogenous signals x (``exogenous``: :func:`exogenous_signals` over the same samples), with
+    the noise model in it (Ljung, System Identification, 2nd ed., §16.6; prewhitening: Box & Jenkins,
+    Time Series Analysis, §11.2). Per output, Â(q) = 1 + â₁q⁻¹ + … + â_n q⁻ⁿ (n = WHITENING_ORDER) is the
+    least-squares AR fit of ε; ε̃ = Â(q)ε and x̃ = Â(q)x, and
+
+        r̂(τ) = Σₜ x̃(t−τ) ε̃(t) / (Σ x̃² · Σ ε̃²)^½,   τ = 0 … CORRELATION_LAGS,
+
+    is, for ε independent of x, approximately N(0, 1/N). ``significant``: max √N |r̂(τ)| over lags,
+    outputs and signals above z at α / (2 (CORRELATION_LAGS + 1) m), m the output–signal pairs
+    (Bonferroni). The error of an adequate model in the loop and its filtered form are independent of
+    the excitation whatever their colour; a rate-limited actuator leaves a linear dependence on it that
+    the regression of :func:`explained_in_loop`, with hundreds of regressors fitted on half the
+    validation split, does not turn into a significant BFR gain (ADIP with a 150 V/s limit, seeds 0–2:
+    √N |r̂| 7.8 / 6.5 / 7.3 against 1.0–3.6 on the clean records, seeds 0–4)."""
+    n = WHITENING_ORDER
+    taus = range(CORRELATION_LAGS + 1)
+    x = exogenous - exogenous.mean(axis=0)
+    largest, pairs = 0.0, 0
+    for e in (y - y_sim).T:
+        e = e - e.mean()
+        a = np.linalg.lstsq(_lagged(e, n)[n:], e[n:], rcond=None)[0]
+        e_w = (e - _lagged(e, n) @ a)[n:]
+        for column in x.T:
+            x_w = (column - _lagged(column, n) @ a)[n:]
+            scale = np.sqrt(np.sum(x_w**2) * np.sum(e_w**2))
+            if scale == 0:
+                continue
+            pairs += 1
+            m = len(e_w)
+            r = max(abs(np.dot(x_w[: m - tau], e_w[tau:])) for tau in taus) / scale
+            largest = max(largest, float(np.sqrt(m) * r))
+    bound = float(norm.isf(alpha / (2 * len(taus) * pairs))) if pairs else np.inf
+    return {"largest": largest, "bound": bound, "lags": [0, CORRELATION_LAGS], "pairs": pairs,
+            "significant": largest > bound}

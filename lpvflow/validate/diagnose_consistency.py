@@ -62,8 +62,7 @@ def delay_consistency(ctx: Context, delay: Candidate, alpha: float) -> dict | No
     groups = _move_groups(ctx.est.u, first, window)
     if min(len(g) for g in groups) <= 2 * _n_columns(ctx, na, nb, nk):
         return None
-    losses = np.array([[_group_loss(ctx, est, na, nb, t_nk, first, rows) for rows in groups]
-                       for est, t_nk in trials])
+    losses = np.array([_group_losses(ctx, est, na, nb, t_nk, first, groups) for est, t_nk in trials])
     zero = shifts.index(0)
     statistic = losses[zero] - losses.min(axis=0)
     best = [(named[0] + shifts[int(np.argmin(column))]).tolist() for column in losses.T]
@@ -102,18 +101,20 @@ def _n_columns(ctx: Context, na: np.ndarray, nb: np.ndarray, nk: np.ndarray) -> 
                for r in range(ctx.ny))
 
 
-def _group_loss(ctx: Context, est: Dataset, na: np.ndarray, nb: np.ndarray, nk: np.ndarray, first: int,
-                rows: np.ndarray) -> float:
-    """n_g·log det of the residual covariance of the LPV-ARX least-squares fit on ``rows`` alone."""
+def _group_losses(ctx: Context, est: Dataset, na: np.ndarray, nb: np.ndarray, nk: np.ndarray, first: int,
+                  groups: list[np.ndarray]) -> list[float]:
+    """Per group of rows, n_g·log det of the residual covariance of the LPV-ARX least-squares fit on
+    those rows alone (the regressors built once for all groups)."""
     basis = ctx.structure.basis_for(est.p.shape[1]).with_range(est.p)
     shifted = ctx.structure.form == "shifted"
     psi = basis.eval(est.p, check_range=False)
-    residuals = np.empty((len(rows), ctx.ny))
+    residuals = [np.empty((len(rows), ctx.ny)) for rows in groups]
     for r in range(ctx.ny):
         cols = row_columns(r, na, nb, nk, basis.n_psi, shifted)
         phi = np.empty((est.N - first, len(cols)))
         fill_regressor(phi, cols, est.y, est.u, psi, first, est.N, 0, shifted)
-        target = est.y[first:, r][rows]
-        theta = np.linalg.lstsq(phi[rows], target, rcond=None)[0]
-        residuals[:, r] = target - phi[rows] @ theta
-    return len(rows) * float(np.linalg.slogdet(residuals.T @ residuals / len(rows))[1])
+        for rows, left in zip(groups, residuals, strict=True):
+            target = est.y[first:, r][rows]
+            theta = np.linalg.lstsq(phi[rows], target, rcond=None)[0]
+            left[:, r] = target - phi[rows] @ theta
+    return [len(left) * float(np.linalg.slogdet(left.T @ left / len(left))[1]) for left in residuals]

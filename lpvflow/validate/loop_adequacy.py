@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+import scipy.signal
 from scipy.stats import norm
 
 from lpvflow.data import Dataset
@@ -184,17 +185,15 @@ def correlated_with_excitation(y: np.ndarray, y_sim: np.ndarray, exogenous: np.n
     largest, pairs = 0.0, 0
     for e in (y - y_sim).T:
         e = e - e.mean()
-        a = np.linalg.lstsq(_lagged(e, n)[n:], e[n:], rcond=None)[0]
-        e_w = (e - _lagged(e, n) @ a)[n:]
+        whitening = np.r_[1.0, -np.linalg.lstsq(_lagged(e, n)[n:], e[n:], rcond=None)[0]]  # Â(q)
+        e_w = scipy.signal.lfilter(whitening, 1.0, e)[n:]
         for column in x.T:
-            x_w = (column - _lagged(column, n) @ a)[n:]
-            scale = np.sqrt(np.sum(x_w**2) * np.sum(e_w**2))
-            if scale == 0:
+            x_w = scipy.signal.lfilter(whitening, 1.0, column)[n:]
+            if not (np.any(x_w) and np.any(e_w)):
                 continue
             pairs += 1
-            m = len(e_w)
-            r = max(abs(np.dot(x_w[: m - tau], e_w[tau:])) for tau in taus) / scale
-            largest = max(largest, float(np.sqrt(m) * r))
+            r = np.abs(residuals.cross_correlation(e_w, x_w, taus)).max()
+            largest = max(largest, float(np.sqrt(len(e_w)) * r))
     bound = float(norm.isf(alpha / (2 * len(taus) * pairs))) if pairs else np.inf
     return {"largest": largest, "bound": bound, "lags": [0, CORRELATION_LAGS], "pairs": pairs,
             "significant": largest > bound}

@@ -40,8 +40,8 @@ def sym(M: cp.Expression) -> cp.Expression:
     return 0.5 * (M + M.T)
 
 
-def _eliminated(verts: list[VertexPlant], gamma: cp.Expression | float, R: cp.Variable, S: cp.Variable
-                ) -> list[cp.Expression]:
+def eliminated_matrices(verts: list[VertexPlant], gamma: cp.Expression | float, R: cp.Variable,
+                        S: cp.Variable) -> list[cp.Expression]:
     """The matrices of step 3: [R I; I S] (must be ⪰ 0), then per vertex the two projected LMIs (⪯ 0)."""
     n = R.shape[0]
     out = [cp.bmat([[R, np.eye(n)], [np.eye(n), S]])]
@@ -59,14 +59,14 @@ def _eliminated(verts: list[VertexPlant], gamma: cp.Expression | float, R: cp.Va
     return out
 
 
-def _strict(matrices: list[cp.Expression], t: cp.Expression | float, scales: list[np.ndarray] | None
-            ) -> list[cp.Constraint]:
+def strict_constraints(matrices: list[cp.Expression], t: cp.Expression | float,
+                       scales: list[np.ndarray] | None) -> list[cp.Constraint]:
     """matrices[0] ⪰ t·D_0, matrices[k] ⪯ −t·D_k (k ≥ 1), D_k = diag(scales[k]) (identity if None)."""
     D = [np.diag(d) for d in scales] if scales is not None else [np.eye(M.shape[0]) for M in matrices]
     return [matrices[0] >> t * D[0]] + [M << -t * Dk for M, Dk in zip(matrices[1:], D[1:], strict=True)]
 
 
-def _jacobi_scales(matrices: list[cp.Expression]) -> list[np.ndarray]:
+def jacobi_scales(matrices: list[cp.Expression]) -> list[np.ndarray]:
     """|diag M| of each matrix at the variables' current values, floored at 1e-9 of its largest entry:
     the scale a margin is measured against (step 4)."""
     out = []
@@ -97,10 +97,10 @@ def estimate(verts: list[VertexPlant], gamma_max: float, solver: str) -> Estimat
     n = verts[0].dims[0]
     g = cp.Variable()
     R, S = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True)
-    matrices = _eliminated(verts, g, R, S)
+    matrices = eliminated_matrices(verts, g, R, S)
     what = f"the eliminated H∞ LMIs at {len(verts)} vertices"
     try:
-        report = solve(cp.Problem(cp.Minimize(g), _strict(matrices, 0.0, None)), solver, what)
+        report = solve(cp.Problem(cp.Minimize(g), strict_constraints(matrices, 0.0, None)), solver, what)
     except SynthesisError as exc:
         if exc.category == "infeasible":
             raise
@@ -113,7 +113,7 @@ def estimate(verts: list[VertexPlant], gamma_max: float, solver: str) -> Estimat
     if report.accurate and gamma > gamma_max:
         raise SynthesisError(f"{what} are infeasible at γ ≤ {gamma_max:g} (their optimum is γ = {gamma:.6g})",
                              category="infeasible")
-    return Estimate(gamma, report.accurate, _jacobi_scales(matrices), report)
+    return Estimate(gamma, report.accurate, jacobi_scales(matrices), report)
 
 
 def balancing(verts: list[VertexPlant], estimate: Estimate, solver: str
@@ -125,7 +125,7 @@ def balancing(verts: list[VertexPlant], estimate: Estimate, solver: str
     R, S, t = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True), cp.Variable()
     gamma = BALANCING_FACTOR * estimate.gamma
     scales = [np.ones_like(estimate.scales[0]), *estimate.scales[1:]]  # [R I; I S] ⪰ t·I: R, S ≻ 0
-    constraints = [*_strict(_eliminated(verts, gamma, R, S), t, scales), t <= 1]
+    constraints = [*strict_constraints(eliminated_matrices(verts, gamma, R, S), t, scales), t <= 1]
     try:
         report = solve(cp.Problem(cp.Maximize(t), constraints), solver,
                        f"the eliminated H∞ LMIs at γ = {gamma:.6g}")
@@ -143,7 +143,7 @@ def infeasible_at(verts: list[VertexPlant], gamma: float, solver: str) -> bool:
     n = verts[0].dims[0]
     R, S, t = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True), cp.Variable()
     try:
-        constraints = [*_strict(_eliminated(verts, gamma, R, S), t, None), t <= 1]
+        constraints = [*strict_constraints(eliminated_matrices(verts, gamma, R, S), t, None), t <= 1]
         report = solve(cp.Problem(cp.Maximize(t), constraints), solver,
                        f"the eliminated H∞ LMIs at γ = {gamma:.6g}")
     except SynthesisError as exc:

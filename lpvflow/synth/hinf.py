@@ -16,13 +16,14 @@ import control
 import numpy as np
 
 from lpvflow.errors import ModelError
+from lpvflow.synth.central import central_vertices
 from lpvflow.synth.controller import LPVController, series_input_filter
 from lpvflow.synth.levels import GAMMA_MAX
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
 from lpvflow.synth.rate_bounded import synthesize_scheduled
 from lpvflow.synth.vertex_synthesis import SUBOPTIMALITY, HinfResult, synthesize_vertices
 
-__all__ = ["HinfResult", "hinfsyn", "synthesize"]
+__all__ = ["HinfResult", "central_hinfsyn", "hinfsyn", "synthesize"]
 
 
 def _partition(P: control.StateSpace, nmeas: int, ncon: int) -> VertexPlant:
@@ -86,6 +87,29 @@ def hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, nc
         raise ModelError("rate_bound needs breakpoints: the scheduling value of each plant in P")
     delta = SUBOPTIMALITY if suboptimality is None else suboptimality
     return synthesize_vertices(vertices, Ts, delta, gamma_max, solver)
+
+
+def central_hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, ncon: int, gamma: float,
+                    *, solver: str = "CLARABEL") -> HinfResult:
+    """The central H∞ controller at the level ``gamma`` from the LMIs (:mod:`lpvflow.synth.central`): the
+    largest R, S of the eliminated conditions at γ (kept a small margin inside) and the controller in closed
+    form, certified like :func:`hinfsyn`'s. ``P``, ``nmeas``, ``ncon`` as there (vertices share one
+    Lyapunov matrix); ``gamma`` above the optimum (e.g. 1.01 × :func:`hinfsyn`'s γ).
+
+    Raises:
+        ModelError: as :func:`hinfsyn`, or a level that is not positive.
+        SynthesisError: ``"assumption"`` as :func:`hinfsyn`; ``"infeasible"`` no controller reaches γ;
+            ``"accuracy"`` a solve without a point or a controller that fails its certificate.
+    """
+    plants = [P] if isinstance(P, control.StateSpace) else list(P)
+    if not plants:
+        raise ModelError("central_hinfsyn needs at least one plant")
+    vertices = [_partition(G, nmeas, ncon) for G in plants]
+    if len({v.dims for v in vertices}) > 1 or len({float(G.dt) for G in plants}) > 1:
+        raise ModelError("the vertex plants differ in size, partition or sampling time")
+    if not (np.isfinite(gamma) and gamma > 0):
+        raise ModelError(f"gamma must be a positive level, got {gamma!r}")
+    return central_vertices(vertices, float(plants[0].dt), float(gamma), solver)
 
 
 def synthesize(plant: GeneralizedPlant, solver: str = "CLARABEL", gamma_max: float = GAMMA_MAX,

@@ -233,8 +233,8 @@ class _LevelProblem:
         return solve(self.problem, solver, f"the H∞ controller LMIs at γ = {gamma:.6g}", fine=True)
 
 
-def _controller(v: VertexPlant, R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray,
-                hats: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+def reconstruct_controller(v: VertexPlant, R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray,
+                           hats: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
     """Step 6's reconstruction (D22 = 0) of the continuous vertex controller."""
     Ah, Bh, Ch, Dh = hats
     Dk = Dh
@@ -245,7 +245,7 @@ def _controller(v: VertexPlant, R: np.ndarray, S: np.ndarray, M: np.ndarray, N: 
     return Ak, Bk, Ck, Dk
 
 
-def _loop_shift(K: tuple[np.ndarray, ...], D22: np.ndarray) -> tuple[np.ndarray, ...]:
+def loop_shift(K: tuple[np.ndarray, ...], D22: np.ndarray) -> tuple[np.ndarray, ...]:
     """K(I + D22 K)⁻¹ in state space (same controller state): the loop of the D22 ≠ 0 plant."""
     Ak, Bk, Ck, Dk = K
     E = np.linalg.inv(np.eye(Dk.shape[0]) + Dk @ D22)
@@ -253,7 +253,9 @@ def _loop_shift(K: tuple[np.ndarray, ...], D22: np.ndarray) -> tuple[np.ndarray,
     return Ak - Bk @ D22 @ C, Bk - Bk @ D22 @ D, C, D
 
 
-def _lyapunov(R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray) -> np.ndarray:
+def closed_loop_lyapunov(R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray) -> np.ndarray:
+    """𝒳 = Π2Π1⁻¹, Π1 = [R I; Mᵀ 0], Π2 = [I S; 0 Nᵀ]: the closed-loop Lyapunov matrix of step 6, whose
+    blocks are 𝒳₁₁ = S, (𝒳⁻¹)₁₁ = R (Scherer, Gahinet & Chilali 1997, §IV)."""
     n = R.shape[0]
     Pi1 = np.block([[R, np.eye(n)], [M.T, np.zeros((n, n))]])
     Pi2 = np.block([[np.eye(n), S], [np.zeros((n, n)), N.T]])
@@ -271,10 +273,10 @@ def _reconstruct(vertices: list[VertexPlant], level: _LevelProblem, coords: Coor
     M, N = W * np.sqrt(sig), Zt.T * np.sqrt(sig)
     K_vertices = []
     for v, hats in zip(level.verts, level.hats, strict=True):
-        K = _loop_shift(_controller(v, R, S, M, N, tuple(h.value for h in hats)), v.D22)
+        K = loop_shift(reconstruct_controller(v, R, S, M, N, tuple(h.value for h in hats)), v.D22)
         K_vertices.append(inverse_cayley(*coords.controller(K)))
     back = scipy.linalg.block_diag(np.linalg.inv(coords.T), np.eye(n))
-    F = np.linalg.cholesky(_lyapunov(R, S, M, N)).T @ back  # 𝒳 = FᵀF in the original coordinates
+    F = np.linalg.cholesky(closed_loop_lyapunov(R, S, M, N)).T @ back  # 𝒳 = FᵀF in the original coordinates
     certificate = [certificate_margin(v, K, F, gamma) for v, K in zip(vertices, K_vertices, strict=True)]
     ss = [control.ss(*K, Ts) for K in K_vertices]
     controller = ss[0] if len(ss) == 1 else VertexController(K_vertices, Ts)

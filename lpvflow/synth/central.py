@@ -1,0 +1,241 @@
+"""The central H∞ controller at a given level, from an LMI solution and explicit formulas.
+
+:func:`lpvflow.synth.vertex_synthesis.synthesize_vertices` returns the controller the level SDP's solver
+stops at: the largest-margin point of the LMIs, whose controller has a high-frequency gain of about γ
+(measured 4–10× the Riccati central controller's on the ADIP loop-shaping plants). The *central*
+controller (Doyle, Glover, Khargonekar & Francis 1989, "State-space solutions to standard H2 and H∞
+control problems", IEEE TAC 34(8)) is the one the Riccati solutions give; here it is reached from the LMIs
+alone, in two steps, on the Cayley image of every vertex in the balanced coordinates of
+:mod:`lpvflow.synth.eliminated`:
+
+1. **The largest R, S at γ.** The eliminated conditions of Gahinet & Apkarian (1994, Thm. 4.3) in R, S
+   (:func:`lpvflow.synth.eliminated.eliminated_matrices`) are equivalent, for one plant, to two Riccati
+   inequalities in R⁻¹ and S⁻¹ and a coupling; their solution set has a largest element in the
+   positive-semidefinite order — the stabilizing Riccati solutions, on its boundary, where the central
+   controller lives. :func:`central_solution` solves max t (the margin t_max of the strict conditions,
+   Jacobi-scaled as in step 4), then max trace R + trace S with the margin held at ``CENTRAL_MARGIN``·t_max,
+   and moves that point towards the max-margin point by the exact convex combination that restores the
+   margin the solver left short (the conditions are affine in R, S, so the largest eigenvalue is convex
+   along the segment).
+2. **Explicit controller variables** (in the spirit of Gahinet, "Explicit controller formulas for
+   LMI-based H∞ synthesis", Automatica 32(7), 1996: for fixed R, S choose the controller in closed form,
+   not by another SDP). In the change of variables of Scherer, Gahinet & Chilali (1997, IEEE TAC 42(7),
+   §IV) with Y = R, X = S the closed-loop bounded-real inequality reads, blocks [Y-row; X-row; w; z],
+
+       [AR + RAᵀ + B2Ĉ + (·)ᵀ   Âᵀ + A + B2D̂C2        N1       ]
+       [        ·              SA + AᵀS + B̂C2 + (·)ᵀ   N2       ]  ≺ 0,   H = [−γI  D̂11ᵀ; D̂11  −γI],
+       [        ·                      ·               H        ]
+
+   N1 = [B1 + B2D̂D21, (C1R + D12Ĉ)ᵀ], N2 = [SB1 + B̂D21, (C1 + D12D̂C2)ᵀ], D̂11 = D11 + D12D̂D21. With
+   D̂ = −D12⁺D11D21⁺ (the least-squares D̂11), Â cancels the Schur complement's coupling,
+   Â = (N1H⁻¹N2ᵀ − A − B2D̂C2)ᵀ, and the inequality splits into Φ11(Ĉ) ≺ 0 and Φ22(B̂) ≺ 0, quadratic
+   in Ĉ and B̂; completing the squares,
+
+       Φ11 = Φ11⁰ + EĈ + ĈᵀEᵀ + ĈᵀQĈ,  E = B2 − b1H_wz D12 − RC1ᵀH_zz D12,  Q = −D12ᵀH_zz D12 ≻ 0,
+       Ĉ = −Q⁻¹Eᵀ;
+       Φ22 = Φ22⁰ + B̂G + GᵀB̂ᵀ + B̂PB̂ᵀ,  G = C2 − D21H_ww B1ᵀS − D21H_wz c1,  P = −D21H_ww D21ᵀ ≻ 0,
+       B̂ = −GᵀP⁻¹
+
+   (b1 = B1 + B2D̂D21, c1 = C1 + D12D̂C2, H⁻¹ partitioned by w, z). Each is the smallest Φ in the
+   semidefinite order, so the split inequality holds whenever any controller of the class meets γ with this
+   R, S (Gahinet & Apkarian 1994, Lemma 3.1: the projected conditions are exactly that). The controller is
+   then step 6 of :mod:`lpvflow.synth.vertex_synthesis` (M Nᵀ = I − RS), and the certificate the same
+   numpy re-check of the discrete closed loop with 𝒳 = [S N; Nᵀ ·] (:func:`certificate_margin`).
+
+At the largest R, S the split blocks are singular and the controller is the Riccati central one; the margin
+CENTRAL_MARGIN·t_max keeps it strictly inside (on the ADIP loop-shaping plants 3 % from the Riccati central
+controller at the same level, high-frequency gain 1.05×; tests/test_synth_central.py).
+"""
+
+from __future__ import annotations
+
+import control
+import cvxpy as cp
+import numpy as np
+import scipy.linalg
+
+from lpvflow.errors import SynthesisError
+from lpvflow.synth.bilinear import balancing_transform, cayley_vertex, certificate_margin, inverse_cayley
+from lpvflow.synth.eliminated import eliminated_matrices, preconditioned, strict_constraints, sym
+from lpvflow.synth.plant import VertexPlant
+from lpvflow.synth.sdp import SolveReport, solve
+from lpvflow.synth.vertex_synthesis import (
+    HinfResult,
+    VertexController,
+    check_assumptions,
+    closed_loop_lyapunov,
+    loop_shift,
+    reconstruct_controller,
+)
+
+#: The margin the central point keeps, as a fraction of the largest margin t_max at the level.
+CENTRAL_MARGIN = 0.05
+#: R ⪯ CAP·R_w, S ⪯ CAP·S_w (R_w, S_w the widest point): the bound on directions the conditions leave
+#: unbounded (states the performance output does not see, whose Riccati solution is singular).
+CAP = 1e3
+
+
+def explicit_hats(v: VertexPlant, R: np.ndarray, S: np.ndarray, gamma: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(Â, B̂, Ĉ, D̂) of the module docstring for the continuous vertex ``v`` (D22 left to the loop shift).
+
+    Raises:
+        SynthesisError: ‖D11 + D12D̂D21‖ ≥ γ (no controller reaches γ: category ``"infeasible"``).
+    """
+    A, B1, B2, C1, C2, D11, D12, D21 = v.A, v.B1, v.B2, v.C1, v.C2, v.D11, v.D12, v.D21
+    nw, nz = B1.shape[1], C1.shape[0]
+    Dh = -np.linalg.pinv(D12) @ D11 @ np.linalg.pinv(D21)
+    D11h = D11 + D12 @ Dh @ D21
+    if not np.linalg.norm(D11h, 2) < gamma:
+        raise SynthesisError(f"the feed-through from w to z cannot be brought below γ = {gamma:.6g} "
+                             f"(‖D11 + D12 D_K D21‖ ≥ {np.linalg.norm(D11h, 2):.6g}); raise the level",
+                             category="infeasible")
+    Hi = np.linalg.inv(np.block([[-gamma * np.eye(nw), D11h.T], [D11h, -gamma * np.eye(nz)]]))
+    Hww, Hwz, Hzz = Hi[:nw, :nw], Hi[:nw, nw:], Hi[nw:, nw:]
+    b1, c1 = B1 + B2 @ Dh @ D21, C1 + D12 @ Dh @ C2
+    E = B2 - b1 @ Hwz @ D12 - R @ C1.T @ Hzz @ D12
+    Ch = -np.linalg.solve(-D12.T @ Hzz @ D12, E.T)
+    G = C2 - D21 @ Hww @ B1.T @ S - D21 @ Hwz @ c1
+    Bh = -np.linalg.solve(-D21 @ Hww @ D21.T, G).T
+    N1 = np.hstack([b1, (C1 @ R + D12 @ Ch).T])
+    N2 = np.hstack([S @ B1 + Bh @ D21, c1.T])
+    Ah = (N1 @ Hi @ N2.T - A - B2 @ Dh @ C2).T
+    return Ah, Bh, Ch, Dh
+
+
+def _sizes(verts: list[VertexPlant], gamma: float, R: cp.Variable, S: cp.Variable) -> list[cp.Expression]:
+    """The size each eliminated condition is measured against, in the order of
+    :func:`lpvflow.synth.eliminated.eliminated_matrices`: blkdiag(R, S) for [R I; I S], and
+    N_Rᵀ blkdiag(R, γI, γI) N_R, N_Sᵀ blkdiag(S, γI, γI) N_S for the projected conditions (linear in R, S)."""
+    n = R.shape[0]
+    out = [cp.bmat([[R, np.zeros((n, n))], [np.zeros((n, n)), S]])]
+    for v in verts:
+        nw, nz = v.dims[1], v.dims[3]
+        NR = scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.B2.T, v.D12.T])), np.eye(nw))
+        NS = scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.C2, v.D21])), np.eye(nz))
+        out += [sym(NR.T @ cp.bmat([[R, np.zeros((n, nz + nw))],
+                                    [np.zeros((nz + nw, n)), gamma * np.eye(nz + nw)]]) @ NR),
+                sym(NS.T @ cp.bmat([[S, np.zeros((n, nw + nz))],
+                                    [np.zeros((nw + nz, n)), gamma * np.eye(nw + nz)]]) @ NS)]
+    return out
+
+
+def _relative_margin(matrices: list[cp.Expression], sizes: list[cp.Expression]) -> float:
+    """The largest ε with [R I; I S] ⪰ ε·blkdiag(R, S) and every projected matrix ⪯ −ε·its size, at the
+    variables' current values (generalized eigenvalues; −inf when a size is not positive definite)."""
+    out = []
+    for k, (M, D) in enumerate(zip(matrices, sizes, strict=True)):
+        Mv, Dv = (0.5 * (X.value + X.value.T) for X in (M, D))
+        try:
+            eig = scipy.linalg.eigvalsh(Mv if k == 0 else -Mv, Dv)
+        except np.linalg.LinAlgError:
+            return -np.inf
+        out.append(eig[0])
+    return float(min(out))
+
+
+def _shifted_margin(matrices: list[cp.Expression], sizes: list[cp.Expression], eps: float) -> float:
+    """λ_min([R I; I S] − ε·blkdiag(R, S)) and −λ_max(M + ε·size) of every projected matrix M, the smallest,
+    at the variables' current values (≥ 0: the point keeps the relative margin ε)."""
+    out = []
+    for k, (M, D) in enumerate(zip(matrices, sizes, strict=True)):
+        shifted = M.value - eps * D.value if k == 0 else -(M.value + eps * D.value)
+        out.append(np.linalg.eigvalsh(0.5 * (shifted + shifted.T))[0])
+    return float(min(out))
+
+
+def _relative(matrices: list[cp.Expression], sizes: list[cp.Expression], eps: float) -> list[cp.Constraint]:
+    pairs = zip(matrices[1:], sizes[1:], strict=True)
+    return [matrices[0] >> eps * sizes[0]] + [M << -eps * D for M, D in pairs]
+
+
+def central_solution(verts: list[VertexPlant], gamma: float, solver: str
+                     ) -> tuple[np.ndarray, np.ndarray, float, SolveReport]:
+    """Step 1 of the module docstring on the (continuous, balanced) vertices: (R, S, the relative margin ε
+    they keep, report). Margins are relative (:func:`_relative_margin`): ε_w of the widest point (max t of
+    the plain conditions), then max trace R + trace S keeping ε = CENTRAL_MARGIN·ε_w, moved towards the
+    widest point where the solver left it short.
+
+    Raises:
+        SynthesisError: the conditions have no strict solution at γ (category ``"infeasible"`` when the
+            solve was accurate, else ``"accuracy"``), or a solve returned no point (``"accuracy"``).
+    """
+    n = verts[0].dims[0]
+    R, S, t = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True), cp.Variable()
+    matrices, sizes = eliminated_matrices(verts, gamma, R, S), _sizes(verts, gamma, R, S)
+    what = f"the eliminated H∞ LMIs at γ = {gamma:.6g}"
+    widest = solve(cp.Problem(cp.Maximize(t), [*strict_constraints(matrices, t, None), t <= 1]), solver, what,
+                   fine=True)
+    attempts = list(widest.attempts)
+    eps_widest = _relative_margin(matrices, sizes)
+    if not eps_widest > 0:
+        verdict = ("no controller of this class reaches the level; raise it" if widest.accurate
+                   else "the solve is not accurate enough to tell; raise the level")
+        raise SynthesisError(f"{what} have no strict solution (largest margin {float(t.value):.3g}, "
+                             f"{widest.solver}: {widest.status}): {verdict}",
+                             category="infeasible" if widest.accurate else "accuracy")
+    widest_point = (R.value.copy(), S.value.copy())
+    eps = CENTRAL_MARGIN * eps_widest
+    cap = [R << CAP * widest_point[0], S << CAP * widest_point[1]]
+    largest = cp.Problem(cp.Maximize(cp.trace(R) + cp.trace(S)), [*_relative(matrices, sizes, eps), *cap])
+    central = solve(largest, solver, what, fine=True)
+    attempts += central.attempts
+    # with ε fixed the conditions M + ε·size are affine in (R, S): their margin along the segment to the
+    # widest point is at least the linear interpolation of the end margins, so this step restores ε exactly
+    central_point = (R.value.copy(), S.value.copy())
+    shortfall = _shifted_margin(matrices, sizes, eps)
+    R.value, S.value = widest_point
+    spare = _shifted_margin(matrices, sizes, eps)
+    lam = min(1.0, max(0.0, -shortfall / (spare - shortfall))) if shortfall < 0 else 0.0
+    Rc, Sc = ((1 - lam) * C + lam * W for C, W in zip(central_point, widest_point, strict=True))
+    R.value, S.value = Rc, Sc
+    report = SolveReport(central.solver, central.status, sum(a[2] for a in attempts), attempts)
+    return 0.5 * (Rc + Rc.T), 0.5 * (Sc + Sc.T), _relative_margin(matrices, sizes), report
+
+
+def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solver: str = "CLARABEL"
+                     ) -> HinfResult:
+    """The central controller of the discrete vertex plants at level ``gamma`` (module docstring), with the
+    certificate of :func:`lpvflow.synth.bilinear.certificate_margin` at every vertex.
+
+    Raises:
+        SynthesisError: an assumption fails (``"assumption"``), no controller reaches γ (``"infeasible"``),
+            or the controller fails its certificate (``"accuracy"``: round-off at this level; raise it).
+    """
+    check_assumptions(vertices)
+    cayleys = [cayley_vertex(v) for v in vertices]
+    pre = preconditioned(cayleys, gamma, solver)
+    R, S, margin, report = central_solution(pre.vertices, gamma, solver)
+    report.attempts[:0] = pre.attempts
+    # the same R, S in the coordinates that balance them (R = S = Σ, a congruence of every condition):
+    # I − RS is then diagonal and step 6 inverts no ill-conditioned M, N
+    coords = pre.coordinates
+    T = balancing_transform(R, S)
+    if T is not None:
+        coords = coords.transformed(T)
+        Ti = np.linalg.inv(T)
+        R, S = Ti @ R @ Ti.T, T.T @ S @ T
+        R, S = 0.5 * (R + R.T), 0.5 * (S + S.T)
+    n = R.shape[0]
+    W, sig, Zt = np.linalg.svd(np.eye(n) - R @ S)
+    M, N = W * np.sqrt(sig), Zt.T * np.sqrt(sig)
+    K_vertices = []
+    for vc in cayleys:
+        v = coords.apply(vc)
+        K = loop_shift(reconstruct_controller(v, R, S, M, N, explicit_hats(v, R, S, gamma)), v.D22)
+        K_vertices.append(inverse_cayley(*coords.controller(K)))
+    back = scipy.linalg.block_diag(np.linalg.inv(coords.T), np.eye(n))
+    try:
+        F = np.linalg.cholesky(closed_loop_lyapunov(R, S, M, N)).T @ back
+    except np.linalg.LinAlgError:
+        raise SynthesisError(f"the central solution at γ = {gamma:.6g} gives a closed-loop Lyapunov matrix "
+                             "that is not positive definite in floating point: raise the level",
+                             category="accuracy") from None
+    certificate = [certificate_margin(v, K, F, gamma) for v, K in zip(vertices, K_vertices, strict=True)]
+    if min(certificate) <= 0:
+        raise SynthesisError(f"the central controller at γ = {gamma:.6g} fails its certificate (margin "
+                             f"{min(certificate):.3g}, LMI margin {margin:.3g}): round-off at this level; "
+                             "raise it", category="accuracy")
+    ss = [control.ss(*K, Ts) for K in K_vertices]
+    controller = ss[0] if len(ss) == 1 else VertexController(K_vertices, Ts)
+    return HinfResult(gamma, None, K_vertices, ss, controller, certificate, F, vertices, Ts, report)

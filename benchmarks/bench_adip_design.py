@@ -103,6 +103,8 @@ def robust_numbers(summary: dict) -> dict:
                                 if t.get("plant_failure") or t.get("model_failure")],
             "passed": sum(bool(c["stable"]) and not c.get("requirements_failed") for c in lpv),
             "scenarios": len(lpv),
+            "worst_settling_s": max((c["outputs"]["arm_angle"]["settling_time"] or float("inf") for c in lpv),
+                                    default=None),
             "largest_held_step_deg": (float(np.rad2deg(verify["largest_held_step"]["lpv"]))
                                       if verify.get("largest_held_step") else None)}
 
@@ -122,7 +124,8 @@ def robust_main() -> None:
                   f"{row['min_margin_to_goal'] or float('nan'):+.3f}; trajectory arm ≤ "
                   f"{row['trajectory_arm_deg'] or float('nan'):.2f}°, pendulum ≤ "
                   f"{row['trajectory_pendulum_deg'] or float('nan'):.2f}° (lost: {row['trajectory_lost']}); "
-                  f"{row['passed']} of {row['scenarios']} passed, largest held step "
+                  f"{row['passed']} of {row['scenarios']} passed (worst settling "
+                  f"{row['worst_settling_s'] or float('nan'):.2f} s), largest held step "
                   f"{row['largest_held_step_deg'] or float('nan'):.1f}°; {row['reason']}", flush=True)
     out = ROOT / "benchmarks" / "results" / "adip_robust_seeds.json"
     out.write_text(json.dumps(results, indent=1, default=str))

@@ -49,7 +49,7 @@ import control
 import numpy as np
 
 from lpvflow.errors import ModelError
-from lpvflow.synth.hinf import hinfsyn
+from lpvflow.synth.hinf import central_hinfsyn, hinfsyn
 from lpvflow.validate.lti_eval import as_statespace
 from lpvflow.validate.robust_stability import ncf_riccati
 
@@ -214,6 +214,59 @@ def in_plant_coordinates(K: tuple[np.ndarray, ...], lyapunov: np.ndarray) -> tup
         raise ModelError("the certificate's coupling block N is singular: the LMI solution is not strict")
     Ti = np.linalg.inv(T)
     return Ti @ A @ T, Ti @ B, C @ T, D
+
+
+@dataclass
+class CentralLoopShaping:
+    """K∞ of one shaped plant from hinfsyn's LMIs (:func:`lmi_central_controller`).
+
+    Attributes:
+        K_inf: the central LMI controller (u_s = K∞ y_s) in the shaped plant's state coordinates.
+        gamma: its certified level γ = gamma_factor·γ_LMI (b(Gs, K∞) ≥ 1/γ).
+        lmi_gamma: hinfsyn's certified optimum γ_LMI of the NCF plant.
+        certificate: the certificate margins of :func:`lpvflow.synth.central.central_vertices` (all > 0).
+    """
+
+    K_inf: control.StateSpace
+    gamma: float
+    lmi_gamma: float
+    certificate: list[float]
+
+
+def lmi_central_controller(Gs: control.StateSpace, gamma_factor: float, solver: str = "CLARABEL"
+                           ) -> CentralLoopShaping:
+    """K∞ of the shaped plant Gs from the LMIs alone: hinfsyn's certified optimum γ_LMI of the four-block
+    NCF plant (:func:`ncf_generalized_plant`), then the central LMI controller at γ = gamma_factor·γ_LMI
+    (:func:`lpvflow.synth.hinf.central_hinfsyn`: the largest R, S at γ and explicit controller formulas),
+    written in the shaped plant's coordinates (:func:`in_plant_coordinates`), so controllers of
+    breakpoints that share their state coordinates share theirs. At a frozen point it is within a few
+    per cent of the Riccati central controller at the same level (:func:`central_ncf_controller`, the
+    design's witness).
+
+    Raises:
+        ModelError: gamma_factor ≤ 1, or a shaped plant with feed-through.
+        SynthesisError: from hinfsyn or from the central solution.
+    """
+    if not gamma_factor > 1.0:
+        raise ModelError(f"gamma_factor is {gamma_factor}; it must be > 1 (the level above the optimum the "
+                         "central controller is built at), e.g. 1.01")
+    P = ncf_generalized_plant(Gs)
+    p, m = Gs.noutputs, Gs.ninputs
+    lmi_gamma = float(hinfsyn(P, p, m, solver=solver).gamma)
+    result = central_hinfsyn(P, p, m, gamma_factor * lmi_gamma, solver=solver)
+    lyapunov = result.lyapunov_factor.T @ result.lyapunov_factor
+    K = control.ss(*in_plant_coordinates(result.K_vertices[0], lyapunov), Gs.dt)
+    return CentralLoopShaping(K, float(result.gamma), lmi_gamma, list(result.certificate))
+
+
+def controller_distance(K: control.StateSpace, reference: control.StateSpace, points: int = 400) -> float:
+    """max_ω σ̄(K − K_ref)(e^{jωTs}) / max_ω σ̄(K_ref)(e^{jωTs}) on ``points`` log-spaced frequencies from
+    10⁻³·π/Ts to π/Ts: how far a controller is from a reference one, relative to the reference's size."""
+    Ts = float(reference.dt)
+    z = np.exp(1j * np.logspace(-3, 0, points) * np.pi / Ts)
+    diff = max(np.linalg.norm(K(zi, squeeze=False) - reference(zi, squeeze=False), 2) for zi in z)
+    size = max(np.linalg.norm(reference(zi, squeeze=False), 2) for zi in z)
+    return float(diff / size)
 
 
 # ------------------------------------------------------------------------------------ weights

@@ -9,15 +9,17 @@ b that the robustness stage compares with the ν-gap):
   :func:`lpvflow.synth.loop_shaping.integrator_lead_weight` at the crossover ω_c = ``crossover``, its
   integral corner at ω_c/``integral_ratio`` (default 10)
   (:func:`lpvflow.synth.loop_shaping.crossover_normalized`), W2 = I (in the scaled signals);
-* K∞_i the central controller of the shaped plant Gs_i = G_i·W1_i at γ_i = 1.01·γ_opt(Gs_i)
-  (:func:`lpvflow.synth.loop_shaping.central_ncf_controller`: the two NCF Riccati solutions X_i, Z_i of
-  Gs_i), so b(Gs_i, K∞_i) ≥ 1/γ_i. Its state lives in the coordinates of Gs_i's own state [x_W1; x_G]:
+* K∞_i from hinfsyn's LMIs (:func:`lpvflow.synth.loop_shaping.lmi_central_controller`): the certified
+  optimum γ_LMI,i of the four-block NCF plant of Gs_i = G_i·W1_i, then the central LMI controller at
+  γ_i = 1.01·γ_LMI,i (:mod:`lpvflow.synth.central`: the largest R, S of the LMIs at γ_i, explicit
+  controller formulas, the certificate re-checked in numpy), so b(Gs_i, K∞_i) ≥ 1/γ_i. Its state lives in
+  the coordinates of Gs_i's own state [x_W1; x_G] (:func:`lpvflow.synth.loop_shaping.in_plant_coordinates`):
   the weight's states and the model's observable-form states, the same at every breakpoint — which makes
   Σλ_i K∞_i an interpolation of the gains of one observer structure rather than of realizations chosen
   by separate solves (Rugh & Shamma 2000, "Research on gain scheduling", Automatica 36(10));
-* the witness: the LMI level of :func:`lpvflow.synth.hinf.hinfsyn` on the four-block NCF plant of Gs_i
-  (:func:`lpvflow.synth.loop_shaping.loop_shaping`) must equal γ_opt(Gs_i) within 1 % — the Riccati
-  controller is the LMI problem's near-optimal solution;
+* the witnesses: the Riccati optimum γ_opt(Gs_i) from the two NCF Riccati equations (γ_LMI,i within 1 %
+  of it), and the Riccati central controller at the same level γ_i
+  (:func:`lpvflow.synth.loop_shaping.central_ncf_controller`), whose distance from K∞_i is reported;
 * the feedback K_i = D_u·W1_i·K∞_i·D_y⁻¹ on the plant's physical signals (u = K y, positive feedback as in
   :mod:`lpvflow.validate.robust_stability`).
 
@@ -54,15 +56,16 @@ from lpvflow.synth.controller import LPVController, mix
 from lpvflow.synth.design import Design
 from lpvflow.synth.loop_shaping import (
     central_ncf_controller,
+    controller_distance,
     crossover_normalized,
     integrator_lead_weight,
-    loop_shaping,
+    lmi_central_controller,
     shaped_plant,
 )
 from lpvflow.synth.observer import antiwindup_gains, reference_filter, with_reference_filter
 from lpvflow.synth.plant import GeneralizedPlant
 from lpvflow.synth.polytope import vertex_matrices
-from lpvflow.validate.robust_stability import generalized_margin
+from lpvflow.validate.robust_stability import generalized_margin, ncf_riccati
 from lpvflow.validate.scaling import SignalScaling
 
 #: Frozen-check grid: points per breakpoint interval (ten times finer than the breakpoints).
@@ -73,7 +76,7 @@ MARGIN_FACTOR = 1.1
 DEFAULT_CROSSOVER_FRACTION = 0.05
 #: Default ratio crossover / integral corner of W1 (``[synth] integral_ratio``).
 DEFAULT_INTEGRAL_RATIO = 10.0
-#: The central controllers' level γ_i = GAMMA_FACTOR·γ_opt(Gs_i).
+#: The central controllers' level γ_i = GAMMA_FACTOR·γ_LMI(Gs_i).
 GAMMA_FACTOR = 1.01
 #: Relative residual below which a reference channel's steady state is reachable (reference model).
 REACH_TOL = 1e-8
@@ -83,15 +86,17 @@ WITNESS_TOLERANCE = 0.01
 
 @dataclass
 class FrozenMarginCheck:
-    """The interpolated design on a grid ten times finer than the vertices, and the LMI witness at the
+    """The interpolated design on a grid ten times finer than the vertices, and the witnesses at the
     vertices. The shaped loop at λ is Gs(λ) = G(λ)·W1(λ) with K∞(λ) (scaled signals; W1(λ) = Σλ_iW1_i: the
     W1_i share A, B and D = 0, so Σλ_i(W1_i·K∞_i) = W1(λ)·K∞(λ) exactly, and the shaped loop and the
     exported loop G(λ), K(λ) have the same closed-loop matrix). ``worst_ratio`` = min over the grid of
     b(Gs, K∞)·MARGIN_FACTOR·γ_segment (γ_segment of :func:`segment_gamma`; ≥ 1 passes; b = 0 when the
     frozen loop is unstable), ``worst_at`` its grid index, ``b_min`` the smallest b(Gs, K∞),
     ``b_plant_min`` the smallest b(G, K) of the unshaped loop (reported, not judged), ``gammas`` the
-    central controllers' levels γ_i and ``lmi_gammas`` hinfsyn's levels at the vertices (the witness:
-    within WITNESS_TOLERANCE of γ_i/GAMMA_FACTOR = γ_opt)."""
+    vertex controllers' certified levels γ_i, ``lmi_gammas`` hinfsyn's optima γ_LMI,i and
+    ``optimal_gammas`` the Riccati optima γ_opt,i (the witness: γ_LMI within WITNESS_TOLERANCE of γ_opt),
+    ``riccati_distance`` the distance of each K∞_i from the Riccati central controller at γ_i
+    (:func:`lpvflow.synth.loop_shaping.controller_distance`; reported)."""
 
     b_min: float
     b_plant_min: float
@@ -100,12 +105,13 @@ class FrozenMarginCheck:
     points: int
     gammas: list[float]
     lmi_gammas: list[float]
+    optimal_gammas: list[float]
+    riccati_distance: list[float]
 
     @property
     def witness_error(self) -> float:
         """max_i |γ_LMI,i/γ_opt,i − 1|."""
-        return max(abs(lmi * GAMMA_FACTOR / g - 1.0) for lmi, g in zip(self.lmi_gammas, self.gammas,
-                                                                        strict=True))
+        return max(abs(lmi / g - 1.0) for lmi, g in zip(self.lmi_gammas, self.optimal_gammas, strict=True))
 
     @property
     def ok(self) -> bool:
@@ -114,11 +120,14 @@ class FrozenMarginCheck:
         return self.worst_ratio >= 1.0 and self.witness_error <= WITNESS_TOLERANCE
 
     def lines(self) -> list[str]:
-        return [f"loop-shaping central controllers at γ_i = {GAMMA_FACTOR}·γ_opt(Gs_i): γ_i "
-                f"{min(self.gammas):.4g} … {max(self.gammas):.4g} (b(Gs_i, K∞_i) ≥ 1/γ_i)",
-                f"LMI witness (hinfsyn on the NCF plant of every Gs_i): γ {min(self.lmi_gammas):.4g} … "
-                f"{max(self.lmi_gammas):.4g}, largest deviation from γ_opt {100 * self.witness_error:.2f} % "
-                f"(must be ≤ {100 * WITNESS_TOLERANCE:.0f} %)",
+        return [f"loop-shaping controllers from hinfsyn's LMIs (central solution at γ_i = "
+                f"{GAMMA_FACTOR}·γ_LMI,i, explicit formulas, certificate passed at every vertex): γ_i "
+                f"{min(self.gammas):.4g} … "
+                f"{max(self.gammas):.4g} (b(Gs_i, K∞_i) ≥ 1/γ_i)",
+                f"Riccati witness: γ_LMI {min(self.lmi_gammas):.4g} … {max(self.lmi_gammas):.4g} against "
+                f"γ_opt {min(self.optimal_gammas):.4g} … {max(self.optimal_gammas):.4g}, largest deviation "
+                f"{100 * self.witness_error:.2f} % (must be ≤ {100 * WITNESS_TOLERANCE:.0f} %); K∞_i within "
+                f"{100 * max(self.riccati_distance):.2g} % of the Riccati central controllers at γ_i",
                 f"frozen shaped loops at {self.points} points (10× the vertices): smallest b(Gs, K∞) "
                 f"{self.b_min:.4g}; worst b·{MARGIN_FACTOR}·γ_segment {self.worst_ratio:.4g} at point "
                 f"{self.worst_at} (must be ≥ 1; b = 0 is an unstable loop)",
@@ -165,7 +174,8 @@ def segment_gamma(gammas: list[float], lam: np.ndarray) -> float:
 
 def frozen_margin_check(model_vertices: list[tuple[np.ndarray, ...]], weights: list[tuple[np.ndarray, ...]],
                         K_inf: list[tuple[np.ndarray, ...]], gammas: list[float], lmi_gammas: list[float],
-                        lams: list[np.ndarray], Ts: float) -> FrozenMarginCheck:
+                        optimal_gammas: list[float], lams: list[np.ndarray], Ts: float,
+                        riccati_distance: list[float] | None = None) -> FrozenMarginCheck:
     """:class:`FrozenMarginCheck` of K∞(λ) = Σλ_iK∞_i on Gs(λ) = G(λ)·W1(λ) and of K(λ) = W1(λ)·K∞(λ) on
     G(λ) (u = K y) at every λ of ``lams``, each held to :func:`segment_gamma`."""
     b, b_plant = [], []
@@ -176,7 +186,7 @@ def frozen_margin_check(model_vertices: list[tuple[np.ndarray, ...]], weights: l
     ratio = np.array(b) * MARGIN_FACTOR * np.array([segment_gamma(gammas, lam) for lam in lams])
     worst = int(np.argmin(ratio))
     return FrozenMarginCheck(min(b), min(b_plant), float(ratio[worst]), worst, len(lams), list(gammas),
-                             list(lmi_gammas))
+                             list(lmi_gammas), list(optimal_gammas), list(riccati_distance or [0.0]))
 
 
 def controller_matrices(K_inf: tuple[np.ndarray, ...], W1: control.StateSpace, structure: str
@@ -272,14 +282,20 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
                                 integral_ratio=settings.get("integral_ratio") or DEFAULT_INTEGRAL_RATIO)
     W2 = control.ss([], [], [], np.eye(model.ny), Ts)
     solver = settings.get("solver", "CLARABEL")
-    scaled, gammas, lmi_gammas, weights, K_inf, exported = [], [], [], [], [], []
+    scaled, gammas, lmi_gammas, optimal_gammas, distances, weights, K_inf, exported = ([] for _ in range(8))
     for mats in model_vertices:
         G = scale.plant(control.ss(*mats, Ts))
         W1_i = crossover_normalized(G, W1, crossover)
-        K, gamma = central_ncf_controller(shaped_plant(G, W1_i, W2), GAMMA_FACTOR)
-        lmi_gammas.append(loop_shaping([G], [W1_i], W2, solver=solver).gamma)
+        Gs = shaped_plant(G, W1_i, W2)
+        central = lmi_central_controller(Gs, GAMMA_FACTOR, solver)
+        K = central.K_inf
+        gamma_opt = ncf_riccati(Gs).gamma_opt
+        riccati, _ = central_ncf_controller(Gs, central.gamma / gamma_opt)
         scaled.append(_matrices(G))
-        gammas.append(gamma)
+        gammas.append(central.gamma)
+        lmi_gammas.append(central.lmi_gamma)
+        optimal_gammas.append(gamma_opt)
+        distances.append(controller_distance(K, riccati))
         weights.append(_matrices(W1_i))
         K_inf.append(_matrices(K))
         if reference is None:
@@ -290,12 +306,15 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
             exported.append(with_reference_model(feedback, mats, *reference_model_gains(
                 mats, scale, reference["control_weight"])))
     lams = design_coordinates(plant.polytope, plant.basis, FROZEN_PER_SEGMENT)
-    check = frozen_margin_check(scaled, weights, K_inf, gammas, lmi_gammas, lams, Ts)
+    check = frozen_margin_check(scaled, weights, K_inf, gammas, lmi_gammas, optimal_gammas, lams, Ts,
+                                distances)
     if filt is not None:
         exported = [with_reference_filter(K, filt, model.ny) for K in exported]
     stacks = [np.array([k[m] for k in exported]) for m in range(4)]
     info = {"method": "loop-shaping", "gamma": max(gammas), "vertex_gammas": gammas,
-            "lmi_gammas": lmi_gammas, "crossover": float(crossover), "b_min": check.b_min,
+            "lmi_gammas": lmi_gammas, "optimal_gammas": optimal_gammas, "riccati_distance": distances,
+            "controller_source": "hinfsyn LMIs: central solution, explicit formulas",
+            "crossover": float(crossover), "b_min": check.b_min,
             "b_plant_min": check.b_plant_min, "scaling": settings.get("scaling"),
             "reference_filter": None if filt is None else dict(filt_settings),
             "reference_model": None if reference is None else dict(reference)}

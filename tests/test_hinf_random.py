@@ -117,8 +117,8 @@ def test_a_stable_mode_no_input_drives_still_gets_lqg_balanced_coordinates():
     a stable state appended that no input drives: the LQG pair of such a plant is singular (Y had an
     eigenvalue −1e-19 on case 20, so no balancing was used and hinfsyn ended 5.49× SB10DD); the balancing
     must still exist and be finite. On the plants as drawn whose own pair is well determined (each of
-    Y, X of condition ≤ 1e8), it must balance that unregularized pair to 1e-6 (measured 1e-8 at worst;
-    regularizing by 1e-10 instead of 1e-14 leaves 1e-4)."""
+    Y, X of condition ≤ 1e8), it must balance that pair as solved to 1e-6 (raising the Riccati weights
+    CᵀC, BBᵀ by 1e-10 of their norm instead leaves 1e-4)."""
     rng = np.random.default_rng(11)
     plants = [weighted_cases(21, 2047)[20]]
     for c in weighted_cases(8, 11):  # append x⁺ = a·x (|a| < 0.9), no input, seen by the z outputs

@@ -34,6 +34,13 @@ from lpvflow.validate.stability import scaled_margin
 
 #: Largest condition number of the balancing state transform T that is used.
 MAX_BALANCING_CONDITION = 1e8
+#: Relative floor of :func:`lqg_balancing`: an eigenvalue of X or Y below this times the largest is raised
+#: to it (such eigenvalues carry no reliable digit of a Riccati solution in double precision), so a stable
+#: mode no input drives (or no output sees) in floating point does not make the LQG pair singular; a pair
+#: above the floor is used exactly as solved. Measured on seed 2047's case 20 of tests/hinf_cases.py (a
+#: 10-state chain whose T-weight state is driven through a relative degree of 10, |w·[B1 B2]| ≈ 1e-21):
+#: without it Y had an eigenvalue −1e-19, no balancing was used and γ ended 5.49× SB10DD; with it 1.0031×.
+LQG_FLOOR = 1e-12
 
 
 def cayley(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -179,15 +186,26 @@ def lqg_balancing(vc: VertexPlant) -> np.ndarray | None:
     and T with T⁻¹YT⁻ᵀ = TᵀXT = Σ (:func:`balancing_transform`). Unlike Gramians they exist for unstable
     plants; they depend on the realization only through T, so the coordinates T gives do not depend on
     the state basis the plant was given in. (The H2 pair of the H∞ problem itself is singular for mixed
-    sensitivity: the weight states driven by the measured error are estimated exactly.) None when either
-    equation has no stabilizing solution or the pair is not positive definite."""
+    sensitivity: the weight states driven by the measured error are estimated exactly.) Eigenvalues of X
+    and Y below :data:`LQG_FLOOR` times their largest are raised to that floor (X, Y ≻ 0 also when a stable
+    mode is, in floating point, uncontrollable from every input or unobservable from every output, e.g. a
+    weight state driven through a plant of high relative degree). None when either equation has no
+    stabilizing solution or the pair is not positive definite."""
     B, C = np.hstack([vc.B1, vc.B2]), np.vstack([vc.C1, vc.C2])
     try:
         X = scipy.linalg.solve_continuous_are(vc.A, B, C.T @ C, np.eye(B.shape[1]))
         Y = scipy.linalg.solve_continuous_are(vc.A.T, C.T, B @ B.T, np.eye(C.shape[0]))
     except (np.linalg.LinAlgError, ValueError):
         return None
-    return balancing_transform(Y, X)
+    return balancing_transform(_floored(Y), _floored(X))
+
+
+def _floored(M: np.ndarray) -> np.ndarray:
+    """Symmetric M with its eigenvalues raised to at least :data:`LQG_FLOOR` times the largest; M itself
+    when none is below."""
+    w, U = np.linalg.eigh(0.5 * (M + M.T))
+    floor = LQG_FLOOR * max(w[-1], 0.0)
+    return M if w[0] >= floor else (U * np.maximum(w, floor)) @ U.T
 
 
 def balancing_transform(R: np.ndarray, S: np.ndarray) -> np.ndarray | None:

@@ -73,9 +73,9 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
         lags = adequacy_lags(final.model, ctx.est.p, ctx.est.N)
         adequacy = input_explained(ctx.est, ctx.val, final.model, final.y_val, ADEQUACY_GAIN * min_gain,
                                    alpha)
-        if cause in ("none", NOISE, "colored_noise") and not adequacy["significant"]:
+        if cause in ("none", NOISE, "colored_noise") and not adequacy["significant"] and not final.diverged:
             constancy = split_constancy(ctx.est, ctx.val, ctx.structure, alpha)
-            if constancy["significant"]:
+            if constancy is not None and constancy["significant"]:
                 return "unexplained", adequacy | {"parameter_constancy": constancy}, pool
     else:
         reference = model_loop(final.model, joined(ctx.est, ctx.val), ctx.loop, ctx.est.N, final.y_val)

@@ -32,6 +32,7 @@ import numpy as np
 
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.data import Dataset
+from lpvflow.errors import DataError
 from lpvflow.identify.arx import identify_arx
 from lpvflow.validate import residuals
 from lpvflow.validate.extension_core import Structure, bounded
@@ -45,15 +46,19 @@ from lpvflow.validate.noise_analysis import normalised_sq_error
 CONSTANCY_GAIN = 6.5
 
 
-def split_constancy(est: Dataset, val: Dataset, structure: Structure, alpha: float) -> dict:
+def split_constancy(est: Dataset, val: Dataset, structure: Structure, alpha: float) -> dict | None:
     """The split-sample constancy test of ``structure`` on the two splits (module docstring):
-    S, its two halves, the block signed-rank p and ``significant``."""
+    S, its two halves, the block signed-rank p and ``significant``; None when a split alone does not
+    determine the coefficients (e.g. its scheduling stays constant: the regressor is rank deficient)."""
     basis = structure.basis_for(est.p.shape[1])
     halves = (est, val)
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore", SchedulingRangeWarning)
-        models = [identify_arx(half, structure.na, structure.nb, structure.nk, basis, form=structure.form)
-                  for half in halves]
+        try:
+            models = [identify_arx(half, structure.na, structure.nb, structure.nk, basis, form=structure.form)
+                      for half in halves]
+        except DataError:
+            return None
         # sims[i][j]: the coefficients of half j simulated on half i
         sims = [[bounded(model.simulate(half.u, half.p), half.y)[0] for model in models] for half in halves]
     gains = [float(np.mean(bfr(half.y, sims[i][i]) - bfr(half.y, sims[i][1 - i])))

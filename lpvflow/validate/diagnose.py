@@ -74,6 +74,8 @@ reversing) is scored as the plant ran.
    When that part is significant (gain ≥ ADEQUACY_GAIN·``min_gain``, p < ``alpha``) and no cause was
    named, the verdict is ``unexplained``, with that test as its evidence; a named cause must pass the
    same test with its extended model (:func:`~lpvflow.validate.diagnose_adequacy.final_verdict`).
+   Open loop, ``none`` also needs the structure's coefficients to be the same on both splits
+   (:mod:`lpvflow.validate.parameter_constancy`); a drifting plant is ``unexplained``.
    Closed loop: the plant input is fed back from the error, so the error is tested against the loop's
    exogenous history instead — the excitation, set-points and the model's own loop signals, over lags
    that reach the loop's settling time (:mod:`lpvflow.validate.loop_adequacy`). ``none`` means the

@@ -15,6 +15,7 @@ from lpvflow.validate.loop_adequacy import (
     model_loop,
 )
 from lpvflow.validate.noise_analysis import adequacy_lags, explained_within_validation, input_explained
+from lpvflow.validate.parameter_constancy import split_constancy
 
 #: An extension gaining at least this many BFR points at block p < INADEQUATE_ALPHA shows the model
 #: inadequate even when no cause can be named (not significant at ``alpha``, or a tie broken to none).
@@ -38,6 +39,11 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
       an error the input history explains (:func:`input_explained`, ≥ ADEQUACY_GAIN·``min_gain``) is
       ``unexplained``; so is ``none`` when an extension gains strongly without being named
       (INADEQUATE_GAIN at INADEQUATE_ALPHA: a gain just short of significance, a tie broken to none).
+    * Open loop, ``none`` or a noise verdict whose model passes that test is ``unexplained`` when the
+      structure's coefficients are not the same on the two splits
+      (:func:`~lpvflow.validate.parameter_constancy.split_constancy`: a drifting actuator gain on the
+      airpath FMU, seeds 0–4, S = 8.2–12.7 BFR points, p ≤ 4·10⁻⁵, where the input history explains
+      nothing more on the estimation split than on clean records).
     * A named extension must make the model adequate: when the extended model still leaves an error the
       input history explains (:func:`explained_within_validation`, the same ADEQUACY_GAIN·``min_gain``
       at ``alpha``), the extension is partial and the cause ``unexplained`` — a candidate that gains
@@ -67,6 +73,10 @@ def final_verdict(ctx: Context, cause: str, final: Fit, pool: dict[str, Candidat
         lags = adequacy_lags(final.model, ctx.est.p, ctx.est.N)
         adequacy = input_explained(ctx.est, ctx.val, final.model, final.y_val, ADEQUACY_GAIN * min_gain,
                                    alpha)
+        if cause in ("none", NOISE, "colored_noise") and not adequacy["significant"] and not final.diverged:
+            constancy = split_constancy(ctx.est, ctx.val, ctx.structure, alpha)
+            if constancy is not None and constancy["significant"]:
+                return "unexplained", adequacy | {"parameter_constancy": constancy}, pool
     else:
         reference = model_loop(final.model, joined(ctx.est, ctx.val), ctx.loop, ctx.est.N, final.y_val)
         adequacy = _in_loop(ctx, reference, final.y_val, min_gain, alpha)

@@ -81,7 +81,7 @@ VALIDATE = Stage("validate", stages.validate, ("validate", "identify", "experime
                  ("reduce",), _PLANT + _CONTROLLER)
 SYNTH = Stage("synth", stages.synth, ("synth",),
               {"synth": ALL, "verify": ("loop",), "experiment": ("scheduling",), "design": ("plant",)},
-              ("reduce",), _PLANT)
+              ("reduce", "validate"), _PLANT)
 ROBUSTNESS = Stage("robustness", robustness, ("synth", *VALIDATE.requires),
                    {"validate": ("scaling",), "synth": ("robustness_gate", "rate_certificate", "breakpoints"),
                     "identify": (*_SIGNALS, "increments"), "experiment": ("controller", "scheduling"),

@@ -8,7 +8,9 @@ b that the robustness stage compares with the ν-gap):
 * W1_i = W1/σ_max(G_i W1)(e^{jω_c Ts}), W1 the integrator-plus-lead weight of
   :func:`lpvflow.synth.loop_shaping.integrator_lead_weight` at the crossover ω_c = ``crossover``, its
   integral corner at ω_c/``integral_ratio`` (default 10)
-  (:func:`lpvflow.synth.loop_shaping.crossover_normalized`), W2 = I (in the scaled signals);
+  (:func:`lpvflow.synth.loop_shaping.crossover_normalized`), W2 = I (in the scaled signals); with
+  ``margin_goal`` the lead zero of W1_i moves towards its pole (A, B of W1 unchanged) until the shipped
+  b(G_i, W1_i·K∞_i) reaches the breakpoint's goal (:mod:`lpvflow.synth.margin_goal`);
 * K∞_i the central controller of the shaped plant Gs_i = G_i·W1_i at γ_i = 1.01·γ_opt(Gs_i)
   (:func:`lpvflow.synth.loop_shaping.central_ncf_controller`: the two NCF Riccati solutions X_i, Z_i of
   Gs_i), so b(Gs_i, K∞_i) ≥ 1/γ_i. Its state lives in the coordinates of Gs_i's own state [x_W1; x_G]:
@@ -54,11 +56,9 @@ from lpvflow.synth.controller import LPVController, mix
 from lpvflow.synth.design import Design
 from lpvflow.synth.loop_shaping import (
     central_ncf_controller,
-    crossover_normalized,
-    integrator_lead_weight,
     loop_shaping,
-    shaped_plant,
 )
+from lpvflow.synth.margin_goal import MarginGoalReport, breakpoint_names, lead_for_goal, vertex_goals
 from lpvflow.synth.observer import antiwindup_gains, reference_filter, with_reference_filter
 from lpvflow.synth.plant import GeneralizedPlant
 from lpvflow.synth.polytope import vertex_matrices
@@ -100,6 +100,7 @@ class FrozenMarginCheck:
     points: int
     gammas: list[float]
     lmi_gammas: list[float]
+    margin_goal: MarginGoalReport | None = None
 
     @property
     def witness_error(self) -> float:
@@ -124,7 +125,7 @@ class FrozenMarginCheck:
                 f"{self.worst_at} (must be ≥ 1; b = 0 is an unstable loop)",
                 f"unshaped loops: smallest b(G, K) {self.b_plant_min:.4g} (K = W1·K∞, scaled signals)",
                 "no LMI certificate between vertices or for a moving scheduling signal: the FMU runs are the "
-                "witness"]
+                "witness"] + ([] if self.margin_goal is None else self.margin_goal.lines())
 
 
 def _matrices(M: control.StateSpace) -> tuple[np.ndarray, ...]:
@@ -245,10 +246,13 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     """The loop-shaping controller of the module docstring at the vertices of ``plant``'s polytope;
     ``Design.gamma`` the largest vertex level γ_i (1/γ_i the guaranteed b of the shaped loop).
     ``frozen_model`` is not used: the check runs on the model interpolated like the plant.
+    ``settings["validated_nugap"]`` (``{"points", "nugap"}``, set by the design's synth stage, not a
+    design-file key) is the ν-gap ``margin_goal``'s ``nugap_factor`` applies to.
 
     Raises:
         ModelError: a crossover above the weight's usable band, a model with feed-through, a ``scaling``
             table that does not name the model's signals, or a reference filter on a 1dof controller.
+        DataError: ``margin_goal.nugap_factor`` without ``validated_nugap``.
         SynthesisError: from ``hinfsyn`` at a vertex.
     """
     start = time.perf_counter()
@@ -268,15 +272,20 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
         raise ModelError('[synth] reference_model drives a 2dof controller: set structure = "2dof" or remove '
                          'reference_model')
     scale = shaping_scale(model, settings.get("scaling"))
-    W1 = integrator_lead_weight(Ts, crossover, model.nu,
-                                integral_ratio=settings.get("integral_ratio") or DEFAULT_INTEGRAL_RATIO)
+    integral_ratio = settings.get("integral_ratio") or DEFAULT_INTEGRAL_RATIO
+    goal = settings.get("margin_goal")
+    validated = settings.get("validated_nugap") or {}
+    goals = vertex_goals(goal or {}, validated.get("points"), validated.get("nugap"), plant.polytope,
+                         plant.basis)
     W2 = control.ss([], [], [], np.eye(model.ny), Ts)
     solver = settings.get("solver", "CLARABEL")
-    scaled, gammas, lmi_gammas, weights, K_inf, exported = [], [], [], [], [], []
-    for mats in model_vertices:
+    scaled, gammas, lmi_gammas, weights, K_inf, exported, choices = [], [], [], [], [], [], []
+    for mats, goal_i in zip(model_vertices, goals, strict=True):
         G = scale.plant(control.ss(*mats, Ts))
-        W1_i = crossover_normalized(G, W1, crossover)
-        K, gamma = central_ncf_controller(shaped_plant(G, W1_i, W2), GAMMA_FACTOR)
+        choice = lead_for_goal(G, goal_i, crossover, integral_ratio,
+                               lambda Gs: central_ncf_controller(Gs, GAMMA_FACTOR))
+        W1_i, K, gamma = choice.weight, choice.controller, choice.gamma
+        choices.append(choice)
         lmi_gammas.append(loop_shaping([G], [W1_i], W2, solver=solver).gamma)
         scaled.append(_matrices(G))
         gammas.append(gamma)
@@ -291,6 +300,11 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
                 mats, scale, reference["control_weight"])))
     lams = design_coordinates(plant.polytope, plant.basis, FROZEN_PER_SEGMENT)
     check = frozen_margin_check(scaled, weights, K_inf, gammas, lmi_gammas, lams, Ts)
+    if goal is not None:
+        check.margin_goal = MarginGoalReport([float(g) for g in goals], [c.b for c in choices],
+                                             [c.lead_used for c in choices],
+                                             breakpoint_names(settings.get("breakpoints"), plant.polytope))
+        check.margin_goal.warn()
     if filt is not None:
         exported = [with_reference_filter(K, filt, model.ny) for K in exported]
     stacks = [np.array([k[m] for k in exported]) for m in range(4)]

@@ -150,7 +150,8 @@ def test_synth_meets_the_goal_where_a_lead_reaches_it_and_names_the_breakpoints_
 
 
 def test_nugap_factor_without_a_validate_stage_is_one_line_exit_2(tmp_path, capsys):
-    """``lpvflow synth`` has no ν-gap: a goal with nugap_factor is refused in one line, nothing written."""
+    """``lpvflow synth`` has no ν-gap: a goal with nugap_factor is refused in one line, nothing written; so
+    are a goal on another method and malformed goals."""
     _random_plant(1).save(tmp_path / "model.json")
     (tmp_path / "design.toml").write_text(DESIGN + "margin_goal = { nugap_factor = 1.5, at_least = 0.05 }\n")
     out = tmp_path / "K.json"
@@ -159,6 +160,13 @@ def test_nugap_factor_without_a_validate_stage_is_one_line_exit_2(tmp_path, caps
     err = capsys.readouterr().err.strip().splitlines()
     assert status == 2 and not out.exists() and len(err) == 1
     assert "margin_goal.nugap_factor needs the validate stage's ν-gap" in err[0]
+    (tmp_path / "design.toml").write_text(DESIGN.replace('"loop-shaping"', '"common"')
+                                          + "margin_goal = { at_least = 0.05 }\n")
+    status = main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
+                   "-o", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and not out.exists() and len(err) == 1
+    assert "margin_goal shapes the loop-shaping design only" in err[0]
     for bad in ("{ nugap = 1.5 }", "{ at_least = 1.5 }", "{ nugap_factor = -1 }", "{ }"):
         (tmp_path / "design.toml").write_text(DESIGN + f"margin_goal = {bad}\n")
         status = main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
@@ -212,3 +220,21 @@ def test_design_holds_each_breakpoint_to_the_validated_nugap_of_its_points(tmp_p
     lines = [line for line in err.splitlines() if "margin_goal" in line]
     assert len(lines) == 1 and "p_1 = 0.05: b " in lines[0] and "p_1 = 0.115" not in lines[0]
     assert "p_1 = 0.18" not in lines[0]
+
+
+def test_identification_rounds_design_without_the_goal_and_the_final_pass_with_it(tmp_path):
+    """``[experiment] iterate``: a round's controller only runs the next experiment, so its synth table has
+    no margin_goal; every other key, and the final pass's table, is the file's."""
+    from lpvflow.pipeline.config import load_config
+    from lpvflow.pipeline.design import _without_margin_goal
+
+    path = tmp_path / "design.toml"
+    path.write_text(tanks_head(ROOT / "fmu_plants" / "build" / "tanks.fmu", tmp_path / "out")
+                    + TANKS.format(u_scale=2.0, y_scale=0.05) + tanks_synth(*TANKS_SHAPED, GOAL))
+    config = load_config(path)
+    round_config = _without_margin_goal(config)
+    assert config["synth"]["margin_goal"] == {"nugap_factor": 5.5, "at_least": 0.05}
+    assert round_config["synth"]["margin_goal"] is None
+    assert {k: v for k, v in round_config["synth"].items() if k != "margin_goal"} == {
+        k: v for k, v in config["synth"].items() if k != "margin_goal"}
+    assert all(round_config[t] is config[t] for t in config if t != "synth")

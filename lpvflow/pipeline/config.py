@@ -36,6 +36,7 @@ from lpvflow.pipeline.key_checks import (
     largest_step,
     loop,
     mapping,
+    margin_goal,
     method,
     names,
     number,
@@ -149,6 +150,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "scaling": Key(None, mapping(number(0.0, open_low=True), "scale > 0"),
                        "loop-shaping: { signal = scale } for every model input and output: the loop is "
                        "shaped in D_y⁻¹·G·D_u (default: none)"),
+        "margin_goal": Key(None, margin_goal, "loop-shaping: { nugap_factor = f, at_least = b }: at every "
+                           "breakpoint the lead is lowered until b(Ĝ, K_fb) ≥ max(f·ν-gap, b) of the "
+                           "validate points it takes part in"),
         "reference_model": Key(None, reference_model, "loop-shaping (2dof): { control_weight = ρ }, u = u_m "
                                "+ K(y − y_m) with a model copy under an LQ gain as reference model"),
         "robustness_gate": Key(False, boolean, "stop the design after the robustness stage when the "

@@ -282,6 +282,15 @@ def reference_filter(value: Any, where: str) -> dict[str, float]:
     return {k: number(0.0, open_low=True)(v, f"{where}.{k}") for k, v in value.items()}
 
 
+def margin_goal(value: Any, where: str) -> dict[str, float]:
+    """``{ nugap_factor = f, at_least = b }``, either or both: f > 0, b in (0, 1)."""
+    if not isinstance(value, dict) or not value or set(value) - {"nugap_factor", "at_least"}:
+        raise _fail(where, value, "{ nugap_factor = 1.5, at_least = 0.05 } (either or both)")
+    checks = {"nugap_factor": number(0.0, open_low=True), "at_least": number(0.0, 1.0, open_low=True,
+                                                                            open_high=True)}
+    return {k: checks[k](v, f"{where}.{k}") for k, v in value.items()}
+
+
 def reference_model(value: Any, where: str) -> dict[str, float]:
     """``{ control_weight = ρ }`` with ρ > 0."""
     table = mapping(number(0.0, open_low=True), "number > 0")(value, where)

@@ -248,16 +248,20 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     """Gain-scheduled controller of the ``[synth]`` table as ``lpvflow synth --config`` writes it
     (:func:`lpvflow.pipeline.controller_design.design_controller`) and the LTI baseline designed by the
     same table at one frozen point (``baseline_at``, default the centre of the scheduling box; one common
-    Lyapunov matrix there is exact)."""
+    Lyapunov matrix there is exact). ``margin_goal`` is taken against the validate stage's ν-gap at its
+    points (``validated_nugap``, when it computed one); the baseline is designed without it."""
     cfg = ctx.config["synth"]
     model = load(ctx.path("model.json"))
     loop = ctx.config["verify"]["loop"] if ctx.config["verify"] else None
-    design = design_controller(model, cfg, loop=loop, scheduling=ctx.config["experiment"]["scheduling"],
+    validate = ctx.outputs.get("validate", {})
+    nugap = {"points": validate["theta"], "nugap": validate["nugap"]} if validate.get("nugap") else None
+    design = design_controller(model, {**cfg, "validated_nugap": nugap}, loop=loop,
+                               scheduling=ctx.config["experiment"]["scheduling"],
                                plant_fmu=ctx.config["design"]["plant"])
     design.controller.save(ctx.path("controller.json"))
     centre = scheduling_box(model, cfg["box"]).mean(axis=1).tolist()
     at = cfg["baseline_at"] if cfg["baseline_at"] is not None else centre
-    baseline = synthesize_design(model, cfg, box=[[v, v] for v in at])
+    baseline = synthesize_design(model, {**cfg, "margin_goal": None}, box=[[v, v] for v in at])
     # the same port record: a 2-DOF baseline reads r and y relative to the same operating point
     baseline.controller.info["signals"] = design.controller.info["signals"]
     baseline.controller.antiwindup = antiwindup(baseline.controller, loop, design.controller.info["signals"])

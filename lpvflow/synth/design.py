@@ -75,6 +75,9 @@ def synthesize_design(model: LPVSS, settings: Mapping[str, Any], box: list | Non
         raise DataError(f"[synth] method = {settings['method']!r} is unknown; use one of "
                         f"{', '.join(SYNTHESIS_METHODS)}")
     method = SYNTHESIS_METHODS[settings["method"]]
+    if settings.get("margin_goal") and settings["method"] != "loop-shaping":
+        raise DataError(f"[synth] margin_goal shapes the loop-shaping design only, not method = "
+                        f"{settings['method']!r}: remove it or use method = \"loop-shaping\"")
     if point and not method.point_design:
         design = design_common(model, plant, settings, frozen_model)
     else:

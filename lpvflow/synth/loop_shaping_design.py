@@ -8,7 +8,9 @@ b that the robustness stage compares with the ν-gap):
 * W1_i = W1/σ_max(G_i W1)(e^{jω_c Ts}), W1 the integrator-plus-lead weight of
   :func:`lpvflow.synth.loop_shaping.integrator_lead_weight` at the crossover ω_c = ``crossover``, its
   integral corner at ω_c/``integral_ratio`` (default 10)
-  (:func:`lpvflow.synth.loop_shaping.crossover_normalized`), W2 = I (in the scaled signals);
+  (:func:`lpvflow.synth.loop_shaping.crossover_normalized`), W2 = I (in the scaled signals); with
+  ``margin_goal`` the lead zero of W1_i moves towards its pole (A, B of W1 unchanged) until the shipped
+  b(G_i, W1_i·K∞_i) reaches the breakpoint's goal (:mod:`lpvflow.synth.margin_goal`);
 * K∞_i from hinfsyn's LMIs (:func:`lpvflow.synth.loop_shaping.lmi_central_controller`): the certified
   optimum γ_LMI,i of the four-block NCF plant of Gs_i = G_i·W1_i, then the central LMI controller at
   γ_i = 1.01·γ_LMI,i (:mod:`lpvflow.synth.central`: the largest R, S of the LMIs at γ_i, explicit
@@ -55,13 +57,13 @@ from lpvflow.synth.certify import design_coordinates
 from lpvflow.synth.controller import LPVController, mix
 from lpvflow.synth.design import Design
 from lpvflow.synth.loop_shaping import (
+    CentralLoopShaping,
     central_ncf_controller,
     controller_distance,
-    crossover_normalized,
-    integrator_lead_weight,
     lmi_central_controller,
     shaped_plant,
 )
+from lpvflow.synth.margin_goal import MarginGoalReport, breakpoint_names, lead_for_goal, vertex_goals
 from lpvflow.synth.observer import antiwindup_gains, reference_filter, with_reference_filter
 from lpvflow.synth.plant import GeneralizedPlant
 from lpvflow.synth.polytope import vertex_matrices
@@ -107,6 +109,7 @@ class FrozenMarginCheck:
     lmi_gammas: list[float]
     optimal_gammas: list[float]
     riccati_distance: list[float]
+    margin_goal: MarginGoalReport | None = None
 
     @property
     def witness_error(self) -> float:
@@ -133,7 +136,7 @@ class FrozenMarginCheck:
                 f"{self.worst_at} (must be ≥ 1; b = 0 is an unstable loop)",
                 f"unshaped loops: smallest b(G, K) {self.b_plant_min:.4g} (K = W1·K∞, scaled signals)",
                 "no LMI certificate between vertices or for a moving scheduling signal: the FMU runs are the "
-                "witness"]
+                "witness"] + ([] if self.margin_goal is None else self.margin_goal.lines())
 
 
 def _matrices(M: control.StateSpace) -> tuple[np.ndarray, ...]:
@@ -255,10 +258,13 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     """The loop-shaping controller of the module docstring at the vertices of ``plant``'s polytope;
     ``Design.gamma`` the largest vertex level γ_i (1/γ_i the guaranteed b of the shaped loop).
     ``frozen_model`` is not used: the check runs on the model interpolated like the plant.
+    ``settings["validated_nugap"]`` (``{"points", "nugap"}``, set by the design's synth stage, not a
+    design-file key) is the ν-gap ``margin_goal``'s ``nugap_factor`` applies to.
 
     Raises:
         ModelError: a crossover above the weight's usable band, a model with feed-through, a ``scaling``
             table that does not name the model's signals, or a reference filter on a 1dof controller.
+        DataError: ``margin_goal.nugap_factor`` without ``validated_nugap``.
         SynthesisError: from ``hinfsyn`` at a vertex.
     """
     start = time.perf_counter()
@@ -278,22 +284,34 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
         raise ModelError('[synth] reference_model drives a 2dof controller: set structure = "2dof" or remove '
                          'reference_model')
     scale = shaping_scale(model, settings.get("scaling"))
-    W1 = integrator_lead_weight(Ts, crossover, model.nu,
-                                integral_ratio=settings.get("integral_ratio") or DEFAULT_INTEGRAL_RATIO)
+    integral_ratio = settings.get("integral_ratio") or DEFAULT_INTEGRAL_RATIO
+    goal = settings.get("margin_goal")
+    validated = settings.get("validated_nugap") or {}
+    goals = vertex_goals(goal or {}, validated.get("points"), validated.get("nugap"), plant.polytope,
+                         plant.basis)
     W2 = control.ss([], [], [], np.eye(model.ny), Ts)
     solver = settings.get("solver", "CLARABEL")
-    scaled, gammas, lmi_gammas, optimal_gammas, distances, weights, K_inf, exported = ([] for _ in range(8))
-    for mats in model_vertices:
+    scaled, gammas, lmi_gammas, optimal_gammas, distances, weights, K_inf, exported, choices = (
+        [] for _ in range(9))
+    built: list[CentralLoopShaping] = []  # the central controllers the lead search builds at a breakpoint
+
+    def central(Gs: control.StateSpace) -> tuple[control.StateSpace, float]:
+        built.append(lmi_central_controller(Gs, GAMMA_FACTOR, solver))
+        return built[-1].K_inf, built[-1].gamma
+
+    for mats, goal_i in zip(model_vertices, goals, strict=True):
         G = scale.plant(control.ss(*mats, Ts))
-        W1_i = crossover_normalized(G, W1, crossover)
+        built.clear()
+        choice = lead_for_goal(G, goal_i, crossover, integral_ratio, central)
+        [chosen] = [c for c in built if c.K_inf is choice.controller]
+        W1_i, K = choice.weight, choice.controller
+        choices.append(choice)
         Gs = shaped_plant(G, W1_i, W2)
-        central = lmi_central_controller(Gs, GAMMA_FACTOR, solver)
-        K = central.K_inf
         gamma_opt = ncf_riccati(Gs).gamma_opt
-        riccati, _ = central_ncf_controller(Gs, central.gamma / gamma_opt)
+        riccati, _ = central_ncf_controller(Gs, chosen.gamma / gamma_opt)
         scaled.append(_matrices(G))
-        gammas.append(central.gamma)
-        lmi_gammas.append(central.lmi_gamma)
+        gammas.append(chosen.gamma)
+        lmi_gammas.append(chosen.lmi_gamma)
         optimal_gammas.append(gamma_opt)
         distances.append(controller_distance(K, riccati))
         weights.append(_matrices(W1_i))
@@ -308,6 +326,11 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     lams = design_coordinates(plant.polytope, plant.basis, FROZEN_PER_SEGMENT)
     check = frozen_margin_check(scaled, weights, K_inf, gammas, lmi_gammas, optimal_gammas, lams, Ts,
                                 distances)
+    if goal is not None:
+        check.margin_goal = MarginGoalReport([float(g) for g in goals], [c.b for c in choices],
+                                             [c.lead_used for c in choices],
+                                             breakpoint_names(settings.get("breakpoints"), plant.polytope))
+        check.margin_goal.warn()
     if filt is not None:
         exported = [with_reference_filter(K, filt, model.ny) for K in exported]
     stacks = [np.array([k[m] for k in exported]) for m in range(4)]

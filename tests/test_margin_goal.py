@@ -93,7 +93,8 @@ def test_each_breakpoint_is_held_to_the_largest_goal_of_the_points_it_takes_part
 
 def _ladder_margins(G) -> list[float]:
     """b(G, W1_β·K∞_β) by the grid formula for every β of the ladder (W1 normalized at the crossover, K∞
-    the central controller at 1.01·γ_opt), from β = α down to 1."""
+    the Riccati central controller at 1.01·γ_opt — an independent stand-in for the design's central LMI
+    controller at 1.01·γ_LMI, whose b it matches within 1 %), from β = α down to 1."""
     bs = []
     for k in range(LADDER_STEPS + 1):
         beta = LEAD_RATIO ** (1.0 - k / LADDER_STEPS)
@@ -133,9 +134,9 @@ def test_synth_meets_the_goal_where_a_lead_reaches_it_and_names_the_breakpoints_
         reaching = [k for k, bk in enumerate(bs) if bk >= goal]
         if reaching:
             assert b >= goal * (1 - 1e-3)
-            assert b == pytest.approx(bs[reaching[0]], rel=1e-3)  # lowered no further than needed
+            assert b == pytest.approx(bs[reaching[0]], rel=1e-2)  # lowered no further than needed
         else:
-            assert b == pytest.approx(max(bs), rel=1e-3)
+            assert b == pytest.approx(max(bs), rel=1e-2)
             unattainable.append(f"p_1 = {BREAKPOINTS[i]:.4g}: b ")
     lines = [line for line in captured.err.splitlines() if "margin_goal" in line]
     if unattainable:

@@ -37,6 +37,16 @@ def test_maglev_dead_time_in_its_loop_is_chosen_by_the_closed_loop_iv_loss():
     assert row["bfr_gain"] > 1.0 and row["p_value"] < 1e-3
 
 
+def test_maglev_dead_time_is_chosen_by_the_whitened_loop_error_where_the_raw_one_is_flat():
+    """Maglev, 6 ms dead time, seed 4: the raw log det of the IV refits' loop-simulation error is flat
+    over nk 3–5 (−36.522 / −36.517 / −36.518) and the descent from the LS choice [6, 6] stopped at
+    [5, 5], whose model fails the adequacy test (`unexplained`). The error whitened by its own AR fit
+    is lowest at [4, 4]."""
+    record = make_record("maglev", "dead time 6 ms", 4)
+    result = diagnose(record.data, record.structure, record.channels, **record.diagnose_arguments())
+    assert outcome(record, result.cause, result.parameters) == "right", (result.cause, result.refit_ranking)
+
+
 def test_a_scheduling_column_computed_from_a_delayed_input_is_delayed_with_it(tmp_path):
     """The scheduling is the commanded input's affine image (the airpath's throttle fraction), the
     plant runs on the applied, delayed one: u(k − d) and p(k − d). The dead time found delays both

@@ -46,6 +46,23 @@ def cross_correlation(e: np.ndarray, u: np.ndarray, lags: range) -> np.ndarray:
     return np.array([full[n - 1 + t] for t in lags]) / (scale if scale > 0 else 1.0)
 
 
+def prewhitened_log_det(e: np.ndarray, order: int) -> float:
+    """log det of the covariance of the error e (N, ny) with each column whitened by its own
+    least-squares AR fit: Â(q) = 1 + â₁q⁻¹ + … + â_n q⁻ⁿ (n = ``order``) minimising Σ (Â(q)e)², then
+    ε̃ = Â(q)e — the prediction-error criterion of e under an AR noise model (Ljung, System
+    Identification, 2nd ed., §7.2; prewhitening: Box & Jenkins, Time Series Analysis, §11.2). A raw
+    log det of a coloured error weighs its low frequencies, where most of its variance is; the
+    whitened one weighs every frequency by the error's own level there."""
+    whitened = []
+    for column in np.atleast_2d(np.asarray(e, float).T):
+        x = _centred(column)
+        lags = np.column_stack([x[order - i : len(x) - i] for i in range(1, order + 1)])
+        coef = np.linalg.lstsq(lags, x[order:], rcond=None)[0]
+        whitened.append(x[order:] - lags @ coef)
+    sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov(np.array(whitened))))
+    return float(logdet) if sign > 0 else np.inf
+
+
 def band99(n: int) -> float:
     return Z99 / np.sqrt(n)
 

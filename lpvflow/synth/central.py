@@ -74,7 +74,7 @@ from lpvflow.synth.vertex_synthesis import (
     reconstruct_controller,
 )
 
-#: The margin the central point keeps, as a fraction of the largest margin t_max at the level.
+#: The relative margin the central point keeps, a fraction of the widest point's (:func:`_relative_margin`).
 CENTRAL_MARGIN = 0.05
 #: R ⪯ CAP·R_w, S ⪯ CAP·S_w (R_w, S_w the widest point): the bound on directions the conditions leave
 #: unbounded (states the performance output does not see, whose Riccati solution is singular). Measured:
@@ -89,7 +89,8 @@ def explicit_hats(v: VertexPlant, R: np.ndarray, S: np.ndarray, gamma: float
     """(Â, B̂, Ĉ, D̂) of the module docstring for the continuous vertex ``v`` (D22 left to the loop shift).
 
     Raises:
-        SynthesisError: ‖D11 + D12D̂D21‖ ≥ γ (no controller reaches γ: category ``"infeasible"``).
+        SynthesisError: ‖D11 + D12D̂D21‖ ≥ γ (no controller reaches γ: category ``"infeasible"``), or D12
+            (D21) without full column (row) rank (``"assumption"``).
     """
     A, B1, B2, C1, C2, D11, D12, D21 = v.A, v.B1, v.B2, v.C1, v.C2, v.D11, v.D12, v.D21
     nw, nz = B1.shape[1], C1.shape[0]
@@ -102,10 +103,15 @@ def explicit_hats(v: VertexPlant, R: np.ndarray, S: np.ndarray, gamma: float
     Hi = np.linalg.inv(np.block([[-gamma * np.eye(nw), D11h.T], [D11h, -gamma * np.eye(nz)]]))
     Hww, Hwz, Hzz = Hi[:nw, :nw], Hi[:nw, nw:], Hi[nw:, nw:]
     b1, c1 = B1 + B2 @ Dh @ D21, C1 + D12 @ Dh @ C2
+    Q, P = -D12.T @ Hzz @ D12, -D21 @ Hww @ D21.T
+    if max(np.linalg.cond(Q), np.linalg.cond(P)) > 1.0 / np.finfo(float).eps:
+        raise SynthesisError("D12 of the bilinear image has no full column rank or D21 no full row rank (a "
+                             "singular problem): the explicit central controller needs a regular one; use "
+                             "hinfsyn's controller", category="assumption")
     E = B2 - b1 @ Hwz @ D12 - R @ C1.T @ Hzz @ D12
-    Ch = -np.linalg.solve(-D12.T @ Hzz @ D12, E.T)
+    Ch = -np.linalg.solve(Q, E.T)
     G = C2 - D21 @ Hww @ B1.T @ S - D21 @ Hwz @ c1
-    Bh = -np.linalg.solve(-D21 @ Hww @ D21.T, G).T
+    Bh = -np.linalg.solve(P, G).T
     N1 = np.hstack([b1, (C1 @ R + D12 @ Ch).T])
     N2 = np.hstack([S @ B1 + Bh @ D21, c1.T])
     Ah = (N1 @ Hi @ N2.T - A - B2 @ Dh @ C2).T

@@ -138,6 +138,7 @@ def test_a_level_below_the_optimum_is_one_categorised_error(seed):
     assert err.value.category in {"infeasible", "accuracy"} and f"{0.9 * gamma_opt:.6g}" in str(err.value)
 
 
+@pytest.mark.slow  # 12 s: 14 hinfsyn + central solves
 def test_random_weighted_plants_answer_with_a_certified_controller_or_one_error():
     """Mixed-sensitivity plants (tests/hinf_cases.py, seed 2026): every call returns a certified controller
     whose closed loop python-control confirms, or a SynthesisError of category "accuracy" (the largest R, S

@@ -62,7 +62,7 @@ import scipy.linalg
 
 from lpvflow.errors import SynthesisError
 from lpvflow.synth.bilinear import balancing_transform, cayley_vertex, certificate_margin, inverse_cayley
-from lpvflow.synth.eliminated import eliminated_matrices, preconditioned, strict_constraints, sym
+from lpvflow.synth.eliminated import eliminated_matrices, preconditioned, projections, strict_constraints, sym
 from lpvflow.synth.plant import VertexPlant
 from lpvflow.synth.sdp import SolveReport, solve
 from lpvflow.synth.vertex_synthesis import (
@@ -126,8 +126,7 @@ def _sizes(verts: list[VertexPlant], gamma: float, R: cp.Variable, S: cp.Variabl
     out = [cp.bmat([[R, np.zeros((n, n))], [np.zeros((n, n)), S]])]
     for v in verts:
         nw, nz = v.dims[1], v.dims[3]
-        NR = scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.B2.T, v.D12.T])), np.eye(nw))
-        NS = scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.C2, v.D21])), np.eye(nz))
+        NR, NS = projections(v)
         out += [sym(NR.T @ cp.bmat([[R, np.zeros((n, nz + nw))],
                                     [np.zeros((nz + nw, n)), gamma * np.eye(nz + nw)]]) @ NR),
                 sym(NS.T @ cp.bmat([[S, np.zeros((n, nw + nz))],

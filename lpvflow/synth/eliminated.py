@@ -40,6 +40,14 @@ def sym(M: cp.Expression) -> cp.Expression:
     return 0.5 * (M + M.T)
 
 
+def projections(v: VertexPlant) -> tuple[np.ndarray, np.ndarray]:
+    """N_R = blkdiag(null [B2ᵀ D12ᵀ], I_nw) and N_S = blkdiag(null [C2 D21], I_nz): the bases the conditions
+    of :func:`eliminated_matrices` are projected on (Gahinet & Apkarian 1994, Thm. 4.3)."""
+    nw, nz = v.dims[1], v.dims[3]
+    return (scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.B2.T, v.D12.T])), np.eye(nw)),
+            scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.C2, v.D21])), np.eye(nz)))
+
+
 def eliminated_matrices(verts: list[VertexPlant], gamma: cp.Expression | float, R: cp.Variable,
                         S: cp.Variable) -> list[cp.Expression]:
     """The matrices of step 3: [R I; I S] (must be ⪰ 0), then per vertex the two projected LMIs (⪯ 0)."""
@@ -47,8 +55,7 @@ def eliminated_matrices(verts: list[VertexPlant], gamma: cp.Expression | float, 
     out = [cp.bmat([[R, np.eye(n)], [np.eye(n), S]])]
     for v in verts:
         nw, nz = v.dims[1], v.dims[3]
-        NR = scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.B2.T, v.D12.T])), np.eye(nw))
-        NS = scipy.linalg.block_diag(scipy.linalg.null_space(np.hstack([v.C2, v.D21])), np.eye(nz))
+        NR, NS = projections(v)
         MR = cp.bmat([[v.A @ R + R @ v.A.T, R @ v.C1.T, v.B1],
                       [v.C1 @ R, -gamma * np.eye(nz), v.D11],
                       [v.B1.T, v.D11.T, -gamma * np.eye(nw)]])

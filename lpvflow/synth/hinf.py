@@ -40,6 +40,18 @@ def _partition(P: control.StateSpace, nmeas: int, ncon: int) -> VertexPlant:
     return v
 
 
+def _vertices(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, ncon: int, caller: str
+              ) -> tuple[list[VertexPlant], float]:
+    """The partitioned vertex plants of ``P`` (one StateSpace or a sequence) and their sampling time."""
+    plants = [P] if isinstance(P, control.StateSpace) else list(P)
+    if not plants:
+        raise ModelError(f"{caller} needs at least one plant")
+    vertices = [_partition(G, nmeas, ncon) for G in plants]
+    if len({v.dims for v in vertices}) > 1 or len({float(G.dt) for G in plants}) > 1:
+        raise ModelError("the vertex plants differ in size, partition or sampling time")
+    return vertices, float(plants[0].dt)
+
+
 def hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, ncon: int, *,
             suboptimality: float | None = None, gamma_max: float = GAMMA_MAX, solver: str = "CLARABEL",
             breakpoints: Sequence[float] | None = None, rate_bound: float | None = None):
@@ -69,15 +81,9 @@ def hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, nc
             to ``gamma_max``; for one plant the message says whether SB10DD finds one) or ``"accuracy"``
             (the solver's statuses, when it could not reach the accuracy a certificate needs).
     """
-    plants = [P] if isinstance(P, control.StateSpace) else list(P)
-    if not plants:
-        raise ModelError("hinfsyn needs at least one plant")
-    vertices = [_partition(G, nmeas, ncon) for G in plants]
-    if len({v.dims for v in vertices}) > 1 or len({float(G.dt) for G in plants}) > 1:
-        raise ModelError("the vertex plants differ in size, partition or sampling time")
+    vertices, Ts = _vertices(P, nmeas, ncon, "hinfsyn")
     if not gamma_max > 0:
         raise ModelError(f"gamma_max must be positive, got {gamma_max!r}")
-    Ts = float(plants[0].dt)
     if breakpoints is not None:
         check_a3(vertices)
         delta = 1e-2 if suboptimality is None else suboptimality
@@ -101,15 +107,10 @@ def central_hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas:
         SynthesisError: ``"assumption"`` as :func:`hinfsyn`; ``"infeasible"`` no controller reaches γ;
             ``"accuracy"`` a solve without a point or a controller that fails its certificate.
     """
-    plants = [P] if isinstance(P, control.StateSpace) else list(P)
-    if not plants:
-        raise ModelError("central_hinfsyn needs at least one plant")
-    vertices = [_partition(G, nmeas, ncon) for G in plants]
-    if len({v.dims for v in vertices}) > 1 or len({float(G.dt) for G in plants}) > 1:
-        raise ModelError("the vertex plants differ in size, partition or sampling time")
+    vertices, Ts = _vertices(P, nmeas, ncon, "central_hinfsyn")
     if not (np.isfinite(gamma) and gamma > 0):
         raise ModelError(f"gamma must be a positive level, got {gamma!r}")
-    return central_vertices(vertices, float(plants[0].dt), float(gamma), solver)
+    return central_vertices(vertices, Ts, float(gamma), solver)
 
 
 def synthesize(plant: GeneralizedPlant, solver: str = "CLARABEL", gamma_max: float = GAMMA_MAX,

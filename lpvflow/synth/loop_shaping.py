@@ -50,7 +50,7 @@ import numpy as np
 
 from lpvflow.errors import ModelError
 from lpvflow.synth.hinf import central_hinfsyn, hinfsyn
-from lpvflow.validate.lti_eval import as_statespace
+from lpvflow.validate.lti_eval import as_statespace, frequency_response
 from lpvflow.validate.robust_stability import ncf_riccati
 
 
@@ -262,11 +262,10 @@ def lmi_central_controller(Gs: control.StateSpace, gamma_factor: float, solver: 
 def controller_distance(K: control.StateSpace, reference: control.StateSpace, points: int = 400) -> float:
     """max_ω σ̄(K − K_ref)(e^{jωTs}) / max_ω σ̄(K_ref)(e^{jωTs}) on ``points`` log-spaced frequencies from
     10⁻³·π/Ts to π/Ts: how far a controller is from a reference one, relative to the reference's size."""
-    Ts = float(reference.dt)
-    z = np.exp(1j * np.logspace(-3, 0, points) * np.pi / Ts)
-    diff = max(np.linalg.norm(K(zi, squeeze=False) - reference(zi, squeeze=False), 2) for zi in z)
-    size = max(np.linalg.norm(reference(zi, squeeze=False), 2) for zi in z)
-    return float(diff / size)
+    z = np.exp(1j * np.logspace(-3, 0, points) * np.pi)  # e^{jωTs}, ωTs from 10⁻³π to π
+    K_z, ref_z = frequency_response(K, z), frequency_response(reference, z)
+    largest = np.linalg.norm(ref_z, 2, axis=(1, 2)).max()
+    return float(np.linalg.norm(K_z - ref_z, 2, axis=(1, 2)).max() / largest)
 
 
 # ------------------------------------------------------------------------------------ weights

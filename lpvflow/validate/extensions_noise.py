@@ -25,7 +25,7 @@ from lpvflow.validate.extension_core import (
 )
 from lpvflow.validate.extensions_maps import coulomb_level
 from lpvflow.validate.extensions_structural import MAX_DELAY_SHIFT, delay_candidate, offset_parameters
-from lpvflow.validate.residuals import prewhitened_log_det
+from lpvflow.validate.residuals import WHITENING_ORDER, prewhitened_log_det
 
 
 def refit_in_loop(cand: Candidate, est: Dataset, loop: Loop,
@@ -68,7 +68,7 @@ def input_delay_in_loop(cand: Candidate, ctx: Context,
     discrete descent within nk ≥ 0 and MAX_DELAY_SHIFT samples of the modelled delay.
 
     The loss is the log det of that refit's estimation-data loop-simulation error whitened by its own
-    AR(DELAY_WHITENING_ORDER) fit (:func:`~lpvflow.validate.residuals.prewhitened_log_det`), not the
+    AR(WHITENING_ORDER) fit (:func:`~lpvflow.validate.residuals.prewhitened_log_det`), not the
     raw error's that :func:`closed_loop_iv` minimises: the raw error is dominated by the slow response
     to the set-points, the dead time is seen at the excitation's high frequencies. Maglev, seeds 0–9,
     nk = 1 … 7 refitted: the whitened loss is lowest at the true nk = 4 on every seed, the raw one on
@@ -105,12 +105,6 @@ def input_delay_in_loop(cand: Candidate, ctx: Context,
                                               + " (refitted by closed-loop IV)")
 
 
-#: Order of the AR filter that whitens the loop-simulation error choosing the dead time in the loop
-#: (:func:`input_delay_in_loop`): that of the closed-loop adequacy test's prewhitening
-#: (:data:`lpvflow.validate.loop_adequacy.WHITENING_ORDER`).
-DELAY_WHITENING_ORDER = 20
-
-
 def _whitened_loop_loss(model: LPVIO, ctx: Context) -> float:
     """:func:`~lpvflow.validate.residuals.prewhitened_log_det` of ``model``'s loop-simulation error on
     the estimation data; ∞ when the loop diverges there."""
@@ -119,7 +113,7 @@ def _whitened_loop_loss(model: LPVIO, ctx: Context) -> float:
         y_sim = simulate_in_loop(model, ctx.est, ctx.loop)
     if not np.all(np.isfinite(y_sim)):
         return np.inf
-    return prewhitened_log_det(ctx.est.y - y_sim, DELAY_WHITENING_ORDER)
+    return prewhitened_log_det(ctx.est.y - y_sim, WHITENING_ORDER)
 
 
 def output_noise_bias(ctx: Context) -> Candidate | None:

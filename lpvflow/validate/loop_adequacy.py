@@ -155,20 +155,14 @@ def _scored(y: np.ndarray, y_sim: np.ndarray, corrected: np.ndarray, names: list
 
 #: Lags 0 … CORRELATION_LAGS of the residual cross-correlation test (:func:`correlated_with_excitation`).
 CORRELATION_LAGS = 20
-#: Order of the autoregressive filter that whitens the in-loop error before that test.
-WHITENING_ORDER = 20
-
-
-def _lagged(x: np.ndarray, order: int) -> np.ndarray:
-    return np.column_stack([np.r_[np.zeros(k), x[:-k]] for k in range(1, order + 1)])
-
 
 def correlated_with_excitation(y: np.ndarray, y_sim: np.ndarray, exogenous: np.ndarray, alpha: float) -> dict:
     """The residual cross-correlation test of the in-loop simulation error ε = y − ŷ against the
     loop's exogenous signals x (``exogenous``: :func:`exogenous_signals` over the same samples), with
     the noise model in it (Ljung, System Identification, 2nd ed., §16.6; prewhitening: Box & Jenkins,
-    Time Series Analysis, §11.2). Per output, Â(q) = 1 + â₁q⁻¹ + … + â_n q⁻ⁿ (n = WHITENING_ORDER) is the
-    least-squares AR fit of ε; ε̃ = Â(q)ε and x̃ = Â(q)x, and
+    Time Series Analysis, §11.2). Per output, Â(q) = 1 + â₁q⁻¹ + … + â_n q⁻ⁿ (n =
+    :data:`~lpvflow.validate.residuals.WHITENING_ORDER`) is the least-squares AR fit of ε
+    (:func:`~lpvflow.validate.residuals.whitening_filter`); ε̃ = Â(q)ε and x̃ = Â(q)x, and
 
         r̂(τ) = Σₜ x̃(t−τ) ε̃(t) / (Σ x̃² · Σ ε̃²)^½,   τ = 0 … CORRELATION_LAGS,
 
@@ -179,13 +173,13 @@ def correlated_with_excitation(y: np.ndarray, y_sim: np.ndarray, exogenous: np.n
     the regression of :func:`explained_in_loop`, with hundreds of regressors fitted on half the
     validation split, does not turn into a significant BFR gain (ADIP with a 150 V/s limit, seeds 0–2:
     √N |r̂| 7.8 / 6.5 / 7.3 against 1.0–3.6 on the clean records, seeds 0–4)."""
-    n = WHITENING_ORDER
+    n = residuals.WHITENING_ORDER
     taus = range(CORRELATION_LAGS + 1)
     x = exogenous - exogenous.mean(axis=0)
     largest, pairs = 0.0, 0
     for e in (y - y_sim).T:
         e = e - e.mean()
-        whitening = np.r_[1.0, -np.linalg.lstsq(_lagged(e, n)[n:], e[n:], rcond=None)[0]]  # Â(q)
+        whitening = residuals.whitening_filter(e, n)  # Â(q)
         e_w = scipy.signal.lfilter(whitening, 1.0, e)[n:]
         for column in x.T:
             x_w = scipy.signal.lfilter(whitening, 1.0, column)[n:]

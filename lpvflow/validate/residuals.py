@@ -46,19 +46,30 @@ def cross_correlation(e: np.ndarray, u: np.ndarray, lags: range) -> np.ndarray:
     return np.array([full[n - 1 + t] for t in lags]) / (scale if scale > 0 else 1.0)
 
 
+#: Order of the autoregressive filters that whiten a simulation error before it is scored or correlated
+#: (:func:`prewhitened_log_det`, :func:`lpvflow.validate.loop_adequacy.correlated_with_excitation`).
+WHITENING_ORDER = 20
+
+
+def whitening_filter(e: np.ndarray, order: int) -> np.ndarray:
+    """[1, −â₁, …, −â_n] of Â(q) = 1 − â₁q⁻¹ − … − â_n q⁻ⁿ (n = ``order``), the least-squares AR fit of the
+    centred signal e (minimising Σ_{t ≥ n} (Â(q)e)(t)²): ``scipy.signal.lfilter(Â, 1, x)[n:]`` prewhitens x
+    (Box & Jenkins, Time Series Analysis, §11.2)."""
+    x = _centred(np.asarray(e, float))
+    lags = np.column_stack([x[order - i : len(x) - i] for i in range(1, order + 1)])
+    return np.r_[1.0, -np.linalg.lstsq(lags, x[order:], rcond=None)[0]]
+
+
 def prewhitened_log_det(e: np.ndarray, order: int) -> float:
     """log det of the covariance of the error e (N, ny) with each column whitened by its own
-    least-squares AR fit: Â(q) = 1 + â₁q⁻¹ + … + â_n q⁻ⁿ (n = ``order``) minimising Σ (Â(q)e)², then
-    ε̃ = Â(q)e — the prediction-error criterion of e under an AR noise model (Ljung, System
-    Identification, 2nd ed., §7.2; prewhitening: Box & Jenkins, Time Series Analysis, §11.2). A raw
-    log det of a coloured error weighs its low frequencies, where most of its variance is; the
-    whitened one weighs every frequency by the error's own level there."""
+    least-squares AR fit (:func:`whitening_filter`, n = ``order``), ε̃ = Â(q)e — the prediction-error
+    criterion of e under an AR noise model (Ljung, System Identification, 2nd ed., §7.2). A raw log det of
+    a coloured error weighs its low frequencies, where most of its variance is; the whitened one weighs
+    every frequency by the error's own level there."""
     whitened = []
     for column in np.atleast_2d(np.asarray(e, float).T):
         x = _centred(column)
-        lags = np.column_stack([x[order - i : len(x) - i] for i in range(1, order + 1)])
-        coef = np.linalg.lstsq(lags, x[order:], rcond=None)[0]
-        whitened.append(x[order:] - lags @ coef)
+        whitened.append(scipy.signal.lfilter(whitening_filter(x, order), 1.0, x)[order:])
     sign, logdet = np.linalg.slogdet(np.atleast_2d(np.cov(np.array(whitened))))
     return float(logdet) if sign > 0 else np.inf
 

@@ -2,7 +2,7 @@
 
 The controller of ``make design`` (lpvflow/pipeline/examples/adip.toml, the robust loop-shaping design) in
 closed loop with the plant FMU, judged by the design file's own requirements (settling into ±1° within
-6.5 s, overshoot ≤ 2°, pendulum within ±1° once settled, ±0.5 rad bounds), on
+7 s after the step, overshoot ≤ 2°, pendulum within ±1° once settled, ±0.5 rad bounds), on
 
 1. perturbed plants: the ±70° steps with the pendulum mass ±10 %, the motor constant ±10 % or the arm
    damping ×2 (the perturbations of the ``adip-fast`` example);
@@ -11,7 +11,8 @@ closed loop with the plant FMU, judged by the design file's own requirements (se
    arm settles back and the pendulum stays within its bounds).
 
 "Pendulum kept": it never left its ±0.5 rad bounds (verify's verdict is not "unbounded"); "meets
-requirements": verify's verdict (stable, settled and the requirements held).
+requirements": verify's verdict (bounded, settled and every requirement held; ``requirements_failed``
+lists the ones missed). ``settling_time`` is counted from the step (s).
 
 Run: .venv/bin/python benchmarks/bench_adip_robust.py [DESIGN_FOLDER]
      DESIGN_FOLDER holds a finished design's controller.json (default: build/design/adip, where
@@ -28,7 +29,7 @@ from pathlib import Path
 
 from lpvflow.models import load
 from lpvflow.pipeline.config import bundled_config, load_scenarios
-from lpvflow.pipeline.scenarios import Signal
+from lpvflow.pipeline.scenarios import Signal, run_passed
 from lpvflow.pipeline.verify import verify
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,7 +70,8 @@ def main() -> None:
         lpv = scenario["controller"]
         arm = lpv["outputs"].get("arm_angle") or {}
         row = {"name": scenario["name"], "pendulum_kept": not lpv["reason"].startswith("unbounded"),
-               "meets_requirements": bool(lpv["stable"]), "reason": lpv["reason"],
+               "meets_requirements": run_passed(lpv), "reason": lpv["reason"],
+               "requirements_failed": lpv.get("requirements_failed", []),
                "settling_time": arm.get("settling_time"), "overshoot": arm.get("overshoot")}
         rows.append(row)
         print(f"{row['name']}: pendulum {'kept' if row['pendulum_kept'] else 'LOST'}, requirements "

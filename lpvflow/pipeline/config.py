@@ -153,6 +153,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "margin_goal": Key(None, margin_goal, "loop-shaping: { nugap_factor = f, at_least = b }: at every "
                            "breakpoint the lead is lowered until b(Ĝ, K_fb) ≥ max(f·ν-gap, b) of the "
                            "validate points it takes part in"),
+        "scheduling": Key("frozen", string(("frozen", "common")),
+                          "loop-shaping: frozen (a W1 and a design per breakpoint, checked at frozen points) "
+                          "or common (one W1 and one Lyapunov matrix over all breakpoints: any rate)"),
         "reference_model": Key(None, reference_model, "loop-shaping (2dof): { control_weight = ρ }, u = u_m "
                                "+ K(y − y_m) with a model copy under an LQ gain as reference model"),
         "robustness_gate": Key(False, boolean, "stop the design after the robustness stage when the "

@@ -78,6 +78,10 @@ def synthesize_design(model: LPVSS, settings: Mapping[str, Any], box: list | Non
     if settings.get("margin_goal") and settings["method"] != "loop-shaping":
         raise DataError(f"[synth] margin_goal shapes the loop-shaping design only, not method = "
                         f"{settings['method']!r}: remove it or use method = \"loop-shaping\"")
+    if settings.get("scheduling", "frozen") != "frozen" and settings["method"] != "loop-shaping":
+        raise DataError(f"[synth] scheduling = {settings['scheduling']!r} schedules the loop-shaping design "
+                        f"only, not method = {settings['method']!r}: remove it or use "
+                        "method = \"loop-shaping\"")
     if point and not method.point_design:
         design = design_common(model, plant, settings, frozen_model)
     else:

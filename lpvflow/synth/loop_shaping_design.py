@@ -30,6 +30,11 @@ The W1_i share A, B and have D = 0, so Σλ_i(W1_i·K∞_i) = W1(λ)·K∞(λ) e
 :func:`frozen_margin_check` evaluates the shaped loop b(G(λ)·W1(λ), K∞(λ)) on a grid ten times finer than
 the vertices and requires b ≥ 1/(1.1·γ), γ the larger level of the two vertices around the point (b = 0
 when the frozen loop is unstable).
+With ``scheduling = "common"`` (:mod:`lpvflow.synth.loop_shaping_common`) one W1 (normalized at the centre
+breakpoint, no ``margin_goal``) shapes every breakpoint, so G(λ)·W1 = Σλ_iG_i·W1 exactly, and K∞_i come from
+one hinfsyn solve over all breakpoints with one Lyapunov matrix: the loop is certified for every value and
+every rate of change of the scheduling signal at the one level γ (:class:`CommonMarginCheck`; the frozen grid
+check runs as well).
 The mixed-sensitivity ``weights`` of the table are not used (the generalized plant is still built from
 them).
 
@@ -45,7 +50,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import control
@@ -63,6 +68,7 @@ from lpvflow.synth.loop_shaping import (
     lmi_central_controller,
     shaped_plant,
 )
+from lpvflow.synth.loop_shaping_common import common_central_controllers, common_weight
 from lpvflow.synth.margin_goal import MarginGoalReport, breakpoint_names, lead_for_goal, vertex_goals
 from lpvflow.synth.observer import antiwindup_gains, reference_filter, with_reference_filter
 from lpvflow.synth.plant import GeneralizedPlant
@@ -137,6 +143,43 @@ class FrozenMarginCheck:
                 f"unshaped loops: smallest b(G, K) {self.b_plant_min:.4g} (K = W1·K∞, scaled signals)",
                 "no LMI certificate between vertices or for a moving scheduling signal: the FMU runs are the "
                 "witness"] + ([] if self.margin_goal is None else self.margin_goal.lines())
+
+
+@dataclass
+class CommonMarginCheck(FrozenMarginCheck):
+    """:class:`FrozenMarginCheck` of ``scheduling = "common"`` (:mod:`lpvflow.synth.loop_shaping_common`):
+    one W1 and one certificate 𝒳 over all vertices at the level γ (every γ_i and γ_LMI,i the polytope's);
+    ``certificate`` the vertex margins of the bounded-real inequality with 𝒳 re-checked in numpy (> 0
+    certifies every λ and every rate of the scheduling signal). The witness is a bound: no common
+    certificate beats the frozen Riccati optimum at a vertex, so γ_LMI ≥ (1 − WITNESS_TOLERANCE)·max_i
+    γ_opt,i."""
+
+    certificate: list[float] = field(default_factory=list)
+
+    @property
+    def witness_error(self) -> float:
+        """How far γ_LMI lies below the largest frozen optimum, relative to it (0 when above)."""
+        return max(0.0, 1.0 - self.lmi_gammas[0] / max(self.optimal_gammas))
+
+    @property
+    def ok(self) -> bool:
+        """The certificate holds at every vertex, the witness bound holds and the frozen grid passes."""
+        return min(self.certificate) > 0 and super().ok
+
+    def lines(self) -> list[str]:
+        return [f"loop-shaping controllers from hinfsyn's LMIs over all {len(self.gammas)} breakpoints with "
+                f"one W1 and one Lyapunov matrix (central solution at γ = {GAMMA_FACTOR}·γ_LMI): "
+                f"γ {self.gammas[0]:.4g}, certified for every value and every rate of change of the "
+                f"scheduling signal (vertex margins ≥ {min(self.certificate):.3g}, re-checked in numpy)",
+                f"frozen Riccati optima γ_opt {min(self.optimal_gammas):.4g} … "
+                f"{max(self.optimal_gammas):.4g}: the common level costs "
+                f"{self.gammas[0] / max(self.optimal_gammas):.3g}× the largest; K∞_i up to "
+                f"{100 * max(self.riccati_distance):.2g} % from the frozen Riccati central controllers at γ "
+                "(reported)",
+                f"frozen shaped loops at {self.points} points (10× the vertices): smallest b(Gs, K∞) "
+                f"{self.b_min:.4g}; worst b·{MARGIN_FACTOR}·γ {self.worst_ratio:.4g} at point "
+                f"{self.worst_at} (must be ≥ 1)",
+                f"unshaped loops: smallest b(G, K) {self.b_plant_min:.4g} (K = W1·K∞, scaled signals)"]
 
 
 def _matrices(M: control.StateSpace) -> tuple[np.ndarray, ...]:
@@ -299,19 +342,30 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
         built.append(lmi_central_controller(Gs, GAMMA_FACTOR, solver))
         return built[-1].K_inf, built[-1].gamma
 
-    for mats, goal_i in zip(model_vertices, goals, strict=True):
-        G = scale.plant(control.ss(*mats, Ts))
-        built.clear()
-        choice = lead_for_goal(G, goal_i, crossover, integral_ratio, central)
-        [chosen] = [c for c in built if c.K_inf is choice.controller]
-        W1_i, K = choice.weight, choice.controller
-        choices.append(choice)
+    models = [scale.plant(control.ss(*mats, Ts)) for mats in model_vertices]
+    scheduling = settings.get("scheduling") or "frozen"
+    if scheduling == "common":
+        if goal is not None:
+            raise ModelError('[synth] margin_goal lowers the lead of W1 per breakpoint and scheduling = '
+                             '"common" shapes every breakpoint with one W1: remove one of the two keys')
+        W1 = common_weight(models, crossover, integral_ratio)
+        common = common_central_controllers([shaped_plant(G, W1, W2) for G in models], GAMMA_FACTOR, solver)
+        vertex_designs = [(W1, control.ss(*K, Ts), common.gamma, common.lmi_gamma) for K in common.K_inf]
+    else:
+        vertex_designs = []
+        for G, goal_i in zip(models, goals, strict=True):
+            built.clear()
+            choice = lead_for_goal(G, goal_i, crossover, integral_ratio, central)
+            [chosen] = [c for c in built if c.K_inf is choice.controller]
+            choices.append(choice)
+            vertex_designs.append((choice.weight, choice.controller, chosen.gamma, chosen.lmi_gamma))
+    for mats, G, (W1_i, K, gamma_i, lmi_gamma_i) in zip(model_vertices, models, vertex_designs, strict=True):
         Gs = shaped_plant(G, W1_i, W2)
         gamma_opt = ncf_riccati(Gs).gamma_opt
-        riccati, _ = central_ncf_controller(Gs, chosen.gamma / gamma_opt)
+        riccati, _ = central_ncf_controller(Gs, gamma_i / gamma_opt)
         scaled.append(_matrices(G))
-        gammas.append(chosen.gamma)
-        lmi_gammas.append(chosen.lmi_gamma)
+        gammas.append(gamma_i)
+        lmi_gammas.append(lmi_gamma_i)
         optimal_gammas.append(gamma_opt)
         distances.append(controller_distance(K, riccati))
         weights.append(_matrices(W1_i))
@@ -326,6 +380,8 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     lams = design_coordinates(plant.polytope, plant.basis, FROZEN_PER_SEGMENT)
     check = frozen_margin_check(scaled, weights, K_inf, gammas, lmi_gammas, optimal_gammas, lams, Ts,
                                 distances)
+    if scheduling == "common":
+        check = CommonMarginCheck(**vars(check), certificate=common.margins)
     if goal is not None:
         check.margin_goal = MarginGoalReport([float(g) for g in goals], [c.b for c in choices],
                                              [c.lead_used for c in choices],
@@ -337,6 +393,7 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     info = {"method": "loop-shaping", "gamma": max(gammas), "vertex_gammas": gammas,
             "lmi_gammas": lmi_gammas, "optimal_gammas": optimal_gammas, "riccati_distance": distances,
             "controller_source": "hinfsyn LMIs: central solution, explicit formulas",
+            "scheduling": scheduling,
             "crossover": float(crossover), "b_min": check.b_min,
             "b_plant_min": check.b_plant_min, "scaling": settings.get("scaling"),
             "reference_filter": None if filt is None else dict(filt_settings),

@@ -29,12 +29,12 @@ Measured on the plant records of ``tests/diagnosis_fmu_cases.py`` (seeds 0–4, 
 model as the diagnosis tests it): sensor hysteresis on the tanks, airpath and ADIP 2|c|/σ = 1.93–3.63 at
 t = 9.8–49; every clean record below 1.28 (airpath, t = 5.8: the approximate poly:2 structure leaves a
 small, significant direction dependence), every in-vocabulary record below 0.83 (dead times, input
-maps, offsets, sensor noise, friction). The step found is a fraction of the play's width (tanks 5 mm:
-0.8 mm, seed 0; airpath 3 kPa: 1.1 kPa; ADIP 2 mrad: 0.2 / 0.5 mrad on arm / pendulum): the model,
+maps, offsets, sensor noise, friction). The step found is a fraction of the play's width (seed 0: tanks 5 mm:
+0.8 mm; airpath 3 kPa: 1.1 kPa; ADIP 2 mrad: 0.2 / 0.5 mrad on arm / pendulum): the model,
 fitted to the played reading, takes up part of it. The maglev's play (0.2 mm) is not material: its
 controller holds the *measured* positions on their set-points, so the loop moves the play into the
-coil currents and the position error steps by 2–3 µm (t = 9.4–12.6, 2|c|/σ = 0.75–0.92, where the
-maglev friction's extended model is 0.49 at t = 8.0).
+coil currents and the position error steps by 2.5 / 3.4 µm (seed 1; seeds 0–4: t = 9.4–12.6,
+2|c|/σ = 0.75–0.92, where the maglev friction's extended model is 0.49 at t = 8.0).
 """
 
 from __future__ import annotations

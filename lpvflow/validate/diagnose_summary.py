@@ -23,7 +23,7 @@ def verdict_parameters(cause: str, winner: Candidate | None, noise: dict | None,
     verdict, the adequacy test for ``unexplained``, both tied extensions for ``ambiguous``."""
     if cause == "unexplained":
         params = {"input_explained_bfr_gain": adequacy["bfr_gain"], "p_value": adequacy["p_value"]}
-        for key in ("unnamed_extension", "partial_extension", "inconsistent_parameter"):
+        for key in ("unnamed_extension", "partial_extension", "inconsistent_parameter", "motion_direction"):
             if key in adequacy:
                 params[key] = adequacy[key]
         return params
@@ -81,6 +81,12 @@ def _verdict_line(result: Diagnosis, winner: Candidate | None) -> str:
                 f"{check['small_moves']} and {check['large_moves']}, likelihood ratios "
                 f"{', '.join(f'{v:.1f}' for v in check['likelihood_ratio'])} at α = {check['alpha']:g}): "
                 "no single dead time explains the data, cause unexplained")
+    if result.cause == "unexplained" and "motion_direction" in result.parameters:
+        test = result.parameters["motion_direction"]
+        return (f"validation BFR {before:.1f} %; the error of the {test['cause']} model steps with the "
+                f"direction of the output's motion ({test['step_over_sigma']:.1f} standard deviations of its "
+                f"unpredictable part, t = {test['t']:.1f}), as sensor play or hysteresis makes it; no cause "
+                "of the vocabulary explains that: cause unexplained")
     if result.cause == "unexplained":
         a = result.adequacy
         return (f"validation BFR {before:.1f} %; the simulation error is larger than the output noise "

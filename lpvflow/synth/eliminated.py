@@ -160,39 +160,29 @@ def infeasible_at(verts: list[VertexPlant], gamma: float, solver: str) -> bool:
 
 @dataclass
 class Preconditioned:
-    """Steps 2–4: the coordinates, the vertices in them, the estimate, every SDP solved (solver, status,
-    seconds) and whether step 4's balancing transform was used."""
+    """Steps 2–4: the coordinates, the vertices in them, the estimate (the lowest accurate one, else the
+    latest) and every SDP solved (solver, status, seconds)."""
 
     coordinates: Coordinates
     vertices: list[VertexPlant]
     estimate: Estimate
     attempts: list[tuple[str, str, float]]
-    balanced: bool
 
 
-def balanced_coordinates(cayleys: list[VertexPlant], gamma_max: float, solver: str) -> Preconditioned:
-    """Steps 2–4 on the Cayley images of the vertices, the estimate of step 3 in the starting coordinates
-    (raises SynthesisError when the eliminated LMIs are infeasible with γ ≤ gamma_max)."""
+def preconditioned(cayleys: list[VertexPlant], gamma_max: float, solver: str) -> Preconditioned:
+    """Steps 2–4 on the Cayley images of the vertices (raises SynthesisError when the eliminated LMIs are
+    infeasible with γ ≤ gamma_max)."""
     coords = initial_coordinates(cayleys)
     verts = [coords.apply(vc) for vc in cayleys]
     current = estimate(verts, gamma_max, solver)
     attempts = list(current.report.attempts)
     T, report = balancing(verts, current, solver) if current.scales else (None, None)
     attempts += report.attempts if report else []
-    if T is None:
-        return Preconditioned(coords, verts, current, attempts, False)
-    coords = coords.transformed(T)
-    return Preconditioned(coords, [coords.apply(vc) for vc in cayleys], current, attempts, True)
-
-
-def preconditioned(cayleys: list[VertexPlant], gamma_max: float, solver: str) -> Preconditioned:
-    """:func:`balanced_coordinates`, then step 3 again where it is better conditioned: the lower of the two
-    accurate estimates (the balanced one when the first was not accurate)."""
-    found = balanced_coordinates(cayleys, gamma_max, solver)
-    if not found.balanced:
-        return found
-    current, again = found.estimate, estimate(found.vertices, gamma_max, solver)
-    if again.accurate or not current.accurate:
-        current = again if not current.accurate else min(current, again, key=lambda e: e.gamma)
-    return Preconditioned(found.coordinates, found.vertices, current, found.attempts + again.report.attempts,
-                          True)
+    if T is not None:  # step 3 again where it is better conditioned
+        coords = coords.transformed(T)
+        verts = [coords.apply(vc) for vc in cayleys]
+        balanced = estimate(verts, gamma_max, solver)
+        attempts += balanced.report.attempts
+        if balanced.accurate or not current.accurate:
+            current = balanced if not current.accurate else min(current, balanced, key=lambda e: e.gamma)
+    return Preconditioned(coords, verts, current, attempts)

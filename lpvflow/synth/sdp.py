@@ -35,8 +35,8 @@ _SETTINGS = {
 #: row scalings of the PSD blocks stalled such iterates), up to 600 interior-point iterations and iterative
 #: refinement of each KKT solve to 1e-16 (up to 50 steps). Measured first on the H∞ controller LMIs at one
 #: level as they were written before (max t with R, S free: ‖R‖ ≈ 1e4–1e5, I − RS of condition up to 1e11
-#: near the optimum); those are now homogenized (:mod:`lpvflow.synth.vertex_synthesis` step 5), attain
-#: their optimum at a finite point and run with the default settings above. A solve that stalls is
+#: near the optimum); those are now homogenized (:mod:`lpvflow.synth.vertex_synthesis` step 5: R, S
+#: bounded) and run with the default settings above. A solve that stalls is
 #: reported ``optimal_inaccurate`` by the reduced tolerances and re-checked like any other.
 _FINE = {"CLARABEL": {"tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12, "equilibrate_enable": False,
                       "max_iter": 600, "iterative_refinement_max_iter": 50,

@@ -35,9 +35,8 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
    x = T x̃ with R = LLᵀ, LᵀSL = VΣ²Vᵀ, T = LVΣ^(−1/2) makes T⁻¹RT⁻ᵀ = TᵀST = Σ (Moore's balancing
    applied to R, S). T is used only when that solve was accurate, R and S are positive definite and T is
    finite and well conditioned (:func:`lpvflow.synth.bilinear.balancing_transform`); otherwise step 5 is
-   posed in step 2's coordinates (:func:`lpvflow.synth.eliminated.balanced_coordinates`). Step 3 is not
-   solved again there: on seeds 2027, 2035, 2047, 2053 and 2069 of tests/hinf_cases.py (63 plants each)
-   that changed no count within 1 % and saved one SDP per synthesis.
+   posed in step 2's coordinates. Step 3 is solved again in the balanced coordinates
+   (:func:`lpvflow.synth.eliminated.preconditioned`): ``gamma_estimate`` is the lower accurate minimum.
 5. **Certified level.** The change-of-variables LMIs of Scherer, Gahinet & Chilali (1997, eq. (33)),
    per vertex with common R, S and vertex variables (Â_i, B̂_i, Ĉ_i, D̂_i),
 
@@ -53,12 +52,12 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
    [R τI; τI S] ⪰ t·I. Both sides are linear in (R, S, Â, B̂, Ĉ, D̂, τ), so with τ > 0 the point
    divided by τ satisfies the LMIs above with margin t/τ, and conversely any solution scaled by τ small
    enough satisfies the normalisation; t > 0 forces τ > 0 (at τ = 0 the −γI blocks vanish). So the
-   homogenized problem has a solution with t > 0 exactly when the LMIs above are feasible, and its
-   optimum is attained at a finite point — unlike max t of the LMIs as written, whose supremum near the
-   optimal level is approached only as R, S grow without bound (measured ‖R‖ ≈ 1e5 and cond(I − RS) up to
-   1e11 on 12-state mass chains, where Clarabel stalled at t < 0 up to 1.6 % above SB10DD's level; the
-   same levels solved homogenized end ``optimal`` in 15–19 iterations). Maximising t there is maximising
-   the margin relative to the size of R, S: the point the solver returns is centred at every level.
+   homogenized problem has a solution with t > 0 exactly when the LMIs above are feasible, while R, S, τ
+   stay bounded — unlike max t of the LMIs as written, whose supremum near the optimal level is
+   approached only as R, S grow without bound (measured ‖R‖ ≈ 1e5 and cond(I − RS) up to 1e11 on
+   12-state mass chains, where Clarabel stalled at t < 0 up to 1.6 % above SB10DD's level; the same levels
+   solved homogenized end ``optimal`` in 15–19 iterations at Clarabel's default settings). Maximising t
+   there is maximising the margin relative to the size of R, S.
    Compiled once with γ a cvxpy parameter; the levels are those of
    :func:`lpvflow.synth.levels.lowest_certified_level` from γ̂ up to ``gamma_max`` (upwards until one
    passes, downwards from a first passing level until one fails, then bisected): a level passes when its
@@ -93,7 +92,7 @@ from lpvflow.synth.bilinear import (
     inverse_cayley,
 )
 from lpvflow.synth.controller import LPVController, mix
-from lpvflow.synth.eliminated import balanced_coordinates, infeasible_at, sym
+from lpvflow.synth.eliminated import infeasible_at, preconditioned, sym
 from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
 from lpvflow.synth.riccati import riccati_gamma
@@ -344,7 +343,7 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     check_assumptions(vertices)
     cayleys = [cayley_vertex(v) for v in vertices]
     try:
-        pre = balanced_coordinates(cayleys, gamma_max, solver)
+        pre = preconditioned(cayleys, gamma_max, solver)
     except SynthesisError as exc:
         raise SynthesisError(_failure(exc.category, str(exc), vertices, Ts, gamma_max),
                              category=exc.category) from None

@@ -30,16 +30,14 @@ _SETTINGS = {
                  "max_threads": 1, "chordal_decomposition_enable": False},
     "SCS": {"max_iters": 20000, "eps_abs": 1e-6, "eps_rel": 1e-6},
 }
-#: Clarabel's duality-gap tolerances for the H∞ controller LMIs at one level
-#: (:mod:`lpvflow.synth.vertex_synthesis` step 5): near the optimal level their margin t must be resolved
-#: far below 1e-8 of ‖R‖, ‖S‖ (10³–10⁵ in balanced coordinates); points accepted at gap 1e-8 had t < 0 and
-#: controllers that failed the certificate (the residual tolerance is not what decides: 1e-10 on it alone
-#: changed nothing on the plants measured). A solve that stalls before
-#: these is reported ``optimal_inaccurate`` by the reduced tolerances above and re-checked like any other.
-#: Near the optimum the supremum of t is approached only as R, S grow (‖R‖ ≈ 1e4–1e5, I − RS of condition
-#: up to 1e11), so the same solve also runs without Clarabel's Ruiz equilibration (its row scalings of the
-#: PSD blocks stalled these iterates at t < 0), with up to 600 interior-point iterations (t was measured still
-#: rising after 200) and iterative refinement of each KKT solve to 1e-16 (up to 50 steps).
+#: Clarabel's settings for SDPs whose optimum is approached only as the variables grow (the central
+#: controller's largest R, S, :mod:`lpvflow.synth.central`): duality gap 1e-12, no Ruiz equilibration (its
+#: row scalings of the PSD blocks stalled such iterates), up to 600 interior-point iterations and iterative
+#: refinement of each KKT solve to 1e-16 (up to 50 steps). Measured first on the H∞ controller LMIs at one
+#: level as they were written before (max t with R, S free: ‖R‖ ≈ 1e4–1e5, I − RS of condition up to 1e11
+#: near the optimum); those are now homogenized (:mod:`lpvflow.synth.vertex_synthesis` step 5: R, S
+#: bounded) and run with the default settings above. A solve that stalls is
+#: reported ``optimal_inaccurate`` by the reduced tolerances and re-checked like any other.
 _FINE = {"CLARABEL": {"tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12, "equilibrate_enable": False,
                       "max_iter": 600, "iterative_refinement_max_iter": 50,
                       "iterative_refinement_reltol": 1e-16,

@@ -26,42 +26,44 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
        [R I; I S] ⪰ 0,
 
    minimise γ → γ̂. γ̂ starts the level search of step 5; when the solver reached full accuracy it is
-   also the search's floor (no level below it is tried) and is reported as ``gamma_estimate``. It is not
-   a lower bound (:mod:`lpvflow.synth.eliminated`: the infimum is not attained, and "optimal" solves were
-   measured up to 0.8 % above SB10DD's level), so the certified γ is within 1 + δ of a failing level or
-   of that estimate, not necessarily of the optimum.
+   reported as ``gamma_estimate``. It is not a lower bound (:mod:`lpvflow.synth.eliminated`: the infimum
+   is not attained, and "optimal" solves were measured up to 0.8 % above SB10DD's level), so the search
+   also tries levels below it.
 4. **Balancing, validated.** The γ-optimal R, S are singular (RS − I loses rank); the matrices of step 3
    at :data:`lpvflow.synth.eliminated.BALANCING_FACTOR`·γ̂ with the largest margin t (projected LMIs
    ⪯ −t·D_k, D_k their Jacobi diagonals at the estimate; [R I; I S] ⪰ t·I) give a centred pair, and
    x = T x̃ with R = LLᵀ, LᵀSL = VΣ²Vᵀ, T = LVΣ^(−1/2) makes T⁻¹RT⁻ᵀ = TᵀST = Σ (Moore's balancing
-   applied to R, S), so every block of step 5 is O(1). T is used only when that solve was accurate, R
-   and S are positive definite and T is finite and well conditioned
-   (:func:`lpvflow.synth.bilinear.balancing_transform`); otherwise step 5 starts in step 2's
-   coordinates. Step 3 is solved again in the balanced coordinates. The first level of step 5 that passes
-   gives another strictly feasible pair; when its T is further from the identity than cond
-   :data:`REBALANCE_CONDITION`, the search stops there and is repeated below that level in the
-   coordinates it balances, starting from step 3 solved there (a bound when accurate, else only a start),
-   at most :data:`MAX_REBALANCE` times. There step 5's strictness is relative: ⪯ −t·D_i, D_i = |diag| of
-   that level's matrix i written in the new coordinates (the congruence diag(T⁻¹, Tᵀ, I) of its rows
-   [R-side; S-side; w, z]), floored at 1e-9 of its largest entry, so a lightly damped direction whose
-   diagonal is small is not held to the margin of the largest one. When no other coordinates give a lower
-   passing level, the bracket of the starting coordinates (their highest failing level, the passing one)
-   is bisected there (:func:`lpvflow.synth.levels.bisect_levels`).
+   applied to R, S). T is used only when that solve was accurate, R and S are positive definite and T is
+   finite and well conditioned (:func:`lpvflow.synth.bilinear.balancing_transform`); otherwise step 5 is
+   posed in step 2's coordinates. Step 3 is solved again in the balanced coordinates
+   (:func:`lpvflow.synth.eliminated.preconditioned`): ``gamma_estimate`` is the lower accurate minimum.
 5. **Certified level.** The change-of-variables LMIs of Scherer, Gahinet & Chilali (1997, eq. (33)),
    per vertex with common R, S and vertex variables (Â_i, B̂_i, Ĉ_i, D̂_i),
 
        ⎡ He[A_iR + B2_iĈ_i   A_i + B2_iD̂_iC2_i ; Â_i   SA_i + B̂_iC2_i]   Ψ_i    Ω_iᵀ ⎤
-       ⎢ ⋆                                                          −γI     Δ_iᵀ ⎥ ⪯ −t·I,
+       ⎢ ⋆                                                          −γI     Δ_iᵀ ⎥ ≺ 0,
        ⎣ ⋆                                                          ⋆       −γI  ⎦
        Ψ_i = [B1_i + B2_iD̂_iD21_i; SB1_i + B̂_iD21_i],  Ω_i = [C1_iR + D12_iĈ_i   C1_i + D12_iD̂_iC2_i],
-       Δ_i = D11_i + D12_iD̂_iD21_i,   [R I; I S] ⪰ t·I,  t ≤ 1,
+       Δ_i = D11_i + D12_iD̂_iD21_i,   [R I; I S] ≻ 0,
 
-   compiled once with γ a cvxpy parameter and solved to a duality gap of 1e-12 (near the optimal level t
-   must be resolved far below 1e-8 of ‖R‖, ‖S‖; :func:`lpvflow.synth.sdp.solve`); maximise t at the levels of
-   :func:`lpvflow.synth.levels.lowest_certified_level` from γ̂ up to ``gamma_max``: a level passes when
-   its controller passes the certificate of step 7.
-6. **Controller** per vertex (Scherer et al. 1997, eq. (35)): MNᵀ = I − RS by a balanced SVD,
-   D_K = D̂, C_K = (Ĉ − D_KC2R)M⁻ᵀ, B_K = N⁻¹(B̂ − SB2D_K),
+   are solved **homogenized**: every term that does not multiply a variable (A_i in the (1, 2) block,
+   B1_i, C1_i, D11_i, the −γI blocks and the identities of [R I; I S]) is multiplied by a variable
+   τ ≥ 0, the variables are normalised by R ⪯ I, S ⪯ I, and t is maximised with the matrices ⪯ −t·I and
+   [R τI; τI S] ⪰ t·I. Both sides are linear in (R, S, Â, B̂, Ĉ, D̂, τ), so with τ > 0 the point
+   divided by τ satisfies the LMIs above with margin t/τ, and conversely any solution scaled by τ small
+   enough satisfies the normalisation; t > 0 forces τ > 0 (at τ = 0 the −γI blocks vanish). So the
+   homogenized problem has a solution with t > 0 exactly when the LMIs above are feasible, while R, S, τ
+   stay bounded — unlike max t of the LMIs as written, whose supremum near the optimal level is
+   approached only as R, S grow without bound (measured ‖R‖ ≈ 1e5 and cond(I − RS) up to 1e11 on
+   12-state mass chains, where Clarabel stalled at t < 0 up to 1.6 % above SB10DD's level; the same levels
+   solved homogenized end ``optimal`` in 15–19 iterations at Clarabel's default settings). Maximising t
+   there is maximising the margin relative to the size of R, S.
+   Compiled once with γ a cvxpy parameter; the levels are those of
+   :func:`lpvflow.synth.levels.lowest_certified_level` from γ̂ up to ``gamma_max`` (upwards until one
+   passes, downwards from a first passing level until one fails, then bisected): a level passes when its
+   controller passes the certificate of step 7.
+6. **Controller** per vertex (Scherer et al. 1997, eq. (35)) from the point of step 5: MNᵀ = I − RS by a
+   balanced SVD, D_K = D̂, C_K = (Ĉ − D_KC2R)M⁻ᵀ, B_K = N⁻¹(B̂ − SB2D_K),
    A_K = N⁻¹(Â − NB_KC2R − SB2C_KMᵀ − S(A + B2D_KC2)R)M⁻ᵀ, designed for D22 = 0 while the Cayley image
    has D22_c = D22 − C2(I + A)⁻¹B2, so K_c = K(I + D22_cK)⁻¹ (loop shifting: the same closed loop); then
    the scalings are undone and the inverse Cayley map gives the discrete vertex controller. Closed-loop
@@ -74,7 +76,7 @@ passed, or one :class:`lpvflow.errors.SynthesisError` whose ``category`` says wh
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import control
@@ -85,24 +87,17 @@ import scipy.linalg
 from lpvflow.errors import ModelError, SynthesisError
 from lpvflow.synth.bilinear import (
     Coordinates,
-    balancing_transform,
     cayley_vertex,
     certificate_margin,
     inverse_cayley,
 )
 from lpvflow.synth.controller import LPVController, mix
-from lpvflow.synth.eliminated import estimate, infeasible_at, preconditioned, sym
-from lpvflow.synth.levels import GAMMA_MAX, bisect_levels, lowest_certified_level
+from lpvflow.synth.eliminated import infeasible_at, preconditioned, sym
+from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
 from lpvflow.synth.riccati import riccati_gamma
 from lpvflow.synth.sdp import SolveReport, solve
 
-#: A first passing level's R, S further from balanced than this (cond T) repeat step 5 balanced on them;
-#: at most MAX_REBALANCE times. Measured on the 63 random plants of tests/hinf_cases.py (seed 2027)
-#: against SB10DD: once at cond 10 left 52 within 1 %, up to 4 times at cond 3 left 56, and with the
-#: relative strictness there (step 4) 58 (SDPs per synthesis: median 6 → 8, worst 34 → 28).
-REBALANCE_CONDITION = 3.0
-MAX_REBALANCE = 4
 #: Default relative width δ of the final level bracket (step 5).
 SUBOPTIMALITY = 2.5e-3
 
@@ -197,40 +192,48 @@ def check_assumptions(vertices: list[VertexPlant]) -> None:
 
 # ------------------------------------------------------------------------------------------- LMIs
 class _LevelProblem:
-    """Step 5 at a γ given as a cvxpy Parameter (compiled once, solved at each level); strictness
-    ⪯ −t·diag(scales[i]) for vertex i (−t·I when ``scales`` is None)."""
+    """Step 5 at a γ given as a cvxpy Parameter (compiled once, solved at each level), in the homogenized
+    form of the module docstring; :meth:`point` is the solution of the LMIs of step 5 it stands for."""
 
-    def __init__(self, verts: list[VertexPlant], scales: list[np.ndarray] | None) -> None:
+    def __init__(self, verts: list[VertexPlant]) -> None:
         n = verts[0].dims[0]
         self.verts = verts
-        self.matrices = []
-        self.gamma, self.t = cp.Parameter(pos=True), cp.Variable()
+        self.gamma, self.t, self.tau = cp.Parameter(pos=True), cp.Variable(), cp.Variable()
         self.R = cp.Variable((n, n), symmetric=True)
         self.S = cp.Variable((n, n), symmetric=True)
-        R, S, g, t = self.R, self.S, self.gamma, self.t
-        constraints = [cp.bmat([[R, np.eye(n)], [np.eye(n), S]]) >> t * np.eye(2 * n), t <= 1]
+        R, S, g, t, tau = self.R, self.S, self.gamma, self.t, self.tau
+        identity = np.eye(n)
+        constraints = [cp.bmat([[R, tau * identity], [tau * identity, S]]) >> t * np.eye(2 * n),
+                       R << identity, S << identity]
         self.hats = []
         for v in verts:
             _, nw, nu, nz, ny = v.dims
             Ah, Bh = cp.Variable((n, n)), cp.Variable((n, ny))
             Ch, Dh = cp.Variable((nu, n)), cp.Variable((nu, ny))
             self.hats.append((Ah, Bh, Ch, Dh))
-            Phi = cp.bmat([[v.A @ R + v.B2 @ Ch, v.A + v.B2 @ Dh @ v.C2], [Ah, S @ v.A + Bh @ v.C2]])
-            Psi = cp.vstack([v.B1 + v.B2 @ Dh @ v.D21, S @ v.B1 + Bh @ v.D21])
-            Omega = cp.hstack([v.C1 @ R + v.D12 @ Ch, v.C1 + v.D12 @ Dh @ v.C2])
-            Delta = v.D11 + v.D12 @ Dh @ v.D21
+            Phi = cp.bmat([[v.A @ R + v.B2 @ Ch, tau * v.A + v.B2 @ Dh @ v.C2], [Ah, S @ v.A + Bh @ v.C2]])
+            Psi = cp.vstack([tau * v.B1 + v.B2 @ Dh @ v.D21, S @ v.B1 + Bh @ v.D21])
+            Omega = cp.hstack([v.C1 @ R + v.D12 @ Ch, tau * v.C1 + v.D12 @ Dh @ v.C2])
+            Delta = tau * v.D11 + v.D12 @ Dh @ v.D21
             M = cp.bmat([[Phi + Phi.T, Psi, Omega.T],
-                         [Psi.T, -g * np.eye(nw), Delta.T],
-                         [Omega, Delta, -g * np.eye(nz)]])
-            self.matrices.append(sym(M))
-            D = np.eye(M.shape[0]) if scales is None else np.diag(scales[len(self.matrices) - 1])
-            constraints.append(sym(M) << -t * D)
+                         [Psi.T, -g * tau * np.eye(nw), Delta.T],
+                         [Omega, Delta, -g * tau * np.eye(nz)]])
+            constraints.append(sym(M) << -t * np.eye(M.shape[0]))
         self.problem = cp.Problem(cp.Maximize(t), constraints)
 
     def solve(self, gamma: float, solver: str) -> SolveReport:
         """The SDP at γ (raises SynthesisError when the solver returns no point)."""
         self.gamma.value = gamma
-        return solve(self.problem, solver, f"the H∞ controller LMIs at γ = {gamma:.6g}", fine=True)
+        return solve(self.problem, solver, f"the H∞ controller LMIs at γ = {gamma:.6g}")
+
+    def point(self) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, ...]]]:
+        """(R, S, per-vertex (Â, B̂, Ĉ, D̂)) of step 5's LMIs: the solution divided by τ (R, S symmetrized;
+        raises LinAlgError when τ is not positive, i.e. the solve found no controller at this level)."""
+        tau = float(self.tau.value)
+        if not tau > 0:
+            raise np.linalg.LinAlgError("τ ≤ 0: no point of the level LMIs")
+        R, S = (0.5 * (V.value + V.value.T) / tau for V in (self.R, self.S))
+        return R, S, [tuple(h.value / tau for h in hats) for hats in self.hats]
 
 
 def reconstruct_controller(v: VertexPlant, R: np.ndarray, S: np.ndarray, M: np.ndarray, N: np.ndarray,
@@ -267,13 +270,13 @@ def _reconstruct(vertices: list[VertexPlant], level: _LevelProblem, coords: Coor
                  gamma_estimate: float | None, Ts: float, report: SolveReport) -> HinfResult:
     """Steps 6 and 7 in the original discrete coordinates (raises LinAlgError when I − RS or 𝒳 is
     singular in floating point)."""
-    R, S = (0.5 * (V.value + V.value.T) for V in (level.R, level.S))
+    R, S, hats_all = level.point()
     n = R.shape[0]
     W, sig, Zt = np.linalg.svd(np.eye(n) - R @ S)
     M, N = W * np.sqrt(sig), Zt.T * np.sqrt(sig)
     K_vertices = []
-    for v, hats in zip(level.verts, level.hats, strict=True):
-        K = loop_shift(reconstruct_controller(v, R, S, M, N, tuple(h.value for h in hats)), v.D22)
+    for v, hats in zip(level.verts, hats_all, strict=True):
+        K = loop_shift(reconstruct_controller(v, R, S, M, N, hats), v.D22)
         K_vertices.append(inverse_cayley(*coords.controller(K)))
     back = scipy.linalg.block_diag(np.linalg.inv(coords.T), np.eye(n))
     F = np.linalg.cholesky(closed_loop_lyapunov(R, S, M, N)).T @ back  # 𝒳 = FᵀF in the original coordinates
@@ -297,45 +300,14 @@ class _Search:
     no_point: list[str] = field(default_factory=list)
     infeasible: int = 0
     rejected: int = 0
-    failed_levels: list[float] = field(default_factory=list)  # of the latest run
 
-    def run(self, coords: Coordinates, start: float, suboptimality: float, gamma_max: float,
-            rebalance: bool, scales: list[np.ndarray] | None) -> tuple[HinfResult | None, _Rebalance | None]:
-        """:func:`lowest_certified_level` in ``coords`` (strictness ``scales``, :class:`_LevelProblem`):
-        the lowest passing result, or with ``rebalance`` the first passing one whose R, S are further from
-        balanced than cond REBALANCE_CONDITION, with the state transform that balances them and the scales
-        there (else None): the levels below it are better searched there. ``failed_levels`` holds the
-        levels of this run that did not pass."""
-        self.failed_levels = []
-        certified = self._certifier(coords, rebalance, scales)
-        try:
-            return (lowest_certified_level(certified, start, suboptimality, gamma_max, self.gamma_estimate),
-                    None)
-        except _Unbalanced as found:
-            return found.result, found.rebalance
-
-    def bisect(self, coords: Coordinates, floor: float, best: HinfResult, suboptimality: float,
-               scales: list[np.ndarray] | None) -> HinfResult:
-        """:func:`bisect_levels` in ``coords`` between the failing level ``floor`` and ``best``."""
-        return bisect_levels(self._certifier(coords, False, scales), floor, best, suboptimality)
-
-    def _certifier(self, coords: Coordinates, rebalance: bool, scales: list[np.ndarray] | None
-                   ) -> Callable[[float], HinfResult | None]:
-        """γ ↦ the certified result of the level SDP in ``coords``, or None (recorded as failed); with
-        ``rebalance`` a passing level whose R, S call for other coordinates raises :class:`_Unbalanced`."""
-        level = _LevelProblem([coords.apply(vc) for vc in self.cayleys], scales)
-
-        def certified(gamma: float) -> HinfResult | None:
-            result = self._level(level, coords, gamma)
-            if result is None:
-                self.failed_levels.append(gamma)
-                return None
-            T = balancing_transform(level.R.value, level.S.value) if rebalance else None
-            if T is not None and np.linalg.cond(T) > REBALANCE_CONDITION:
-                raise _Unbalanced(result, _Rebalance(T, _scales_in(level, T)))
-            return result
-
-        return certified
+    def run(self, coords: Coordinates, start: float, suboptimality: float, gamma_max: float
+            ) -> HinfResult | None:
+        """:func:`lowest_certified_level` of :class:`_LevelProblem` in ``coords`` from ``start``: the
+        lowest passing result, or None when no level up to ``gamma_max`` passes."""
+        level = _LevelProblem([coords.apply(vc) for vc in self.cayleys])
+        return lowest_certified_level(lambda gamma: self._level(level, coords, gamma), start, suboptimality,
+                                      gamma_max)
 
     def _level(self, level: _LevelProblem, coords: Coordinates, gamma: float) -> HinfResult | None:
         """The SDP at γ and the controller rebuilt from it when it passes the certificate, else None (the
@@ -362,35 +334,6 @@ class _Search:
         return result
 
 
-class _Unbalanced(Exception):  # a control-flow signal of _Search.run, never raised to users
-    """A passing level of :meth:`_Search.run` whose R, S call for other coordinates."""
-
-    def __init__(self, result: HinfResult, rebalance: _Rebalance) -> None:
-        super().__init__()
-        self.result, self.rebalance = result, rebalance
-
-
-@dataclass
-class _Rebalance:
-    """Step 4's state transform x = T x̃ from a passing level, and step 5's strictness scales there."""
-
-    T: np.ndarray
-    scales: list[np.ndarray]
-
-
-def _scales_in(level: _LevelProblem, T: np.ndarray) -> list[np.ndarray]:
-    """|diag| of each vertex matrix of ``level`` at its solution, written in the coordinates x = T x̃
-    (x̃-rows: T⁻¹ on the R-side block, Tᵀ on the S-side block, w and z unchanged), floored at 1e-9 of the
-    largest entry."""
-    n, T_inv = T.shape[0], np.linalg.inv(T)
-    out = []
-    for M in level.matrices:
-        W = scipy.linalg.block_diag(T_inv, T.T, np.eye(M.shape[0] - 2 * n))
-        d = np.abs(np.diag(W @ M.value @ W.T))
-        out.append(np.maximum(d, 1e-9 * d.max()))
-    return out
-
-
 def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: float = SUBOPTIMALITY,
                         gamma_max: float = GAMMA_MAX, solver: str = "CLARABEL") -> HinfResult:
     """Steps 1–7 of the module docstring on partitioned discrete vertex plants."""
@@ -407,23 +350,7 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     estimate = pre.estimate
     search = _Search(vertices, cayleys, Ts, solver, estimate.gamma if estimate.accurate else None,
                      list(pre.attempts))
-    coords = pre.coordinates
-    best, rebalance = search.run(coords, min(estimate.gamma, gamma_max), suboptimality, gamma_max, True, None)
-    first_coords, first_best, interrupted = coords, best, rebalance is not None
-    first_floor = max((g for g in search.failed_levels if best is not None and g < best.gamma), default=0.0)
-    for round_ in range(MAX_REBALANCE):
-        if rebalance is None:
-            break
-        coords = coords.transformed(rebalance.T)
-        guess, accurate = estimate_in([coords.apply(vc) for vc in cayleys], gamma_max, solver, search)
-        if accurate and (search.gamma_estimate is None or guess < search.gamma_estimate):
-            search.gamma_estimate = guess
-        start_again = search.gamma_estimate if search.gamma_estimate is not None else (guess or best.gamma)
-        again, rebalance = search.run(coords, min(start_again, best.gamma), suboptimality, best.gamma,
-                                      round_ + 1 < MAX_REBALANCE, rebalance.scales)
-        best = again if again is not None and again.gamma < best.gamma else best
-    if interrupted and best is first_best and first_floor > 0:  # no other coordinates did better
-        best = search.bisect(first_coords, first_floor, best, suboptimality, None)
+    best = search.run(pre.coordinates, min(estimate.gamma, gamma_max), suboptimality, gamma_max)
     if best is None:
         if infeasible_at(pre.vertices, gamma_max, solver):
             category = "infeasible"
@@ -438,18 +365,6 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     best.report = SolveReport(best.report.solver, best.report.status, time.perf_counter() - start,
                               search.attempts)
     return best
-
-
-def estimate_in(verts: list[VertexPlant], gamma_max: float, solver: str, search: _Search
-                ) -> tuple[float | None, bool]:
-    """Step 3 in other coordinates: (γ̂, whether the solve was accurate) — an inaccurate γ̂ only starts
-    the search there — or (None, False) without a point (the SDP is recorded in ``search``)."""
-    try:
-        found = estimate(verts, gamma_max, solver)
-    except SynthesisError:
-        return None, False
-    search.attempts += found.report.attempts
-    return (found.gamma, found.accurate) if found.scales else (None, False)
 
 
 def _failure(category: str, what: str, vertices: list[VertexPlant], Ts: float, gamma_max: float) -> str:

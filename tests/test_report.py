@@ -107,6 +107,16 @@ def test_the_card_states_spec_gammas_verdict_and_the_largest_held_step(summary):
             "specification; found by bisection to within 2.5°.") in text
 
 
+@pytest.mark.parametrize("scheduling", ["frozen", "common"])
+def test_the_card_says_what_a_loop_shaping_level_certifies(summary, scheduling):
+    """Frozen loop shaping: per-breakpoint levels; one Lyapunov matrix: certified for any rate."""
+    summary["stages"]["synth"]["outputs"].update(method="loop-shaping", scheduling=scheduling)
+    text = html.unescape(re.sub(r"<[^>]+>", " ", summary_card(summary, UNITS)))
+    assert ("largest level γ_i = 1.476 of the shaped plants" in text) == (scheduling == "frozen")
+    assert ("level γ = 1.476, certified for every value and every rate of change of the scheduling signal"
+            in text) == (scheduling == "common")
+
+
 def test_the_card_states_b_against_the_nugap_from_the_robustness_stage(summary):
     """The card's robust-stability line: ranges of b and ν-gap, how many points have b > ν-gap, the
     smallest delay and disk margins — counted from the stage's rows, and marked failed when one point

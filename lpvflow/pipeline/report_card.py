@@ -193,6 +193,10 @@ def _gamma_line(synth: dict) -> str:
     if synth.get("method") == "loop-shaping":
         text = (f"H∞ loop shaping: largest level γ_i = {synth['gamma']:.4g} of the shaped plants "
                 "(b(Gs_i, K∞_i) ≥ 1/γ_i; not comparable with a mixed-sensitivity γ)")
+        if synth.get("scheduling") == "common":
+            text = (f"H∞ loop shaping with one Lyapunov matrix over all breakpoints: level γ = "
+                    f"{synth['gamma']:.4g}, certified for every value and every rate of change of the "
+                    "scheduling signal (not comparable with a mixed-sensitivity γ)")
     elif synth.get("method") == "observer":
         text += " (largest frozen closed-loop ‖T_zw‖∞ of the observer design; no LMI bound)"
     if synth.get("baseline_gamma") is not None:

@@ -68,8 +68,8 @@ def hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, nc
 
     Args:
         suboptimality: δ of its step 5: the certified γ is within a factor 1 + δ of the highest level that
-            failed, or of ``gamma_estimate`` below which no level is tried (default 2.5e-3; 1e-2 for the
-            rate-bounded design).
+            failed (default 2.5e-3); for the rate-bounded design, of a failing level or of its
+            ``gamma_estimate``, below which no level is tried (default 1e-2).
         gamma_max: the largest level tried (default :data:`lpvflow.synth.levels.GAMMA_MAX`, 1e6).
         solver: the SDP solver for every SDP, ``"CLARABEL"`` (default) or ``"SCS"``; no fallback.
         breakpoints, rate_bound: the rate-bounded design (above).

@@ -266,7 +266,7 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     baseline.controller.info["signals"] = design.controller.info["signals"]
     baseline.controller.antiwindup = antiwindup(baseline.controller, loop, design.controller.info["signals"])
     baseline.controller.save(ctx.path("baseline.json"))
-    return ({"method": cfg["method"], "structure": cfg["structure"], "scheduling": cfg["scheduling"],
+    return ({"method": cfg["method"], "structure": cfg["structure"], "scheduling": cfg.get("scheduling"),
              "gamma": design.gamma,
              "baseline_gamma": baseline.gamma, "baseline_at": at,
              "certificate": design.certificate.lines(), "certificate_ok": bool(design.certificate.ok),

@@ -80,12 +80,11 @@ reversing) is scored as the plant ran.
    play) is ``unexplained`` (:mod:`lpvflow.validate.diagnose_direction`).
    Closed loop: the plant input is fed back from the error, so the error is tested against the loop's
    exogenous history instead — the excitation, set-points and the model's own loop signals, over lags
-   that reach the loop's settling time (:mod:`lpvflow.validate.loop_adequacy`) — and the error's
-   variance must not cluster in time beyond them (:mod:`lpvflow.validate.error_clustering`).
-   ``none`` means the model is adequate, not only that no extension of the vocabulary helped; and a
-   noise verdict needs the consistent refit to be adequate (the even input map of the synthetic
-   out-of-vocabulary case, seed 1001: LS materially biased, the refit gains 1.4 points, its error
-   still input-explained by 22 points — unexplained, not colored_noise).
+   that reach the loop's settling time (:mod:`lpvflow.validate.loop_adequacy`). ``none`` means the
+   model is adequate, not only that no extension of the vocabulary helped; and a noise verdict needs the
+   consistent refit to be adequate (the even input map of the synthetic out-of-vocabulary case,
+   seed 1001: LS materially biased, the refit gains 1.4 points, its error still input-explained by
+   22 points — unexplained, not colored_noise).
 """
 
 from __future__ import annotations

@@ -75,7 +75,8 @@ for the plant at the breakpoint nearest the centre (a state transform that balan
 Lyapunov matrices of a frozen design, and u/y scalings; the state transform commutes with the Cayley
 map, so it is the discrete one too); strictness is Ψ ⪰ t·I with the margin t maximised at each γ level
 (t ≤ 1), the level search is :func:`lpvflow.synth.levels.lowest_certified_level` bracketed by the largest
-frozen estimate over the breakpoints (a bound no controller beats when its solves were accurate) and the
+frozen estimate over the breakpoints (an estimate of the frozen optimum, not a bound: the eliminated
+conditions' infimum is not attained, :mod:`lpvflow.synth.eliminated`) and the
 level of the common-Lyapunov polytopic design on the same vertices (tried first; minimising γ
 over these LMIs directly is ill-posed — the slack and P̂ grow without bound near the optimum, and
 Clarabel stops with a numerical error on the ADIP), and a level passes only when the reconstructed

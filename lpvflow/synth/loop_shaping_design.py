@@ -128,6 +128,13 @@ class FrozenMarginCheck:
         witness agrees with the Riccati optimum within 1 % at every vertex."""
         return self.worst_ratio >= 1.0 and self.witness_error <= WITNESS_TOLERANCE
 
+    def grid_lines(self, level: str) -> list[str]:
+        """The frozen-grid check and the unshaped loops' b, ``level`` naming the γ the grid is held to."""
+        return [f"frozen shaped loops at {self.points} points (10× the vertices): smallest b(Gs, K∞) "
+                f"{self.b_min:.4g}; worst b·{MARGIN_FACTOR}·{level} {self.worst_ratio:.4g} at point "
+                f"{self.worst_at} (must be ≥ 1; b = 0 is an unstable loop)",
+                f"unshaped loops: smallest b(G, K) {self.b_plant_min:.4g} (K = W1·K∞, scaled signals)"]
+
     def lines(self) -> list[str]:
         return [f"loop-shaping controllers from hinfsyn's LMIs (central solution at γ_i = "
                 f"{GAMMA_FACTOR}·γ_LMI,i, explicit formulas, certificate passed at every vertex): γ_i "
@@ -137,10 +144,7 @@ class FrozenMarginCheck:
                 f"γ_opt {min(self.optimal_gammas):.4g} … {max(self.optimal_gammas):.4g}, largest deviation "
                 f"{100 * self.witness_error:.2f} % (must be ≤ {100 * WITNESS_TOLERANCE:.0f} %); K∞_i within "
                 f"{100 * max(self.riccati_distance):.2g} % of the Riccati central controllers at γ_i",
-                f"frozen shaped loops at {self.points} points (10× the vertices): smallest b(Gs, K∞) "
-                f"{self.b_min:.4g}; worst b·{MARGIN_FACTOR}·γ_segment {self.worst_ratio:.4g} at point "
-                f"{self.worst_at} (must be ≥ 1; b = 0 is an unstable loop)",
-                f"unshaped loops: smallest b(G, K) {self.b_plant_min:.4g} (K = W1·K∞, scaled signals)",
+                *self.grid_lines("γ_segment"),
                 "no LMI certificate between vertices or for a moving scheduling signal: the FMU runs are the "
                 "witness"] + ([] if self.margin_goal is None else self.margin_goal.lines())
 
@@ -176,10 +180,7 @@ class CommonMarginCheck(FrozenMarginCheck):
                 f"{self.gammas[0] / max(self.optimal_gammas):.3g}× the largest; K∞_i up to "
                 f"{100 * max(self.riccati_distance):.2g} % from the frozen Riccati central controllers at γ "
                 "(reported)",
-                f"frozen shaped loops at {self.points} points (10× the vertices): smallest b(Gs, K∞) "
-                f"{self.b_min:.4g}; worst b·{MARGIN_FACTOR}·γ {self.worst_ratio:.4g} at point "
-                f"{self.worst_at} (must be ≥ 1)",
-                f"unshaped loops: smallest b(G, K) {self.b_plant_min:.4g} (K = W1·K∞, scaled signals)"]
+                *self.grid_lines("γ")]
 
 
 def _matrices(M: control.StateSpace) -> tuple[np.ndarray, ...]:

@@ -14,9 +14,14 @@ from lpvflow.basis import Basis, SchedulingRangeWarning
 from lpvflow.errors import DataError, ModelError
 from lpvflow.models import load
 from lpvflow.pipeline.cli import main
-from lpvflow.synth.loop_shaping import central_ncf_controller, crossover_normalized, integrator_lead_weight
+from lpvflow.synth.loop_shaping import (
+    LEAD_RATIO,
+    central_ncf_controller,
+    crossover_normalized,
+    integrator_lead_weight,
+)
 from lpvflow.synth.loop_shaping_design import GAMMA_FACTOR
-from lpvflow.synth.margin_goal import LADDER_STEPS, LEAD_RATIO, lead_weight, vertex_goals
+from lpvflow.synth.margin_goal import LADDER_STEPS, lead_weight, vertex_goals
 from lpvflow.synth.polytope import PiecewisePolytope
 from tests.design_files import tanks_head, tanks_synth
 from tests.test_loop_shaping_method import BREAKPOINTS, CROSSOVER, DESIGN, _random_plant

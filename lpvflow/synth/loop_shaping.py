@@ -269,8 +269,14 @@ def controller_distance(K: control.StateSpace, reference: control.StateSpace, po
 
 
 # ------------------------------------------------------------------------------------ weights
+#: W1's default lead ratio α (37° of phase lead at the crossover) and roll-off ratio.
+LEAD_RATIO = 4.0
+ROLLOFF_RATIO = 10.0
+
+
 def integrator_lead_weight(Ts: float, crossover: float, inputs: int = 1, *, integral_ratio: float = 10.0,
-                           lead_ratio: float = 4.0, rolloff_ratio: float = 10.0) -> control.StateSpace:
+                           lead_ratio: float = LEAD_RATIO, rolloff_ratio: float = ROLLOFF_RATIO
+                           ) -> control.StateSpace:
     """Strictly proper W1 with integral action, a phase lead at the crossover and a roll-off, per input:
 
         W1(s) = (s + ω_c/r_i)/s · (s + ω_c/√α)/(s + ω_c√α) · r_r ω_c/(s + r_r ω_c),

@@ -34,8 +34,13 @@ import scipy.linalg
 from lpvflow.errors import SynthesisError
 from lpvflow.synth.bilinear import certificate_margin
 from lpvflow.synth.hinf import central_hinfsyn, hinfsyn
-from lpvflow.synth.loop_shaping import crossover_normalized, in_plant_coordinates, ncf_generalized_plant
-from lpvflow.synth.margin_goal import LEAD_RATIO, lead_weight
+from lpvflow.synth.loop_shaping import (
+    LEAD_RATIO,
+    crossover_normalized,
+    in_plant_coordinates,
+    ncf_generalized_plant,
+)
+from lpvflow.synth.margin_goal import lead_weight
 from lpvflow.synth.plant import VertexPlant
 
 
@@ -60,7 +65,7 @@ class CommonLoopShaping:
 
 def common_weight(models: Sequence[control.StateSpace], crossover: float, integral_ratio: float
                   ) -> control.StateSpace:
-    """The nominal W1 (lead ratio :data:`lpvflow.synth.margin_goal.LEAD_RATIO`) normalized so that
+    """The nominal W1 (lead ratio :data:`lpvflow.synth.loop_shaping.LEAD_RATIO`) normalized so that
     G_c·W1 crosses 1 at ``crossover``, G_c the centre one of ``models`` (index len // 2)."""
     centre = models[len(models) // 2]
     W1 = lead_weight(float(centre.dt), crossover, centre.ninputs, LEAD_RATIO, integral_ratio=integral_ratio)

@@ -40,15 +40,18 @@ import numpy as np
 
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, ModelError
-from lpvflow.synth.loop_shaping import crossover_normalized, integrator_lead_weight, shaped_plant
+from lpvflow.synth.loop_shaping import (
+    LEAD_RATIO,
+    ROLLOFF_RATIO,
+    crossover_normalized,
+    integrator_lead_weight,
+    shaped_plant,
+)
 from lpvflow.synth.polytope import Polytope
 from lpvflow.validate.robust_stability import generalized_margin
 
 #: Steps of the lead-ratio ladder from α down to 1.
 LADDER_STEPS = 16
-#: W1's lead ratio α and roll-off ratio (integrator_lead_weight's defaults, which the design uses).
-LEAD_RATIO = 4.0
-ROLLOFF_RATIO = 10.0
 #: λ_i(θ) above this counts as the breakpoint taking part at θ.
 TOUCH_TOL = 1e-9
 

@@ -23,7 +23,8 @@ def verdict_parameters(cause: str, winner: Candidate | None, noise: dict | None,
     verdict, the adequacy test for ``unexplained``, both tied extensions for ``ambiguous``."""
     if cause == "unexplained":
         params = {"input_explained_bfr_gain": adequacy["bfr_gain"], "p_value": adequacy["p_value"]}
-        for key in ("unnamed_extension", "partial_extension", "inconsistent_parameter", "motion_direction"):
+        for key in ("unnamed_extension", "partial_extension", "inconsistent_parameter", "motion_direction",
+                    "held_input", "delay_direction"):
             if key in adequacy:
                 params[key] = adequacy[key]
         return params
@@ -87,6 +88,18 @@ def _verdict_line(result: Diagnosis, winner: Candidate | None) -> str:
                 f"direction of the output's motion ({test['step_over_sigma']:.1f} standard deviations of its "
                 f"unpredictable part, t = {test['t']:.1f}), as sensor play or hysteresis makes it; no cause "
                 "of the vocabulary explains that: cause unexplained")
+    if result.cause == "unexplained" and "delay_direction" in result.parameters:
+        test = result.parameters["delay_direction"]
+        return (f"validation BFR {before:.1f} %; a dead time (nk = {test['nk']}) gains, but its model's "
+                f"error still depends on the direction of the output's motion (t = {test['t']:.1f}, bound "
+                f"{test['bound']:.1f}), as sensor play makes it; no single dead time explains the data: "
+                "cause unexplained")
+    if result.cause == "unexplained" and "held_input" in result.parameters:
+        test = result.parameters["held_input"]
+        return (f"validation BFR {before:.1f} %; the {test['cause']} model's one-step errors show the "
+                f"commanded {test['input']} held at its last value in {test['windows']} short windows "
+                f"(likelihood ratio up to {test['largest_ratio']:.0f}, bound {test['bound']:.1f}), as "
+                "actuator dropouts make them; no cause of the vocabulary explains that: cause unexplained")
     if result.cause == "unexplained":
         a = result.adequacy
         return (f"validation BFR {before:.1f} %; the simulation error is larger than the output noise "

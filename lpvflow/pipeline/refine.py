@@ -6,7 +6,9 @@ Each estimation record (every round's with ``rounds = "all"``) runs the model in
 controller it was recorded under (its ``[experiment] controller``: the identification controller in
 round 0, the synthesized LPV controller of the round before after it, as an exact gridded law
 :meth:`~lpvflow.experiment.synthesized.SynthesizedController.as_gridded`), with the record's set-points
-(``<output>_setpoint``), the excitation recovered from the record (:meth:`Loop.from_record`), the
+(``<output>_setpoint``) and excitation (``<input>_excitation``; not recovered from the record with
+:meth:`Loop.from_record`: both ADIP controllers are unstable, and run on the record their states amplify
+rounding to 10²⁸ within it), the
 ``[experiment] scheduling`` expressions recomputed from the simulated outputs, the model's inputs without
 the controller's trim (``remove_trim``) and the ``increments`` outputs summed; the simulated outputs are
 compared with the measured ones of the estimation part, from rest.
@@ -80,10 +82,17 @@ def _loop_record(view: StageContext, scheduling: dict) -> LoopRecord:
                    measured.y_names, model_signals.p_names)
     controller = load_experiment_controller(view.config["experiment"]["controller"])
     table = view.columns()
-    references = np.column_stack([table[f"{name}_setpoint"][:data.N] if f"{name}_setpoint" in table
-                                  else np.full(data.N, np.nan) for name in controller.inputs])
+
+    def recorded(column: str, default: float) -> np.ndarray:
+        return table[column][:data.N] if column in table else np.full(data.N, default)
+
+    setpoints = np.column_stack([recorded(f"{name}_setpoint", np.nan) for name in controller.inputs])
     if isinstance(controller, SynthesizedController):
-        controller, references = controller.as_gridded(), controller.gridded_setpoints(references)
-    loop = Loop.from_record(data, controller, scheduling, references,
-                            trim_removed=view.config["identify"]["remove_trim"])
+        controller, setpoints = controller.as_gridded(), controller.gridded_setpoints(setpoints)
+    law = controller.loop_law()
+    excitation = np.column_stack([recorded(f"{name}_excitation", 0.0) for name in controller.outputs])
+    command = law.setpoint_command(setpoints)  # an LTI law's set-points act as a command
+    loop = Loop(controller, excitation if command is None else excitation + command, scheduling,
+                law.references_of(setpoints), view.config["identify"]["remove_trim"],
+                np.zeros(data.y.shape[1]))
     return LoopRecord(data, loop)

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lpvflow.errors import DataError
-from lpvflow.experiment.controller import LtiController
+from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.experiment.scheduling import compile_expression, evaluate
 from lpvflow.loop.protocol import ExperimentController, SynthesizedLaw
 
@@ -110,6 +110,56 @@ class SynthesizedController(ExperimentController):
                           for e, v, (lo, hi) in zip(self.scheduling, p[k], box, strict=True))
         return (f"left the scheduling box the controller was designed on at t = {time[k]:.4g} s ({where}) "
                 f"and was outside it for {int(outside.sum())} of {n} samples")
+
+    def as_gridded(self) -> GriddedController:
+        """The same law as a gridded controller, exactly (no tabulation), for the compiled in-loop
+        simulation (:mod:`lpvflow.validate.loop_recursion`); one DataError line when λ(p) is not the hat
+        functions of one scheduling signal (:attr:`Polytope.vertex_breakpoints`: then no grid is exact).
+
+        θ is the first scheduling expression p₁; the grid is the polytope's breakpoints joined with the
+        trim's, at each point the vertex mix Σ λ_i(θ) M_i and u_op + u_eq(θ): both are piecewise linear
+        in θ with kinks only there, and the grid clips θ at its ends as the hat functions and the trim
+        table do, so the interpolation is the law itself. With y_op the measured operating points:
+
+        * ``"1dof"`` (w = r − y): B = −B(λ), D = −D(λ) on y − ȳ, ȳ = r (y_op where none is given);
+        * ``"2dof"`` (w = [r − y_op; y − y_op]): the outputs are read twice, dy = [y − y_op; y − r],
+          B = [B_r + B_y, −B_r], D = [D_r + D_y, −D_r], since B_r (r − y_op) + B_y (y − y_op)
+          = (B_r + B_y)(y − y_op) − B_r (y − r); the references go to the second half
+          (:meth:`gridded_setpoints`), and where none is given ȳ = y_op there, r = y_op as in
+          :meth:`LPVController.input_of`.
+
+        The anti-windup correction is not part of it: the grid law is exact while the command stays
+        inside the anti-windup range (the loop never saturates its actuator)."""
+        law = self.law
+        breakpoints = law.polytope.vertex_breakpoints
+        if breakpoints is None:
+            raise DataError(f"the LPV controller's {law.polytope.kind!r} polytope interpolates its vertices "
+                            "in ψ(p), not along one scheduling signal: no grid is the same law; the in-loop "
+                            "simulation needs a controller designed with [synth] breakpoints (a piecewise "
+                            "polytope)")
+        b = np.asarray(breakpoints, dtype=float).reshape(len(breakpoints), -1)[:, 0]
+        grid = np.unique(np.concatenate([b, [] if law.trim is None else law.trim.p]))
+        lam = np.array([law.coordinates(np.array([theta])) for theta in grid])
+        A, B, C, D = (np.tensordot(lam, M, axes=1) for M in (law.Ak, law.Bk, law.Ck, law.Dk))
+        ny = len(self.inputs)
+        if law.structure == "2dof":
+            B = np.concatenate([B[:, :, :ny] + B[:, :, ny:], -B[:, :, :ny]], axis=2)
+            D = np.concatenate([D[:, :, :ny] + D[:, :, ny:], -D[:, :, :ny]], axis=2)
+            inputs, y_op = self.inputs * 2, np.concatenate([self.y_op, self.y_op])
+        else:
+            B, D, inputs, y_op = -B, -D, self.inputs, self.y_op
+        trim = np.zeros((len(grid), len(self.u_op))) if law.trim is None else law.trim.along(grid)
+        return GriddedController(grid=grid, A=A, B=B, C=C, D=D, y_op=np.tile(y_op, (len(grid), 1)),
+                                 u_op=self.u_op + trim, Ts=self.Ts, inputs=inputs, outputs=self.outputs,
+                                 scheduling=self.scheduling[0], description="synthesized LPV controller")
+
+    def gridded_setpoints(self, references: np.ndarray) -> np.ndarray:
+        """The set-points of :meth:`as_gridded`'s inputs for the references (N, ny) of the outputs read
+        (NaN: none): the same for a 1-DOF law, [NaN; references] for a 2-DOF one (module docstring)."""
+        references = np.asarray(references, dtype=float)
+        if self.law.structure != "2dof":
+            return references
+        return np.concatenate([np.full_like(references, np.nan), references], axis=1)
 
     def check_plant(self, output_names: Sequence[str], input_names: Sequence[str], model: str) -> None:
         """One DataError line when the plant lacks an output the controller reads or its scheduling uses,

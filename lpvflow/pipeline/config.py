@@ -118,6 +118,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
                           "and integrated back in the model"),
         "rounds": Key("last", string(("last", "all")), "with [experiment] iterate: estimate from the "
                       "last round's record (last) or from the estimation parts of every round's (all)"),
+        "refine": Key("none", string(("none", "closed-loop-oe")), "closed-loop-oe: refine the least-squares "
+                      "model on its records simulated in their loops (the design's final model only)"),
+        "refine_iterations": Key(5, integer(1), "trust-region steps of refine"),
+        "refine_scales": Key({}, mapping(number(0.0, open_low=True), "positive number"),
+                             "refine: per output, the scale s of its in-loop simulation error"),
     },
     "diagnose": {
         "adopt": Key(False, boolean, "let the diagnosed extension replace the identified model (extensions "

@@ -41,6 +41,7 @@ from lpvflow.pipeline.cli_paths import writable_folder
 from lpvflow.pipeline.config import INPUT_FILES, Config, load_config
 from lpvflow.pipeline.context import DATA_FILE, StageContext
 from lpvflow.pipeline.coordinates import EARLIER_RECORDS
+from lpvflow.pipeline.refine import check_refine
 from lpvflow.pipeline.robustness import robustness
 from lpvflow.pipeline.settings import ALL, Reads, StageSettings, union
 
@@ -70,7 +71,7 @@ EXPERIMENT = Stage(
                                           "parameters", "scheduling", "seed", "quantization", "noise")},
     (), _PLANT + _CONTROLLER)
 IDENTIFY = Stage("identify", stages.identify, ("identify",),
-                 {"identify": ALL, "experiment": ("controller",), "design": ("plant",)},
+                 {"identify": ALL, "experiment": ("controller", "scheduling"), "design": ("plant",)},
                  ("experiment",), _PLANT + _CONTROLLER)
 DIAGNOSE = Stage("diagnose", stages.diagnose, ("diagnose", "identify"),
                  {"diagnose": ALL, "identify": (*_SIGNALS, "increments", "method"),
@@ -115,6 +116,7 @@ def run_design(config_path: str | Path, log: Callable[[str], None] = print, root
         raise DataError(f"{inside[0]} is inside the design folder {folder}, which the run rewrites; "
                         "move it or change [design] output_dir or name")
     check_iterate(config)
+    check_refine(config)
     writable_folder(folder, "the design folder ([design] output_dir / name)")
     with cache.folder_lock(folder):
         return _run_stages(config, str(config_path), folder, log)
@@ -179,7 +181,8 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
         sub = folder / f"iteration_{n}"
         sub.mkdir(exist_ok=True)
         outcome: dict = {}
-        failed = _run_pass(round_stages, _without_margin_goal(_round_config(config, controller, n, earlier)),
+        round_config = _without_refine(_without_margin_goal(_round_config(config, controller, n, earlier)))
+        failed = _run_pass(round_stages, round_config,
                            sub, outcome, lambda line, n=n: log(f"iteration {n}: {line}"))
         rounds.append(_round_numbers(n, sub.name, controller, outcome))
         if failed:
@@ -234,6 +237,13 @@ def _round_config(config: Config, controller: str | None, n: int, earlier: list[
     if identify["rounds"] == "all":
         identify = {**identify, EARLIER_RECORDS: list(earlier)}
     return {**config, "experiment": experiment, "identify": identify}
+
+
+def _without_refine(config: Config) -> Config:
+    """An identification-for-control round's ``config``: ``[identify] refine`` off. The refinement is for the
+    model the design ships (the final one, :mod:`lpvflow.pipeline.refine`); a round's model only designs the
+    controller of the next experiment, as in the probe it was measured with (benchmarks/README.md)."""
+    return {**config, "identify": {**config["identify"], "refine": "none"}}
 
 
 def _without_margin_goal(config: Config) -> Config:

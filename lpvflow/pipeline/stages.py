@@ -41,6 +41,7 @@ from lpvflow.pipeline.frozen_references import (
 from lpvflow.pipeline.gate import gate_verdict
 from lpvflow.pipeline.model_diagnosis import diagnose_model, extended_model, loop_controller
 from lpvflow.pipeline.model_loop import closed_loop_simulation
+from lpvflow.pipeline.refine import refined_model
 from lpvflow.pipeline.residual_plot import one_step_residuals
 from lpvflow.pipeline.step_sweep import largest_steps
 from lpvflow.pipeline.verify import fmu_units, plot_runs, run_verification
@@ -81,19 +82,26 @@ def identify(ctx: StageContext) -> tuple[dict, list[str]]:
     (:func:`~lpvflow.pipeline.coordinates.estimation_records`). Two-step takes the external excitation
     of :func:`~lpvflow.pipeline.coordinates.two_step_excitation`. The estimator sees the signals of
     :func:`model_coordinates` (the residuals are theirs: an output in ``increments`` has its increments'
-    residuals); outputs in ``increments`` are integrated back into the saved model."""
+    residuals); outputs in ``increments`` are integrated back into the saved model. With ``[identify] refine
+    = "closed-loop-oe"`` the least-squares model is refined on its records simulated in their loops
+    (:mod:`lpvflow.pipeline.refine`) before it is realized."""
     cfg = ctx.config["identify"]
     method = cfg["method"]  # the schema refuses static-arx: no state-space realization
     est, val = read_data(ctx, model_signals=True)
     records = estimation_records(ctx, est)
     excitation = two_step_excitation(ctx, est.N) if method_of(method).needs_excitation else None
     try:
-        model = estimate([prefiltered(record, cfg["prefilter"]) for record in records], method, cfg["na"],
+        equation_records = [prefiltered(record, cfg["prefilter"]) for record in records]
+        model = estimate(equation_records, method, cfg["na"],
                          cfg["nb"], cfg["nk"], cfg["basis"], ridge=cfg["ridge"], nc=cfg["nc"],
                          excitation=excitation, past=cfg["past"], order=cfg["order"])
     except LpvflowError as exc:
         raise DataError(f"[identify] method = {method!r}: {exc}") from None
     outputs: dict[str, Any] = {"method": method}
+    if cfg["refine"] != "none":
+        refinement = refined_model(ctx, model, equation_records)
+        model = refinement.model
+        outputs["refine"] = refinement.summary()
     if len(records) > 1:
         outputs["estimation_records"] = [record.N for record in records]
     artifacts = ["model_full.json"]

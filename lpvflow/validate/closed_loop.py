@@ -122,8 +122,13 @@ def simulate_in_loop(
     exogenous: np.ndarray | None = None,
     sign_of: int | None = None,
     sensor_offset: np.ndarray | None = None,
+    integrated: tuple[str, ...] = (),
 ) -> np.ndarray:
     """Outputs (N, ny) of ``model`` in ``loop`` over the whole record ``data``, from a zero past.
+
+    ``integrated``: outputs the model gives as increments y(k) − y(k−1) (``[identify] increments``); the
+    plant's output is their sum from rest, which the controller and the scheduling read and which is
+    returned.
 
     The model's input vector is [input_map(u(k)), exogenous(k), sign(y_i(k) − y_i(k−1))] with u the
     plant input (controller output + excitation on the driven inputs, recorded values on the others),
@@ -143,7 +148,8 @@ def simulate_in_loop(
         raise DataError("closed-loop simulation needs the shifted (LPR) form: in the static form the "
                         "coefficients of past outputs depend on the current, simulated scheduling")
     law = loop.controller.loop_law()
-    y = InLoopModel(model, data, loop, input_map, exogenous, sign_of, law, sensor_offset).simulate()
+    y = InLoopModel(model, data, loop, input_map, exogenous, sign_of, law, sensor_offset,
+                    integrated).simulate()
     return y if sensor_offset is None else y + np.asarray(sensor_offset, float)
 
 
@@ -176,12 +182,12 @@ class InLoopModel:
     outputs in the plant's signals, :meth:`Loop.plant_outputs`), the model's extra inputs
     [``exogenous``, velocity sign of output ``sign_of``] after ``input_map``, and ``law``'s controller
     (an LTI controller as a one-point grid, reading the outputs plus ``sensor_offset``) with the
-    loop's references, excitation and trim; 3
+    loop's references, excitation and trim, the outputs ``integrated`` summed from increments; 3
     fixed-point passes with a lag-0 term, else none (:func:`simulate_in_loop`)."""
 
     def __init__(self, model: LPVIO, data: Dataset, loop: Loop, input_map: InputMap | None,
                  exogenous: np.ndarray | None, sign_of: int | None, law: LoopController,
-                 sensor_offset: np.ndarray | None = None) -> None:
+                 sensor_offset: np.ndarray | None = None, integrated: tuple[str, ...] = ()) -> None:
         n, ny = data.N, data.y.shape[1]
         extra = np.zeros((n, 0)) if exogenous is None else np.asarray(exogenous, float).reshape(n, -1)
         nv = data.u.shape[1] + extra.shape[1] + (sign_of is not None)
@@ -198,6 +204,7 @@ class InLoopModel:
         mapped = ((NO_MAP, -1, 0.0) if input_map is None
                   else (_INPUT_MAPS[input_map.kind], input_map.index, float(input_map.level)))
         self.passes = 3 if np.any(model.B[0]) else 0
+        self.integrated = np.array([data.y_names.index(name) for name in integrated], dtype=np.int64)
         self._arguments = (
             np.ascontiguousarray(model.A, float), np.ascontiguousarray(model.B, float),
             _basis_program(model.basis), np.array(data.p, dtype=float, order="C"),
@@ -213,7 +220,7 @@ class InLoopModel:
 
     def simulate(self) -> np.ndarray:
         """Outputs (N, ny) of the model in the loop, ``inf`` from a divergence on."""
-        return simulate_loop(*self._arguments, np.int64(self.passes), float(DIVERGED))
+        return simulate_loop(*self._arguments, np.int64(self.passes), float(DIVERGED), self.integrated)
 
 
 def controller_arrays(K: LtiController | GriddedController) -> tuple:

@@ -12,12 +12,13 @@ clipped at its ends, ȳ = y_op(θ) where no reference is given:
 
     u_c(k) = u_op(θ) + C(θ) xc(k) + D(θ) (y(k) − ȳ(k)),    xc(k+1) = A(θ) xc(k) + B(θ) (y(k) − ȳ(k))
 
-and the plant input u(k) = the record's inputs with u_c(k) − [u_op(θ) when the trim is removed] + r(k)
-on the driven ones. A lag-0 term B_0 makes y(k) depend on u(k): y(k) is then resolved by ``passes``
-fixed-point passes of the controller's output (its state not advanced), the scheduling and v(k)
-recomputed from the last resolved output (the sampling convention of
-:func:`lpvflow.loop.engine.close_loop`). The run stops at the first sample whose model output reaches
-``diverged`` in magnitude or whose command is not finite (the outputs from there stay ``inf``).
+a model output that is an increment (``integrated``) summed into the plant's, and the plant input
+u(k) = the record's inputs with u_c(k) − [u_op(θ) when the trim is removed] + r(k) on the driven ones.
+A lag-0 term B_0 makes y(k) depend on u(k): y(k) is then resolved by ``passes`` fixed-point passes of
+the controller's output (its state not advanced), the scheduling and v(k) recomputed from the last
+resolved output (the sampling convention of :func:`lpvflow.loop.engine.close_loop`). The run stops at
+the first sample whose model output reaches ``diverged`` in magnitude or whose command is not finite
+(the outputs from there stay ``inf``).
 """
 
 from __future__ import annotations
@@ -121,12 +122,15 @@ def _basis(p: np.ndarray, exponents: np.ndarray, signal: np.ndarray, knot: np.nd
 
 @numba.njit(cache=True, error_model="numpy")
 def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, sensor, input_map, sign_of,
-                  controller, y_index, u_index, references, excitation, trim_removed, passes, diverged):
+                  controller, y_index, u_index, references, excitation, trim_removed, passes, diverged,
+                  integrated):
     """Outputs (n, ny) of the model in the loop (module docstring), ``inf`` from a stop on.
 
     A (n_a, n_ψ, ny, ny), B (n_b, n_ψ, ny, nv): the model's coefficients; ``basis`` (exponents, signal,
     knot) of :func:`_basis`; p (n, n_p) the scheduling (overwritten in the columns ``computed`` by the
-    programs (codes, arguments, starts) of the plant outputs, the model's plus ``offset``); ``sensor``
+    programs (codes, arguments, starts) of the plant outputs, the model's plus ``offset``; in the output
+    columns ``integrated`` (int64) the model's output is the increment y(k) − y(k−1) of the plant's, summed
+    from rest, and the returned outputs are the plant's); ``sensor``
     (ny,) the sensor offsets o the controller reads on top of the plant outputs (it reads y + o, the
     dynamics and the scheduling act on y); u (n, nu) the record's inputs; extra (n, ·) exogenous model
     inputs; input_map (code, input, level) on u;
@@ -147,18 +151,19 @@ def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, sensor, 
     stack = np.empty(max(codes.shape[0], controller[7].shape[0]) + 1)
     x = np.zeros(controller[1].shape[1])
     past = np.zeros(ny)
+    shift = offset.copy()  # offset plus, in the integrated columns, the plant output of the sample before
     for k in range(n):
         last = past.copy()
-        out = last + offset
+        out = last + shift
         resolved = False
         for _ in range(passes):
             u_c, trim = _law(controller, x, (out + sensor)[y_index], references[k], stack, False)
             u_k = _actuate(u[k], u_c, trim, u_index, excitation[k], trim_removed)
             last = past + _present(k, u_k, last, A, B, exponents, signal, knot, p, computed, codes, arguments,
-                                   starts, offset, extra, map_kind, map_input, level, sign_of, y_model,
+                                   starts, shift, extra, map_kind, map_input, level, sign_of, y_model,
                                    a_at, b_at, v, psi, stack, nu, n_extra)
             resolved = True
-            out = last + offset
+            out = last + shift
         if not np.all(np.abs(out - offset) < diverged):
             break
         u_c, trim = _law(controller, x, (out + sensor)[y_index], references[k], stack, True)
@@ -168,9 +173,11 @@ def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, sensor, 
         y[k] = out - offset
         if not resolved:
             _present(k, u_k, last, A, B, exponents, signal, knot, p, computed, codes, arguments, starts,
-                     offset, extra, map_kind, map_input, level, sign_of, y_model, a_at, b_at, v, psi, stack,
+                     shift, extra, map_kind, map_input, level, sign_of, y_model, a_at, b_at, v, psi, stack,
                      nu, n_extra)
         y_model[k] = last
+        for c in integrated:
+            shift[c] += last[c]
         past = _from_past(k + 1, a_at, b_at, y_model, v)
     return y
 

@@ -23,7 +23,8 @@ def verdict_parameters(cause: str, winner: Candidate | None, noise: dict | None,
     verdict, the adequacy test for ``unexplained``, both tied extensions for ``ambiguous``."""
     if cause == "unexplained":
         params = {"input_explained_bfr_gain": adequacy["bfr_gain"], "p_value": adequacy["p_value"]}
-        for key in ("unnamed_extension", "partial_extension", "inconsistent_parameter", "motion_direction"):
+        for key in ("unnamed_extension", "partial_extension", "inconsistent_parameter", "motion_direction",
+                    "input_rate"):
             if key in adequacy:
                 params[key] = adequacy[key]
         return params
@@ -87,6 +88,12 @@ def _verdict_line(result: Diagnosis, winner: Candidate | None) -> str:
                 f"direction of the output's motion ({test['step_over_sigma']:.1f} standard deviations of its "
                 f"unpredictable part, t = {test['t']:.1f}), as sensor play or hysteresis makes it; no cause "
                 "of the vocabulary explains that: cause unexplained")
+    if result.cause == "unexplained" and "input_rate" in result.parameters:
+        test = result.parameters["input_rate"]
+        return (f"validation BFR {before:.1f} %; the error of the {test['cause']} model follows the lag "
+                f"of a rate-limited input {test['input']} ({test['size_over_sigma']:.2f} standard deviations "
+                f"of its unpredictable part, t = {test['t']:.1f}), as an actuator rate limit makes it; no "
+                "cause of the vocabulary explains that: cause unexplained")
     if result.cause == "unexplained":
         a = result.adequacy
         return (f"validation BFR {before:.1f} %; the simulation error is larger than the output noise "

@@ -77,10 +77,11 @@ reversing) is scored as the plant ran.
    Open loop, ``none`` also needs the structure's coefficients to be the same on both splits
    (:mod:`lpvflow.validate.parameter_constancy`); a drifting plant is ``unexplained``.
    A verdict whose model leaves an error that steps with the direction of the output's motion (sensor
-   play) is ``unexplained`` (:mod:`lpvflow.validate.diagnose_direction`); so is, in closed loop, a
-   ``none`` or noise verdict whose model finds the commanded input held in short windows (actuator
-   dropouts, :mod:`lpvflow.validate.diagnose_dropouts`) or a dead time whose model's error still depends
-   on the direction of motion (sensor play the loop moved into the input,
+   play) is ``unexplained`` (:mod:`lpvflow.validate.diagnose_direction`), and so is one whose model leaves
+   the response to a rate limiter's deficit (open loop, :mod:`lpvflow.validate.diagnose_rate`); so is,
+   in closed loop, a ``none`` or noise verdict whose model finds the commanded input held in short
+   windows (actuator dropouts, :mod:`lpvflow.validate.diagnose_dropouts`) or a dead time whose model's
+   error still depends on the direction of motion (sensor play the loop moved into the input,
    :mod:`lpvflow.validate.diagnose_loop_delay`).
    Closed loop: the plant input is fed back from the error, so the error is tested against the loop's
    exogenous history instead — the excitation, set-points and the model's own loop signals, over lags
@@ -121,6 +122,7 @@ from lpvflow.validate.diagnose_evidence import evidence, where
 from lpvflow.validate.diagnose_loop_delay import loop_delay_verdict
 from lpvflow.validate.diagnose_noise_round import noise_round, oe_context, refits_by_output_error
 from lpvflow.validate.diagnose_prediction import material_in_prediction
+from lpvflow.validate.diagnose_rate import rate_verdict
 from lpvflow.validate.diagnose_summary import AMBIGUOUS, NOISE, summary, verdict_parameters
 from lpvflow.validate.extensions import (
     EXTENSIONS,
@@ -513,6 +515,7 @@ def diagnose(
     cause, adequacy, pool = final_verdict(ctx, cause, final, pool, used, min_gain, alpha)
     cause, adequacy = _one_dead_time(ctx, cause, pool, noise_round, adequacy, alpha)
     cause, adequacy = direction_verdict(ctx, cause, final, pool, adequacy, alpha)
+    cause, adequacy = rate_verdict(ctx, cause, final, pool, adequacy, alpha)
     cause, adequacy = dropout_verdict(ctx, cause, final, adequacy, alpha)
     cause, adequacy = loop_delay_verdict(ctx, cause, pool, adequacy, alpha)
     _refuse_diverged(cause, nominal, candidates)

@@ -24,7 +24,7 @@ def verdict_parameters(cause: str, winner: Candidate | None, noise: dict | None,
     if cause == "unexplained":
         params = {"input_explained_bfr_gain": adequacy["bfr_gain"], "p_value": adequacy["p_value"]}
         for key in ("unnamed_extension", "partial_extension", "inconsistent_parameter", "motion_direction",
-                    "held_input", "delay_direction"):
+                    "held_input", "delay_direction", "input_rate"):
             if key in adequacy:
                 params[key] = adequacy[key]
         return params
@@ -100,6 +100,12 @@ def _verdict_line(result: Diagnosis, winner: Candidate | None) -> str:
                 f"commanded {test['input']} held at its last value in {test['windows']} short windows "
                 f"(likelihood ratio up to {test['largest_ratio']:.0f}, bound {test['bound']:.1f}), as "
                 "actuator dropouts make them; no cause of the vocabulary explains that: cause unexplained")
+    if result.cause == "unexplained" and "input_rate" in result.parameters:
+        test = result.parameters["input_rate"]
+        return (f"validation BFR {before:.1f} %; the error of the {test['cause']} model follows the lag "
+                f"of a rate-limited input {test['input']} ({test['size_over_sigma']:.2f} standard deviations "
+                f"of its unpredictable part, t = {test['t']:.1f}), as an actuator rate limit makes it; no "
+                "cause of the vocabulary explains that: cause unexplained")
     if result.cause == "unexplained":
         a = result.adequacy
         return (f"validation BFR {before:.1f} %; the simulation error is larger than the output noise "

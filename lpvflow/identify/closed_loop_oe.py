@@ -2,8 +2,8 @@
 "closed-loop-oe"``).
 
 From the least-squares estimate θ₀ (:func:`lpvflow.identify.arx.identify_arx`, shifted form) a few
-Levenberg–Marquardt steps (``scipy.optimize.least_squares``, trust region, finite-difference Jacobian)
-minimize
+trust-region Gauss–Newton steps (``scipy.optimize.least_squares``, method "trf", finite-difference
+Jacobian) minimize
 
     V(θ) = Σ_records Σ_k Σ_i e_eq,i(k, θ)² / σ̂_i²  +  Σ_loops Σ_k Σ_i ((y_sim,i(k, θ) − y_i(k)) / s_i)²
 
@@ -89,7 +89,7 @@ def refine_closed_loop_oe(model: LPVIO, equation_records: Sequence[Dataset], loo
     scales = np.asarray(scales, dtype=float).reshape(-1)
     if model.form != "shifted":
         raise DataError("the closed-loop output-error refinement needs the shifted (LPR) form; use "
-                        "[identify] method = \"arx\"")
+                        "[identify] method = \"lpr-arx\"")
     if scales.shape != (model.ny,) or not np.all(scales > 0):
         raise DataError(f"refine scales {scales.tolist()}: give one positive scale per output "
                         f"{model.y_names}")

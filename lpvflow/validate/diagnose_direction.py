@@ -39,6 +39,8 @@ coil currents and the position error steps by 2.5 / 3.4 µm (seed 1; seeds 0–4
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.signal
 from scipy.stats import norm
@@ -69,26 +71,46 @@ def held_direction(y_sim: np.ndarray, band: float) -> np.ndarray:
     return direction
 
 
-def _lagged(x: np.ndarray, lags: int) -> np.ndarray:
+def lagged(x: np.ndarray, lags: int) -> np.ndarray:
+    """Columns x(k), x(k−1), …, x(k−lags), zero before the start."""
     return np.column_stack([np.r_[np.zeros(lag), x[: len(x) - lag]] for lag in range(lags + 1)])
+
+
+@dataclass(frozen=True)
+class LastCoefficient:
+    """The coefficient c of the last regressor in the prewhitened regression of e on [nuisance, x]:
+    its t statistic, σ of the prewhitened residual, and the prewhitened regressors f."""
+
+    c: float
+    t: float
+    sigma: float
+    f: np.ndarray
+
+
+def prewhitened_last_coefficient(e: np.ndarray, nuisance: np.ndarray, x: np.ndarray) -> LastCoefficient:
+    """e and [``nuisance``, ``x``] filtered by the AR(WHITENING_ORDER) whitening filter of the nuisance
+    regression's residual, then regressed by least squares (module docstring); t = 0 where σ or the
+    variance of c vanishes."""
+    residual = e - nuisance @ np.linalg.lstsq(nuisance, e, rcond=None)[0]
+    whitening = whitening_filter(residual, WHITENING_ORDER)
+    f = scipy.signal.lfilter(whitening, 1.0, np.column_stack([nuisance, x]), axis=0)[WHITENING_ORDER:]
+    g = scipy.signal.lfilter(whitening, 1.0, e)[WHITENING_ORDER:]
+    coef = np.linalg.lstsq(f, g, rcond=None)[0]
+    left = g - f @ coef
+    sigma = float(np.sqrt(left @ left / (len(g) - f.shape[1])))
+    variance = sigma**2 * np.linalg.pinv(f.T @ f)[-1, -1]
+    if sigma == 0 or variance <= 0:
+        return LastCoefficient(float(coef[-1]), 0.0, sigma, f)
+    return LastCoefficient(float(coef[-1]), float(coef[-1] / np.sqrt(variance)), sigma, f)
 
 
 def _direction_coefficient(e: np.ndarray, nuisance: np.ndarray, direction: np.ndarray) -> tuple[float, float]:
     """(t statistic, step 2|c| over the prewhitened residual's standard deviation) of the coefficient c
-    of ``direction`` in the prewhitened regression of ``e`` on [``nuisance``, ``direction``] (module
-    docstring)."""
-    regressors = np.column_stack([nuisance, direction])
-    residual = e - nuisance @ np.linalg.lstsq(nuisance, e, rcond=None)[0]
-    whitening = whitening_filter(residual, WHITENING_ORDER)
-    f = scipy.signal.lfilter(whitening, 1.0, regressors, axis=0)[WHITENING_ORDER:]
-    g = scipy.signal.lfilter(whitening, 1.0, e)[WHITENING_ORDER:]
-    coef = np.linalg.lstsq(f, g, rcond=None)[0]
-    left = g - f @ coef
-    sigma = np.sqrt(left @ left / (len(g) - f.shape[1]))
-    variance = sigma**2 * np.linalg.pinv(f.T @ f)[-1, -1]
-    if sigma == 0 or variance <= 0:
+    of ``direction`` (:func:`prewhitened_last_coefficient`)."""
+    fit = prewhitened_last_coefficient(e, nuisance, direction)
+    if fit.t == 0.0:
         return 0.0, 0.0
-    return float(coef[-1] / np.sqrt(variance)), float(2 * abs(coef[-1]) / sigma)
+    return fit.t, 2 * abs(fit.c) / fit.sigma
 
 
 def direction_dependence(y: np.ndarray, y_sim: np.ndarray, u: np.ndarray, alpha: float) -> dict:
@@ -99,8 +121,8 @@ def direction_dependence(y: np.ndarray, y_sim: np.ndarray, u: np.ndarray, alpha:
     tests = []
     for i in range(y.shape[1]):
         y_hat = y_sim[:, i]
-        nuisance = np.column_stack([np.ones(len(y_hat)), _lagged(y_hat, NUISANCE_LAGS),
-                                    *(_lagged(x, NUISANCE_LAGS) for x in u.T)])[start:]
+        nuisance = np.column_stack([np.ones(len(y_hat)), lagged(y_hat, NUISANCE_LAGS),
+                                    *(lagged(x, NUISANCE_LAGS) for x in u.T)])[start:]
         e = (y[:, i] - y_hat)[start:]
         for band in DEAD_BANDS:
             direction = held_direction(y_hat, band * np.std(y_hat))[start:]

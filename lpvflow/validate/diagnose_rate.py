@@ -41,10 +41,9 @@ import numpy as np
 import scipy.signal
 from scipy.stats import norm
 
-from lpvflow.validate.diagnose_direction import NUISANCE_LAGS
+from lpvflow.validate.diagnose_direction import NUISANCE_LAGS, lagged, prewhitened_last_coefficient
 from lpvflow.validate.diagnose_summary import NOISE
 from lpvflow.validate.extensions import Candidate, Context, Fit
-from lpvflow.validate.residuals import WHITENING_ORDER, whitening_filter
 
 #: Rate limits tested, as r·Ts over the input's median nonzero move per sample.
 RATE_FRACTIONS = (1 / 4, 1 / 8, 1 / 16, 1 / 32, 1 / 64, 1 / 128)
@@ -64,16 +63,12 @@ def rate_limited(u: np.ndarray, step: float) -> np.ndarray:
     return out
 
 
-def _lagged(x: np.ndarray, lags: int) -> np.ndarray:
-    return np.column_stack([np.r_[np.zeros(lag), x[: len(x) - lag]] for lag in range(lags + 1)])
-
-
 def deficit_response(y_sim: np.ndarray, u: np.ndarray, j: int, deficit: np.ndarray) -> np.ndarray | None:
     """``deficit`` filtered through B_j(q)/A(q) of the least-squares ARX fit ŷ(k) = c + Σ a_i ŷ(k−i) +
     Σ_j Σ_l b_jl u_j(k−l) (i = 1 … ARX_ORDER, l = 0 … NUISANCE_LAGS); None if A(q) is unstable."""
     start = max(ARX_ORDER, NUISANCE_LAGS)
     past = np.column_stack([np.r_[np.zeros(i), y_sim[: len(y_sim) - i]] for i in range(1, ARX_ORDER + 1)])
-    regressors = np.column_stack([np.ones(len(y_sim)), past, *(_lagged(x, NUISANCE_LAGS) for x in u.T)])
+    regressors = np.column_stack([np.ones(len(y_sim)), past, *(lagged(x, NUISANCE_LAGS) for x in u.T)])
     theta = np.linalg.lstsq(regressors[start:], y_sim[start:], rcond=None)[0]
     a = np.r_[1.0, -theta[1 : ARX_ORDER + 1]]
     if np.any(np.abs(np.roots(a)) >= 1):
@@ -84,19 +79,15 @@ def deficit_response(y_sim: np.ndarray, u: np.ndarray, j: int, deficit: np.ndarr
 
 def _deficit_coefficient(e: np.ndarray, nuisance: np.ndarray, x: np.ndarray) -> tuple[float, float]:
     """(t statistic of c, c·std(x̃)/σ) of the coefficient c of ``x`` in the prewhitened regression of
-    ``e`` on [``nuisance``, ``x``] (module docstring)."""
-    residual = e - nuisance @ np.linalg.lstsq(nuisance, e, rcond=None)[0]
-    whitening = whitening_filter(residual, WHITENING_ORDER)
-    f = scipy.signal.lfilter(whitening, 1.0, np.column_stack([nuisance, x]), axis=0)[WHITENING_ORDER:]
-    g = scipy.signal.lfilter(whitening, 1.0, e)[WHITENING_ORDER:]
-    coef = np.linalg.lstsq(f, g, rcond=None)[0]
-    left = g - f @ coef
-    sigma = np.sqrt(left @ left / (len(g) - f.shape[1]))
-    variance = sigma**2 * np.linalg.pinv(f.T @ f)[-1, -1]
-    if sigma == 0 or variance <= 0:
+    ``e`` on [``nuisance``, ``x``]
+    (:func:`~lpvflow.validate.diagnose_direction.prewhitened_last_coefficient`), x̃ the prewhitened x's part
+    the nuisance regressors do not explain."""
+    fit = prewhitened_last_coefficient(e, nuisance, x)
+    if fit.t == 0.0:
         return 0.0, 0.0
+    f = fit.f
     own = f[:, -1] - f[:, :-1] @ np.linalg.lstsq(f[:, :-1], f[:, -1], rcond=None)[0]
-    return float(coef[-1] / np.sqrt(variance)), float(coef[-1] * np.std(own) / sigma)
+    return fit.t, float(fit.c * np.std(own) / fit.sigma)
 
 
 def rate_dependence(y: np.ndarray, y_sim: np.ndarray, u: np.ndarray, alpha: float) -> dict:
@@ -107,8 +98,8 @@ def rate_dependence(y: np.ndarray, y_sim: np.ndarray, u: np.ndarray, alpha: floa
     tests = []
     for i in range(y.shape[1]):
         y_hat = y_sim[:, i]
-        nuisance = np.column_stack([np.ones(len(y_hat)), _lagged(y_hat, NUISANCE_LAGS),
-                                    *(_lagged(x, NUISANCE_LAGS) for x in u.T)])[start:]
+        nuisance = np.column_stack([np.ones(len(y_hat)), lagged(y_hat, NUISANCE_LAGS),
+                                    *(lagged(x, NUISANCE_LAGS) for x in u.T)])[start:]
         e = (y[:, i] - y_hat)[start:]
         for j in range(u.shape[1]):
             moves = np.abs(np.diff(u[:, j]))

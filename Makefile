@@ -17,8 +17,10 @@ venv: $(STAMP)
 fmus: $(STAMP)
 	$(PY) fmu_plants/build.py
 
+# One pytest worker per core (pytest-xdist), each file's tests on one worker (module fixtures built once),
+# one BLAS thread per worker so the workers do not oversubscribe the cores.
 test: $(STAMP) fmus
-	$(PY) -m pytest -q -m "not slow"
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n auto --dist loadfile -m "not slow"
 
 # One BLAS thread: the identification-for-control round runs the unstable ADIP in closed loop for 240 s,
 # which amplifies the 1e-13 differences of a multi-threaded least-squares solve into visibly different

@@ -81,6 +81,7 @@ def test_fixed_scaling_table_must_name_every_signal():
         check_table("validate", {"points": [1, 2]}, "design.toml")
 
 
+@pytest.mark.slow  # 18 s: a reproduction of the bundled design up to validate (make design runs it whole)
 def test_bundled_adip_identification_covers_75_degrees_and_passes_the_gate(tmp_path, monkeypatch):
     """The bundled ADIP design up to validation (the [synth] tables cut off): the scheduled sweep reaches
     past ±75° with the pendulum within ±3°, data quantized to encoder counts; the model (voltage minus the

@@ -111,7 +111,8 @@ def _ladder_margins(G) -> list[float]:
     return bs
 
 
-@pytest.mark.parametrize("seed", [1, 2, pytest.param(5, marks=pytest.mark.slow)])  # 5: 19 s
+@pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow),  # 2: 21 s, 5: 19 s
+                                  pytest.param(5, marks=pytest.mark.slow)])
 def test_synth_meets_the_goal_where_a_lead_reaches_it_and_names_the_breakpoints_where_none_does(
         tmp_path, capsys, seed):
     """Random plant families (tests/test_loop_shaping_method.py), goal = at_least chosen between the

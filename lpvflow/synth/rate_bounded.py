@@ -74,7 +74,8 @@ ones are of size 2n.
 for the plant at the breakpoint nearest the centre (a state transform that balances the interior
 Lyapunov matrices of a frozen design, and u/y scalings; the state transform commutes with the Cayley
 map, so it is the discrete one too); strictness is Ψ ⪰ t·I with the margin t maximised at each γ level
-(t ≤ 1), the level search is :func:`lpvflow.synth.levels.lowest_certified_level` bracketed by the largest
+in the homogenized form of :class:`_Levels`, the level search is
+:func:`lpvflow.synth.levels.lowest_certified_level` bracketed by the largest
 frozen estimate over the breakpoints (an estimate of the frozen optimum, not a bound: the eliminated
 conditions' infimum is not attained, :mod:`lpvflow.synth.eliminated`) and the
 level of the common-Lyapunov polytopic design on the same vertices (tried first; minimising γ
@@ -275,15 +276,27 @@ def delta_step(verts: list[VertexPlant], centre: int) -> float:
 
 
 class _Levels:
-    """Φ_δ of the module docstring at every pair, in scaled coordinates, at the level γ (a Parameter):
-    maximise t subject to Ψ_δ(p) ⪰ t·I at every distinct p and (P̂(p⁺) − P̂(p))/h ⪰ Z_p at its p⁺, t ≤ 1.
-    Variables X, Y, S, per breakpoint P̂, L, R, F_δ, Q_δ (F = h·F_δ, Q = S + h·Q_δ), per p the bound Z_p."""
+    """Φ_δ of the module docstring at every pair, in scaled coordinates, at the level γ (a Parameter), solved
+    **homogenized** (as :mod:`lpvflow.synth.vertex_synthesis` step 5): every term of Ψ_δ that multiplies no
+    variable (the identities of Γ, A' in E, B1, C1, D11 and the γI blocks) is multiplied by a variable
+    τ ≥ 0, so Ψ_δ^τ(v, τ) = τ·Ψ_δ(v/τ) for the variables v; maximise t subject to Ψ_δ^τ(p) ⪰ t·I at every
+    distinct p, (P̂(p⁺) − P̂(p))/h ⪰ Z_p at its p⁺, and Σ_i tr P̂_i = 2n·M (M breakpoints: the mean
+    eigenvalue of P̂ is 1). A point with t > 0 has τ > 0 (at τ = 0 the γI blocks vanish) and v/τ satisfies
+    the LMIs as written with margin t/τ; conversely any solution of those (P̂ ≻ 0), scaled to the trace,
+    is a point here. So the level is feasible exactly when t > 0, and t ≤ λ_min(P̂(p⁺)) ≤ 1 stays bounded;
+    the LMIs as written, at a fixed τ = 1, reach their supremum near the optimal level only as the slack
+    and P̂ grow (on this stack: seed 3 of tests/test_synth_rate_bounded_random.py at 1 ms certified 1.037×
+    the common-Lyapunov level, 1.0009× homogenized). The normalization is an affine slice (not P̂_i ⪯ I) so
+    that it excludes the origin: with P̂_i ⪯ I, every infeasible level had its optimum t = 0 at v = 0,
+    τ = 0, a degenerate point Clarabel reported ``optimal_inaccurate`` (4 of the 5 random cases tried).
+    Variables X, Y, S, per breakpoint P̂, L, R, F_δ, Q_δ (F = h·F_δ, Q = S + h·Q_δ), per p the bound Z_p;
+    :meth:`controller_variables`, :meth:`slack` and :meth:`lyapunov` return them divided by τ."""
 
     def __init__(self, verts: list[VertexPlant], schedule: Schedule, pairs: list, h: float) -> None:
         n, _nw, nu, _nz, ny = verts[0].dims
         M = len(verts)
         self.h = h
-        self.gamma, self.t = cp.Parameter(pos=True), cp.Variable()
+        self.gamma, self.t, self.tau = cp.Parameter(pos=True), cp.Variable(), cp.Variable(nonneg=True)
         self.X, self.Y, self.S = (cp.Variable((n, n)) for _ in range(3))
         self.P = [cp.Variable((2 * n, 2 * n), symmetric=True) for _ in range(M)]
         self.L = [cp.Variable((nu, n)) for _ in range(M)]
@@ -294,7 +307,7 @@ class _Levels:
         self.Ad = [(v.A - np.eye(n)) / h for v in verts]
         self.B2d = verts[0].B2 / h
         self.verts, self.schedule, self.pairs = verts, schedule, pairs
-        constraints = [self.t <= 1]
+        constraints = [sum(cp.trace(P) for P in self.P) == 2 * n * M]
         for p, nexts in pairs:
             Z = cp.Variable((2 * n, 2 * n), symmetric=True)
             Psi = self._psi(p, Z, self.gamma)
@@ -303,36 +316,51 @@ class _Levels:
             constraints += [(self._mix(self.P, schedule.weights(q)) - P) / h - Z >> 0 for q in nexts]
         self.margin_problem = cp.Problem(cp.Maximize(self.t), constraints)
 
+    def _value(self, var: cp.Variable) -> np.ndarray:
+        """A variable of the LMIs as written: the homogenized solution divided by τ (LinAlgError when τ is
+        not positive, i.e. the solve found no point of the level's LMIs)."""
+        tau = float(self.tau.value)
+        if not tau > 0:
+            raise np.linalg.LinAlgError("τ ≤ 0: no point of the rate-bounded level LMIs")
+        return np.asarray(var.value, dtype=float) / tau
+
+    def slack(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(X, Y, S) of the LMIs as written."""
+        return self._value(self.X), self._value(self.Y), self._value(self.S)
+
+    def lyapunov(self) -> list[np.ndarray]:
+        """P̂ at the breakpoints (symmetrized) of the LMIs as written."""
+        return [0.5 * (P + P.T) for P in map(self._value, self.P)]
+
     def _mix(self, mats: list, lam: np.ndarray):
         return sum(float(li) * M for li, M in zip(lam, mats, strict=True) if li != 0.0)
 
     def controller_variables(self, i: int) -> tuple[np.ndarray, ...]:
-        """(L, R, F, Q) at breakpoint i from the solution: F = h·F_δ, Q = S + h·Q_δ."""
-        L, R, Fd, Qd, S = (np.asarray(m.value, dtype=float)
-                           for m in (self.L[i], self.R[i], self.Fd[i], self.Qd[i], self.S))
+        """(L, R, F, Q) at breakpoint i of the LMIs as written: F = h·F_δ, Q = S + h·Q_δ."""
+        L, R, Fd, Qd, S = map(self._value, (self.L[i], self.R[i], self.Fd[i], self.Qd[i], self.S))
         return L, R, self.h * Fd, S + self.h * Qd
 
     def _psi(self, p: float, Z: cp.Variable, gamma) -> cp.Expression:
-        """Ψ_δ(p; Z): Φ_δ(p, p⁺) with (P̂(p⁺) − P̂(p))/h replaced by Z."""
+        """Ψ_δ^τ(p; Z): Φ_δ(p, p⁺) with (P̂(p⁺) − P̂(p))/h replaced by Z, homogenized (class docstring)."""
         lam = self.schedule.weights(p)
         v = interpolate(self.verts, lam)
         n, nw, _, nz, _ = v.dims
         h, c = self.h, 1.0 / np.sqrt(self.h)
-        X, Y, S = self.X, self.Y, self.S
+        X, Y, S, tau = self.X, self.Y, self.S, self.tau
         L, R, Fd, Qd = (self._mix(m, lam) for m in (self.L, self.R, self.Fd, self.Qd))
         Ad, B2d = self._mix(self.Ad, lam), self.B2d
-        E = cp.bmat([[Ad @ X + B2d @ L, Ad + B2d @ R @ v.C2], [Qd, Y @ Ad + Fd @ v.C2]])
-        Gamma = cp.bmat([[X, np.eye(n)], [S, Y]])
+        E = cp.bmat([[Ad @ X + B2d @ L, tau * Ad + B2d @ R @ v.C2], [Qd, Y @ Ad + Fd @ v.C2]])
+        Gamma = cp.bmat([[X, tau * np.eye(n)], [S, Y]])
         P = self._mix(self.P, lam)
-        Bcl = cp.vstack([v.B1 + v.B2 @ R @ v.D21, Y @ v.B1 + h * Fd @ v.D21])
-        Ccl = cp.hstack([v.C1 @ X + v.D12 @ L, v.C1 + v.D12 @ R @ v.C2])
-        Dcl = v.D11 + v.D12 @ R @ v.D21
+        Bcl = cp.vstack([tau * v.B1 + v.B2 @ R @ v.D21, Y @ v.B1 + h * Fd @ v.D21])
+        Ccl = cp.hstack([v.C1 @ X + v.D12 @ L, tau * v.C1 + v.D12 @ R @ v.C2])
+        Dcl = tau * v.D11 + v.D12 @ R @ v.D21
         off = c * (Gamma - P) - Z / c + E / c
         Phi = cp.bmat([
             [P + h * Z, off, Bcl, np.zeros((2 * n, nz))],
             [off.T, Z - E - E.T, -c * Bcl, c * Ccl.T],
-            [Bcl.T, -c * Bcl.T, gamma * np.eye(nw), Dcl.T],
-            [np.zeros((nz, 2 * n)), c * Ccl, Dcl, gamma * np.eye(nz)],
+            [Bcl.T, -c * Bcl.T, gamma * tau * np.eye(nw), Dcl.T],
+            [np.zeros((nz, 2 * n)), c * Ccl, Dcl, gamma * tau * np.eye(nz)],
         ])
         return 0.5 * (Phi + Phi.T)
 
@@ -341,7 +369,7 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: Coordinat
                  gamma: float, gamma_estimate: float | None, Ts: float) -> ScheduledResult:
     """Controller of the module docstring at every breakpoint, 𝒫 and 𝒢 in the scaled state, and the
     certificate margins rebuilt from the returned discrete numbers."""
-    X, Y, S = (np.asarray(V.value, dtype=float) for V in (levels.X, levels.Y, levels.S))
+    X, Y, S = levels.slack()
     W, sig, Zt = np.linalg.svd(S - Y @ X)
     V, U = W * np.sqrt(sig), np.sqrt(sig)[:, None] * Zt
     K_vertices = []
@@ -353,8 +381,7 @@ def _reconstruct(levels: _Levels, vertices: list[VertexPlant], coords: Coordinat
         core = Q - Y @ v.A @ X - Y @ v.B2 @ L - V @ Bk @ v.C2 @ X
         Ak = np.linalg.solve(V, np.linalg.solve(U.T, core.T).T)
         K_vertices.append(coords.controller((Ak, Bk, Ck, Dk)))
-    lyapunov = [0.5 * (P.value + P.value.T) for P in levels.P]
-    result = ScheduledResult(gamma, gamma_estimate, K_vertices, schedule, vertices, Ts, lyapunov,
+    result = ScheduledResult(gamma, gamma_estimate, K_vertices, schedule, vertices, Ts, levels.lyapunov(),
                              Slack(X, Y, U, V, np.asarray(coords.T)))
     result.margins = [result.margin(result.plant_at(p), p, q) for p, nexts in levels.pairs for q in nexts]
     return result

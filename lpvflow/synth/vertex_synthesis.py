@@ -224,7 +224,7 @@ class _LevelProblem:
     def solve(self, gamma: float, solver: str) -> SolveReport:
         """The SDP at γ (raises SynthesisError when the solver returns no point)."""
         self.gamma.value = gamma
-        return solve(self.problem, solver, f"the H∞ controller LMIs at γ = {gamma:.6g}")
+        return solve(self.problem, solver, f"the H∞ controller LMIs at γ = {gamma:.6g}", refined=True)
 
     def point(self) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, ...]]]:
         """(R, S, per-vertex (Â, B̂, Ĉ, D̂)) of step 5's LMIs: the solution divided by τ (R, S symmetrized;

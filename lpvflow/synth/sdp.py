@@ -30,24 +30,24 @@ _SETTINGS = {
                  "max_threads": 1, "chordal_decomposition_enable": False},
     "SCS": {"max_iters": 20000, "eps_abs": 1e-6, "eps_rel": 1e-6},
 }
+#: Clarabel's settings for the H∞ level SDPs (:mod:`lpvflow.synth.vertex_synthesis` step 5): iterative
+#: refinement of each KKT solve to 1e-16 (up to 50 steps; Clarabel's default 1e-13/1e-12, 10 steps). With
+#: Clarabel 0.11.1 the level SDPs of a 2×2 plant near its optimum (tests/test_hinf_random.py seed 2047
+#: case 26) ended NumericalError at every level within 1.6× SB10DD's optimum, the primal and dual residuals
+#: at 1e-9 and 1e-6; refined, 0.9997×, and the 63-plant draws of seeds 2027, 2035 and 2047 each within 1 %
+#: (refining every SDP: 2031 and 2039 as well, worst 1.008×). Not for every SDP: the preconditioning's
+#: estimate of the polytopic test plant then ended inaccurate (tests/test_synth_hinf.py).
+_REFINED = {"CLARABEL": {"iterative_refinement_max_iter": 50, "iterative_refinement_reltol": 1e-16,
+                         "iterative_refinement_abstol": 1e-16},
+            "SCS": {}}
 #: Clarabel's settings for SDPs whose optimum is approached only as the variables grow (the central
 #: controller's largest R, S, :mod:`lpvflow.synth.central`): duality gap 1e-12, no Ruiz equilibration (its
 #: row scalings of the PSD blocks stalled such iterates), up to 600 interior-point iterations and iterative
 #: refinement of each KKT solve to 1e-16 (up to 50 steps). Measured first on the H∞ controller LMIs at one
 #: level as they were written before (max t with R, S free: ‖R‖ ≈ 1e4–1e5, I − RS of condition up to 1e11
 #: near the optimum); those are now homogenized (:mod:`lpvflow.synth.vertex_synthesis` step 5: R, S
-#: bounded) and run with the default settings above. A solve that stalls is
+#: bounded) and run with the default settings above and :data:`_REFINED`. A solve that stalls is
 #: reported ``optimal_inaccurate`` by the reduced tolerances and re-checked like any other.
-#: Clarabel's settings for the H∞ level SDPs (:mod:`lpvflow.synth.vertex_synthesis` step 5): iterative
-#: refinement of each KKT solve to 1e-16 (up to 50 steps; Clarabel's default 1e-13/1e-12, 10 steps). With
-#: Clarabel 0.11.1 the level SDPs of a 2×2 plant near its optimum (tests/test_hinf_random.py seed 2047
-#: case 26) ended NumericalError at every level within 1.6× SB10DD's optimum, the primal and dual residuals
-#: at 1e-9 and 1e-6; refined, 63 of 63 of seeds 2027, 2031, 2035, 2039 and 2047 are within 1 % (worst
-#: 1.008×). Not for every SDP: the preconditioning's estimate of the polytopic test plant then ended
-#: inaccurate (tests/test_synth_hinf.py).
-_REFINED = {"CLARABEL": {"iterative_refinement_max_iter": 50, "iterative_refinement_reltol": 1e-16,
-                         "iterative_refinement_abstol": 1e-16},
-            "SCS": {}}
 _FINE = {"CLARABEL": {"tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12, "equilibrate_enable": False,
                       "max_iter": 600, "iterative_refinement_max_iter": 50,
                       "iterative_refinement_reltol": 1e-16,

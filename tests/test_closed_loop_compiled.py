@@ -202,6 +202,22 @@ def test_a_sensor_offset_is_read_by_the_controller_not_by_the_dynamics(seed):
 
 
 @pytest.mark.parametrize("seed", range(3))
+def test_a_read_only_sensor_offset_gives_the_same_loop_without_a_second_compile(seed):
+    """A read-only sensor offset (another numba type than a writable array) is copied: the loop's outputs
+    equal those of the writable offset and the compiled loop keeps one signature per argument types."""
+    from lpvflow.validate.loop_recursion import simulate_loop
+
+    rng = np.random.default_rng(4000 + seed)
+    model, data, loop, drive, _ = scheduled_case(rng, seed)
+    sensor = 0.2 * rng.standard_normal(data.y.shape[1])
+    y = simulate_in_loop(model, data, loop, **drive, sensor_offset=sensor)
+    compiled = len(simulate_loop.signatures)
+    sensor.setflags(write=False)
+    np.testing.assert_array_equal(simulate_in_loop(model, data, loop, **drive, sensor_offset=sensor), y)
+    assert len(simulate_loop.signatures) == compiled
+
+
+@pytest.mark.parametrize("seed", range(3))
 def test_the_gridded_loops_signals_rebuild_a_records_driven_inputs(seed):
     """Loop.from_record recovers r = u − K(y) under a gridded controller with set-points and removed
     trim; loop_signals of the record's own outputs give back its driven inputs."""

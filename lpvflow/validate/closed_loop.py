@@ -211,7 +211,8 @@ class InLoopModel:
             np.array(columns, dtype=np.int64), (codes, arguments, starts),
             np.ascontiguousarray(data.u, float), np.ascontiguousarray(extra),
             np.asarray(loop.plant_outputs(np.zeros(ny)), float),
-            np.zeros(ny) if sensor_offset is None else np.asarray(sensor_offset, float).reshape(ny),
+            # a writable copy: a read-only offset array is another numba type, a second compile of the loop
+            np.zeros(ny) if sensor_offset is None else np.array(sensor_offset, dtype=float).reshape(ny),
             (np.int64(mapped[0]), np.int64(mapped[1]), mapped[2]),
             np.int64(-1 if sign_of is None else sign_of), controller_arrays(law.K),
             np.array([data.y_names.index(name) for name in law.inputs], dtype=np.int64),

@@ -105,7 +105,7 @@ from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3, interpolate
 from lpvflow.synth.polytope import hat_coordinates
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
-from lpvflow.synth.vertex_synthesis import synthesize_vertices
+from lpvflow.synth.vertex_synthesis import homogenizing_scale, synthesize_vertices
 from lpvflow.validate.stability import scaled_margin
 
 #: Points per breakpoint interval of :func:`fine_check` (the issue's "10× finer" than the breakpoints).
@@ -319,10 +319,7 @@ class _Levels:
     def _value(self, var: cp.Variable) -> np.ndarray:
         """A variable of the LMIs as written: the homogenized solution divided by τ (LinAlgError when τ is
         not positive, i.e. the solve found no point of the level's LMIs)."""
-        tau = float(self.tau.value)
-        if not tau > 0:
-            raise np.linalg.LinAlgError("τ ≤ 0: no point of the rate-bounded level LMIs")
-        return np.asarray(var.value, dtype=float) / tau
+        return np.asarray(var.value, dtype=float) / homogenizing_scale(self.tau)
 
     def slack(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(X, Y, S) of the LMIs as written."""

@@ -48,10 +48,8 @@ _REFINED = {"CLARABEL": {"iterative_refinement_max_iter": 50, "iterative_refinem
 #: near the optimum); those are now homogenized (:mod:`lpvflow.synth.vertex_synthesis` step 5: R, S
 #: bounded) and run with the default settings above and :data:`_REFINED`. A solve that stalls is
 #: reported ``optimal_inaccurate`` by the reduced tolerances and re-checked like any other.
-_FINE = {"CLARABEL": {"tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12, "equilibrate_enable": False,
-                      "max_iter": 600, "iterative_refinement_max_iter": 50,
-                      "iterative_refinement_reltol": 1e-16,
-                      "iterative_refinement_abstol": 1e-16},
+_FINE = {"CLARABEL": {**_REFINED["CLARABEL"], "tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12,
+                      "equilibrate_enable": False, "max_iter": 600},
          "SCS": {}}
 
 __all__ = ["SOLVERS", "SolveReport", "SynthesisError", "psd", "solve"]

@@ -191,6 +191,15 @@ def check_assumptions(vertices: list[VertexPlant]) -> None:
 
 
 # ------------------------------------------------------------------------------------------- LMIs
+def homogenizing_scale(tau: cp.Variable) -> float:
+    """τ of a solved homogenized level problem (step 5): the point of the LMIs as written is the solution
+    divided by τ. Raises LinAlgError when τ is not positive (the solve found no point of the level LMIs)."""
+    value = float(tau.value)
+    if not value > 0:
+        raise np.linalg.LinAlgError("τ ≤ 0: no point of the level LMIs")
+    return value
+
+
 class _LevelProblem:
     """Step 5 at a γ given as a cvxpy Parameter (compiled once, solved at each level), in the homogenized
     form of the module docstring; :meth:`point` is the solution of the LMIs of step 5 it stands for."""
@@ -229,9 +238,7 @@ class _LevelProblem:
     def point(self) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, ...]]]:
         """(R, S, per-vertex (Â, B̂, Ĉ, D̂)) of step 5's LMIs: the solution divided by τ (R, S symmetrized;
         raises LinAlgError when τ is not positive, i.e. the solve found no controller at this level)."""
-        tau = float(self.tau.value)
-        if not tau > 0:
-            raise np.linalg.LinAlgError("τ ≤ 0: no point of the level LMIs")
+        tau = homogenizing_scale(self.tau)
         R, S = (0.5 * (V.value + V.value.T) / tau for V in (self.R, self.S))
         return R, S, [tuple(h.value / tau for h in hats) for hats in self.hats]
 

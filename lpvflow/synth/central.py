@@ -42,15 +42,21 @@ alone, in two steps, on the Cayley image of every vertex in the balanced coordin
    semidefinite order, so the split inequality holds whenever any controller of the class meets γ with this
    R, S (Gahinet & Apkarian 1994, Lemma 3.1: the projected conditions are exactly that). The controller is
    then step 6 of :mod:`lpvflow.synth.vertex_synthesis` (M Nᵀ = I − RS), and the certificate the same
-   numpy re-check of the discrete closed loop with 𝒳 = [S N; Nᵀ ·] (:func:`certificate_margin`).
+   numpy re-check of the discrete closed loop with 𝒳 = [S N; Nᵀ ·] (:func:`certificate_margin`). When
+   that 𝒳 fails the re-check (the reconstruction from R, S near their largest loses it to round-off while
+   the loop itself meets γ), the controller's own bounded-real analysis supplies 𝒳, re-checked the same
+   way (:func:`closed_loop_lyapunov_factor`).
 
 At the largest R, S the split blocks are singular and the controller is the Riccati central one; the
 relative margin keeps it strictly inside. Step 6 runs in the coordinates that balance R, S (R = S = Σ, so
 I − RS is diagonal). Measured (scratch runs, 2026-11-28; benchmarks/README.md): on 10 of the 28
 loop-shaping plants of the bundled ADIP design 0.1–0.7 % from the Riccati central controller at the same
 level (max over frequency of the difference, relative to its largest gain); on 30 random loop-shaping
-plants 28 certified (b ≥ 1/γ), 25 of them within 10 % of the Riccati central controller; on 14 random
-mixed-sensitivity plants 11 certified; the others end in a SynthesisError "accuracy".
+plants 28 certified (b ≥ 1/γ), 25 of them within 10 % of the Riccati central controller. On random
+mixed-sensitivity plants of tests/hinf_cases.py at 1.01 × hinfsyn's γ (2026-11-29, numpy 2.4.6, cvxpy
+1.9.3, Clarabel 0.11.1; draws of 20 with seeds 2026, 2027, 2031): 20, 17 and 18 certified (8, 11 and 15
+with the synthesis's 𝒳 alone, whose controllers python-control / AB13DD found below γ all the same); the
+others end in a SynthesisError "accuracy" (an eliminated-LMI or analysis solve that Clarabel ends in error).
 """
 
 from __future__ import annotations
@@ -61,7 +67,14 @@ import numpy as np
 import scipy.linalg
 
 from lpvflow.errors import SynthesisError
-from lpvflow.synth.bilinear import balancing_transform, cayley_vertex, certificate_margin, inverse_cayley
+from lpvflow.synth.bilinear import (
+    balancing_transform,
+    cayley,
+    cayley_vertex,
+    certificate_margin,
+    closed_loop,
+    inverse_cayley,
+)
 from lpvflow.synth.eliminated import eliminated_matrices, preconditioned, projections, strict_constraints, sym
 from lpvflow.synth.plant import VertexPlant
 from lpvflow.synth.sdp import SolveReport, solve
@@ -70,6 +83,7 @@ from lpvflow.synth.vertex_synthesis import (
     VertexController,
     check_assumptions,
     closed_loop_lyapunov,
+    homogenizing_scale,
     loop_shift,
     reconstruct_controller,
 )
@@ -207,6 +221,48 @@ def central_solution(verts: list[VertexPlant], gamma: float, solver: str
     return 0.5 * (Rc + Rc.T), 0.5 * (Sc + Sc.T), _relative_margin(matrices, sizes), report
 
 
+def closed_loop_lyapunov_factor(vertices: list[VertexPlant], K_vertices: list[tuple[np.ndarray, ...]],
+                                start: np.ndarray, gamma: float, solver: str
+                                ) -> tuple[np.ndarray, SolveReport]:
+    """A factor F (𝒳 = FᵀF) of a common Lyapunov matrix proving the level γ for the controller itself.
+
+    The 𝒳 of step 2 (:func:`lpvflow.synth.vertex_synthesis.closed_loop_lyapunov`, factor ``start`` = F₀)
+    is exact only for the R, S, M, N it is built from; near the largest R, S (‖S‖ up to 1e7 on the random
+    mixed-sensitivity plants of tests/hinf_cases.py) the controller's floating-point reconstruction no
+    longer satisfies the bounded-real inequality with it, although its closed loop meets γ (python-control
+    / AB13DD). So the certificate is the controller's own analysis (bounded-real lemma, Gahinet & Apkarian
+    1994, Lemma 2.1): in the coordinates ξ̃ = F₀ξ of every vertex's Cayley-image closed loop (𝒜̃, ℬ̃, 𝒞̃, 𝒟)
+    find 𝒴 with [𝒜̃ᵀ𝒴 + 𝒴𝒜̃, 𝒴ℬ̃, 𝒞̃ᵀ; ·, −γI, 𝒟ᵀ; ·, ·, −γI] ≺ 0 and 𝒴 ≻ 0, homogenized as step 5 of
+    :mod:`lpvflow.synth.vertex_synthesis` (𝒞̃, 𝒟, γI multiplied by τ, 𝒴 ⪯ I, max t with the matrices ⪯ −tI
+    and 𝒴 ⪰ tI); then 𝒳 = F₀ᵀ(𝒴/τ)F₀. In those coordinates 𝒴 ≈ τI when F₀ is nearly right, so the SDP is
+    well scaled. Its answer is only a candidate: :func:`certificate_margin` re-checks it in numpy.
+
+    Raises:
+        SynthesisError: ``"accuracy"`` when the analysis returns no point (τ ≤ 0, or 𝒴/τ not positive
+            definite).
+    """
+    inverse = np.linalg.inv(start)
+    m = start.shape[0]
+    Y, t, tau = cp.Variable((m, m), symmetric=True), cp.Variable(), cp.Variable()
+    constraints = [Y >> t * np.eye(m), Y << np.eye(m)]
+    for v, K in zip(vertices, K_vertices, strict=True):
+        A, B, C, D = cayley(*closed_loop(v, K))
+        A, B, C = start @ A @ inverse, start @ B, C @ inverse
+        nw, nz = B.shape[1], C.shape[0]
+        matrix = cp.bmat([[A.T @ Y + Y @ A, Y @ B, tau * C.T],
+                          [B.T @ Y, -gamma * tau * np.eye(nw), tau * D.T],
+                          [tau * C, tau * D, -gamma * tau * np.eye(nz)]])
+        constraints.append(sym(matrix) << -t * np.eye(matrix.shape[0]))
+    what = f"the closed-loop bounded-real LMIs of the central controller at γ = {gamma:.6g}"
+    report = solve(cp.Problem(cp.Maximize(t), constraints), solver, what, refined=True)
+    try:
+        lyapunov = 0.5 * (Y.value + Y.value.T) / homogenizing_scale(tau)
+        return np.linalg.cholesky(lyapunov).T @ start, report
+    except np.linalg.LinAlgError:
+        raise SynthesisError(f"{what} have no solution ({report.solver}: {report.status}): the controller "
+                             "cannot be certified at this level; raise it", category="accuracy") from None
+
+
 def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solver: str = "CLARABEL"
                      ) -> HinfResult:
     """The central controller of the discrete vertex plants at level ``gamma`` (module docstring), with the
@@ -240,12 +296,17 @@ def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solve
         K_vertices.append(inverse_cayley(*coords.controller(K)))
     back = scipy.linalg.block_diag(np.linalg.inv(coords.T), np.eye(n))
     try:
-        F = np.linalg.cholesky(closed_loop_lyapunov(R, S, M, N)).T @ back
+        start = np.linalg.cholesky(closed_loop_lyapunov(R, S, M, N)).T @ back
     except np.linalg.LinAlgError:
         raise SynthesisError(f"the central solution at γ = {gamma:.6g} gives a closed-loop Lyapunov matrix "
                              "that is not positive definite in floating point: raise the level",
                              category="accuracy") from None
-    certificate = [certificate_margin(v, K, F, gamma) for v, K in zip(vertices, K_vertices, strict=True)]
+    F, certificate = start, [certificate_margin(v, K, start, gamma) for v, K in zip(vertices, K_vertices,
+                                                                                     strict=True)]
+    if min(certificate) <= 0:  # the synthesis's 𝒳 lost to the reconstruction's round-off: analyse the loop
+        F, analysis = closed_loop_lyapunov_factor(vertices, K_vertices, start, gamma, solver)
+        report.attempts += analysis.attempts
+        certificate = [certificate_margin(v, K, F, gamma) for v, K in zip(vertices, K_vertices, strict=True)]
     if min(certificate) <= 0:
         raise SynthesisError(f"the central controller at γ = {gamma:.6g} fails its certificate (margin "
                              f"{min(certificate):.3g}, LMI margin {margin:.3g}): round-off at this level; "

@@ -8,10 +8,10 @@ import control
 import numpy as np
 import pytest
 
-from lpvflow.errors import SynthesisError
+from lpvflow.errors import ModelError, SynthesisError
 from lpvflow.synth.bilinear import certificate_margin
 from lpvflow.synth.central import closed_loop_lyapunov_factor, explicit_hats
-from lpvflow.synth.hinf import central_hinfsyn, hinfsyn
+from lpvflow.synth.hinf import central_hinfsyn, central_near_optimum, hinfsyn
 from lpvflow.synth.loop_shaping import (
     central_ncf_controller,
     controller_distance,
@@ -121,6 +121,22 @@ def test_a_perturbed_central_controller_is_refused_by_its_certificate():
     lyapunov = result.lyapunov_factor.T @ result.lyapunov_factor
     moved = control.ss(*in_plant_coordinates(result.K_vertices[0], lyapunov), Gs.dt)
     assert controller_distance(moved, result.controller) < 1e-8
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_the_central_controller_near_the_optimum_reuses_hinfsyns_preconditioning_exactly(seed):
+    """central_near_optimum (one preconditioning for both solves) returns what hinfsyn followed by
+    central_hinfsyn at factor × its γ returns, to the last bit; a factor ≤ 1 is a ModelError."""
+    Gs = _shaped_plant(np.random.default_rng(seed))
+    P, m = ncf_generalized_plant(Gs), Gs.ninputs
+    shared, lmi_gamma = central_near_optimum(P, m, m, 1.01)
+    assert lmi_gamma == hinfsyn(P, m, m).gamma
+    separate = central_hinfsyn(P, m, m, 1.01 * lmi_gamma)
+    assert shared.gamma == separate.gamma
+    for a, b in zip(shared.K_vertices[0], separate.K_vertices[0], strict=True):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ModelError, match="factor"):
+        central_near_optimum(P, m, m, 1.0)
 
 
 @pytest.mark.parametrize("seed", [3, 4])

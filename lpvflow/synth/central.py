@@ -75,7 +75,14 @@ from lpvflow.synth.bilinear import (
     closed_loop,
     inverse_cayley,
 )
-from lpvflow.synth.eliminated import eliminated_matrices, preconditioned, projections, strict_constraints, sym
+from lpvflow.synth.eliminated import (
+    Preconditioned,
+    eliminated_matrices,
+    preconditioned,
+    projections,
+    strict_constraints,
+    sym,
+)
 from lpvflow.synth.plant import VertexPlant
 from lpvflow.synth.sdp import SolveReport, solve
 from lpvflow.synth.vertex_synthesis import (
@@ -263,10 +270,12 @@ def closed_loop_lyapunov_factor(vertices: list[VertexPlant], K_vertices: list[tu
                              "cannot be certified at this level; raise it", category="accuracy") from None
 
 
-def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solver: str = "CLARABEL"
-                     ) -> HinfResult:
+def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solver: str = "CLARABEL",
+                     preconditioning: Preconditioned | None = None) -> HinfResult:
     """The central controller of the discrete vertex plants at level ``gamma`` (module docstring), with the
-    certificate of :func:`lpvflow.synth.bilinear.certificate_margin` at every vertex.
+    certificate of :func:`lpvflow.synth.bilinear.certificate_margin` at every vertex. ``preconditioning``:
+    the coordinates of :func:`lpvflow.synth.eliminated.preconditioned` for these vertices when already
+    computed (``HinfResult.preconditioning`` of hinfsyn on the same plants), else computed here.
 
     Raises:
         SynthesisError: an assumption fails (``"assumption"``), no controller reaches γ (``"infeasible"``),
@@ -274,7 +283,7 @@ def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solve
     """
     check_assumptions(vertices)
     cayleys = [cayley_vertex(v) for v in vertices]
-    pre = preconditioned(cayleys, gamma, solver)
+    pre = preconditioning or preconditioned(cayleys, gamma, solver)
     R, S, margin, report = central_solution(pre.vertices, gamma, solver)
     report.attempts[:0] = pre.attempts
     # the same R, S in the coordinates that balance them (R = S = Σ, a congruence of every condition):

@@ -113,6 +113,25 @@ def central_hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas:
     return central_vertices(vertices, Ts, float(gamma), solver)
 
 
+def central_near_optimum(P: control.StateSpace | Sequence[control.StateSpace], nmeas: int, ncon: int,
+                         factor: float, *, solver: str = "CLARABEL") -> tuple[HinfResult, float]:
+    """(:func:`central_hinfsyn` at ``factor`` × γ_LMI, γ_LMI): γ_LMI the certified optimum of
+    :func:`hinfsyn` on the same plants, whose preconditioning (steps 2–4 of
+    :mod:`lpvflow.synth.vertex_synthesis`, independent of the level) the central solution reuses.
+
+    Raises:
+        ModelError: as :func:`hinfsyn`, or ``factor`` not above 1.
+        SynthesisError: as :func:`hinfsyn` and :func:`central_hinfsyn`.
+    """
+    if not factor > 1.0:
+        raise ModelError(f"factor is {factor!r}; it must be > 1 (the level above the optimum the central "
+                         "controller is built at), e.g. 1.01")
+    vertices, Ts = _vertices(P, nmeas, ncon, "central_near_optimum")
+    optimum = synthesize_vertices(vertices, Ts, SUBOPTIMALITY, GAMMA_MAX, solver)
+    central = central_vertices(vertices, Ts, factor * optimum.gamma, solver, optimum.preconditioning)
+    return central, float(optimum.gamma)
+
+
 def synthesize(plant: GeneralizedPlant, solver: str = "CLARABEL", gamma_max: float = GAMMA_MAX,
                suboptimality: float = SUBOPTIMALITY) -> HinfResult:
     """:func:`hinfsyn` on the vertices of a mixed-sensitivity design (:mod:`lpvflow.synth.plant`); the

@@ -49,7 +49,7 @@ import control
 import numpy as np
 
 from lpvflow.errors import ModelError
-from lpvflow.synth.hinf import central_hinfsyn, hinfsyn
+from lpvflow.synth.hinf import central_near_optimum, hinfsyn
 from lpvflow.validate.lti_eval import as_statespace, frequency_response
 from lpvflow.validate.robust_stability import ncf_riccati
 
@@ -252,8 +252,7 @@ def lmi_central_controller(Gs: control.StateSpace, gamma_factor: float, solver: 
                          "central controller is built at), e.g. 1.01")
     P = ncf_generalized_plant(Gs)
     p, m = Gs.noutputs, Gs.ninputs
-    lmi_gamma = float(hinfsyn(P, p, m, solver=solver).gamma)
-    result = central_hinfsyn(P, p, m, gamma_factor * lmi_gamma, solver=solver)
+    result, lmi_gamma = central_near_optimum(P, p, m, gamma_factor, solver=solver)
     lyapunov = result.lyapunov_factor.T @ result.lyapunov_factor
     K = control.ss(*in_plant_coordinates(result.K_vertices[0], lyapunov), Gs.dt)
     return CentralLoopShaping(K, float(result.gamma), lmi_gamma, list(result.certificate))

@@ -33,7 +33,7 @@ import scipy.linalg
 
 from lpvflow.errors import SynthesisError
 from lpvflow.synth.bilinear import certificate_margin
-from lpvflow.synth.hinf import central_hinfsyn, hinfsyn
+from lpvflow.synth.hinf import central_near_optimum
 from lpvflow.synth.loop_shaping import (
     LEAD_RATIO,
     crossover_normalized,
@@ -98,8 +98,7 @@ def common_central_controllers(shaped: Sequence[control.StateSpace], gamma_facto
     """
     plants = [ncf_generalized_plant(Gs) for Gs in shaped]
     p, m = shaped[0].noutputs, shaped[0].ninputs
-    lmi_gamma = float(hinfsyn(plants, p, m, solver=solver).gamma)
-    result = central_hinfsyn(plants, p, m, gamma_factor * lmi_gamma, solver=solver)
+    result, lmi_gamma = central_near_optimum(plants, p, m, gamma_factor, solver=solver)
     F = result.lyapunov_factor
     lyapunov = F.T @ F
     n = lyapunov.shape[0] // 2

@@ -92,7 +92,7 @@ from lpvflow.synth.bilinear import (
     inverse_cayley,
 )
 from lpvflow.synth.controller import LPVController, mix
-from lpvflow.synth.eliminated import infeasible_at, preconditioned, sym
+from lpvflow.synth.eliminated import Preconditioned, infeasible_at, preconditioned, sym
 from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
 from lpvflow.synth.riccati import riccati_gamma
@@ -134,6 +134,9 @@ class HinfResult:
             (``attempts``: solver, status, seconds).
         plant: the :class:`GeneralizedPlant` of :func:`lpvflow.synth.hinf.synthesize` (None from
             :func:`lpvflow.synth.hinf.hinfsyn`).
+        preconditioning: steps 2–4 (coordinates, estimate) of :func:`synthesize_vertices`; they do not
+            depend on the level, so :func:`lpvflow.synth.central.central_vertices` reuses them for the same
+            vertices (None from other syntheses).
     """
 
     gamma: float
@@ -147,6 +150,7 @@ class HinfResult:
     Ts: float
     report: SolveReport
     plant: GeneralizedPlant | None = None
+    preconditioning: Preconditioned | None = None
 
 
 
@@ -371,6 +375,7 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
         raise SynthesisError(_failure(category, what, vertices, Ts, gamma_max), category=category)
     best.report = SolveReport(best.report.solver, best.report.status, time.perf_counter() - start,
                               search.attempts)
+    best.preconditioning = pre
     return best
 
 

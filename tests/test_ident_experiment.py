@@ -148,6 +148,12 @@ def test_gate_verdict_names_the_worst_point():
     lost = {"left_design_box": "left the scheduling box the controller was designed on at t = 14.07 s (…)"}
     assert verdict["reason"] + "; the experiment record " + lost["left_design_box"] == \
         gate_verdict(outputs, True, lost)["reason"]
+    assert "does not stabilize" not in verdict["reason"]
+    diverged = {**outputs, "b_P_Kid": [0.0, 0.1, 0.0], "nugap": [1.0, 0.02, 1.0],
+                "fit_failure": "the identified model's closed loop diverges at sample 2357: …"}
+    reason = gate_verdict(diverged, True)["reason"]
+    assert "does not stabilize the model's frozen loop at 2 of 3 points (b = 0)" in reason
+    assert reason.endswith("; validation fit: the identified model's closed loop diverges at sample 2357: …")
     outputs.update(nugap=[0.05, 0.02, 0.07], nugap_below_b_everywhere=True)
     assert gate_verdict(outputs, True)["passed"] is True
     assert gate_verdict(outputs, False)["passed"] is None

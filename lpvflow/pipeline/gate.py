@@ -14,7 +14,9 @@ def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None) -
     worst point in the reason (the design then stops after validate when the gate is on), and None when
     it was not evaluated (gate off, or no FMU reference or no experiment controller to compute it). A failing
     reason also says where the record left the experiment controller's design box (``left_design_box`` of
-    the ``experiment`` stage's outputs), which is what a lost loop looks like."""
+    the ``experiment`` stage's outputs), which is what a lost loop looks like, at how many points the
+    experiment controller does not stabilize the model (b = 0), and why the validation fit failed
+    (``fit_failure``: e.g. the model's closed loop diverges)."""
     if not enabled:
         return {"passed": None, "reason": "gate off ([validate] gate = false)"}
     if "nugap_below_b_everywhere" not in outputs:
@@ -30,6 +32,12 @@ def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None) -
     reason = (f"the identified model fails the ν-gap test at {failing} of {len(gaps)} frozen points "
               f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g}); "
               "it is not used for synthesis")
+    unstable = sum(b <= 0 for b in margins)
+    if unstable:
+        reason += (f"; the experiment controller does not stabilize the model's frozen loop at {unstable} of "
+                   f"{len(gaps)} points (b = 0): the model does not describe the plant in that loop")
+    if outputs.get("fit_failure"):
+        reason += f"; validation fit: {outputs['fit_failure']}"
     if experiment and experiment.get("left_design_box"):
         reason += f"; the experiment record {experiment['left_design_box']}"
     return {"passed": False, "reason": reason}

@@ -48,18 +48,22 @@ def test_the_rate_line_converts_per_sample_to_display_units_per_second(seed):
     assert rate_statement({}, units) == ""
 
 
-def scalar_design(gain: float, given=None, polytope=None):
+def scalar_design(gain: float, given=None, polytope=None, inserted=(), recorded=True):
     """A one-state plant x⁺ = a(y)x + u, y = x, scheduled by sin(y) on breakpoints, under u = −gain·y;
     ``[synth] breakpoints`` given as values of y (the design file's ``{ signal = "y", values = … }``)
-    unless ``given``, the controller on their piecewise polytope unless ``polytope``."""
-    breakpoints = np.array([-1.2, -0.5, 0.0, 0.5, 1.2])
-    source = SignalValues("y", tuple(breakpoints))
-    images = SignalImages([[float(np.sin(b))] for b in breakpoints], source) if given is None else given
+    unless ``given``, the controller on their piecewise polytope unless ``polytope``; ``inserted``: values
+    the synth stage inserted (its ``inserted_breakpoints``, unless not ``recorded``), which the controller's
+    polytope then has too."""
+    given_values = np.array([-1.2, -0.5, 0.0, 0.5, 1.2])
+    source = SignalValues("y", tuple(given_values))
+    images = SignalImages([[float(np.sin(b))] for b in given_values], source) if given is None else given
     ctx = SimpleNamespace(config={"experiment": {"scheduling": {"sin_y": "sin(y)"}},
-                                  "synth": {"breakpoints": images}})
+                                  "synth": {"breakpoints": images}},
+                          outputs={"synth": {"inserted_breakpoints": list(inserted) if recorded else []}})
     model = SimpleNamespace(p_names=["sin_y"], y_names=["y"], Ts=0.01,
                             frozen=lambda p: control.ss([[0.9 + 0.3 * p[0]]], [[1.0]], [[1.0]], [[0.0]],
                                                         0.01))
+    breakpoints = np.sort(np.concatenate([given_values, inserted]))
     vertices = np.array([[1.0, np.sin(b)] for b in breakpoints])
     piecewise = PiecewisePolytope(np.array([[np.sin(-1.2), np.sin(1.2)]]), vertices,
                                   breakpoints=np.sin(breakpoints))
@@ -86,6 +90,18 @@ def test_an_unstable_frozen_loop_is_a_note_not_a_crash():
     # 0.9 + 0.3 sin(y) − 0.1 > 1 for y > 0.73
     out, _ = scalar_design(0.1)
     assert list(out) == ["rate_certificate_note"] and "is unstable" in out["rate_certificate_note"]
+
+
+def test_breakpoints_the_synth_stage_inserted_are_the_storages_too():
+    """A controller on the design file's breakpoints plus two the synth stage inserted
+    (:mod:`lpvflow.pipeline.breakpoint_refinement`): the storage's breakpoints are all seven, in y; without
+    the stage's record the controller's are not the file's, and the line is that note."""
+    out, breakpoints = scalar_design(0.5, inserted=(-0.85, 0.25))
+    assert breakpoints.tolist() == [-1.2, -0.85, -0.5, 0.0, 0.25, 0.5, 1.2]
+    assert out["rate_certificate"]["breakpoints"] == breakpoints.tolist()
+    assert out["rate_certificate"]["largest"] is None  # certified at any rate, as on the file's five
+    out, _ = scalar_design(0.5, inserted=(-0.85, 0.25), recorded=False)
+    assert "not those of [synth] breakpoints" in out["rate_certificate_note"]
 
 
 def test_the_breakpoints_come_from_the_design_file_or_the_note_says_how_to_give_them():

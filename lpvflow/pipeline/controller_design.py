@@ -12,6 +12,7 @@ from typing import Any
 
 from lpvflow.models import LPVSS
 from lpvflow.pipeline.antiwindup import antiwindup
+from lpvflow.pipeline.breakpoint_refinement import refined_design
 from lpvflow.pipeline.ports import design_signals
 from lpvflow.pipeline.scenarios import Loop
 from lpvflow.synth.design import Design, synthesize_design
@@ -24,9 +25,14 @@ def design_controller(
 ) -> Design:
     """The design of the ``[synth]`` table ``settings`` for ``model`` with the controller's
     ``info["signals"]`` (from the experiment's ``scheduling`` expressions, the plant FMU and the
-    verification ``loop``), its anti-windup for the loop's actuator limits and ``info["certificate"]``."""
-    design = synthesize_design(model, settings)
+    verification ``loop``), its anti-windup for the loop's actuator limits and ``info["certificate"]``;
+    breakpoints inserted where its frozen check failed between two
+    (:mod:`lpvflow.pipeline.breakpoint_refinement`) in ``info["inserted_breakpoints"]``."""
+    design, inserted = refined_design(lambda table: synthesize_design(model, table), settings,
+                                      list(model.p_names), scheduling)
     controller = design.controller
+    if inserted:
+        controller.info["inserted_breakpoints"] = [float(v) for v in inserted]
     signals = design_signals(model, scheduling, plant_fmu, loop)
     controller.info["signals"] = signals
     check = design.certificate

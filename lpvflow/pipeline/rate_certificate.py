@@ -9,7 +9,8 @@ x⁺ = 𝒜(y_s)x: the reduced model frozen at θ(y_s) with u = K_fb(θ(y_s)) y
 largest per-sample change of y_s in the plant-in-the-loop runs of the trajectory validation (those runs,
 not new ones), then any rate, stopping at the first rate not certified. The storage's breakpoints are the
 controller's, in y_s as the design file gives them (``[synth] breakpoints = { signal = y_s, values = … }``,
-:class:`lpvflow.pipeline.scheduling_values.SignalImages`); breakpoints given as scheduling rows, or
+:class:`lpvflow.pipeline.scheduling_values.SignalImages`, with the synth stage's ``inserted_breakpoints``,
+:mod:`lpvflow.pipeline.breakpoint_refinement`); breakpoints given as scheduling rows, or
 rows that are not the controller's, are a note saying so.
 
 It runs where the controller's polytope has ``breakpoints`` (a piecewise polytope). A box over one
@@ -30,6 +31,7 @@ import numpy as np
 from lpvflow.basis import SchedulingRangeWarning
 from lpvflow.errors import DataError, ModelError
 from lpvflow.experiment.scheduling import evaluate
+from lpvflow.pipeline.breakpoint_refinement import design_breakpoints
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.scheduling_values import SignalImages
 from lpvflow.validate.scheduled_stability import largest_certified_rate
@@ -65,7 +67,9 @@ def rate_certificate(ctx: StageContext, model: Any, controller: Any, trajectory:
                                          "polytope) scheduled by expressions of one measured output"}
     if not trajectory:
         return {"rate_certificate_note": "not assessed: no plant-in-the-loop runs to take the peak rate from"}
-    breakpoints = _breakpoints(ctx.config["synth"]["breakpoints"], signal, polytope.breakpoints)
+    inserted = ctx.outputs.get("synth", {}).get("inserted_breakpoints", [])
+    given = design_breakpoints(ctx.config["synth"]["breakpoints"], inserted, list(model.p_names), definitions)
+    breakpoints = _breakpoints(given, signal, polytope.breakpoints)
     if isinstance(breakpoints, str):
         return {"rate_certificate_note": f"not assessed: {breakpoints}"}
     theta = _curve(expressions, signal)

@@ -27,6 +27,7 @@ from lpvflow.lfr import LPVLFR, require_affine
 from lpvflow.models import load
 from lpvflow.pipeline.adoption import adoption_refusal
 from lpvflow.pipeline.antiwindup import antiwindup
+from lpvflow.pipeline.breakpoint_refinement import inserted_lines
 from lpvflow.pipeline.cli_identify import plot_fit
 from lpvflow.pipeline.context import DATA_FILE, StageContext
 from lpvflow.pipeline.controller_design import design_controller, extrapolation_note
@@ -277,7 +278,10 @@ def synth(ctx: StageContext) -> tuple[dict, list[str]]:
     return ({"method": cfg["method"], "structure": cfg["structure"], "scheduling": cfg.get("scheduling"),
              "gamma": design.gamma,
              "baseline_gamma": baseline.gamma, "baseline_at": at,
-             "certificate": design.certificate.lines(), "certificate_ok": bool(design.certificate.ok),
+             "certificate": (design.certificate.lines()
+                             + inserted_lines(design.controller.info, cfg["breakpoints"])),
+             "certificate_ok": bool(design.certificate.ok),
+             "inserted_breakpoints": design.controller.info.get("inserted_breakpoints", []),
              "solve_seconds": design.seconds, "order": design.controller.order,
              "polytope": design.plant.polytope.kind, "box_note": extrapolation_note(model, cfg["box"])},
             ["controller.json", "baseline.json"])

@@ -285,7 +285,8 @@ def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solve
     cayleys = [cayley_vertex(v) for v in vertices]
     pre = preconditioning or preconditioned(cayleys, gamma, solver)
     R, S, margin, report = central_solution(pre.vertices, gamma, solver)
-    report.attempts[:0] = pre.attempts
+    if preconditioning is None:  # SDPs solved by this call only
+        report.attempts[:0] = pre.attempts
     # the same R, S in the coordinates that balance them (R = S = Σ, a congruence of every condition):
     # I − RS is then diagonal and step 6 inverts no ill-conditioned M, N
     coords = pre.coordinates
@@ -310,8 +311,8 @@ def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solve
         raise SynthesisError(f"the central solution at γ = {gamma:.6g} gives a closed-loop Lyapunov matrix "
                              "that is not positive definite in floating point: raise the level",
                              category="accuracy") from None
-    F, certificate = start, [certificate_margin(v, K, start, gamma) for v, K in zip(vertices, K_vertices,
-                                                                                     strict=True)]
+    F = start
+    certificate = [certificate_margin(v, K, F, gamma) for v, K in zip(vertices, K_vertices, strict=True)]
     if min(certificate) <= 0:  # the synthesis's 𝒳 lost to the reconstruction's round-off: analyse the loop
         F, analysis = closed_loop_lyapunov_factor(vertices, K_vertices, start, gamma, solver)
         report.attempts += analysis.attempts

@@ -12,8 +12,9 @@ signal the breakpoints are given in halfway between those two becomes a breakpoi
 :data:`MAX_INSERTED` times; the last design is returned whether or not it passes (its check says so).
 
 It applies to breakpoints given as values of one signal
-(:class:`lpvflow.pipeline.scheduling_values.SignalImages`) and to checks that hold a frozen grid
-(``worst_ratio``, ``worst_at``); the other methods' checks and the LMI witness are left to fail as they do.
+(:class:`lpvflow.pipeline.scheduling_values.SignalImages`) and to the loop-shaping designs' frozen grid
+check (:class:`lpvflow.synth.loop_shaping_design.FrozenMarginCheck`); the other methods' checks and the LMI
+witness are left to fail as they do.
 Measured (benchmarks/README.md, "Breakpoints inserted where the frozen check fails"): the held-out
 identification seed 4 of ``benchmarks/bench_adip_design.py --example adip`` stopped at synth with the
 worst point 0.991 between −75° and −60°.
@@ -29,7 +30,7 @@ import numpy as np
 from lpvflow.pipeline.scheduling_values import SignalImages, SignalValues, images
 from lpvflow.synth.certify import design_coordinates
 from lpvflow.synth.design import Design
-from lpvflow.synth.loop_shaping_design import FROZEN_PER_SEGMENT
+from lpvflow.synth.loop_shaping_design import FROZEN_PER_SEGMENT, FrozenMarginCheck
 
 #: Breakpoints one design may insert.
 MAX_INSERTED = 3
@@ -39,7 +40,8 @@ def failing_segment(design: Design) -> tuple[int, int] | None:
     """The breakpoint indices (i, i + 1) around the worst point of a failing frozen grid check, or None
     (the check passes, holds no grid, or fails at a breakpoint itself)."""
     check = design.certificate
-    if getattr(check, "worst_ratio", 1.0) >= 1.0 or design.plant.polytope.breakpoints is None:
+    if (not isinstance(check, FrozenMarginCheck) or check.worst_ratio >= 1.0
+            or design.plant.polytope.breakpoints is None):
         return None
     lams = design_coordinates(design.plant.polytope, design.plant.basis, FROZEN_PER_SEGMENT)
     mixed = np.flatnonzero(np.asarray(lams[check.worst_at]) > 1e-12)

@@ -10,7 +10,12 @@ import numpy as np
 import pytest
 
 from lpvflow.models import LPVSS
-from lpvflow.pipeline.breakpoint_refinement import MAX_INSERTED, failing_segment, refined_design
+from lpvflow.pipeline.breakpoint_refinement import (
+    MAX_INSERTED,
+    design_breakpoints,
+    failing_segment,
+    refined_design,
+)
 from lpvflow.pipeline.config import check_table
 from lpvflow.pipeline.scheduling_values import SignalImages, SignalValues
 from lpvflow.synth.design import synthesize_design
@@ -75,3 +80,12 @@ def test_a_design_that_keeps_failing_stops_after_the_bounded_number_of_insertion
         assert any(v == 0.5 * (a + b) for a, b in zip(sorted(values), sorted(values)[1:], strict=False))
         values.append(v)
     assert design.plant.polytope.breakpoints.tolist() == sorted(values)
+
+
+def test_the_breakpoints_used_follow_the_polytope_order_even_when_the_map_decreases():
+    """p₁ = −y: breakpoints given in y as 1, 0, −1 (ascending p₁), 0.5 inserted → 1, 0.5, 0, −1."""
+    given = SignalImages([[-1.0], [0.0], [1.0]], SignalValues("y", (1.0, 0.0, -1.0)))
+    used = design_breakpoints(given, [0.5], ["m"], {"m": "-y"})
+    assert used.source.values == (1.0, 0.5, 0.0, -1.0)
+    assert used == [[-1.0], [-0.5], [0.0], [1.0]]
+    assert design_breakpoints(given, [], ["m"], {"m": "-y"}) is given

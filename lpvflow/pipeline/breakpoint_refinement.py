@@ -81,12 +81,16 @@ def refined_design(design_once: Callable[[Mapping[str, Any]], Design], settings:
 def design_breakpoints(given: Any, inserted: list[float], p_names: list[str],
                        scheduling: Mapping[str, str] | None) -> Any:
     """The breakpoints a design used: ``given`` (``[synth] breakpoints``) with the ``inserted`` values (the
-    synth stage's ``inserted_breakpoints``) added in ascending order, their images recomputed; ``given``
-    itself when nothing was inserted."""
+    synth stage's ``inserted_breakpoints``) added, their images recomputed, in the polytope's order
+    (ascending first scheduling signal); ``given`` itself when nothing was inserted."""
     if not inserted or not isinstance(given, SignalImages):
         return given
-    source = SignalValues(given.source.signal, tuple(sorted([*given.source.values, *inserted])))
-    return SignalImages(images(source, p_names, scheduling or {}, "[synth] breakpoints").tolist(), source)
+    values = [*given.source.values, *inserted]
+    rows = images(SignalValues(given.source.signal, tuple(values)), p_names, scheduling or {},
+                  "[synth] breakpoints")
+    order = np.argsort(rows[:, 0], kind="stable")
+    source = SignalValues(given.source.signal, tuple(values[k] for k in order))
+    return SignalImages(rows[order].tolist(), source)
 
 
 def inserted_lines(info: Mapping[str, Any], given: Any) -> list[str]:

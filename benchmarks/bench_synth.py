@@ -156,6 +156,9 @@ def main() -> None:
           f"({summary['answered']} of {summary['cases']} answered); γ within 1 % of SB10DD (or below): "
           f"{summary['within_one_percent_of_sb10dd']} of {summary['single_plant_cases']} single plants")
     if ceiling is None:
+        if not only_random:
+            print(f"maglev: not measured — {MAGLEV_MODEL} is absent; run `lpvflow design --example "
+                  "maglev` first")
         return
     c = ceiling
     print(f"maglev: worst frozen SB10DD optimum {c['frozen_optimum_worst']:.5f} at y2 = {c['y2_worst']:.4f}; "

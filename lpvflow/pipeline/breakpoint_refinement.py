@@ -49,16 +49,6 @@ def failing_segment(design: Design) -> tuple[int, int] | None:
     return (int(mixed[0]), int(mixed[-1])) if len(mixed) == 2 else None
 
 
-def with_midpoint(breakpoints: SignalImages, segment: tuple[int, int], p_names: list[str],
-                  scheduling: Mapping[str, str]) -> SignalImages:
-    """``breakpoints`` with the signal value halfway between those of ``segment`` added, and its images."""
-    values = list(breakpoints.source.values)
-    i, j = segment
-    values.insert(j, 0.5 * (values[i] + values[j]))
-    source = SignalValues(breakpoints.source.signal, tuple(values))
-    return SignalImages(images(source, p_names, scheduling, "[synth] breakpoints").tolist(), source)
-
-
 def refined_design(design_once: Callable[[Mapping[str, Any]], Design], settings: Mapping[str, Any],
                    p_names: list[str], scheduling: Mapping[str, str] | None) -> tuple[Design, list[float]]:
     """(design, the signal values inserted as breakpoints, in the order inserted): ``design_once`` on
@@ -66,15 +56,14 @@ def refined_design(design_once: Callable[[Mapping[str, Any]], Design], settings:
     fails between breakpoints given as values of one signal, at most :data:`MAX_INSERTED` times."""
     design = design_once(settings)
     inserted: list[float] = []
-    breakpoints = settings.get("breakpoints")
-    while isinstance(breakpoints, SignalImages) and len(inserted) < MAX_INSERTED:
-        segment = failing_segment(design)
-        if segment is None:
-            break
-        breakpoints = with_midpoint(breakpoints, segment, p_names, scheduling or {})
-        inserted.append(breakpoints.source.values[segment[1]])
-        settings = {**settings, "breakpoints": breakpoints}
-        design = design_once(settings)
+    given = current = settings.get("breakpoints")
+    if not isinstance(given, SignalImages):
+        return design, inserted
+    while len(inserted) < MAX_INSERTED and (segment := failing_segment(design)) is not None:
+        i, j = segment
+        inserted.append(0.5 * (current.source.values[i] + current.source.values[j]))
+        current = design_breakpoints(given, inserted, p_names, scheduling)
+        design = design_once({**settings, "breakpoints": current})
     return design, inserted
 
 

@@ -237,19 +237,17 @@ def lmi_central_controller(Gs: control.StateSpace, gamma_factor: float, solver: 
                            ) -> CentralLoopShaping:
     """K∞ of the shaped plant Gs from the LMIs alone: hinfsyn's certified optimum γ_LMI of the four-block
     NCF plant (:func:`ncf_generalized_plant`), then the central LMI controller at γ = gamma_factor·γ_LMI
-    (:func:`lpvflow.synth.hinf.central_hinfsyn`: the largest R, S at γ and explicit controller formulas),
+    (:func:`lpvflow.synth.hinf.central_near_optimum`, one preconditioning for both: the largest R, S at γ
+    and explicit controller formulas),
     written in the shaped plant's coordinates (:func:`in_plant_coordinates`), so controllers of
     breakpoints that share their state coordinates share theirs. At a frozen point it is within a few
     per cent of the Riccati central controller at the same level (:func:`central_ncf_controller`, the
     design's witness).
 
     Raises:
-        ModelError: gamma_factor ≤ 1, or a shaped plant with feed-through.
+        ModelError: gamma_factor ≤ 1 (from central_near_optimum), or a shaped plant with feed-through.
         SynthesisError: from hinfsyn or from the central solution.
     """
-    if not gamma_factor > 1.0:
-        raise ModelError(f"gamma_factor is {gamma_factor}; it must be > 1 (the level above the optimum the "
-                         "central controller is built at), e.g. 1.01")
     P = ncf_generalized_plant(Gs)
     p, m = Gs.noutputs, Gs.ninputs
     result, lmi_gamma = central_near_optimum(P, p, m, gamma_factor, solver=solver)

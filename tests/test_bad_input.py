@@ -308,6 +308,12 @@ CASES: dict[str, tuple[str, str]] = {
     "experiment noise not a number": ("experiment " + str(TANKS) + " --duration 2 --input "
                                       "pump_voltage=const:value=5 --noise lower_level=abc -o {d}/e.csv",
                                       "is not a number"),
+    "experiment bound reversed": ("experiment " + str(TANKS) + " --duration 2 --input "
+                                  "pump_voltage=const:value=5 --bound lower_level=1,0 -o {d}/e.csv",
+                                  "must read MIN,MAX with MIN < MAX"),
+    "experiment output leaves its bound": ("experiment " + str(TANKS) + " --duration 2 --input "
+                                           "pump_voltage=const:value=5 --bound lower_level=-1,1e-9 "
+                                           "-o {d}/e.csv", "lower_level = "),
     "experiment input given twice": ("experiment " + str(TANKS) + " --duration 2 --input "
                                      "pump_voltage=const:value=5 --input pump_voltage=const:value=6 "
                                      "-o {d}/e.csv", "given twice"),

@@ -99,6 +99,8 @@ def design_file(tmp_path: Path) -> Path:
     ("box = [[0.05, 0.2]]", "box = [[0.2, 0.05]]", "with lo < hi"),
     ("split = 0.6", "split = 1.5", "[identify] split = 1.5 must be a number in (0, 1)"),
     ("duration = 100.0", "duration = -5", "[experiment] duration = -5 must be a number in (0, inf]"),
+    ("duration = 100.0", "duration = 100.0\noutput_bounds = { lower_level = [0.3, 0.1] }",
+     "[experiment] output_bounds.lower_level = [0.3, 0.1] must be [min, max] with min < max"),
     ('method = "common"', 'methd = "common"', "[synth] has unknown key(s) ['methd']; known: "),
     ('box = [[0.05, 0.2]]', 'bx = [[0.05, 0.2]]', "[synth] has unknown key(s) ['bx']; known: "),
     ("weights.K", "weights.Q", "[synth] weights has unknown key(s) ['Q']"),

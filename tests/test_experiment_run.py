@@ -128,6 +128,26 @@ def test_diverging_run_is_reported_not_recorded():
         run_experiment(plant, TS, 1.0, progress=False)
 
 
+def test_leaving_the_output_bounds_ends_the_run_at_the_first_sample_outside():
+    """The open-loop unstable plant (pole 1.05) under a constant input: its output grows; with bounds the
+    run ends at the first sample whose output is outside them, named with its value and time; bounds it
+    never reaches leave the record as it is without them."""
+    inputs = {"u0": "const:value=1", "u1": "const:value=0"}
+    free = run_experiment(StateSpacePlant(unstable_plant(), u0=[0.0, 0.0]), TS, 2.0, inputs, progress=False)
+    y = free.columns["y0"]
+    first = int(np.argmax(y > 3.0))
+    assert 0 < first < len(y) - 1
+    with pytest.raises(ModelError, match=rf"y0 = {y[first]:.4g} left its bounds \[-1, 3\] at "
+                       rf"t={first * TS:g} s.*smaller, or widen the bounds") as info:
+        run_experiment(StateSpacePlant(unstable_plant(), u0=[0.0, 0.0]), TS, 2.0, inputs, progress=False,
+                       output_bounds={"y0": (-1.0, 3.0)})
+    assert "\n" not in str(info.value)
+    wide = run_experiment(StateSpacePlant(unstable_plant(), u0=[0.0, 0.0]), TS, 2.0, inputs, progress=False,
+                          output_bounds={"y0": (-1.0, 2.0 * y.max())})
+    assert all(np.array_equal(wide.columns[name], free.columns[name]) for name in free.columns)
+    assert wide.metadata["output_bounds"] == {"y0": [-1.0, 2.0 * y.max()]}
+
+
 @pytest.mark.parametrize(
     ("kwargs", "error", "message"),
     [
@@ -143,6 +163,8 @@ def test_diverging_run_is_reported_not_recorded():
         ({"seed": -1}, DataError, "non-negative integer"),
         ({"scheduling_columns": {"p": "sin(arm)"}}, DataError, "unknown name 'arm'"),
         ({"scheduling_columns": {"y0": "u0"}}, DataError, "clashes"),
+        ({"output_bounds": {"z": (0.0, 1.0)}}, ModelError, "bounded output 'z' not in FMU toy"),
+        ({"output_bounds": {"y0": (1.0, 0.0)}}, DataError, r"y0 = \[1.0, 0.0\] must be \[min, max\]"),
     ],
 )
 def test_bad_open_loop_arguments(kwargs, error, message):

@@ -35,6 +35,7 @@ def run_fmu_experiment(
     setpoint: Mapping[str, str | SignalSpec] | None = None,
     quantization: Mapping[str, float] | None = None,
     noise: Mapping[str, float] | None = None,
+    output_bounds: Mapping[str, tuple[float, float]] | None = None,
 ) -> ExperimentRecord:
     """Run :func:`~lpvflow.experiment.run.run_experiment` on the FMU at ``fmu`` with ``parameters``
     set before initialisation, and write ``output`` (+ ``<output>.json``) when given.
@@ -63,7 +64,8 @@ def run_fmu_experiment(
     plant = open_plant(fmu, dict(parameters or {}))
     try:
         record = run_experiment(plant, Ts, duration, inputs, controller, excitation, scheduling_columns, seed,
-                                progress, record_diagnostics, setpoint, quantization, noise)
+                                progress, record_diagnostics, setpoint, quantization, noise,
+                                output_bounds)
     finally:
         plant.close()
     effects = {k: v for k, v in record.metadata["parameters"].items() if k.startswith("effect_")}

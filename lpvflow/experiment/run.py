@@ -45,6 +45,10 @@ Sensors (``quantization``, ``noise``, per plant output): what the controller rea
 is y_m(k) = q·round((y(k) + v(k))/q) with v white Gaussian of the given standard deviation (seeded per
 output) and q the quantization step (an encoder of 4096 counts per revolution: q = 2π/4096 rad); either
 may be left out. Scheduling columns are computed from the measured values, as on a real rig.
+
+Output bounds (``output_bounds``, per plant output ``(min, max)``): the run ends as failed at the first
+sample whose measured output leaves them — a rig's safety limit; a closed loop that lost its plant (a
+fallen pendulum) gives no data about the operating range it was meant to cover.
 """
 
 from __future__ import annotations
@@ -126,6 +130,7 @@ def run_experiment(
     setpoint: Mapping[str, str | SignalSpec] | None = None,
     quantization: Mapping[str, float] | None = None,
     noise: Mapping[str, float] | None = None,
+    output_bounds: Mapping[str, tuple[float, float]] | None = None,
 ) -> ExperimentRecord:
     """Drive ``plant`` for ``duration`` seconds at step Ts; see the module docstring for the law.
 
@@ -133,7 +138,8 @@ def run_experiment(
     ``setpoint`` maps plant outputs the controller reads to theirs;
     ``scheduling_columns`` maps new column names to expressions of input/output names (default:
     :func:`default_scheduling`); ``quantization`` and ``noise`` map plant outputs to the quantization
-    step and the white-noise standard deviation of their sensor (module docstring). Outputs named
+    step and the white-noise standard deviation of their sensor, ``output_bounds`` to the interval the
+    run must keep them in (module docstring; leaving it is one ModelError line). Outputs named
     ``diag_*`` are recorded only with ``record_diagnostics``. ``progress=None`` shows a tqdm bar only on a
     terminal.
     """
@@ -147,6 +153,7 @@ def run_experiment(
     check_names("excitation input", list(excitation_specs), plant.input_names, model)
     check_names("set-point output", list(setpoint_specs), plant.output_names, model)
     sensors = _sensor_model(quantization, noise, plant.output_names, model)
+    outside = _bounds_check(output_bounds, plant.output_names, model, Ts)
     if controller is None and (excitation_specs or setpoint_specs):
         what = "an excitation is added to a controller output" if excitation_specs else \
             "a set-point is what a controller tracks"
@@ -202,6 +209,8 @@ def run_experiment(
         if not np.all(np.isfinite(y_k)):
             bad = plant.output_names[int(np.argmin(np.isfinite(y_k)))]
             raise ModelError(f"plant output {bad} is non-finite at t={k * Ts:g} s; the run diverged")
+        if (left := outside(k, y_k)) is not None:
+            raise ModelError(left)
 
     def actuate(k: int, u_c: np.ndarray, p: np.ndarray) -> np.ndarray:
         if r_matrix is not None:
@@ -246,6 +255,7 @@ def run_experiment(
         "setpoint": {name: spec.to_dict() for name, spec in setpoint_specs.items()},
         "controller": None if controller is None else controller.to_dict(),
         "sensors": {"quantization": dict(quantization or {}), "noise": dict(noise or {})},
+        "output_bounds": {name: list(pair) for name, pair in (output_bounds or {}).items()},
         "scheduling": chosen,
         "parameters": plant.parameter_values(),
         "columns": {"time": ["time"], "inputs": list(plant.input_names), "outputs": outputs,
@@ -290,6 +300,35 @@ def _sensor_model(
         return measure
 
     return make
+
+
+def _bounds_check(
+    output_bounds: Mapping[str, tuple[float, float]] | None, outputs: list[str], model: str, Ts: float
+):
+    """``outside(k, y)``: None while every bounded output of y is within its (min, max), else the line
+    naming the first that left them, its value and the time."""
+    bounds = dict(output_bounds or {})
+    check_names("bounded output", list(bounds), outputs, model)
+    for name, pair in bounds.items():
+        lo, hi = (float(v) for v in pair)
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+            raise DataError(f"output bounds of {name} = {list(pair)} must be [min, max] with min < max")
+    index = np.array([outputs.index(name) for name in bounds], dtype=int)
+    lo = np.array([float(pair[0]) for pair in bounds.values()])
+    hi = np.array([float(pair[1]) for pair in bounds.values()])
+
+    def outside(k: int, y: np.ndarray) -> str | None:
+        values = np.asarray(y, dtype=float)[index]
+        left = np.flatnonzero((values < lo) | (values > hi))
+        if left.size == 0:
+            return None
+        j = int(left[0])
+        return (f"plant output {list(bounds)[j]} = {values[j]:.4g} left its bounds [{lo[j]:g}, {hi[j]:g}] "
+                f"at t={k * Ts:g} s; the controller did not hold this experiment (the record is not "
+                "data of the range it was meant to cover): make the set-point moves or the excitation "
+                "smaller, or widen the bounds")
+
+    return outside
 
 
 def default_scheduling(plant: Plant) -> dict[str, str]:

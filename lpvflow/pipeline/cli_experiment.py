@@ -10,7 +10,7 @@ from lpvflow.experiment.record import check_output_path, sidecar_path, write_rec
 from lpvflow.experiment.scheduling import parse_assignment
 from lpvflow.experiment.specs import __doc__ as SPEC_HELP
 from lpvflow.pipeline.cli_paths import declare
-from lpvflow.pipeline.cli_values import assignments, numbers
+from lpvflow.pipeline.cli_values import assignments, intervals, numbers
 
 
 def run(args: argparse.Namespace) -> int:
@@ -24,6 +24,7 @@ def run(args: argparse.Namespace) -> int:
     quantization = numbers(assignments(args.quantization, "--quantization", "arm_angle=0.001534"),
                             "--quantization")
     noise = numbers(assignments(args.noise, "--noise", "arm_angle=1e-4"), "--noise")
+    bounds = intervals(assignments(args.bound, "--bound", "pendulum_angle=-0.5,0.5"), "--bound")
     scheduling = None
     if args.scheduling:
         scheduling = dict(parse_assignment(item) for item in args.scheduling)
@@ -31,6 +32,7 @@ def run(args: argparse.Namespace) -> int:
         args.fmu, args.Ts, args.duration, inputs=inputs, controller=args.controller, excitation=excitation,
         parameters=parameters, scheduling_columns=scheduling, seed=args.seed,
         record_diagnostics=args.diagnostics, setpoint=setpoint, quantization=quantization, noise=noise,
+        output_bounds=bounds,
     )
     if not inputs and not args.controller:  # refused after the run: every other defect is named first
         raise DataError("no --input and no --controller: every plant input stayed at its start value "
@@ -79,6 +81,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", action="append", metavar="OUTPUT=STD",
                         help="standard deviation of white sensor noise on a plant output (added before "
                         "the quantization)")
+    parser.add_argument("--bound", action="append", metavar="OUTPUT=MIN,MAX",
+                        help="interval a plant output must stay in, e.g. pendulum_angle=-0.5,0.5: leaving "
+                        "it ends the run as failed (exit 2, nothing written)")
     parser.add_argument("--diagnostics", action="store_true",
                         help="also record the FMU's diag_* outputs (noise-free states, applied inputs)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the excitation signals (default 0)")

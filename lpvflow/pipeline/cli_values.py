@@ -33,3 +33,17 @@ def numbers(items: dict[str, str], option: str) -> dict[str, float]:
         if not math.isfinite(values[name]):
             raise DataError(f"{option} {name}={text}: the value must be finite")
     return values
+
+
+def intervals(items: dict[str, str], option: str) -> dict[str, tuple[float, float]]:
+    """The values of :func:`assignments` as ``MIN,MAX`` pairs of finite numbers with MIN < MAX."""
+    values = {}
+    for name, text in items.items():
+        parts = text.split(",")
+        pair = numbers({f"{name} (min)": parts[0], f"{name} (max)": parts[-1]}, option) \
+            if len(parts) == 2 else None
+        if pair is None or not pair[f"{name} (min)"] < pair[f"{name} (max)"]:
+            raise DataError(f"{option} {name}={text!r} must read MIN,MAX with MIN < MAX, e.g. "
+                            f"{name}=-0.5,0.5")
+        values[name] = (pair[f"{name} (min)"], pair[f"{name} (max)"])
+    return values

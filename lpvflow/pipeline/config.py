@@ -33,6 +33,7 @@ from lpvflow.pipeline.key_checks import (
     folder_name,
     formats,
     integer,
+    interval,
     largest_step,
     loop,
     mapping,
@@ -85,6 +86,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
                             "sensor quantization step per plant output, > 0 (e.g. 2π/4096 rad)"),
         "noise": Key({}, mapping(number(0.0), "std"),
                      "sensor white-noise standard deviation per plant output, ≥ 0"),
+        "output_bounds": Key({}, mapping(interval, "[min, max]"),
+                             "plant outputs the run must stay within: leaving them ends the experiment "
+                             "as failed (a lost pendulum is not data)"),
         "iterate": Key(0, integer(0), "identification for control: after synth, rerun experiment → synth "
                        "this many times with the just-designed controller as experiment controller"),
         "iterate_setpoint": Key({}, mapping(signal_spec, '"SPEC"'),

@@ -68,7 +68,8 @@ _CONTROLLER = (("experiment", "controller"),)
 EXPERIMENT = Stage(
     "experiment", stages.experiment, ("design", "experiment"),
     {"design": ("plant",), "experiment": ("Ts", "duration", "controller", "inputs", "excitation", "setpoint",
-                                          "parameters", "scheduling", "seed", "quantization", "noise")},
+                                          "parameters", "scheduling", "seed", "quantization", "noise",
+                                          "output_bounds")},
     (), _PLANT + _CONTROLLER)
 IDENTIFY = Stage("identify", stages.identify, ("identify",),
                  {"identify": ALL, "experiment": ("controller", "scheduling"), "design": ("plant",)},

@@ -95,6 +95,15 @@ def boolean(value: Any, where: str) -> bool:
     return value
 
 
+def interval(value: Any, where: str) -> list[float]:
+    """``[lo, hi]``: two finite numbers with lo < hi."""
+    pair = value if isinstance(value, list) and len(value) == 2 else None
+    if pair is None or not all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                               for v in pair) or not pair[0] < pair[1]:
+        raise _fail(where, value, "[min, max] with min < max")
+    return [float(pair[0]), float(pair[1])]
+
+
 def names(empty: bool = False) -> Check:
     """A list of distinct non-empty strings (signal or column names)."""
     def check(value: Any, where: str) -> list[str]:

@@ -64,6 +64,7 @@ def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
         parameters=cfg["parameters"] or None, scheduling_columns=cfg["scheduling"] or None,
         seed=cfg["seed"], output=ctx.path(DATA_FILE), progress=None, setpoint=cfg["setpoint"] or None,
         quantization=cfg["quantization"] or None, noise=cfg["noise"] or None,
+        output_bounds=cfg["output_bounds"] or None,
     )
     outputs = {"samples": len(record.time), "Ts": record.Ts, "ranges": {
         name: [float(np.min(v)), float(np.max(v))] for name, v in record.columns.items() if name != "time"}}

@@ -4,13 +4,15 @@ level (certificate, and independently python-control / AB13DD and the NCF margin
 Riccati central controller where the max-margin LMI controller is not, a perturbed controller is refused
 by its certificate, and a level below the optimum is one categorised error."""
 
+from pathlib import Path
+
 import control
 import numpy as np
 import pytest
 
 from lpvflow.errors import ModelError, SynthesisError
 from lpvflow.synth.bilinear import certificate_margin
-from lpvflow.synth.central import closed_loop_lyapunov_factor, explicit_hats
+from lpvflow.synth.central import central_solution, closed_loop_lyapunov_factor, explicit_hats
 from lpvflow.synth.hinf import central_hinfsyn, central_near_optimum, hinfsyn
 from lpvflow.synth.loop_shaping import (
     central_ncf_controller,
@@ -201,3 +203,18 @@ def test_random_weighted_plants_answer_with_a_certified_controller_or_one_error(
         assert hinf_norm(case.P.lft(result.controller, case.ncon, case.nmeas)) <= level * (1 + 1e-6)
         answered += 1
     assert answered >= 12
+
+
+def test_a_stalled_solve_keeps_its_point_for_the_re_check():
+    """The eliminated LMIs of one shaped ADIP plant (order 8, from a held-out identification seed's model,
+    continuous balanced coordinates, tests/stalled_widest_point.npz) at γ 10.41: Clarabel's widest-point
+    solve at the fine tolerances ends "InsufficientProgress" with the primal residual just outside the
+    reduced tolerance. Its point is still a candidate (optimal_inaccurate) and the numpy re-check of the
+    relative margin accepts it, so the central R, S come back instead of one "solver error"."""
+    data = np.load(Path(__file__).with_name("stalled_widest_point.npz"))
+    vertex = VertexPlant(*(data[name] for name in ("A", "B1", "B2", "C1", "C2", "D11", "D12", "D21", "D22")))
+    R, S, margin, report = central_solution([vertex], float(data["gamma"]), "CLARABEL")
+    assert margin > 0
+    assert np.linalg.eigvalsh(R)[0] > 0 and np.linalg.eigvalsh(S)[0] > 0
+    assert np.linalg.eigvalsh(np.block([[R, np.eye(len(R))], [np.eye(len(R)), S]]))[0] > 0
+    assert report.solver == "CLARABEL" and report.status in ("optimal", "optimal_inaccurate")

@@ -314,3 +314,20 @@ def test_the_robustness_section_tables_the_model_in_the_loop_difference_in_degre
     worst_pendulum = math.degrees(pendulum["largest_difference"]["pendulum_angle"])
     assert (f"Model vs plant in the loop, largest difference: arm_angle {worst_arm:.3g}° "
             f"({arm['scenario']}), pendulum_angle {worst_pendulum:.3g}° ({pendulum['scenario']}).") in text
+
+
+def test_a_failed_experiment_shows_no_figure_of_the_record_a_previous_run_left(tmp_path, summary):
+    """A failed experiment writes nothing, so the folder's data.csv is the previous run's: the report draws
+    the record only for an experiment that ran (here the same file either way)."""
+    t = np.arange(0.0, 1.0, 0.01)
+    (tmp_path / "data.csv").write_text("time,voltage,arm_angle\n" + "".join(
+        f"{a},{np.sin(a)},{np.cos(a)}\n" for a in t))
+    caption = "Identification experiment: inputs, outputs and scheduling."
+    summary["stages"]["experiment"] = {"status": "ran", "seconds": 0.1, "artifacts": [], "outputs": {}}
+    assert caption in write_report(tmp_path, summary, UNITS).read_text()
+    error = "plant output pendulum_angle = 0.51 left its bounds [-0.5, 0.5] at t=12.8 s"
+    summary["stages"]["experiment"] = {"status": "failed", "error": error}
+    summary["failed"] = {"stage": "experiment", "error": error}
+    page = write_report(tmp_path, summary, UNITS).read_text()
+    assert caption not in page
+    assert "left its bounds" in page

@@ -46,8 +46,10 @@ def write_report(folder: Path, summary: dict, units: dict[str, str] | None = Non
                 sections.append(embed_figure(folder / GAP_FIGURE))
             elif artifact.endswith(".png"):
                 sections.append(embed_figure(folder / artifact))
+        # drawn from the folder's data.csv / validate.json, which a failed stage leaves as the previous run's
         extra = {"experiment": ["data.png"], "validate": ["margins.png"]}.get(name, [])
-        sections += [embed_figure(folder / f) for f in extra if f in drawn]
+        if stage["status"] != "failed":
+            sections += [embed_figure(folder / f) for f in extra if f in drawn]
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
              "table{border-collapse:collapse;margin:0.5em 0;max-width:100%}"
              ".wide{overflow-x:auto;max-width:100%}th,td{border:1px solid #ccc;padding:3px 8px;"

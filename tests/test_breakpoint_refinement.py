@@ -14,10 +14,11 @@ from lpvflow.pipeline.breakpoint_refinement import (
     MAX_INSERTED,
     design_breakpoints,
     failing_segment,
+    inserted_lines,
     refined_design,
 )
 from lpvflow.pipeline.config import check_table
-from lpvflow.pipeline.scheduling_values import SignalImages, SignalValues
+from lpvflow.pipeline.scheduling_values import SignalImages, SignalValues, signal_values
 from lpvflow.synth.design import synthesize_design
 from tests.synth_cases import two_state_plant
 
@@ -89,3 +90,17 @@ def test_the_breakpoints_used_follow_the_polytope_order_even_when_the_map_decrea
     assert used.source.values == (1.0, 0.5, 0.0, -1.0)
     assert used == [[-1.0], [-0.5], [0.0], [1.0]]
     assert design_breakpoints(given, [], ["m"], {"m": "-y"}) is given
+
+
+def test_the_certificate_line_names_inserted_values_in_the_unit_the_design_file_gave():
+    """Breakpoints given in degrees keep their unit through an insertion: the line reads −67.5°, not the
+    radians the design works in; given in the signal's own units, the number as it is."""
+    given = signal_values({"signal": "arm_angle", "values": [-75, -60, 0], "unit": "deg"},
+                          "[synth] breakpoints")
+    rows = SignalImages([[np.sin(v)] for v in given.values], given)
+    used = design_breakpoints(rows, [np.radians(-67.5)], ["s"], {"s": "sin(arm_angle)"})
+    assert used.source.unit == "deg" and used.source.values[1] == np.radians(-67.5)
+    info = {"inserted_breakpoints": [np.radians(-67.5)]}
+    assert "arm_angle = -67.5° (in that order" in inserted_lines(info, used)[0]
+    plain = SignalImages([[-1.0], [1.0]], SignalValues("y", (-1.0, 1.0)))
+    assert "y = 0.25 (in that order" in inserted_lines({"inserted_breakpoints": [0.25]}, plain)[0]

@@ -24,11 +24,12 @@ worst point 0.991 between −75° and −60°; with −67.5° inserted the worst
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
-from lpvflow.pipeline.scheduling_values import SignalImages, SignalValues, images
+from lpvflow.pipeline.scheduling_values import SignalImages, images
 from lpvflow.synth.certify import design_coordinates
 from lpvflow.synth.design import Design
 from lpvflow.synth.loop_shaping_design import FROZEN_PER_SEGMENT, FrozenMarginCheck
@@ -75,10 +76,10 @@ def design_breakpoints(given: Any, inserted: list[float], p_names: list[str],
     if not inserted or not isinstance(given, SignalImages):
         return given
     values = [*given.source.values, *inserted]
-    rows = images(SignalValues(given.source.signal, tuple(values)), p_names, scheduling or {},
+    rows = images(replace(given.source, values=tuple(values)), p_names, scheduling or {},
                   "[synth] breakpoints")
     order = np.argsort(rows[:, 0], kind="stable")
-    source = SignalValues(given.source.signal, tuple(values[k] for k in order))
+    source = replace(given.source, values=tuple(values[k] for k in order))
     return SignalImages(rows[order].tolist(), source)
 
 
@@ -88,6 +89,6 @@ def inserted_lines(info: Mapping[str, Any], given: Any) -> list[str]:
     inserted = info.get("inserted_breakpoints")
     if not inserted or not isinstance(given, SignalImages):
         return []
-    values = ", ".join(f"{v:.4g}" for v in inserted)
+    values = ", ".join(given.source.shown(v) for v in inserted)
     return [f"breakpoints inserted where the frozen check failed between two: {given.source.signal} = "
             f"{values} (in that order; the checks above are the design's with them)"]

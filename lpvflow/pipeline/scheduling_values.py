@@ -39,11 +39,17 @@ KEYS = (("validate", "points"), ("synth", "breakpoints"), ("synth", "baseline_at
 @dataclass(frozen=True)
 class SignalValues:
     """Values of one plant signal (in its own units, degrees already converted) at which the scheduling
-    map is evaluated; ``is_range``: the two values are the ends of a range (a box)."""
+    map is evaluated; ``is_range``: the two values are the ends of a range (a box); ``unit``: the unit they
+    were given in (``"deg"``: shown in degrees again)."""
 
     signal: str
     values: tuple[float, ...]
     is_range: bool = False
+    unit: str = "rad"
+
+    def shown(self, value: float) -> str:
+        """``value`` (in the signal's units) as the design file gave it: degrees with ``°`` for ``"deg"``."""
+        return f"{math.degrees(value):.4g}°" if self.unit == "deg" else f"{value:.4g}"
 
 
 class SignalImages(list):
@@ -81,14 +87,14 @@ def signal_values(value: Any, where: str, *, box: bool = False) -> SignalValues:
         if len(lo_hi) != 2 or not lo_hi[0] < lo_hi[1]:
             raise DataError(f"{where}.range = {value['range']!r} must be [lo, hi] with lo < hi")
         if box:
-            return SignalValues(value["signal"], tuple(lo_hi), is_range=True)
+            return SignalValues(value["signal"], tuple(lo_hi), is_range=True, unit=unit)
         count = value.get("count")
         if isinstance(count, bool) or not isinstance(count, int) or count < 2 or "values" in value:
             raise DataError(f"{where}: a range needs count = N ≥ 2 (and no values), e.g. {example}")
-        return SignalValues(value["signal"], tuple(np.linspace(*lo_hi, count).tolist()))
+        return SignalValues(value["signal"], tuple(np.linspace(*lo_hi, count).tolist()), unit=unit)
     if box or "values" not in value or "count" in value:
         raise DataError(f"{where} = {value!r} must be a table like {example}")
-    return SignalValues(value["signal"], tuple(finite(value["values"], "values")))
+    return SignalValues(value["signal"], tuple(finite(value["values"], "values")), unit=unit)
 
 
 def images(values: SignalValues, p_names: list[str], scheduling: Mapping[str, str], where: str) -> np.ndarray:

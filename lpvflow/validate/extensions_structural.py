@@ -102,7 +102,7 @@ def equation_loss(fitted: Fit, first: int) -> float:
     Control 10(4), 1965: the output error filtered by A is the equation error). Tanks FMU, 3 s dead time
     (Ts = 1 s, nk = 4 true, na = 3, nb = 2, poly:3), 0.2 mm level noise, seeds 0–19, the output-error
     refits at nk = 3 … 6: the raw simulation loss chooses nk = 5 on seeds 1, 10, 15, 17 (nk = 4 and 5
-    within 0.05 in log det on every seed; on the noise-free record of seed 2 it prefers 5 as well), this
+    within 0.05 in log det on seeds 0–9; on the noise-free record of seed 2 it prefers 5 as well), this
     loss nk = 4 on all 20 (ahead of nk = 5 by 0.02–0.10).
     """
     residual = prediction_residuals(fitted.model, fitted.data)[first - fitted.model.max_lag :]

@@ -50,11 +50,13 @@ reversing) is scored as the plant ran.
    beat the Box–Jenkins-type one). When LS is biased by output noise (Wald p < ``alpha``,
    noise_bias_change ≥ MATERIAL_CHANGE, ρ ≥ OUTPUT_NOISE_RATIO), step 4 would compare biased fits:
    every extension significant among the LS fits (open loop;
-   :func:`~lpvflow.validate.diagnose_noise_round.noise_round`) is refitted by output error — its level or
-   delay then chosen by the output-error loss — and scored against the output-error refit of the nominal
-   structure (``refit_ranking``); a dead time chosen there counts as significant at p < ``alpha`` whatever
-   its gain (:func:`_dead_time_by_significance`). So is every extension refitted when the LS nominal
-   simulation fails (BFR 0 on an output) and its output-error refit gains significantly
+   :func:`~lpvflow.validate.diagnose_noise_round.noise_round`) is refitted by output error — its level
+   then chosen by the output-error loss, its delay by the refits' equation error
+   (:func:`~lpvflow.validate.extensions_structural.equation_loss`) — and scored against the output-error
+   refit of the nominal structure (``refit_ranking``); a dead time chosen there counts as significant
+   at p < ``alpha`` whatever its gain (:func:`_dead_time_by_significance`). So is every extension
+   refitted when the LS nominal simulation fails (BFR 0 on an output) and its output-error refit gains
+   significantly
    (:func:`~lpvflow.validate.diagnose_noise_round.ls_simulation_failed`): against a failed nominal the LS
    ranking shows no gain at all. A structural cause that still gains is named; otherwise
    ``colored_noise`` (biased, and the AR noise model predicts significantly better than white

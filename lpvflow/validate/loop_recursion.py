@@ -33,7 +33,7 @@ from lpvflow.validate.signal_maps import dead_zone, saturation
 NO_MAP, DEAD_ZONE, SATURATION = 0, 1, 2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, no_cpython_wrapper=True)
 def _weights(grid: np.ndarray, theta: float) -> tuple[int, int, float]:
     """Neighbouring grid points i, j of θ clipped to the grid and the fraction t of the way to j."""
     last = grid.shape[0] - 1
@@ -41,31 +41,34 @@ def _weights(grid: np.ndarray, theta: float) -> tuple[int, int, float]:
         return 0, min(1, last), 0.0
     if theta >= grid[last]:
         return last - 1, last, 1.0
-    i = np.searchsorted(grid, theta, side="right") - 1
+    i = 0
+    while grid[i + 1] <= theta:  # grid[i] ≤ θ < grid[i + 1] (a controller grid has a few points)
+        i += 1
     return i, i + 1, (theta - grid[i]) / (grid[i + 1] - grid[i])
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _law(controller, x: np.ndarray, y_read: np.ndarray, r: np.ndarray, stack: np.ndarray,
-         advance: bool) -> tuple[np.ndarray, np.ndarray]:
-    """(u_c, u_op(θ)) of the controller at its state ``x`` for the outputs read and references r;
-    ``x`` advanced in place when ``advance``. A θ that is NaN gives a NaN command."""
-    grid, KA, KB, KC, KD, y_op, u_op, codes, arguments = controller
-    n_read, n_x, n_u = y_read.shape[0], KA.shape[1], KC.shape[1]
+@numba.njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
+def _law(controller, x: np.ndarray, y_read: np.ndarray, r: np.ndarray, stack: np.ndarray, u: np.ndarray,
+         trim: np.ndarray, dy: np.ndarray) -> tuple[int, int, float]:
+    """The command u_c into ``u`` and u_op(θ) into ``trim`` of the controller at its state ``x`` for the
+    outputs read and references r, y − ȳ into ``dy``; returns the grid points and fraction (i, j, t) of θ
+    for :func:`_advance`. A θ that is NaN gives a NaN command (i = −1)."""
+    grid, _, _, KC, KD, y_op, u_op, codes, arguments = controller
+    n_read, n_x, n_u = y_read.shape[0], KC.shape[2], KC.shape[1]
     sample = np.empty(2 * n_read)
     for c in range(n_read):
         sample[c] = y_read[c]
         sample[n_read + c] = 0.0 if np.isnan(r[c]) else r[c]
     theta = run_program(codes, arguments, sample, stack)
     if np.isnan(theta):
-        return np.full(n_u, np.nan), np.full(n_u, np.nan)
+        for a in range(n_u):
+            u[a] = np.nan
+            trim[a] = np.nan
+        return -1, -1, 0.0
     i, j, t = _weights(grid, theta)
     s = 1.0 - t
-    dy = np.empty(n_read)
     for c in range(n_read):
         dy[c] = y_read[c] - (s * y_op[i, c] + t * y_op[j, c] if np.isnan(r[c]) else r[c])
-    trim = np.empty(n_u)
-    u = np.empty(n_u)
     for a in range(n_u):
         trim[a] = s * u_op[i, a] + t * u_op[j, a]
         acc = 0.0
@@ -75,17 +78,33 @@ def _law(controller, x: np.ndarray, y_read: np.ndarray, r: np.ndarray, stack: np
         for c in range(n_read):
             feed += (s * KD[i, a, c] + t * KD[j, a, c]) * dy[c]
         u[a] = trim[a] + acc + feed
-    if advance:
-        nxt = np.empty(n_x)
-        for a in range(n_x):
-            acc = 0.0
-            for b in range(n_x):
-                acc += (s * KA[i, a, b] + t * KA[j, a, b]) * x[b]
-            for c in range(n_read):
-                acc += (s * KB[i, a, c] + t * KB[j, a, c]) * dy[c]
-            nxt[a] = acc
-        x[:] = nxt
-    return u, trim
+    return i, j, t
+
+
+@numba.njit(cache=True, no_cpython_wrapper=True)
+def _advance(controller, x: np.ndarray, i: int, j: int, t: float, dy: np.ndarray) -> None:
+    """xc(k+1) = A(θ) xc(k) + B(θ)(y(k) − ȳ(k)) in place, at the (i, j, t) and ``dy`` of :func:`_law`."""
+    KA, KB = controller[1], controller[2]
+    n_x, n_read = KA.shape[1], dy.shape[0]
+    s = 1.0 - t
+    nxt = np.empty(n_x)
+    for a in range(n_x):
+        acc = 0.0
+        for b in range(n_x):
+            acc += (s * KA[i, a, b] + t * KA[j, a, b]) * x[b]
+        for c in range(n_read):
+            acc += (s * KB[i, a, c] + t * KB[j, a, c]) * dy[c]
+        nxt[a] = acc
+    for a in range(n_x):
+        x[a] = nxt[a]
+
+
+@numba.njit(cache=True, no_cpython_wrapper=True)
+def _finite(values: np.ndarray) -> bool:
+    for value in values:
+        if not np.isfinite(value):
+            return False
+    return True
 
 
 @numba.njit(cache=True)
@@ -93,19 +112,23 @@ def controller_commands(controller, y_read: np.ndarray, references: np.ndarray,
                         trim_removed: bool) -> np.ndarray:
     """(n, nu) commands of the controller run from rest on the outputs it reads ``y_read`` (n, n_read),
     less its trim when ``trim_removed``; NaN after the first non-finite command (which is kept)."""
-    n = y_read.shape[0]
-    commands = np.full((n, controller[6].shape[1]), np.nan)
+    n, n_u = y_read.shape[0], controller[6].shape[1]
+    commands = np.empty((n, n_u))
+    commands[:] = np.nan
     x = np.zeros(controller[1].shape[1])
     stack = np.empty(controller[7].shape[0] + 1)
+    u_c, trim, dy = np.empty(n_u), np.empty(n_u), np.empty(y_read.shape[1])
     for k in range(n):
-        u_c, trim = _law(controller, x, y_read[k], references[k], stack, True)
-        commands[k] = u_c - trim if trim_removed else u_c
-        if not np.all(np.isfinite(u_c)):
+        i, j, t = _law(controller, x, y_read[k], references[k], stack, u_c, trim, dy)
+        for a in range(n_u):
+            commands[k, a] = u_c[a] - trim[a] if trim_removed else u_c[a]
+        if not _finite(u_c):
             break
+        _advance(controller, x, i, j, t, dy)
     return commands
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, no_cpython_wrapper=True)
 def _basis(p: np.ndarray, exponents: np.ndarray, signal: np.ndarray, knot: np.ndarray,
            psi: np.ndarray) -> None:
     """ψ(p) into ``psi``: Π_i p_i^exponents[l, i] where signal[l] < 0, else |p_signal − knot|³."""
@@ -142,7 +165,8 @@ def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, sensor, 
     exponents, signal, knot = basis
     codes, arguments, starts = programs
     map_kind, map_input, level = input_map
-    y = np.full((n, ny), np.inf)
+    y = np.empty((n, ny))
+    y[:] = np.inf
     y_model = np.zeros((n, ny))
     a_at = np.zeros((n, n_a, ny, ny))
     b_at = np.zeros((n, n_b, ny, nv))
@@ -150,39 +174,68 @@ def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, sensor, 
     psi = np.empty(A.shape[1])
     stack = np.empty(max(codes.shape[0], controller[7].shape[0]) + 1)
     x = np.zeros(controller[1].shape[1])
+    n_u = controller[6].shape[1]
+    u_c, trim = np.empty(n_u), np.empty(n_u)
+    dy, y_read = np.empty(y_index.shape[0]), np.empty(y_index.shape[0])
     past = np.zeros(ny)
+    last = np.zeros(ny)
+    out = np.zeros(ny)
     shift = offset.copy()  # offset plus, in the integrated columns, the plant output of the sample before
     for k in range(n):
-        last = past.copy()
-        out = last + shift
+        for r in range(ny):
+            last[r] = past[r]
+            out[r] = last[r] + shift[r]
         resolved = False
         for _ in range(passes):
-            u_c, trim = _law(controller, x, (out + sensor)[y_index], references[k], stack, False)
+            _read(out, sensor, y_index, y_read)
+            _law(controller, x, y_read, references[k], stack, u_c, trim, dy)
             u_k = _actuate(u[k], u_c, trim, u_index, excitation[k], trim_removed)
-            last = past + _present(k, u_k, last, A, B, exponents, signal, knot, p, computed, codes, arguments,
-                                   starts, shift, extra, map_kind, map_input, level, sign_of, y_model,
-                                   a_at, b_at, v, psi, stack, nu, n_extra)
+            direct = _present(k, u_k, last, A, B, exponents, signal, knot, p, computed, codes, arguments,
+                              starts, shift, extra, map_kind, map_input, level, sign_of, y_model, a_at, b_at,
+                              v, psi, stack, nu, n_extra)
+            for r in range(ny):
+                last[r] = past[r] + direct[r]
+                out[r] = last[r] + shift[r]
             resolved = True
-            out = last + shift
-        if not np.all(np.abs(out - offset) < diverged):
+        if not _within(out, offset, diverged):
             break
-        u_c, trim = _law(controller, x, (out + sensor)[y_index], references[k], stack, True)
-        if not np.all(np.isfinite(u_c)):
+        _read(out, sensor, y_index, y_read)
+        i, j, t = _law(controller, x, y_read, references[k], stack, u_c, trim, dy)
+        if not _finite(u_c):
             break
+        _advance(controller, x, i, j, t, dy)
         u_k = _actuate(u[k], u_c, trim, u_index, excitation[k], trim_removed)
-        y[k] = out - offset
+        for r in range(ny):
+            y[k, r] = out[r] - offset[r]
         if not resolved:
             _present(k, u_k, last, A, B, exponents, signal, knot, p, computed, codes, arguments, starts,
                      shift, extra, map_kind, map_input, level, sign_of, y_model, a_at, b_at, v, psi, stack,
                      nu, n_extra)
-        y_model[k] = last
+        for r in range(ny):
+            y_model[k, r] = last[r]
         for c in integrated:
             shift[c] += last[c]
         past = _from_past(k + 1, a_at, b_at, y_model, v)
     return y
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, no_cpython_wrapper=True)
+def _read(out, sensor, y_index, y_read):
+    """The outputs the controller reads: plant output plus sensor offset at ``y_index``, into ``y_read``."""
+    for c in range(y_index.shape[0]):
+        y_read[c] = out[y_index[c]] + sensor[y_index[c]]
+
+
+@numba.njit(cache=True, no_cpython_wrapper=True)
+def _within(out, offset, bound):
+    """|out − offset| < bound on every output (False at a NaN)."""
+    for r in range(out.shape[0]):
+        if not abs(out[r] - offset[r]) < bound:
+            return False
+    return True
+
+
+@numba.njit(cache=True, no_cpython_wrapper=True)
 def _actuate(recorded, u_c, trim, u_index, excitation, trim_removed):
     """The plant input: the recorded one with the command (less the trim) plus r on the driven inputs."""
     u_k = recorded.copy()
@@ -191,13 +244,15 @@ def _actuate(recorded, u_c, trim, u_index, excitation, trim_removed):
     return u_k
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
 def _present(k, u_k, y_k, A, B, exponents, signal, knot, p, computed, codes, arguments, starts, offset, extra,
              map_kind, map_input, level, sign_of, y_model, a_at, b_at, v, psi, stack, nu, n_extra):
     """Scheduling, coefficients and model input of sample k for the plant input u_k and the output
     y_k last given; returns B_0(ψ(k)) v(k)."""
     ny = y_k.shape[0]
-    plant = y_k + offset
+    plant = np.empty(ny)
+    for r in range(ny):
+        plant[r] = y_k[r] + offset[r]
     for c in range(computed.shape[0]):
         p[k, computed[c]] = run_program(codes[starts[c]:starts[c + 1]], arguments[starts[c]:starts[c + 1]],
                                         plant, stack)
@@ -241,7 +296,7 @@ def _present(k, u_k, y_k, A, B, exponents, signal, knot, p, computed, codes, arg
     return direct
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, no_cpython_wrapper=True)
 def _from_past(k, a_at, b_at, y_model, v):
     """−Σ_i A_i(ψ(k−i)) y(k−i) + Σ_{j≥1} B_j(ψ(k−j)) v(k−j)."""
     ny = y_model.shape[1]

@@ -298,7 +298,7 @@ def test_a_record_leaving_the_controllers_design_box_is_named(adip, tmp_path):
     for value in (0.3, 0.8):
         cfg = {"Ts": None, "duration": 3.0, "inputs": {}, "controller": str(path), "excitation": {},
                "parameters": {}, "scheduling": {}, "seed": 1, "quantization": {}, "noise": {},
-               "setpoint": {"arm_angle": f"const:value={value}"}}
+               "output_bounds": {}, "setpoint": {"arm_angle": f"const:value={value}"}}
         folder = tmp_path / str(value)
         folder.mkdir()
         outputs, _ = experiment(StageContext(folder, {"experiment": cfg, "design": {"plant": str(adip)}}))

@@ -42,6 +42,8 @@ MISTAKES = [
     (_swap('f_lo=0.1,f_hi=5,rms=0.5', 'f_lo=0.1,rms=0.5'), "multisine needs f_hi"),
     (_swap('setpoint = { arm_angle', 'setpoint = { arm_angel'), "[experiment] setpoint: 'arm_angel'"),
     (_swap('noise = { arm_angle = 1e-4', 'noise = { arm = 1e-4'), "[experiment] noise: 'arm'"),
+    (_swap('output_bounds = { pendulum_angle', 'output_bounds = { pendulum'),
+     "[experiment] output_bounds: 'pendulum'"),
     (_swap('sin_arm = "sin(arm_angle)"', 'sin_arm = "sin(arm_angel)"'), "[experiment] scheduling.sin_arm"),
     (_swap('increments = ["arm_angle"]', 'increments = ["voltage"]'), "[identify] increments: 'voltage'"),
     (_swap('measured = ["arm_angle", "pendulum_angle"]', 'measured = ["pendulum_angle", "arm_angle"]'),

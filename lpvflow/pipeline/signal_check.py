@@ -58,7 +58,7 @@ def check_signals(config: Mapping[str, Any], description: Any) -> None:
     _unknown("[experiment] inputs", experiment["inputs"], inputs, "an input of the plant FMU")
     for key in ("excitation", "iterate_excitation"):
         _unknown(f"[experiment] {key}", experiment[key], inputs, "an input of the plant FMU")
-    for key in ("setpoint", "iterate_setpoint", "quantization", "noise"):
+    for key in ("setpoint", "iterate_setpoint", "quantization", "noise", "output_bounds"):
         _unknown(f"[experiment] {key}", experiment[key], outputs, "an output of the plant FMU")
     _unknown("[experiment] parameters", experiment["parameters"], variables, "a variable of the plant FMU")
     zeros = {name: np.zeros(1) for name in [*inputs, *outputs]}

@@ -308,6 +308,8 @@ def _bounds_check(
     """``outside(k, y)``: None while every bounded output of y is within its (min, max), else the line
     naming the first that left them, its value and the time."""
     bounds = dict(output_bounds or {})
+    if not bounds:
+        return lambda k, y: None
     check_names("bounded output", list(bounds), outputs, model)
     for name, pair in bounds.items():
         lo, hi = (float(v) for v in pair)

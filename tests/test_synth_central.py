@@ -218,3 +218,18 @@ def test_a_stalled_solve_keeps_its_point_for_the_re_check():
     assert np.linalg.eigvalsh(R)[0] > 0 and np.linalg.eigvalsh(S)[0] > 0
     assert np.linalg.eigvalsh(np.block([[R, np.eye(len(R))], [np.eye(len(R)), S]]))[0] > 0
     assert report.solver == "CLARABEL" and report.status in ("optimal", "optimal_inaccurate")
+
+
+def test_when_the_largest_solve_returns_no_point_the_widest_point_is_the_central_solution():
+    """tests/hinf_cases.py seed 2027 case 1 (unstable, Ts 1.04 ms, DC weight 838) at 1.01 × hinfsyn's γ:
+    Clarabel 0.11.1 returns no point for max trace R + trace S (NumericalError at the fine and the default
+    tolerances). The widest point keeps the relative margin the largest one was asked for, so its controller
+    is the answer: certified, its closed-loop norm (python-control / AB13DD) within the level, and the
+    report says which point was used."""
+    case = weighted_cases(20, 2027)[1]
+    level = 1.01 * hinfsyn(case.P, case.nmeas, case.ncon).gamma
+    res = central_hinfsyn(case.P, case.nmeas, case.ncon, level)
+    assert min(res.certificate) > 0
+    assert hinf_norm(case.P.lft(res.controller, case.ncon, case.nmeas)) <= level * (1 + 1e-6)
+    assert res.report.status.startswith("no point, widest point kept")
+    assert any(status.startswith("no point, widest point kept") for _, status, _ in res.report.attempts)

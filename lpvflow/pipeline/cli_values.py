@@ -39,11 +39,12 @@ def intervals(items: dict[str, str], option: str) -> dict[str, tuple[float, floa
     """The values of :func:`assignments` as ``MIN,MAX`` pairs of finite numbers with MIN < MAX."""
     values = {}
     for name, text in items.items():
-        parts = text.split(",")
-        pair = numbers({f"{name} (min)": parts[0], f"{name} (max)": parts[-1]}, option) \
-            if len(parts) == 2 else None
-        if pair is None or not pair[f"{name} (min)"] < pair[f"{name} (max)"]:
+        try:
+            lo, hi = (float(part) for part in text.split(","))
+        except ValueError:
+            lo = hi = math.nan
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise DataError(f"{option} {name}={text!r} must read MIN,MAX with MIN < MAX, e.g. "
                             f"{name}=-0.5,0.5")
-        values[name] = (pair[f"{name} (min)"], pair[f"{name} (max)"])
+        values[name] = (lo, hi)
     return values

@@ -14,6 +14,7 @@ from lpvflow.synth.loop_shaping import (
     integrator_lead_weight,
     loop_shaping,
     ncf_generalized_plant,
+    output_integral_weight,
     shaped_plant,
 )
 from lpvflow.validate.norms import hinf_norm
@@ -170,6 +171,36 @@ def test_integrator_lead_weight_is_the_sampled_continuous_weight():
     assert np.degrees(np.angle(W1(np.exp(1j * wc * Ts)))) == pytest.approx(expected, abs=3.0)
     with pytest.raises(ModelError, match="Nyquist"):
         integrator_lead_weight(Ts, 100.0)
+
+
+def test_output_integral_weight_integrates_only_the_marked_outputs():
+    """W2 = diag(w_j): w_j(z) = 1 + (ω_c/r_i)·Ts/(z − 1) (the ZOH sample of (s + ω_c/r_i)/s) on the marked
+    outputs, 1 on the others, nothing off the diagonal; no output marked is refused."""
+    rng = np.random.default_rng(11)
+    for _ in range(6):
+        Ts, wc = float(rng.choice([0.002, 0.01])), float(rng.uniform(1.0, 20.0))
+        ratio = float(rng.uniform(3, 30))
+        marked = [bool(m) for m in rng.integers(0, 2, 3)]
+        marked[int(rng.integers(0, 3))] = True
+        W2 = output_integral_weight(Ts, wc, marked, integral_ratio=ratio)
+        for w in rng.uniform(0.01, 0.9, 4) * np.pi / Ts:
+            z = np.exp(1j * w * Ts)
+            expected = np.diag([1 + wc / ratio * Ts / (z - 1) if m else 1.0 for m in marked])
+            np.testing.assert_allclose(W2(z, squeeze=False), expected, rtol=1e-12, atol=1e-12)
+        assert W2.nstates == sum(marked)
+    with pytest.raises(ModelError, match="at least one"):
+        output_integral_weight(0.01, 1.0, [False, False])
+
+
+def test_crossover_normalized_with_an_output_weight_crosses_one_at_the_crossover():
+    for rng, G in random_plants(seed=10, count=6):
+        wc = float(rng.uniform(0.5, 5.0))
+        W1 = integrator_lead_weight(G.dt, wc, inputs=G.ninputs, integral=False)
+        W2 = output_integral_weight(G.dt, wc, [True] + [False] * (G.noutputs - 1))
+        W1n = crossover_normalized(G, W1, wc, W2)
+        z = np.exp(1j * wc * G.dt)
+        loop = W2(z, squeeze=False) @ G(z, squeeze=False) @ W1n(z, squeeze=False)
+        assert np.linalg.norm(loop, 2) == pytest.approx(1.0, rel=1e-9)
 
 
 def test_crossover_normalized_weight_crosses_one_at_the_crossover():

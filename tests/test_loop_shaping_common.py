@@ -15,8 +15,9 @@ from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
 from lpvflow.synth.bilinear import closed_loop
 from lpvflow.synth.controller import mix
-from lpvflow.synth.loop_shaping import ncf_generalized_plant, shaped_plant
+from lpvflow.synth.loop_shaping import ncf_generalized_plant, output_integral_weight, shaped_plant
 from lpvflow.synth.loop_shaping_common import certificate_margins, common_central_controllers, common_weight
+from lpvflow.synth.margin_goal import Shaping
 from lpvflow.synth.plant import VertexPlant
 from lpvflow.synth.polytope import hat_coordinates
 from tests.synth_cases import two_state_plant
@@ -38,11 +39,14 @@ def _random_plant(seed: int) -> LPVSS:
 
 
 @functools.cache
-def _design(seed: int):
+def _design(seed: int, output_integral: bool = False):
+    """The common design of _random_plant(seed); with ``output_integral`` the integral action in W2 on the
+    output (``[synth] integral_outputs``) instead of in W1."""
     model = _random_plant(seed)
     plants = [model.frozen(np.array([p])) for p in BREAKPOINTS]
-    W1 = common_weight(plants, CROSSOVER, 10.0)
-    W2 = control.ss([], [], [], np.eye(1), model.Ts)
+    W2 = (output_integral_weight(model.Ts, CROSSOVER, [True]) if output_integral
+          else control.ss([], [], [], np.eye(1), model.Ts))
+    W1 = common_weight(plants, Shaping(CROSSOVER, 10.0, W2, not output_integral))
     common = common_central_controllers([shaped_plant(G, W1, W2) for G in plants], 1.01)
     return model, plants, W1, W2, common
 
@@ -52,9 +56,9 @@ def _ncf_vertex(Gs: control.StateSpace) -> VertexPlant:
     return VertexPlant.from_ss(P, nw=P.ninputs - Gs.ninputs, nz=P.noutputs - Gs.noutputs)
 
 
-@pytest.mark.parametrize("seed", SEEDS)
-def test_common_certificate_holds_on_the_shipped_loop_between_breakpoints(seed):
-    model, plants, W1, W2, common = _design(seed)
+@pytest.mark.parametrize(("seed", "output_integral"), [(s, False) for s in SEEDS] + [(0, True)])
+def test_common_certificate_holds_on_the_shipped_loop_between_breakpoints(seed, output_integral):
+    model, plants, W1, W2, common = _design(seed, output_integral)
     rng = np.random.default_rng(100 + seed)
     mats = [(G.A, G.B, G.C, G.D) for G in plants]
     for t in rng.uniform(BREAKPOINTS[0], BREAKPOINTS[-1], 6):
@@ -66,8 +70,8 @@ def test_common_certificate_holds_on_the_shipped_loop_between_breakpoints(seed):
         # the common LMI, rebuilt in numpy at this point from the certificate 𝒳 = FᵀF
         [margin] = certificate_margins([shaped_plant(G, W1, W2)], [K], common.lyapunov_factor, common.gamma)
         assert margin > 0
-        # frozen: b(G·W1, K∞) ≥ 1/γ by the frequency-grid formula (K = W1·K∞ read by _margin_on_grid)
-        assert _margin_on_grid(G, _matrices(W1 * control.ss(*K, model.Ts)), W1) >= 1 / common.gamma
+        # frozen: b(W2·G·W1, K∞) ≥ 1/γ by the frequency-grid formula (K = W1·K∞·W2 read by _margin_on_grid)
+        assert _margin_on_grid(G, _matrices(W1 * control.ss(*K, model.Ts) * W2), W1, W2) >= 1 / common.gamma
 
 
 def _matrices(M: control.StateSpace) -> tuple[np.ndarray, ...]:

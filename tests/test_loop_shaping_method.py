@@ -60,9 +60,10 @@ def _random_plant(seed: int) -> LPVSS:
     return LPVSS(A, B, model.C, model.D, model.basis, model.Ts)
 
 
-def _margin_on_grid(G: control.StateSpace, K: tuple[np.ndarray, ...], W1: control.StateSpace) -> float:
-    """b(G·W1, K∞) with K∞ = W1⁻¹K (u = K y) from the frequency responses on a grid, 0 if the loop
-    G, K is unstable: b = 1/max_ω σ̄([I; K∞](I − Gs K∞)⁻¹[I  Gs])."""
+def _margin_on_grid(G: control.StateSpace, K: tuple[np.ndarray, ...], W1: control.StateSpace,
+                    W2: control.StateSpace | None = None) -> float:
+    """b(W2·G·W1, K∞) with K∞ = W1⁻¹KW2⁻¹ (u = K y; W2 = I when None) from the frequency responses on a
+    grid, 0 if the loop G, K is unstable: b = 1/max_ω σ̄([I; K∞](I − Gs K∞)⁻¹[I  Gs])."""
     Ak, Bk, Ck, Dk = K
     A, B, C = (np.asarray(M) for M in (G.A, G.B, G.C))
     loop = np.block([[A + B @ Dk @ C, B @ Ck], [Bk @ C, Ak]])
@@ -73,8 +74,9 @@ def _margin_on_grid(G: control.StateSpace, K: tuple[np.ndarray, ...], W1: contro
     for w in np.logspace(-3, np.log10(np.pi / Ts) - 1e-6, 3000):
         z = np.exp(1j * w * Ts)
         g, w1 = G(z, squeeze=False), W1(z, squeeze=False)
+        w2 = np.eye(g.shape[0]) if W2 is None else W2(z, squeeze=False)
         k = Ck @ np.linalg.solve(z * np.eye(Ak.shape[0]) - Ak, Bk) + Dk
-        gs, k_inf = g @ w1, np.linalg.solve(w1, k)
+        gs, k_inf = w2 @ g @ w1, np.linalg.solve(w1, k) @ np.linalg.inv(w2)
         p = gs.shape[0]
         inner = np.linalg.inv(np.eye(p) - gs @ k_inf)
         T = np.vstack([np.eye(p), k_inf]) @ inner @ np.hstack([np.eye(p), gs])
@@ -181,6 +183,75 @@ def test_scaled_two_dof_controller_has_the_shaped_margin_and_injects_r_after_k_i
             K_r = np.linalg.inv(Du) @ (Ck @ resolvent[:, :2] + Dk[:, :2]) @ Dy
             expected = -(W1_i(z, squeeze=False) @ dc)
             assert np.allclose(K_r, expected, rtol=1e-6, atol=1e-9)
+
+
+def _steady_state(G: control.StateSpace, Ak: np.ndarray, Bk: np.ndarray, Ck: np.ndarray, Dk: np.ndarray
+                  ) -> np.ndarray:
+    """The DC gain from [r; d] to y of the frozen loop: the plant G, the 2dof controller reading [r; y + d]
+    (d a sensor offset), u = C_K x_K + D_K[r; y + d]; asserts the loop is stable."""
+    A, B, C = (np.asarray(M) for M in (G.A, G.B, G.C))
+    ny = C.shape[0]
+    Bkr, Bky, Dkr, Dky = Bk[:, :ny], Bk[:, ny:], Dk[:, :ny], Dk[:, ny:]
+    Acl = np.block([[A + B @ Dky @ C, B @ Ck], [Bky @ C, Ak]])
+    Bcl = np.block([[B @ Dkr, B @ Dky], [Bkr, Bky]])
+    Ccl = np.hstack([C, np.zeros((ny, Ak.shape[0]))])
+    assert np.abs(np.linalg.eigvals(Acl)).max() < 1.0
+    return Ccl @ np.linalg.solve(np.eye(Acl.shape[0]) - Acl, Bcl)
+
+
+@pytest.mark.parametrize(("seed", "integral_outputs"), [(0, None), (0, ["y1"]), (1, ["y1"])])
+def test_integral_on_one_output_holds_it_at_the_reference_whatever_the_other_reads(tmp_path, seed,
+                                                                                    integral_outputs):
+    """[synth] integral_outputs = ["y1"]: W2 = diag((s + ω_c/10)/s, 1), W1 lead and roll-off only. The LMI
+    level against the Riccati optimum of W2·G·W1_i (W2 and the normalization built here from their
+    formulas), the written feedback's margin by the frequency-grid formula, and the property it is for: at
+    steady state y1 = r1 exactly and a sensor offset on y2 moves y1 by nothing. With the integral action at
+    the input (the default) the same offset moves y1."""
+    model = _two_output_plant(seed)
+    model.save(tmp_path / "model.json")
+    given = "" if integral_outputs is None else f"integral_outputs = {json.dumps(integral_outputs)}\n"
+    (tmp_path / "design.toml").write_text(TWO_OUTPUTS + 'structure = "2dof"\n'
+                                          'scaling = { u = 2.0, y1 = 0.5, y2 = 0.05 }\n'
+                                          'weights.R = [{ num = [1.0], den = [1] }, '
+                                          '{ num = [1.0], den = [1] }]\n' + given)
+    out = tmp_path / "K.json"
+    main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"), "-o", str(out)])
+    controller = load(out)
+    info = controller.info
+    assert info["integral_outputs"] == integral_outputs
+    Du, Dy = np.diag([2.0]), np.diag([0.5, 0.05])
+    s = control.tf("s")
+    W2 = None
+    if integral_outputs is not None:
+        W2 = control.append(control.sample_system(control.ss((s + CROSSOVER / 10) / s), model.Ts, "zoh"),
+                            control.ss([], [], [], [[1.0]], model.Ts))
+        lead = (s + 2 * CROSSOVER / 4) / (s + 2 * CROSSOVER) * 10 * CROSSOVER / (s + 10 * CROSSOVER)
+        W1 = control.sample_system(control.ss(lead), model.Ts, "zoh")
+    for i, p in enumerate(BREAKPOINTS):
+        Gp = model.frozen(np.array([p]))
+        Ak, Bk, Ck, Dk = controller.Ak[i], controller.Bk[i], controller.Ck[i], controller.Dk[i]
+        dc = _steady_state(Gp, Ak, Bk, Ck, Dk)  # columns r1, r2, d1, d2
+        if integral_outputs is None:
+            assert abs(dc[0, 3]) > 1e-2
+            continue
+        assert dc[0, 0] == pytest.approx(1.0, abs=1e-9) and abs(dc[0, 3]) < 1e-9
+        G = control.ss(Gp.A, Gp.B @ Du, np.linalg.inv(Dy) @ Gp.C, 0 * Gp.D, model.Ts)  # D_y⁻¹ G D_u
+        z = np.exp(1j * CROSSOVER * model.Ts)
+        W1_i = W1 / np.linalg.norm(W2(z, squeeze=False) @ G(z, squeeze=False) @ W1(z, squeeze=False), 2)
+        gamma_opt = 1.0 / optimal_margin(W2 * G * W1_i)
+        assert gamma_opt * (1 - 1e-6) <= info["lmi_gammas"][i] <= 1.01 * gamma_opt
+        K_y = (Ak, Bk[:, 2:] @ Dy, np.linalg.inv(Du) @ Ck, np.linalg.inv(Du) @ Dk[:, 2:] @ Dy)
+        assert _margin_on_grid(G, K_y, W1_i, W2) >= 1.0 / info["vertex_gammas"][i]
+
+
+def test_integral_outputs_naming_no_model_output_is_one_error_line(tmp_path, capsys):
+    _two_output_plant(0).save(tmp_path / "model.json")
+    (tmp_path / "design.toml").write_text(TWO_OUTPUTS + 'integral_outputs = ["y3"]\n')
+    out = tmp_path / "K.json"
+    assert main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
+                 "-o", str(out)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "['y3']" in error[0] and "integral_outputs" in error[0] and not out.exists()
 
 
 def test_scaling_that_misses_a_signal_is_one_error_line(tmp_path, capsys):

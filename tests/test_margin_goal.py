@@ -7,6 +7,7 @@ breakpoint where none does."""
 import json
 import warnings
 
+import control
 import numpy as np
 import pytest
 
@@ -45,6 +46,28 @@ def _zoh_response(Ts: float, crossover: float, integral_ratio: float, beta: floa
     step = (c2 * Ts * z / (z - 1) ** 2 + c1 * z / (z - 1) + d_p * z / (z - np.exp(-p * Ts))
             + d_r * z / (z - np.exp(-r * Ts)))
     return (1 - 1 / z) * step
+
+
+def test_lead_weight_without_integral_factor_is_the_sampled_lead_and_rolloff():
+    """integral = False (the integral action in W2, [synth] integral_outputs): random Ts, crossover, β; no
+    pole at z = 1, D = 0, A and B the same for every β, and the response the exact ZOH sample of
+    (s + p/β)/(s + p) · 10ω_c/(s + 10ω_c) (python-control's c2d of the continuous weight)."""
+    rng = np.random.default_rng(37)
+    s = control.tf("s")
+    for _ in range(8):
+        Ts = float(rng.choice([0.001, 0.005, 0.01, 0.05]))
+        crossover = float(rng.uniform(0.02, 0.3)) * np.pi / Ts / 10
+        nominal = lead_weight(Ts, crossover, 1, LEAD_RATIO, integral_ratio=10.0, integral=False)
+        assert nominal.nstates == 2 and np.min(np.abs(nominal.poles() - 1.0)) > 1e-3
+        z = np.exp(1j * crossover * Ts * np.logspace(-2, 1, 25))
+        for beta in (LEAD_RATIO, float(rng.uniform(1.0, LEAD_RATIO)), 1.0):
+            W = lead_weight(Ts, crossover, 1, beta, integral_ratio=10.0, integral=False)
+            assert np.array_equal(W.A, nominal.A) and np.array_equal(W.B, nominal.B) and not W.D.any()
+            p, r = 2.0 * crossover, 10.0 * crossover
+            exact = control.sample_system(control.ss((s + p / beta) / (s + p) * r / (s + r)), Ts, "zoh")
+            got = np.array([complex(W(zk)) for zk in z])
+            want = np.array([complex(exact(zk)) for zk in z])
+            assert np.max(np.abs(got - want) / np.abs(want)) < 1e-9
 
 
 def test_lead_weight_moves_only_the_lead_zero_of_the_design_weight():

@@ -155,7 +155,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "crossover": Key(None, number(0.0, open_low=True),
                          "loop-shaping: crossover of the shaped loop, rad/s (default: π/(20·Ts))"),
         "integral_ratio": Key(10.0, number(0.0, open_low=True),
-                              "loop-shaping: crossover / integral corner of W1 (> 0)"),
+                              "loop-shaping: crossover / integral corner of the integral action (> 0)"),
+        "integral_outputs": Key(None, names(), "loop-shaping: outputs whose error the controller integrates "
+                                "(in W2; default: integral action at every plant input, in W1)"),
         "scaling": Key(None, mapping(number(0.0, open_low=True), "scale > 0"),
                        "loop-shaping: { signal = scale } for every model input and output: the loop is "
                        "shaped in D_y⁻¹·G·D_u (default: none)"),

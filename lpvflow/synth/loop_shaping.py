@@ -272,34 +272,63 @@ ROLLOFF_RATIO = 10.0
 
 
 def integrator_lead_weight(Ts: float, crossover: float, inputs: int = 1, *, integral_ratio: float = 10.0,
-                           lead_ratio: float = LEAD_RATIO, rolloff_ratio: float = ROLLOFF_RATIO
-                           ) -> control.StateSpace:
+                           lead_ratio: float = LEAD_RATIO, rolloff_ratio: float = ROLLOFF_RATIO,
+                           integral: bool = True) -> control.StateSpace:
     """Strictly proper W1 with integral action, a phase lead at the crossover and a roll-off, per input:
 
         W1(s) = (s + ω_c/r_i)/s · (s + ω_c/√α)/(s + ω_c√α) · r_r ω_c/(s + r_r ω_c),
 
     ω_c = ``crossover`` (rad/s), r_i = ``integral_ratio``, α = ``lead_ratio`` (phase lead
-    arcsin((α − 1)/(α + 1)) at ω_c: 37° for α = 4), r_r = ``rolloff_ratio``; sampled with a zero-order hold,
-    which keeps D = 0 (the strictly proper W1 that :func:`ncf_generalized_plant` needs). Scale it per
-    breakpoint with :func:`crossover_normalized` (its C changes, its B does not).
+    arcsin((α − 1)/(α + 1)) at ω_c: 37° for α = 4), r_r = ``rolloff_ratio``; without the first factor when
+    ``integral`` is False (the integral action is then W2's, :func:`output_integral_weight`); sampled with a
+    zero-order hold, which keeps D = 0 (the strictly proper W1 that :func:`ncf_generalized_plant` needs).
+    Scale it per breakpoint with :func:`crossover_normalized` (its C changes, its B does not).
     """
     if not 0.0 < crossover * Ts < np.pi / rolloff_ratio:
         raise ModelError(f"crossover {crossover} rad/s with roll-off at {rolloff_ratio}x lies above the "
                          f"Nyquist frequency {np.pi / Ts:.4g} rad/s; lower crossover or rolloff_ratio")
     s = control.tf("s")
     wc, alpha = crossover, lead_ratio
-    channel = ((s + wc / integral_ratio) / s * (s + wc / np.sqrt(alpha)) / (s + wc * np.sqrt(alpha))
+    integrator = (s + wc / integral_ratio) / s if integral else 1
+    channel = (integrator * (s + wc / np.sqrt(alpha)) / (s + wc * np.sqrt(alpha))
                * rolloff_ratio * wc / (s + rolloff_ratio * wc))
     sampled = control.sample_system(control.ss(channel), Ts, "zoh")
     return control.append(*[sampled] * inputs) if inputs > 1 else sampled
 
 
-def crossover_normalized(G: object, W1: control.StateSpace, crossover: float) -> control.StateSpace:
-    """W1/σ_max(G(e^{jω_c Ts}) W1(e^{jω_c Ts})): the shaped loop G·W1 crosses 1 at ω_c = ``crossover``.
+def output_integral_weight(Ts: float, crossover: float, integrated: Sequence[bool], *,
+                           integral_ratio: float = 10.0) -> control.StateSpace:
+    """W2 with integral action on the outputs marked in ``integrated`` and 1 on the others:
+
+        W2(s) = diag(w_j(s)),  w_j(s) = (s + ω_c/r_i)/s (integrated), 1 (not),
+
+    sampled with a zero-order hold (x⁺ = x + Ts·e, w = (ω_c/r_i)·x + e). The same W2 at every breakpoint
+    keeps the NCF plant's C2 constant (:func:`ncf_generalized_plant`), and with the integral action on an
+    output rather than on the plant's inputs the loop's steady state holds that output's error at zero
+    whatever the other outputs read (a sensor offset on them moves nothing).
+
+    Raises:
+        ModelError: no output marked.
+    """
+    if not any(integrated):
+        raise ModelError("output_integral_weight needs at least one integrated output")
+    s = control.tf("s")
+    integrator = control.sample_system(control.ss((s + crossover / integral_ratio) / s), Ts, "zoh")
+    unit = control.ss([], [], [], [[1.0]], Ts)
+    return control.append(*[integrator if flag else unit for flag in integrated])
+
+
+def crossover_normalized(G: object, W1: control.StateSpace, crossover: float,
+                         W2: control.StateSpace | None = None) -> control.StateSpace:
+    """W1/σ_max(W2 G W1)(e^{jω_c Ts}): the shaped loop W2·G·W1 crosses 1 at ω_c = ``crossover`` (W2 = I
+    when None).
 
     Only C and D of W1 are scaled, so weights normalized at different breakpoints share A and B.
     """
     G = as_statespace(G, "G")
     z = np.exp(1j * crossover * float(G.dt))
-    gain = np.linalg.norm(G(z, squeeze=False) @ W1(z, squeeze=False), 2)
+    loop = G(z, squeeze=False) @ W1(z, squeeze=False)
+    if W2 is not None:
+        loop = W2(z, squeeze=False) @ loop
+    gain = np.linalg.norm(loop, 2)
     return control.ss(W1.A, W1.B, W1.C / gain, W1.D / gain, W1.dt)

@@ -34,13 +34,8 @@ import scipy.linalg
 from lpvflow.errors import SynthesisError
 from lpvflow.synth.bilinear import certificate_margin
 from lpvflow.synth.hinf import central_near_optimum
-from lpvflow.synth.loop_shaping import (
-    LEAD_RATIO,
-    crossover_normalized,
-    in_plant_coordinates,
-    ncf_generalized_plant,
-)
-from lpvflow.synth.margin_goal import lead_weight
+from lpvflow.synth.loop_shaping import in_plant_coordinates, ncf_generalized_plant
+from lpvflow.synth.margin_goal import Shaping
 from lpvflow.synth.plant import VertexPlant
 
 
@@ -63,13 +58,10 @@ class CommonLoopShaping:
     margins: list[float]
 
 
-def common_weight(models: Sequence[control.StateSpace], crossover: float, integral_ratio: float
-                  ) -> control.StateSpace:
+def common_weight(models: Sequence[control.StateSpace], shaping: Shaping) -> control.StateSpace:
     """The nominal W1 (lead ratio :data:`lpvflow.synth.loop_shaping.LEAD_RATIO`) normalized so that
-    G_c·W1 crosses 1 at ``crossover``, G_c the centre one of ``models`` (index len // 2)."""
-    centre = models[len(models) // 2]
-    W1 = lead_weight(float(centre.dt), crossover, centre.ninputs, LEAD_RATIO, integral_ratio=integral_ratio)
-    return crossover_normalized(centre, W1, crossover)
+    W2·G_c·W1 crosses 1 at the crossover, G_c the centre one of ``models`` (index len // 2)."""
+    return shaping.weight(models[len(models) // 2])
 
 
 def certificate_margins(shaped: Sequence[control.StateSpace], K_inf: Sequence[tuple[np.ndarray, ...]],

@@ -5,12 +5,18 @@ At every vertex i with frozen model G_i, in the signal scaling of ``scaling`` (D
 :class:`lpvflow.validate.scaling.SignalScaling`; the validate stage's scaling makes the shaped loop's b the
 b that the robustness stage compares with the ν-gap):
 
-* W1_i = W1/σ_max(G_i W1)(e^{jω_c Ts}), W1 the integrator-plus-lead weight of
+* W1_i = W1/σ_max(W2 G_i W1)(e^{jω_c Ts}), W1 the integrator-plus-lead weight of
   :func:`lpvflow.synth.loop_shaping.integrator_lead_weight` at the crossover ω_c = ``crossover``, its
   integral corner at ω_c/``integral_ratio`` (default 10)
   (:func:`lpvflow.synth.loop_shaping.crossover_normalized`), W2 = I (in the scaled signals); with
-  ``margin_goal`` the lead zero of W1_i moves towards its pole (A, B of W1 unchanged) until the shipped
-  b(G_i, W1_i·K∞_i) reaches the breakpoint's goal (:mod:`lpvflow.synth.margin_goal`);
+  ``integral_outputs`` the integral action moves from W1 (every plant input) to W2 = diag((s + ω_c/r_i)/s
+  on the named outputs, 1 on the others) (:func:`lpvflow.synth.loop_shaping.output_integral_weight`), the
+  same at every breakpoint, and W1 keeps the lead and the roll-off: then the named outputs settle at their
+  references whatever the other outputs read — with the integral action at the inputs the steady state
+  only zeroes K∞(1)·e, a combination of every output's error, and a sensor offset on one output moves the
+  others (on the ADIP, a 0.002 rad pendulum offset moved the held arm ≈ 9°). With ``margin_goal`` the
+  lead zero of W1_i moves towards its pole (A, B of W1 unchanged) until the shipped b(G_i, W1_i·K∞_i·W2)
+  reaches the breakpoint's goal (:mod:`lpvflow.synth.margin_goal`);
 * K∞_i from hinfsyn's LMIs (:func:`lpvflow.synth.loop_shaping.lmi_central_controller`): the certified
   optimum γ_LMI,i of the four-block NCF plant of Gs_i = G_i·W1_i, then the central LMI controller at
   γ_i = 1.01·γ_LMI,i (:mod:`lpvflow.synth.central`: the largest R, S of the LMIs at γ_i, explicit
@@ -22,14 +28,14 @@ b that the robustness stage compares with the ν-gap):
 * the witnesses: the Riccati optimum γ_opt(Gs_i) from the two NCF Riccati equations (γ_LMI,i within 1 %
   of it), and the Riccati central controller at the same level γ_i
   (:func:`lpvflow.synth.loop_shaping.central_ncf_controller`), whose distance from K∞_i is reported;
-* the feedback K_i = D_u·W1_i·K∞_i·D_y⁻¹ on the plant's physical signals (u = K y, positive feedback as in
-  :mod:`lpvflow.validate.robust_stability`).
+* the feedback K_i = D_u·W1_i·K∞_i·W2·D_y⁻¹ on the plant's physical signals (u = K y, positive feedback as
+  in :mod:`lpvflow.validate.robust_stability`).
 
-The W1_i share A, B and have D = 0, so Σλ_i(W1_i·K∞_i) = W1(λ)·K∞(λ) exactly: the exported controller
-Σλ_iK_i is the interpolated shaped design. Between vertices it is not certified by the LMIs:
-:func:`frozen_margin_check` evaluates the shaped loop b(G(λ)·W1(λ), K∞(λ)) on a grid ten times finer than
-the vertices and requires b ≥ 1/(1.1·γ), γ the larger level of the two vertices around the point (b = 0
-when the frozen loop is unstable).
+The W1_i share A, B and have D = 0 and W2 is one system, so Σλ_i(W1_i·K∞_i·W2) = W1(λ)·K∞(λ)·W2 exactly:
+the exported controller Σλ_iK_i is the interpolated shaped design. Between vertices it is not certified by
+the LMIs: :func:`frozen_margin_check` evaluates the shaped loop b(W2·G(λ)·W1(λ), K∞(λ)) on a grid ten times
+finer than the vertices and requires b ≥ 1/(1.1·γ), γ the larger level of the two vertices around the point
+(b = 0 when the frozen loop is unstable).
 With ``scheduling = "common"`` (:mod:`lpvflow.synth.loop_shaping_common`) one W1 (normalized at the centre
 breakpoint, no ``margin_goal``) shapes every breakpoint, so G(λ)·W1 = Σλ_iG_i·W1 exactly, and K∞_i come from
 one hinfsyn solve over all breakpoints with one Lyapunov matrix: the loop is certified for every value and
@@ -40,7 +46,8 @@ them).
 
 Reference (2-DOF, Vinnicombe 2001, §1.5: the feedback gives robustness, the reference path the speed):
 ``structure = "1dof"`` reads e = r − y (u = −K e); ``"2dof"`` reads [r; y] and injects the reference after
-K∞, u = D_u·W1·(K∞ D_y⁻¹y − K∞(1) D_y⁻¹r_f) (:func:`controller_matrices`), r_f the reference passed through
+K∞, u = D_u·W1·(K∞ v − K∞(1) D_y⁻¹r_f), v = W2 D_y⁻¹y − (W2 − D_W2) D_y⁻¹r_f (W2's integrators read the
+error; :func:`controller_matrices`), r_f the reference passed through
 ``reference_filter`` (ω²/(s² + 2ζωs + ω²), zero-order hold; none: r_f = r). The feedback part from y is K
 in both, so the robustness stage's b is the design's; K∞(1) is interpolated with the rest (W1's B is
 shared, so the 2dof vertex matrices are affine in K∞_i, K∞_i(1) and W1_i's C).
@@ -66,10 +73,17 @@ from lpvflow.synth.loop_shaping import (
     central_ncf_controller,
     controller_distance,
     lmi_central_controller,
+    output_integral_weight,
     shaped_plant,
 )
 from lpvflow.synth.loop_shaping_common import common_central_controllers, common_weight
-from lpvflow.synth.margin_goal import MarginGoalReport, breakpoint_names, lead_for_goal, vertex_goals
+from lpvflow.synth.margin_goal import (
+    MarginGoalReport,
+    Shaping,
+    breakpoint_names,
+    lead_for_goal,
+    vertex_goals,
+)
 from lpvflow.synth.observer import antiwindup_gains, reference_filter, with_reference_filter
 from lpvflow.synth.plant import GeneralizedPlant
 from lpvflow.synth.polytope import vertex_matrices
@@ -222,33 +236,41 @@ def segment_gamma(gammas: list[float], lam: np.ndarray) -> float:
 def frozen_margin_check(model_vertices: list[tuple[np.ndarray, ...]], weights: list[tuple[np.ndarray, ...]],
                         K_inf: list[tuple[np.ndarray, ...]], gammas: list[float], lmi_gammas: list[float],
                         optimal_gammas: list[float], lams: list[np.ndarray], Ts: float,
-                        riccati_distance: list[float] | None = None) -> FrozenMarginCheck:
-    """:class:`FrozenMarginCheck` of K∞(λ) = Σλ_iK∞_i on Gs(λ) = G(λ)·W1(λ) and of K(λ) = W1(λ)·K∞(λ) on
-    G(λ) (u = K y) at every λ of ``lams``, each held to :func:`segment_gamma`."""
+                        riccati_distance: list[float] | None = None,
+                        W2: control.StateSpace | None = None) -> FrozenMarginCheck:
+    """:class:`FrozenMarginCheck` of K∞(λ) = Σλ_iK∞_i on Gs(λ) = W2·G(λ)·W1(λ) and of K(λ) =
+    W1(λ)·K∞(λ)·W2 on G(λ) (u = K y) at every λ of ``lams``, each held to :func:`segment_gamma` (W2 = I
+    when None)."""
     b, b_plant = [], []
     for lam in lams:
         G, W1, K = (control.ss(*mix(M, lam), Ts) for M in (model_vertices, weights, K_inf))
-        b.append(generalized_margin(G * W1, K))
-        b_plant.append(generalized_margin(G, W1 * K))
+        W2_lam = control.ss([], [], [], np.eye(G.noutputs), Ts) if W2 is None else W2
+        b.append(generalized_margin(W2_lam * G * W1, K))
+        b_plant.append(generalized_margin(G, W1 * K * W2_lam))
     ratio = np.array(b) * MARGIN_FACTOR * np.array([segment_gamma(gammas, lam) for lam in lams])
     worst = int(np.argmin(ratio))
     return FrozenMarginCheck(min(b), min(b_plant), float(ratio[worst]), worst, len(lams), list(gammas),
                              list(lmi_gammas), list(optimal_gammas), list(riccati_distance or [0.0]))
 
 
-def controller_matrices(K_inf: tuple[np.ndarray, ...], W1: control.StateSpace, structure: str
-                        ) -> tuple[np.ndarray, ...]:
+def controller_matrices(K_inf: tuple[np.ndarray, ...], W1: control.StateSpace, W2: control.StateSpace,
+                        structure: str) -> tuple[np.ndarray, ...]:
     """The controller of ``structure`` around the shaped plant's K∞ (scaled signals, u_s = K∞ y_s):
-    1dof reads e = r − y, u = −W1·K∞ e; 2dof reads [r; y] and injects the reference after K∞,
-    u = W1·(K∞ y − K∞(1) r) (Skogestad & Postlethwaite, *Multivariable Feedback Control*, 2nd ed. 2005,
-    §9.4.3: the reference does not pass the controller's lead, so a step does not kick; at DC it is
-    W1·K∞(1)(y − r), the 1dof loop). The feedback from y is W1·K∞ in both."""
+    1dof reads e = r − y, u = −W1·K∞·W2 e; 2dof reads [r; y] and injects the reference after K∞,
+    u = W1·(K∞ v − K∞(1) r), v = W2 y − (W2 − D_W2) r (Skogestad & Postlethwaite, *Multivariable Feedback
+    Control*, 2nd ed. 2005, §9.4.3: the reference does not pass the controller's lead, so a step does not
+    kick; W2's integrators read the error y − r, so the integrated outputs settle at the reference; with
+    W2 = I, at DC it is W1·K∞(1)(y − r), the 1dof loop). The feedback from y is W1·K∞·W2 in both."""
     A, B, C, D = K_inf
     if structure == "2dof":
         dc = C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D
         two = control.ss(A, np.hstack([np.zeros_like(B), B]), C, np.hstack([-dc, D]), W1.dt)
-        return _matrices(W1 * two)
-    return _matrices(W1 * control.ss(A, -B, C, -D, W1.dt))
+        A2, B2, C2, D2 = _matrices(W2)
+        ny = D2.shape[0]
+        errors = control.ss(A2, np.hstack([-B2, B2]), np.vstack([np.zeros((ny, A2.shape[0])), C2]),
+                            np.block([[np.eye(ny), np.zeros((ny, ny))], [np.zeros((ny, ny)), D2]]), W1.dt)
+        return _matrices(W1 * two * errors)
+    return _matrices(W1 * control.ss(A, -B, C, -D, W1.dt) * W2)
 
 
 def reference_model_gains(model_mats: tuple[np.ndarray, ...], scale: SignalScaling, control_weight: float
@@ -287,7 +309,9 @@ def with_reference_model(K_fb: tuple[np.ndarray, ...], model_mats: tuple[np.ndar
         A = [A + BF  0; −B_K C  A_K],  B = [BN  0; 0  B_K],  C = [F − D_K C  C_K],  D = [N  D_K].
 
     When the plant is the model, y = y_m and the feedback sees no error: the reference model gives the
-    speed, the feedback the robustness (the 2-DOF structure; Vinnicombe 2001, §1.5)."""
+    speed, the feedback the robustness (the 2-DOF structure; Vinnicombe 2001, §1.5). With
+    ``integral_outputs`` (K_fb = W1·K∞·W2) W2's integrators read y − y_m, so those outputs settle at the
+    reference model's, which holds a reachable reference at steady state."""
     Ak, Bk, Ck, Dk = K_fb
     A, B, C, _ = model_mats
     n, nk = A.shape[0], Ak.shape[0]
@@ -295,6 +319,26 @@ def with_reference_model(K_fb: tuple[np.ndarray, ...], model_mats: tuple[np.ndar
     Ac = np.block([[A + B @ F, np.zeros((n, nk))], [-Bk @ C, Ak]])
     Bc = np.block([[B @ N, np.zeros((n, ny))], [np.zeros((nk, ny)), Bk]])
     return Ac, Bc, np.hstack([F - Dk @ C, Ck]), np.hstack([N, Dk])
+
+
+def output_shaping(model: LPVSS, crossover: float, integral_ratio: float, integral_outputs: list[str] | None
+                   ) -> Shaping:
+    """The :class:`~lpvflow.synth.margin_goal.Shaping` of ``[synth] integral_outputs``: without it the
+    integral action is W1's at every plant input and W2 = I; with it W2 integrates the named outputs'
+    errors (:func:`lpvflow.synth.loop_shaping.output_integral_weight`) and W1 has none.
+
+    Raises:
+        ModelError: a name that is not a model output.
+    """
+    if integral_outputs is None:
+        return Shaping(crossover, integral_ratio, control.ss([], [], [], np.eye(model.ny), model.Ts), True)
+    unknown = [n for n in integral_outputs if n not in model.y_names]
+    if unknown:
+        raise ModelError(f"[synth] integral_outputs names {unknown}, which are not model outputs "
+                         f"{list(model.y_names)}; name the outputs whose error the controller integrates")
+    W2 = output_integral_weight(model.Ts, crossover, [n in integral_outputs for n in model.y_names],
+                                integral_ratio=integral_ratio)
+    return Shaping(crossover, integral_ratio, W2, False)
 
 
 def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
@@ -328,12 +372,13 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
         raise ModelError('[synth] reference_model drives a 2dof controller: set structure = "2dof" or remove '
                          'reference_model')
     scale = shaping_scale(model, settings.get("scaling"))
-    integral_ratio = settings.get("integral_ratio") or DEFAULT_INTEGRAL_RATIO
+    shaping = output_shaping(model, crossover, settings.get("integral_ratio") or DEFAULT_INTEGRAL_RATIO,
+                             settings.get("integral_outputs"))
+    W2 = shaping.W2
     goal = settings.get("margin_goal")
     validated = settings.get("validated_nugap") or {}
     goals = vertex_goals(goal or {}, validated.get("points"), validated.get("nugap"), plant.polytope,
                          plant.basis)
-    W2 = control.ss([], [], [], np.eye(model.ny), Ts)
     solver = settings.get("solver", "CLARABEL")
     scaled, gammas, lmi_gammas, optimal_gammas, distances, weights, K_inf, exported, choices = (
         [] for _ in range(9))
@@ -349,14 +394,14 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
         if goal is not None:
             raise ModelError('[synth] margin_goal lowers the lead of W1 per breakpoint and scheduling = '
                              '"common" shapes every breakpoint with one W1: remove one of the two keys')
-        W1 = common_weight(models, crossover, integral_ratio)
+        W1 = common_weight(models, shaping)
         common = common_central_controllers([shaped_plant(G, W1, W2) for G in models], GAMMA_FACTOR, solver)
         vertex_designs = [(W1, control.ss(*K, Ts), common.gamma, common.lmi_gamma) for K in common.K_inf]
     else:
         vertex_designs = []
         for G, goal_i in zip(models, goals, strict=True):
             built.clear()
-            choice = lead_for_goal(G, goal_i, crossover, integral_ratio, central)
+            choice = lead_for_goal(G, goal_i, shaping, central)
             [chosen] = [c for c in built if c.K_inf is choice.controller]
             choices.append(choice)
             vertex_designs.append((choice.weight, choice.controller, chosen.gamma, chosen.lmi_gamma))
@@ -372,15 +417,15 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
         weights.append(_matrices(W1_i))
         K_inf.append(_matrices(K))
         if reference is None:
-            exported.append(physical_feedback(controller_matrices(_matrices(K), W1_i, plant.structure),
+            exported.append(physical_feedback(controller_matrices(_matrices(K), W1_i, W2, plant.structure),
                                               scale))
         else:
-            feedback = physical_feedback(_matrices(W1_i * K), scale)
+            feedback = physical_feedback(_matrices(W1_i * K * W2), scale)
             exported.append(with_reference_model(feedback, mats, *reference_model_gains(
                 mats, scale, reference["control_weight"])))
     lams = design_coordinates(plant.polytope, plant.basis, FROZEN_PER_SEGMENT)
     check = frozen_margin_check(scaled, weights, K_inf, gammas, lmi_gammas, optimal_gammas, lams, Ts,
-                                distances)
+                                distances, W2)
     if scheduling == "common":
         check = CommonMarginCheck(**vars(check), certificate=common.margins)
     if goal is not None:
@@ -395,7 +440,8 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
             "lmi_gammas": lmi_gammas, "optimal_gammas": optimal_gammas, "riccati_distance": distances,
             "controller_source": "hinfsyn LMIs: central solution, explicit formulas",
             "scheduling": scheduling,
-            "crossover": float(crossover), "b_min": check.b_min,
+            "crossover": float(crossover), "integral_outputs": settings.get("integral_outputs"),
+            "b_min": check.b_min,
             "b_plant_min": check.b_plant_min, "scaling": settings.get("scaling"),
             "reference_filter": None if filt is None else dict(filt_settings),
             "reference_model": None if reference is None else dict(reference)}

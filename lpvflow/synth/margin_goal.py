@@ -61,13 +61,14 @@ class MarginGoalWarning(UserWarning):
 
 
 def lead_weight(Ts: float, crossover: float, inputs: int, lead_used: float, *,
-                integral_ratio: float) -> control.StateSpace:
+                integral_ratio: float, integral: bool = True) -> control.StateSpace:
     """W1 of the module docstring with the lead zero at p/β, β = ``lead_used`` ∈ [1, α], per input, in the
     realization (A, B) of :func:`~lpvflow.synth.loop_shaping.integrator_lead_weight` (β = α: that weight
-    itself, to the bit). Only C moves: with the partial fractions of W1,
+    itself, to the bit; ``integral`` False: without its integral factor, as that function). Only C moves:
+    with the partial fractions of W1,
 
-        W1(s) = Σ_k c_k(β)/(s − s_k),  s_k ∈ {0, −p, −rω_c},  c_k = N(s_k)/∏_{l≠k}(s_k − s_l),
-        N(s) = rω_c(s + ω_c/r_i)(s + p/β),
+        W1(s) = Σ_k c_k(β)/(s − s_k),  s_k ∈ {0, −p, −rω_c} ({−p, −rω_c} without the integral factor),
+        c_k = N(s_k)/∏_{l≠k}(s_k − s_l),  N(s) = rω_c(s + ω_c/r_i)(s + p/β) (rω_c(s + p/β)),
 
     sampled exactly with a zero-order hold (A_m = diag(e^{s_kTs}), B_m = [∫₀^Ts e^{s_kτ}dτ], C_m = [c_k]) and
     T = 𝒞(A, B)·𝒞(A_m, B_m)⁻¹ the similarity onto W1's realization (𝒞 the controllability matrix),
@@ -79,17 +80,18 @@ def lead_weight(Ts: float, crossover: float, inputs: int, lead_used: float, *,
     if not 1.0 <= lead_used <= LEAD_RATIO:
         raise ModelError(f"lead_used = {lead_used} must lie in [1, {LEAD_RATIO:g}] (the lead ratio)")
     nominal = integrator_lead_weight(Ts, crossover, 1, integral_ratio=integral_ratio, lead_ratio=LEAD_RATIO,
-                                     rolloff_ratio=ROLLOFF_RATIO)
+                                     rolloff_ratio=ROLLOFF_RATIO, integral=integral)
     p, r = crossover * np.sqrt(LEAD_RATIO), ROLLOFF_RATIO * crossover
-    poles = np.array([0.0, -p, -r])
+    poles = np.array([0.0, -p, -r] if integral else [-p, -r])
 
     def residues(beta: float) -> np.ndarray:
-        numerator = r * (poles + crossover / integral_ratio) * (poles + p / beta)
+        numerator = (r * (poles + crossover / integral_ratio) * (poles + p / beta) if integral
+                     else r * (poles + p / beta))
         return np.array([[n / np.prod([sk - sl for sl in poles if sl != sk])
                           for n, sk in zip(numerator, poles, strict=True)]])
 
     A_m = np.diag(np.exp(poles * Ts))
-    B_m = np.array([[Ts], [-np.expm1(-p * Ts) / p], [-np.expm1(-r * Ts) / r]])
+    B_m = np.array([[Ts] if sk == 0.0 else [-np.expm1(sk * Ts) / -sk] for sk in poles])
     A, B = (np.asarray(M, dtype=float) for M in (nominal.A, nominal.B))
     T = control.ctrb(A, B) @ np.linalg.inv(control.ctrb(A_m, B_m))
     shift = residues(lead_used) - residues(LEAD_RATIO)
@@ -129,10 +131,30 @@ def vertex_goals(goal: Mapping[str, float], points: Sequence[Sequence[float]] | 
     return goals
 
 
+@dataclass(frozen=True)
+class Shaping:
+    """What the loop-shaping weights of every breakpoint share: the crossover ω_c (rad/s), the integral
+    corner ratio r_i, the output weight W2 (the same at every breakpoint) and where the integral action
+    sits: in W1 at the plant's inputs (``input_integral``, W2 = I) or in W2 on chosen outputs
+    (:func:`lpvflow.synth.loop_shaping.output_integral_weight`, W1 then lead and roll-off only)."""
+
+    crossover: float
+    integral_ratio: float
+    W2: control.StateSpace
+    input_integral: bool
+
+    def weight(self, G: control.StateSpace, lead_used: float = LEAD_RATIO) -> control.StateSpace:
+        """W1 with lead ratio ``lead_used`` (:func:`lead_weight`), normalized so that W2·G·W1 crosses 1 at
+        ω_c (:func:`lpvflow.synth.loop_shaping.crossover_normalized`)."""
+        W1 = lead_weight(float(G.dt), self.crossover, G.ninputs, lead_used,
+                         integral_ratio=self.integral_ratio, integral=self.input_integral)
+        return crossover_normalized(G, W1, self.crossover, self.W2)
+
+
 @dataclass
 class LeadChoice:
     """The weight W1_i (normalized to cross at ω_c), the central controller K∞_i, its level γ_i, the
-    shipped margin b(G_i, W1_i·K∞_i) and the lead ratio β_i a breakpoint ends up with."""
+    shipped margin b(G_i, W1_i·K∞_i·W2) and the lead ratio β_i a breakpoint ends up with."""
 
     weight: control.StateSpace
     controller: control.StateSpace
@@ -141,19 +163,17 @@ class LeadChoice:
     lead_used: float
 
 
-def lead_for_goal(G: control.StateSpace, goal: float, crossover: float, integral_ratio: float,
+def lead_for_goal(G: control.StateSpace, goal: float, shaping: Shaping,
                   controller: Callable[[control.StateSpace], tuple[control.StateSpace, float]]) -> LeadChoice:
-    """The first β on the ladder α^{1 − k/LADDER_STEPS} (k = 0, 1, …) whose W1 (normalized so that G·W1
-    crosses 1 at ``crossover``) and K∞, γ = ``controller``(G·W1) give b(G, W1·K∞) ≥ ``goal``; the β of the
-    largest b when none does (the caller tells). W2 = I."""
-    W2 = control.ss([], [], [], np.eye(G.noutputs), G.dt)
+    """The first β on the ladder α^{1 − k/LADDER_STEPS} (k = 0, 1, …) whose W1 (``shaping.weight``) and K∞,
+    γ = ``controller``(W2·G·W1) give b(G, W1·K∞·W2) ≥ ``goal``; the β of the largest b when none does (the
+    caller tells)."""
     best = None
     for k in range(LADDER_STEPS + 1):
         beta = LEAD_RATIO ** (1.0 - k / LADDER_STEPS)
-        W1 = crossover_normalized(G, lead_weight(float(G.dt), crossover, G.ninputs, beta,
-                                                 integral_ratio=integral_ratio), crossover)
-        K, gamma = controller(shaped_plant(G, W1, W2))
-        choice = LeadChoice(W1, K, gamma, generalized_margin(G, W1 * K), beta)
+        W1 = shaping.weight(G, beta)
+        K, gamma = controller(shaped_plant(G, W1, shaping.W2))
+        choice = LeadChoice(W1, K, gamma, generalized_margin(G, W1 * K * shaping.W2), beta)
         if choice.b >= goal:
             return choice
         best = choice if best is None or choice.b > best.b else best

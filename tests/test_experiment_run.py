@@ -164,7 +164,8 @@ def test_leaving_the_output_bounds_ends_the_run_at_the_first_sample_outside():
         ({"scheduling_columns": {"p": "sin(arm)"}}, DataError, "unknown name 'arm'"),
         ({"scheduling_columns": {"y0": "u0"}}, DataError, "clashes"),
         ({"output_bounds": {"z": (0.0, 1.0)}}, ModelError, "bounded output 'z' not in FMU toy"),
-        ({"output_bounds": {"y0": (1.0, 0.0)}}, DataError, r"y0 = \[1.0, 0.0\] must be \[min, max\]"),
+        ({"output_bounds": {"y0": (1.0, 0.0)}}, DataError,
+         r"output bounds of y0 = \(1.0, 0.0\) must be \[min, max\] with min < max"),
     ],
 )
 def test_bad_open_loop_arguments(kwargs, error, message):

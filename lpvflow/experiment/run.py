@@ -67,6 +67,7 @@ from lpvflow.experiment.controller import GriddedController, LtiController
 from lpvflow.experiment.plant import Plant
 from lpvflow.experiment.specs import SignalSpec, generate, parse_spec
 from lpvflow.experiment.synthesized import SynthesizedController
+from lpvflow.intervals import interval
 from lpvflow.loop.engine import close_loop
 from lpvflow.loop.protocol import OpenLoop, check_names
 
@@ -311,13 +312,9 @@ def _bounds_check(
     if not bounds:
         return lambda k, y: None
     check_names("bounded output", list(bounds), outputs, model)
-    for name, pair in bounds.items():
-        lo, hi = (float(v) for v in pair)
-        if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-            raise DataError(f"output bounds of {name} = {list(pair)} must be [min, max] with min < max")
+    pairs = [interval(pair, f"output bounds of {name}") for name, pair in bounds.items()]
     index = np.array([outputs.index(name) for name in bounds], dtype=int)
-    lo = np.array([float(pair[0]) for pair in bounds.values()])
-    hi = np.array([float(pair[1]) for pair in bounds.values()])
+    lo, hi = (np.array(side) for side in zip(*pairs, strict=True))
 
     def outside(k: int, y: np.ndarray) -> str | None:
         values = np.asarray(y, dtype=float)[index]

@@ -12,6 +12,7 @@ from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import Any
 
+from lpvflow import intervals
 from lpvflow.basis import Basis
 from lpvflow.errors import DataError, LpvflowError, ModelError
 from lpvflow.experiment.specs import parse_spec
@@ -96,12 +97,8 @@ def boolean(value: Any, where: str) -> bool:
 
 
 def interval(value: Any, where: str) -> list[float]:
-    """``[lo, hi]``: two finite numbers with lo < hi."""
-    pair = value if isinstance(value, list) and len(value) == 2 else None
-    if pair is None or not all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-                               for v in pair) or not pair[0] < pair[1]:
-        raise _fail(where, value, "[min, max] with min < max")
-    return [float(pair[0]), float(pair[1])]
+    """``[lo, hi]``: two finite numbers with lo < hi (:func:`lpvflow.intervals.interval`)."""
+    return list(intervals.interval(value, where))
 
 
 def names(empty: bool = False) -> Check:

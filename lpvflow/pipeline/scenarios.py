@@ -61,6 +61,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lpvflow.errors import DataError
+from lpvflow.intervals import interval
 
 #: Scheduling given as a function of the current plant signals (name -> value) returning p (n_p,).
 SchedulingFunction = Callable[[Mapping[str, float]], Sequence[float]]
@@ -119,11 +120,8 @@ class Loop:
             value = getattr(self, key)
             if value is not None and len(value) != len(names):
                 raise DataError(f"loop {key} has {len(value)} values for {len(names)} signals {list(names)}")
-        for name, (lo, hi) in self.actuator_limits.items():
-            if not lo < hi:
-                raise DataError(
-                    f"actuator limit of {name} must be [min, max] with min < max, got [{lo}, {hi}]"
-                )
+        for name, pair in self.actuator_limits.items():
+            interval(pair, f"actuator limit of {name}")
 
     def to_dict(self) -> dict:
         return {
@@ -246,12 +244,7 @@ def _names(value: object, where: str) -> tuple[str, ...]:
 def _limits(doc: dict, key: str, where: str) -> dict[str, tuple[float, float]]:
     out = {}
     for name, pair in _table(doc, key, where).items():
-        if not isinstance(pair, list) or len(pair) != 2:
-            raise DataError(f"{where}.{key}.{name} must be [min, max]")
-        lo, hi = (_number(v, f"{where}.{key}.{name}") for v in pair)
-        if not lo < hi:
-            raise DataError(f"{where}.{key}.{name} = [{lo}, {hi}] must have min < max")
-        out[name] = (lo, hi)
+        out[name] = interval(pair, f"{where}.{key}.{name}")
     return out
 
 

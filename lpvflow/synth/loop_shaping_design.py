@@ -241,12 +241,13 @@ def frozen_margin_check(model_vertices: list[tuple[np.ndarray, ...]], weights: l
     """:class:`FrozenMarginCheck` of K∞(λ) = Σλ_iK∞_i on Gs(λ) = W2·G(λ)·W1(λ) and of K(λ) =
     W1(λ)·K∞(λ)·W2 on G(λ) (u = K y) at every λ of ``lams``, each held to :func:`segment_gamma` (W2 = I
     when None)."""
+    if W2 is None:
+        W2 = control.ss([], [], [], np.eye(model_vertices[0][2].shape[0]), Ts)
     b, b_plant = [], []
     for lam in lams:
         G, W1, K = (control.ss(*mix(M, lam), Ts) for M in (model_vertices, weights, K_inf))
-        W2_lam = control.ss([], [], [], np.eye(G.noutputs), Ts) if W2 is None else W2
-        b.append(generalized_margin(W2_lam * G * W1, K))
-        b_plant.append(generalized_margin(G, W1 * K * W2_lam))
+        b.append(generalized_margin(W2 * G * W1, K))
+        b_plant.append(generalized_margin(G, W1 * K * W2))
     ratio = np.array(b) * MARGIN_FACTOR * np.array([segment_gamma(gammas, lam) for lam in lams])
     worst = int(np.argmin(ratio))
     return FrozenMarginCheck(min(b), min(b_plant), float(ratio[worst]), worst, len(lams), list(gammas),

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from lpvflow.errors import SynthesisError
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
+from lpvflow.synth import loop_shaping_design
 from lpvflow.synth.controller import mix
 from lpvflow.synth.loop_shaping import (
     central_ncf_controller,
@@ -84,14 +86,18 @@ def _margin_on_grid(G: control.StateSpace, K: tuple[np.ndarray, ...], W1: contro
     return 1.0 / worst
 
 
-@pytest.mark.parametrize(("seed", "integral_ratio"),  # (3, None): 17 s, one more random plant
-                         [(None, None), pytest.param(3, None, marks=pytest.mark.slow), (5, 1.5)])
-def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, seed, integral_ratio):
+@pytest.mark.parametrize(("seed", "integral_ratio", "level_factor"),  # (3, …): 17 s, one more random plant
+                         [(None, None, None), pytest.param(3, None, None, marks=pytest.mark.slow),
+                          (5, 1.5, 1.05)])
+def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, seed, integral_ratio,
+                                                                   level_factor):
     """integral_ratio: W1's integral corner at crossover/ratio (default 10), which the Riccati optimum
-    computed here with the same W1 must then match."""
+    computed here with the same W1 must then match; level_factor: the central controllers' level over
+    γ_LMI (default 1.01)."""
     model = two_state_plant() if seed is None else _random_plant(seed)
     model.save(tmp_path / "model.json")
     given = "" if integral_ratio is None else f"integral_ratio = {integral_ratio}\n"
+    given += "" if level_factor is None else f"level_factor = {level_factor}\n"
     (tmp_path / "design.toml").write_text(DESIGN + given)
     out = tmp_path / "K.json"
     # exit 1 only when the frozen check between breakpoints fails; the controller is written either way
@@ -109,7 +115,7 @@ def test_loop_shaping_controller_reaches_the_optimal_shaped_margin(tmp_path, see
         # the witness: hinfsyn's LMI level on the NCF plant equals the Riccati optimum within 1 %, and the
         # shipped controller's level is 1.01 times it
         assert gamma_opt * (1 - 1e-6) <= lmi_gammas[i] <= 1.01 * gamma_opt
-        assert gammas[i] == pytest.approx(GAMMA_FACTOR * lmi_gammas[i], rel=1e-12)
+        assert gammas[i] == pytest.approx((level_factor or GAMMA_FACTOR) * lmi_gammas[i], rel=1e-12)
         # the written controller reads e = r − y: u = −K e is u = K y with B and D negated back
         K = (controller.Ak[i], -controller.Bk[i], controller.Ck[i], -controller.Dk[i])
         assert _margin_on_grid(G, K, W1_i) >= 1.0 / gammas[i]
@@ -295,6 +301,30 @@ def test_frozen_check_refuses_a_destabilized_controller():
     off = frozen_margin_check(vertices, weights, K_inf, gammas, [1.02 * g for g in lmi], optimal, lams,
                               model.Ts)
     assert off.worst_ratio >= 1.0 and not off.ok
+
+
+def test_central_controller_failure_names_the_level_key(tmp_path, capsys, monkeypatch):
+    """A central controller that cannot be certified at its level ("raise it") is one line naming
+    [synth] level_factor and its value, exit 2; a level_factor not above 1 is refused before any solve."""
+    def uncertifiable(Gs, factor, solver="CLARABEL"):
+        raise SynthesisError(f"the central controller at γ = {2 * factor:.6g} fails its certificate (margin "
+                             "-1e-09, LMI margin 1e-08): round-off at this level; raise it",
+                             category="accuracy")
+
+    monkeypatch.setattr(loop_shaping_design, "lmi_central_controller", uncertifiable)
+    two_state_plant().save(tmp_path / "model.json")
+    (tmp_path / "design.toml").write_text(DESIGN + "level_factor = 1.02\n")
+    out = tmp_path / "K.json"
+    assert main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
+                 "-o", str(out)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "raise it" in error[0] and "[synth] level_factor = 1.02" in error[0]
+    assert not out.exists()
+    (tmp_path / "design.toml").write_text(DESIGN + "level_factor = 1.0\n")
+    assert main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
+                 "-o", str(out)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "level_factor = 1.0 must be a number in (1," in error[0]
 
 
 def test_crossover_above_the_weight_band_is_one_error_line(tmp_path, capsys):

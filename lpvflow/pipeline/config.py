@@ -156,6 +156,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
                          "loop-shaping: crossover of the shaped loop, rad/s (default: π/(20·Ts))"),
         "integral_ratio": Key(10.0, number(0.0, open_low=True),
                               "loop-shaping: crossover / integral corner of the integral action (> 0)"),
+        "level_factor": Key(1.01, number(1.0, open_low=True),
+                            "loop-shaping: central controllers' level over hinfsyn's optimum γ_LMI (> 1)"),
         "integral_outputs": Key(None, names(), "loop-shaping: outputs whose error the controller integrates "
                                 "(in W2; default: integral action at every plant input, in W1)"),
         "scaling": Key(None, mapping(number(0.0, open_low=True), "scale > 0"),

@@ -55,15 +55,16 @@ shared, so the 2dof vertex matrices are affine in K∞_i, K∞_i(1) and W1_i's C
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import control
 import numpy as np
 
-from lpvflow.errors import ModelError
+from lpvflow.errors import ModelError, SynthesisError
 from lpvflow.models import LPVSS
 from lpvflow.synth.certify import design_coordinates
 from lpvflow.synth.controller import LPVController, mix
@@ -98,7 +99,7 @@ MARGIN_FACTOR = 1.1
 DEFAULT_CROSSOVER_FRACTION = 0.05
 #: Default ratio crossover / integral corner of W1 (``[synth] integral_ratio``).
 DEFAULT_INTEGRAL_RATIO = 10.0
-#: The central controllers' level γ_i = GAMMA_FACTOR·γ_LMI(Gs_i).
+#: The central controllers' level γ_i = GAMMA_FACTOR·γ_LMI(Gs_i) (default of ``[synth] level_factor``).
 GAMMA_FACTOR = 1.01
 #: Relative residual below which a reference channel's steady state is reachable (reference model).
 REACH_TOL = 1e-8
@@ -151,7 +152,8 @@ class FrozenMarginCheck:
 
     def lines(self) -> list[str]:
         return [f"loop-shaping controllers from hinfsyn's LMIs (central solution at γ_i = "
-                f"{GAMMA_FACTOR}·γ_LMI,i, explicit formulas, certificate passed at every vertex): γ_i "
+                f"{self.gammas[0] / self.lmi_gammas[0]:.4g}·γ_LMI,i, explicit formulas, certificate passed "
+                f"at every vertex): γ_i "
                 f"{min(self.gammas):.4g} … "
                 f"{max(self.gammas):.4g} (b(Gs_i, K∞_i) ≥ 1/γ_i)",
                 f"Riccati witness: γ_LMI {min(self.lmi_gammas):.4g} … {max(self.lmi_gammas):.4g} against "
@@ -186,7 +188,8 @@ class CommonMarginCheck(FrozenMarginCheck):
 
     def lines(self) -> list[str]:
         return [f"loop-shaping controllers from hinfsyn's LMIs over all {len(self.gammas)} breakpoints with "
-                f"one W1 and one Lyapunov matrix (central solution at γ = {GAMMA_FACTOR}·γ_LMI): "
+                f"one W1 and one Lyapunov matrix (central solution at γ = "
+                f"{self.gammas[0] / self.lmi_gammas[0]:.4g}·γ_LMI): "
                 f"γ {self.gammas[0]:.4g}, certified for every value and every rate of change of the "
                 f"scheduling signal (vertex margins ≥ {min(self.certificate):.3g}, re-checked in numpy)",
                 f"frozen Riccati optima γ_opt {min(self.optimal_gammas):.4g} … "
@@ -322,6 +325,18 @@ def with_reference_model(K_fb: tuple[np.ndarray, ...], model_mats: tuple[np.ndar
     return Ac, Bc, np.hstack([F - Dk @ C, Ck]), np.hstack([N, Dk])
 
 
+@contextlib.contextmanager
+def _level_named(factor: float) -> Iterator[None]:
+    """A :class:`SynthesisError` of the central controllers with the design's level named: "raise the level"
+    is ``[synth] level_factor`` here."""
+    try:
+        yield
+    except SynthesisError as exc:
+        raise SynthesisError(f"{exc} (loop-shaping: the central controllers are built at [synth] "
+                             f"level_factor = {factor:g} × hinfsyn's optimum γ_LMI)", category=exc.category
+                             ) from None
+
+
 def output_shaping(model: LPVSS, crossover: float, integral_ratio: float, integral_outputs: list[str] | None
                    ) -> Shaping:
     """The :class:`~lpvflow.synth.margin_goal.Shaping` of ``[synth] integral_outputs``: without it the
@@ -381,12 +396,14 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     goals = vertex_goals(goal or {}, validated.get("points"), validated.get("nugap"), plant.polytope,
                          plant.basis)
     solver = settings.get("solver", "CLARABEL")
+    factor = settings.get("level_factor") or GAMMA_FACTOR
     scaled, gammas, lmi_gammas, optimal_gammas, distances, weights, K_inf, exported, choices = (
         [] for _ in range(9))
     built: list[CentralLoopShaping] = []  # the central controllers the lead search builds at a breakpoint
 
     def central(Gs: control.StateSpace) -> tuple[control.StateSpace, float]:
-        built.append(lmi_central_controller(Gs, GAMMA_FACTOR, solver))
+        with _level_named(factor):
+            built.append(lmi_central_controller(Gs, factor, solver))
         return built[-1].K_inf, built[-1].gamma
 
     models = [scale.plant(control.ss(*mats, Ts)) for mats in model_vertices]
@@ -396,7 +413,8 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
             raise ModelError('[synth] margin_goal lowers the lead of W1 per breakpoint and scheduling = '
                              '"common" shapes every breakpoint with one W1: remove one of the two keys')
         W1 = common_weight(models, shaping)
-        common = common_central_controllers([shaped_plant(G, W1, W2) for G in models], GAMMA_FACTOR, solver)
+        with _level_named(factor):
+            common = common_central_controllers([shaped_plant(G, W1, W2) for G in models], factor, solver)
         vertex_designs = [(W1, control.ss(*K, Ts), common.gamma, common.lmi_gamma) for K in common.K_inf]
     else:
         vertex_designs = []

@@ -4,6 +4,7 @@ and the ν-gap/b(P, K) gate of the validate stage."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -158,6 +159,37 @@ def test_gate_verdict_names_the_worst_point():
     assert gate_verdict(outputs, True)["passed"] is True
     assert gate_verdict(outputs, False)["passed"] is None
     assert gate_verdict({"theta": [], "b_P_Kid": []}, True)["passed"] is None
+
+
+def test_a_failing_kid_test_judged_by_the_robustness_stage_is_reported_not_applied():
+    """The final pass of an identification-for-control design with [synth] robustness_gate: the same
+    failing test is reported (worst point, b = 0 points) with passed None and says who judges; a passing
+    one still passes."""
+    outputs = {"theta": [[-0.5], [0.0], [0.5]], "nugap": [0.05, 0.02, 0.2], "b_P_Kid": [0.1, 0.0, 0.08],
+               "nugap_below_b_everywhere": False}
+    judged = gate_verdict(outputs, True, None, judged_by_robustness=True)
+    assert judged["passed"] is None
+    assert "2 of 3 frozen points (worst θ = 0.5: ν-gap 0.2 ≥ b(P, K_id) 0.08)" in judged["reason"]
+    assert "not applied" in judged["reason"] and "robustness_gate" in judged["reason"]
+    assert "not used for synthesis" not in judged["reason"] and "(b = 0)" in judged["reason"]
+    outputs.update(nugap=[0.05, 0.02, 0.07], b_P_Kid=[0.1, 0.1, 0.08], nugap_below_b_everywhere=True)
+    assert gate_verdict(outputs, True, None, judged_by_robustness=True)["passed"] is True
+
+
+def test_only_the_final_pass_after_rounds_with_a_robustness_gate_defers_the_kid_test():
+    from lpvflow.pipeline.config import bundled_config, load_config
+    from lpvflow.pipeline.design import _judged_by_robustness
+    from lpvflow.pipeline.gate import JUDGED_BY_ROBUSTNESS
+
+    config = load_config(bundled_config("adip"))
+    assert config["synth"]["robustness_gate"] is True
+    final = _judged_by_robustness(config)
+    assert final["validate"][JUDGED_BY_ROBUSTNESS] is True
+    kept = {k: v for k, v in final["validate"].items() if k != JUDGED_BY_ROBUSTNESS}
+    assert kept == dict(config["validate"])
+    ungated = {**config, "synth": dataclasses.replace(config["synth"], robustness_gate=False)}
+    assert _judged_by_robustness(ungated) is ungated
+    assert _judged_by_robustness({**config, "synth": None})["validate"] is config["validate"]
 
 
 NEAR_ZERO_DESIGN = """

@@ -155,14 +155,17 @@ def test_the_card_lists_identification_for_control_rounds_and_marks_a_refused_mo
     second = {"iteration": 1, "folder": ".", "experiment_controller": "/x/iteration_0/controller.json",
               "order": 5, "fit_bfr": [99.09, 59.92], "max_nugap": 0.2772, "min_b_P_Kid": 0.0,
               "gate": {"passed": False}, "gamma": None, "baseline_gamma": None}
-    summary["iterations"] = [first, second]
+    # the final pass judged by the robustness stage: its K_id test "not applied", not a failed model
+    third = {**second, "iteration": 2, "gate": {"passed": None}}
+    summary["iterations"] = [first, second, third]
     table = summary_card(summary, UNITS).split("Identification for control")[1]
     found = [[html.unescape(c) for c in re.findall(r"<td[^>]*>(.*?)</td>", row)]
              for row in re.findall(r"<tr[^>]*>(.*?)</tr>", table)]
     assert [cells for cells in found if cells] == [
         ["0", "adip/scheduled_controller.json", "5", "98.4, 91.2", "0.0662", "0.103", "passed",
          "2.771 / 1.557"],
-        ["1", "iteration_0/controller.json", "5", "99.1, 59.9", "0.277", "0", "failed", "– / –"]]
+        ["1", "iteration_0/controller.json", "5", "99.1, 59.9", "0.277", "0", "failed", "– / –"],
+        ["2", "iteration_0/controller.json", "5", "99.1, 59.9", "0.277", "0", "not applied", "– / –"]]
     assert table.count('<tr class="fail">') == 1
 
 

@@ -4,8 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
+#: The ``[validate]`` entry the design adds in the final pass of an identification-for-control design with
+#: ``[synth] robustness_gate = true`` (not a design-file key): the robustness stage judges that pass's model.
+JUDGED_BY_ROBUSTNESS = "judged_by_robustness"
+#: What a failing K_id test says when :data:`JUDGED_BY_ROBUSTNESS` is set.
+NOT_APPLIED = ("; not applied: K_id is the identification-for-control round's controller, not the one the "
+               "design ships — the robustness stage judges the model against that ([synth] robustness_gate)")
 
-def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None) -> dict:
+
+def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None,
+                 judged_by_robustness: bool = False) -> dict:
     """The ν-gap/b(P, K) gate of the validate stage: ``{"passed": bool | None, "reason": str}``.
 
     The model passes when δν(G_FMU(θ), Ĝ(θ)) < b(Ĝ(θ), K_id) at every frozen grid point, i.e. the
@@ -16,7 +24,14 @@ def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None) -
     reason also says where the record left the experiment controller's design box (``left_design_box`` of
     the ``experiment`` stage's outputs), which is what a lost loop looks like, at how many points the
     experiment controller does not stabilize the model (b = 0), and why the validation fit failed
-    (``fit_failure``: e.g. the model's closed loop diverges)."""
+    (``fit_failure``: e.g. the model's closed loop diverges).
+
+    ``judged_by_robustness`` (the final pass of an ``[experiment] iterate`` design with ``[synth]
+    robustness_gate = true``): K_id is then the controller of the last identification-for-control round,
+    not the one the design ships, and the robustness stage applies the same test to the shipped controller,
+    b(Ĝ(θ), K_fb(θ)) > δν(θ) at the same points — the test for the loop the model is identified for (thesis
+    §6.1). A failing K_id test is then reported with ``passed`` None (not applied) instead of stopping the
+    design."""
     if not enabled:
         return {"passed": None, "reason": "gate off ([validate] gate = false)"}
     if "nugap_below_b_everywhere" not in outputs:
@@ -30,8 +45,8 @@ def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None) -
                                           f"θ = {where}: ν-gap {gaps[worst]:.3g} < b {margins[worst]:.3g})"}
     failing = sum(g >= b for g, b in zip(gaps, margins, strict=True))
     reason = (f"the identified model fails the ν-gap test at {failing} of {len(gaps)} frozen points "
-              f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g}); "
-              "it is not used for synthesis")
+              f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g})")
+    reason += NOT_APPLIED if judged_by_robustness else "; it is not used for synthesis"
     unstable = sum(b <= 0 for b in margins)
     if unstable:
         reason += (f"; the experiment controller does not stabilize the model's frozen loop at {unstable} of "
@@ -40,4 +55,4 @@ def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None) -
         reason += f"; validation fit: {outputs['fit_failure']}"
     if experiment and experiment.get("left_design_box"):
         reason += f"; the experiment record {experiment['left_design_box']}"
-    return {"passed": False, "reason": reason}
+    return {"passed": None if judged_by_robustness else False, "reason": reason}

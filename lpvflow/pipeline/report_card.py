@@ -7,7 +7,14 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-from lpvflow.pipeline.report_text import DisplayUnit, breakable, number_text, short_reason, signal_value
+from lpvflow.pipeline.report_text import (
+    GATE_WORDS,
+    DisplayUnit,
+    breakable,
+    number_text,
+    short_reason,
+    signal_value,
+)
 from lpvflow.pipeline.scenarios import run_passed
 
 
@@ -288,9 +295,9 @@ def _iterations_table(rounds: list[dict]) -> str:
                  number_text(r.get("order")),
                  ", ".join(number_text(b, "", 3) for b in r.get("fit_bfr") or []) or "–",
                  number_text(r.get("max_nugap")), number_text(r.get("min_b_P_Kid")),
-                 "–" if not gate else ("passed" if gate.get("passed") else "failed"),
+                 "–" if not gate else GATE_WORDS[gate.get("passed")],
                  f"{number_text(r.get('gamma'), '', 4)} / {number_text(r.get('baseline_gamma'), '', 4)}"]
-        css = ' class="fail"' if gate and not gate.get("passed") else ""
+        css = ' class="fail"' if gate and gate.get("passed") is False else ""
         body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
     return ("<h3>Identification for control ([experiment] iterate)</h3><table><tr>"
             + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" + "".join(body) + "</table>")

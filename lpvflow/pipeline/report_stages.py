@@ -8,6 +8,7 @@ from pathlib import Path
 
 from lpvflow.pipeline.report_card import held_step_text
 from lpvflow.pipeline.report_text import (
+    GATE_WORDS,
     DisplayUnit,
     breakable,
     format_value,
@@ -115,7 +116,7 @@ def stage_rows(stage: str, outputs: dict, units: dict[str, DisplayUnit],
         elif key == "loop" and isinstance(value, dict):
             text = _loop_text(value, units)
         elif key == "gate" and isinstance(value, dict):
-            text = ("passed" if value.get("passed") else "failed") + f": {value.get('reason', '')}"
+            text = GATE_WORDS[value.get("passed")] + f": {value.get('reason', '')}"
         elif key in ("theta", "baseline_at", "scheduling_range") and value and names:
             points = value if isinstance(value[0], list) else [value]
             if key == "scheduling_range":  # [[lo...], [hi...]]

@@ -119,3 +119,7 @@ def signal_units(folder: Path) -> dict[str, str]:
     signals = controller_ports(folder)
     return {port["name"]: port.get("unit", "") for kind in ("measured", "actuated")
             for port in signals.get(kind, [])}
+
+
+#: A gate's ``passed`` in words: None is a gate that was off, not evaluated or not applied (its reason says).
+GATE_WORDS = {True: "passed", False: "failed", None: "not applied"}

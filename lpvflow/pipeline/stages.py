@@ -39,7 +39,7 @@ from lpvflow.pipeline.frozen_references import (
     signal_scaling,
     trim_closed,
 )
-from lpvflow.pipeline.gate import gate_verdict
+from lpvflow.pipeline.gate import JUDGED_BY_ROBUSTNESS, gate_verdict
 from lpvflow.pipeline.model_diagnosis import diagnose_model, extended_model, loop_controller
 from lpvflow.pipeline.model_loop import closed_loop_simulation
 from lpvflow.pipeline.refine import refined_model
@@ -250,7 +250,8 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
         if K is not None:
             outputs["gate_margin"] = [row["stability_margin_b"] - row["nugap"] for row in rows]
             outputs["nugap_below_b_everywhere"] = all(row["passes"] for row in rows)
-    outputs["gate"] = gate_verdict(outputs, cfg["gate"], ctx.outputs.get("experiment"))
+    outputs["gate"] = gate_verdict(outputs, cfg["gate"], ctx.outputs.get("experiment"),
+                                   JUDGED_BY_ROBUSTNESS in cfg)
     return outputs, artifacts
 
 

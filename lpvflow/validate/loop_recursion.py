@@ -19,6 +19,12 @@ the controller's output (its state not advanced), the scheduling and v(k) recomp
 resolved output (the sampling convention of :func:`lpvflow.loop.engine.close_loop`). The run stops at
 the first sample whose model output reaches ``diverged`` in magnitude or whose command is not finite
 (the outputs from there stay ``inf``).
+
+Compiled as two kernels, :func:`controller_commands` and :func:`simulate_loop`, for their first-call
+compile time: the helpers are inlined where they are called (``inline="always"``; a compiled callee is
+optimized and emitted once alone and again inside each caller), each at one place in simulate_loop;
+the controller law :func:`_law`, which both kernels call, is their one compiled callee; every function
+has the same error model (numba compiles its own array and builtin implementations once per option set).
 """
 
 from __future__ import annotations

@@ -217,6 +217,28 @@ def test_a_read_only_sensor_offset_gives_the_same_loop_without_a_second_compile(
     assert len(simulate_loop.signatures) == compiled
 
 
+def test_the_loop_kernels_helpers_are_compiled_inside_the_kernel_not_on_their_own():
+    """A fresh compile of the loop kernel (no cache) compiles none of its helpers as a function of its own
+    (each would be optimized and emitted once alone and again inside its caller): they are inlined where
+    they are called; the controller law, shared with controller_commands, is the one compiled
+    callee. The fresh kernel gives the cached one's outputs."""
+    import numba
+
+    from lpvflow.validate import loop_recursion as lr
+    from lpvflow.validate.closed_loop import InLoopModel
+
+    rng = np.random.default_rng(4100)
+    model, data, loop, drive, _ = scheduled_case(rng, 0)
+    arguments = InLoopModel(model, data, loop, law=loop.controller.loop_law(), **drive)
+    helpers = (lr._weights, lr._advance, lr._finite, lr._basis, lr._read, lr._within, lr._actuate,
+               lr._present, lr._from_past)
+    before = [len(h.signatures) for h in helpers]
+    fresh = numba.njit(error_model="numpy")(lr.simulate_loop.py_func)
+    y = fresh(*arguments._arguments, np.int64(arguments.passes), 1e12, arguments.integrated)
+    assert [len(h.signatures) for h in helpers] == before == [0] * len(helpers)
+    np.testing.assert_array_equal(y, arguments.simulate())
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_the_gridded_loops_signals_rebuild_a_records_driven_inputs(seed):
     """Loop.from_record recovers r = u − K(y) under a gridded controller with set-points and removed

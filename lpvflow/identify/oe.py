@@ -57,7 +57,8 @@ def _filtered_columns(phi: np.ndarray, psi: np.ndarray, A: np.ndarray, shifted: 
     out = np.zeros((n, ny, m))
     a_k = np.zeros((ny, ny))
     for k in range(n):
-        out[k, r, :] = phi[k, :]
+        for j in range(m):  # a loop, not a slice assignment: no broadcast check and its message to compile
+            out[k, r, j] = phi[k, j]
         for i in range(1, na + 1):
             if k - i < 0:
                 break

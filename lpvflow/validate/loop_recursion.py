@@ -19,6 +19,12 @@ the controller's output (its state not advanced), the scheduling and v(k) recomp
 resolved output (the sampling convention of :func:`lpvflow.loop.engine.close_loop`). The run stops at
 the first sample whose model output reaches ``diverged`` in magnitude or whose command is not finite
 (the outputs from there stay ``inf``).
+
+Compiled as two kernels, :func:`controller_commands` and :func:`simulate_loop`, for their first-call
+compile time: the helpers are inlined where they are called (``inline="always"``; a compiled callee is
+optimized and emitted once alone and again inside each caller), each at one place in simulate_loop;
+the controller law :func:`_law`, which both kernels call, is their one compiled callee; every function
+has the same error model (numba compiles its own array and builtin implementations once per option set).
 """
 
 from __future__ import annotations
@@ -33,7 +39,7 @@ from lpvflow.validate.signal_maps import dead_zone, saturation
 NO_MAP, DEAD_ZONE, SATURATION = 0, 1, 2
 
 
-@numba.njit(cache=True, no_cpython_wrapper=True)
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _weights(grid: np.ndarray, theta: float) -> tuple[int, int, float]:
     """Neighbouring grid points i, j of θ clipped to the grid and the fraction t of the way to j."""
     last = grid.shape[0] - 1
@@ -81,7 +87,7 @@ def _law(controller, x: np.ndarray, y_read: np.ndarray, r: np.ndarray, stack: np
     return i, j, t
 
 
-@numba.njit(cache=True, no_cpython_wrapper=True)
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _advance(controller, x: np.ndarray, i: int, j: int, t: float, dy: np.ndarray) -> None:
     """xc(k+1) = A(θ) xc(k) + B(θ)(y(k) − ȳ(k)) in place, at the (i, j, t) and ``dy`` of :func:`_law`."""
     KA, KB = controller[1], controller[2]
@@ -99,7 +105,7 @@ def _advance(controller, x: np.ndarray, i: int, j: int, t: float, dy: np.ndarray
         x[a] = nxt[a]
 
 
-@numba.njit(cache=True, no_cpython_wrapper=True)
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _finite(values: np.ndarray) -> bool:
     for value in values:
         if not np.isfinite(value):
@@ -107,7 +113,7 @@ def _finite(values: np.ndarray) -> bool:
     return True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def controller_commands(controller, y_read: np.ndarray, references: np.ndarray,
                         trim_removed: bool) -> np.ndarray:
     """(n, nu) commands of the controller run from rest on the outputs it reads ``y_read`` (n, n_read),
@@ -128,7 +134,7 @@ def controller_commands(controller, y_read: np.ndarray, references: np.ndarray,
     return commands
 
 
-@numba.njit(cache=True, no_cpython_wrapper=True)
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _basis(p: np.ndarray, exponents: np.ndarray, signal: np.ndarray, knot: np.ndarray,
            psi: np.ndarray) -> None:
     """ψ(p) into ``psi``: Π_i p_i^exponents[l, i] where signal[l] < 0, else |p_signal − knot|³."""
@@ -185,32 +191,34 @@ def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, sensor, 
         for r in range(ny):
             last[r] = past[r]
             out[r] = last[r] + shift[r]
-        resolved = False
-        for _ in range(passes):
+        stop = False
+        for q in range(passes + 1):  # the fixed-point passes, then the sample's step (q = passes)
+            step = q == passes
+            if step and not _within(out, offset, diverged):
+                stop = True
+                break
             _read(out, sensor, y_index, y_read)
-            _law(controller, x, y_read, references[k], stack, u_c, trim, dy)
+            i, j, t = _law(controller, x, y_read, references[k], stack, u_c, trim, dy)
+            if step:
+                if not _finite(u_c):
+                    stop = True
+                    break
+                _advance(controller, x, i, j, t, dy)
             u_k = _actuate(u[k], u_c, trim, u_index, excitation[k], trim_removed)
+            if step:
+                for r in range(ny):
+                    y[k, r] = out[r] - offset[r]
+                if passes > 0:  # sample k's scheduling and coefficients are those of the last pass
+                    break
             direct = _present(k, u_k, last, A, B, exponents, signal, knot, p, computed, codes, arguments,
                               starts, shift, extra, map_kind, map_input, level, sign_of, y_model, a_at, b_at,
                               v, psi, stack, nu, n_extra)
-            for r in range(ny):
-                last[r] = past[r] + direct[r]
-                out[r] = last[r] + shift[r]
-            resolved = True
-        if not _within(out, offset, diverged):
+            if not step:
+                for r in range(ny):
+                    last[r] = past[r] + direct[r]
+                    out[r] = last[r] + shift[r]
+        if stop:
             break
-        _read(out, sensor, y_index, y_read)
-        i, j, t = _law(controller, x, y_read, references[k], stack, u_c, trim, dy)
-        if not _finite(u_c):
-            break
-        _advance(controller, x, i, j, t, dy)
-        u_k = _actuate(u[k], u_c, trim, u_index, excitation[k], trim_removed)
-        for r in range(ny):
-            y[k, r] = out[r] - offset[r]
-        if not resolved:
-            _present(k, u_k, last, A, B, exponents, signal, knot, p, computed, codes, arguments, starts,
-                     shift, extra, map_kind, map_input, level, sign_of, y_model, a_at, b_at, v, psi, stack,
-                     nu, n_extra)
         for r in range(ny):
             y_model[k, r] = last[r]
         for c in integrated:
@@ -219,14 +227,14 @@ def simulate_loop(A, B, basis, p, computed, programs, u, extra, offset, sensor, 
     return y
 
 
-@numba.njit(cache=True, no_cpython_wrapper=True)
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _read(out, sensor, y_index, y_read):
     """The outputs the controller reads: plant output plus sensor offset at ``y_index``, into ``y_read``."""
     for c in range(y_index.shape[0]):
         y_read[c] = out[y_index[c]] + sensor[y_index[c]]
 
 
-@numba.njit(cache=True, no_cpython_wrapper=True)
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _within(out, offset, bound):
     """|out − offset| < bound on every output (False at a NaN)."""
     for r in range(out.shape[0]):
@@ -235,7 +243,7 @@ def _within(out, offset, bound):
     return True
 
 
-@numba.njit(cache=True, no_cpython_wrapper=True)
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _actuate(recorded, u_c, trim, u_index, excitation, trim_removed):
     """The plant input: the recorded one with the command (less the trim) plus r on the driven inputs."""
     u_k = recorded.copy()
@@ -244,7 +252,7 @@ def _actuate(recorded, u_c, trim, u_index, excitation, trim_removed):
     return u_k
 
 
-@numba.njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _present(k, u_k, y_k, A, B, exponents, signal, knot, p, computed, codes, arguments, starts, offset, extra,
              map_kind, map_input, level, sign_of, y_model, a_at, b_at, v, psi, stack, nu, n_extra):
     """Scheduling, coefficients and model input of sample k for the plant input u_k and the output
@@ -296,7 +304,7 @@ def _present(k, u_k, y_k, A, B, exponents, signal, knot, p, computed, codes, arg
     return direct
 
 
-@numba.njit(cache=True, no_cpython_wrapper=True)
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _from_past(k, a_at, b_at, y_model, v):
     """−Σ_i A_i(ψ(k−i)) y(k−i) + Σ_{j≥1} B_j(ψ(k−j)) v(k−j)."""
     ny = y_model.shape[1]

@@ -77,14 +77,20 @@ def _friction_recursion(a_at: np.ndarray, b_at: np.ndarray, u: np.ndarray, i: in
     y = np.zeros((n, ny))
     sign = np.zeros(n)
     for k in range(n):
+        # the products by BLAS (`@`), the sums element by element: an array expression (y[k] -= …) would
+        # compile numba's broadcast check with its formatted error message, ≈ 2.5 s of the first call
         for lag in range(1, n_a + 1):
             if k - lag >= 0:
                 at = k - lag if shifted else k
-                y[k] -= a_at[at, lag - 1] @ y[k - lag]
+                ay = a_at[at, lag - 1] @ y[k - lag]
+                for r in range(ny):
+                    y[k, r] -= ay[r]
         for lag in range(n_b):
             if k - lag >= 0:
                 at = k - lag if shifted else k
-                y[k] += b_at[at, lag, :, :nu] @ u[k - lag] + b_at[at, lag, :, nu] * sign[k - lag]
+                bu = b_at[at, lag, :, :nu] @ u[k - lag]
+                for r in range(ny):
+                    y[k, r] += bu[r] + b_at[at, lag, r, nu] * sign[k - lag]
         motion = y[k, i] if velocity else y[k, i] - (y[k - 1, i] if k > 0 else y[k, i])
         sign[k] = np.sign(motion)
     return y

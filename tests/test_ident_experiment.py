@@ -163,15 +163,19 @@ def test_gate_verdict_names_the_worst_point():
 
 def test_a_failing_kid_test_judged_by_the_robustness_stage_is_reported_not_applied():
     """The final pass of an identification-for-control design with [synth] robustness_gate: the same
-    failing test is reported (worst point, b = 0 points) with passed None and says who judges; a passing
-    one still passes."""
-    outputs = {"theta": [[-0.5], [0.0], [0.5]], "nugap": [0.05, 0.02, 0.2], "b_P_Kid": [0.1, 0.0, 0.08],
+    failing test is reported (worst point) with passed None and says who judges, unless K_id does not
+    stabilize the model somewhere; a passing one still passes."""
+    outputs = {"theta": [[-0.5], [0.0], [0.5]], "nugap": [0.05, 0.02, 0.2], "b_P_Kid": [0.1, 0.1, 0.08],
                "nugap_below_b_everywhere": False}
     judged = gate_verdict(outputs, True, None, judged_by_robustness=True)
     assert judged["passed"] is None
-    assert "2 of 3 frozen points (worst θ = 0.5: ν-gap 0.2 ≥ b(P, K_id) 0.08)" in judged["reason"]
+    assert "1 of 3 frozen points (worst θ = 0.5: ν-gap 0.2 ≥ b(P, K_id) 0.08)" in judged["reason"]
     assert "not applied" in judged["reason"] and "robustness_gate" in judged["reason"]
-    assert "not used for synthesis" not in judged["reason"] and "(b = 0)" in judged["reason"]
+    assert "not used for synthesis" not in judged["reason"]
+    # a model the experiment's own (stable) loop does not stabilize somewhere is refused in any pass
+    unstable = gate_verdict({**outputs, "b_P_Kid": [0.1, 0.0, 0.08]}, True, None, judged_by_robustness=True)
+    assert unstable["passed"] is False and "(b = 0)" in unstable["reason"]
+    assert "not used for synthesis" in unstable["reason"] and "not applied" not in unstable["reason"]
     outputs.update(nugap=[0.05, 0.02, 0.07], b_P_Kid=[0.1, 0.1, 0.08], nugap_below_b_everywhere=True)
     assert gate_verdict(outputs, True, None, judged_by_robustness=True)["passed"] is True
 

@@ -6,27 +6,30 @@ Vinnicombe's criterion (*Uncertainty and Feedback: H∞ loop-shaping and the ν-
 
     b(Ĝ(θ_j), K_fb(θ_j)) ≥ g_j = max(f·δν_j, b_min)
 
-(without ``nugap_factor`` g_j = b_min everywhere; without ``at_least`` b_min = 0), K_fb = W1·K∞ the
-feedback the robustness stage judges. The ν-gap is known only at the validate points, so the design holds
-breakpoint i to the largest g_j of the points whose convex coordinates λ_i(θ_j) > 0 — the points the
-controller of breakpoint i takes part in — and to b_min where there is none (:func:`vertex_goals`).
+(without ``nugap_factor`` g_j = b_min everywhere; without ``at_least`` b_min = 0), K_fb = W1·K∞·W2 the
+feedback the robustness stage judges (W2 = I unless ``[synth] integral_outputs``). The ν-gap is known
+only at the validate points, so the design holds breakpoint i to the largest g_j of the points whose
+convex coordinates λ_i(θ_j) > 0 — the points the controller of breakpoint i takes part in — and to b_min
+where there is none (:func:`vertex_goals`).
 
 **What is lowered to meet it: the phase lead.** The weight of the design is the integrator-plus-lead W1 of
 :func:`lpvflow.synth.loop_shaping.integrator_lead_weight`,
 
     W1(s) = (s + ω_c/r_i)/s · (s + p/β)/(s + p) · r ω_c/(s + r ω_c),   p = ω_c√α,  r = ``rolloff_ratio``,
 
-with β = α (the lead ratio, phase lead arcsin((α − 1)/(α + 1)) at ω_c). The unshaped margin b(G, W1·K∞)
-of the shipped loop lies below the shaped loop's b(G·W1, K∞) by as much as W1 turns in phase and gain
-near the crossover; on the bundled ADIP model at ±75° the lead costs 0.04 of b (0.108 at β = 4, 0.140 at
-β = 1.4, seed 2), while a lower crossover lowers b_opt(G·W1) there (benchmarks/README.md). So breakpoint
+with β = α (the lead ratio, phase lead arcsin((α − 1)/(α + 1)) at ω_c; without its first factor when W2
+carries the integral action). The unshaped margin b(G, W1·K∞·W2) of the shipped loop lies below the
+shaped loop's b(W2·G·W1, K∞) by as much as the weights turn in phase and gain near the crossover; on
+the bundled ADIP model at ±75° the lead costs 0.04 of b (0.108 at β = 4, 0.140 at β = 1.4, seed 2),
+while a lower crossover lowers b_opt(G·W1) there (benchmarks/README.md). So breakpoint
 i keeps the crossover and takes the largest β_i on the ladder β = α^{1 − k/LADDER_STEPS}, k = 0 … LADDER_STEPS
-(β = 1: no lead), whose central controller reaches b(G_i, W1_i·K∞_i) ≥ g_i; where none does, the β of
+(β = 1: no lead), whose central controller reaches b(G_i, W1_i·K∞_i·W2) ≥ g_i; where none does, the β of
 the largest b, and a :class:`MarginGoalWarning` names the breakpoint.
 
 Only the zero p/β moves, so in the realization of :func:`lead_weight` (the partial fractions of W1: poles
-{0, −p, −rω_c}, sampled with a zero-order hold) every β has the same A and B and D = 0: the interpolated
-W1(λ)·K∞(λ) is still Σλ_i W1_i·K∞_i exactly (:mod:`lpvflow.synth.loop_shaping_design`).
+{0, −p, −rω_c}, or {−p, −rω_c} without the integral factor, sampled with a zero-order hold) every β has the
+same A and B and D = 0: the interpolated W1(λ)·K∞(λ)·W2 is still Σλ_i W1_i·K∞_i·W2 exactly
+(:mod:`lpvflow.synth.loop_shaping_design`).
 """
 
 from __future__ import annotations

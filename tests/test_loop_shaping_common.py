@@ -46,7 +46,7 @@ def _design(seed: int, output_integral: bool = False):
     plants = [model.frozen(np.array([p])) for p in BREAKPOINTS]
     W2 = (output_integral_weight(model.Ts, CROSSOVER, [True]) if output_integral
           else control.ss([], [], [], np.eye(1), model.Ts))
-    W1 = common_weight(plants, Shaping(CROSSOVER, 10.0, W2, not output_integral))
+    W1 = common_weight(plants, Shaping(CROSSOVER, 10.0, W2))
     common = common_central_controllers([shaped_plant(G, W1, W2) for G in plants], 1.01)
     return model, plants, W1, W2, common
 

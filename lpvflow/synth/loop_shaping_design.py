@@ -347,14 +347,14 @@ def output_shaping(model: LPVSS, crossover: float, integral_ratio: float, integr
         ModelError: a name that is not a model output.
     """
     if integral_outputs is None:
-        return Shaping(crossover, integral_ratio, control.ss([], [], [], np.eye(model.ny), model.Ts), True)
+        return Shaping(crossover, integral_ratio, control.ss([], [], [], np.eye(model.ny), model.Ts))
     unknown = [n for n in integral_outputs if n not in model.y_names]
     if unknown:
         raise ModelError(f"[synth] integral_outputs names {unknown}, which are not model outputs "
                          f"{list(model.y_names)}; name the outputs whose error the controller integrates")
     W2 = output_integral_weight(model.Ts, crossover, [n in integral_outputs for n in model.y_names],
                                 integral_ratio=integral_ratio)
-    return Shaping(crossover, integral_ratio, W2, False)
+    return Shaping(crossover, integral_ratio, W2)
 
 
 def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],

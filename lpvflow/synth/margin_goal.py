@@ -137,14 +137,18 @@ def vertex_goals(goal: Mapping[str, float], points: Sequence[Sequence[float]] | 
 @dataclass(frozen=True)
 class Shaping:
     """What the loop-shaping weights of every breakpoint share: the crossover ω_c (rad/s), the integral
-    corner ratio r_i, the output weight W2 (the same at every breakpoint) and where the integral action
-    sits: in W1 at the plant's inputs (``input_integral``, W2 = I) or in W2 on chosen outputs
-    (:func:`lpvflow.synth.loop_shaping.output_integral_weight`, W1 then lead and roll-off only)."""
+    corner ratio r_i and the output weight W2 (the same at every breakpoint): W2 = I, and the integral
+    action is W1's at the plant's inputs, or W2 integrates chosen outputs
+    (:func:`lpvflow.synth.loop_shaping.output_integral_weight`) and W1 is lead and roll-off only."""
 
     crossover: float
     integral_ratio: float
     W2: control.StateSpace
-    input_integral: bool
+
+    @property
+    def input_integral(self) -> bool:
+        """W1 carries the integral action: W2 has no integrator (no state)."""
+        return self.W2.nstates == 0
 
     def weight(self, G: control.StateSpace, lead_used: float = LEAD_RATIO) -> control.StateSpace:
         """W1 with lead ratio ``lead_used`` (:func:`lead_weight`), normalized so that W2·G·W1 crosses 1 at

@@ -22,6 +22,9 @@ from lpvflow.synth.loop_shaping import (
     crossover_normalized,
     integrator_lead_weight,
     lmi_central_controller,
+    ncf_generalized_plant,
+    output_integral_weight,
+    shaped_plant,
 )
 from lpvflow.synth.loop_shaping_design import (
     FROZEN_PER_SEGMENT,
@@ -31,6 +34,7 @@ from lpvflow.synth.loop_shaping_design import (
     with_reference_model,
 )
 from lpvflow.synth.polytope import hat_coordinates
+from lpvflow.validate.norms import hinf_norm
 from lpvflow.validate.robust_stability import generalized_margin, optimal_margin
 from lpvflow.validate.scaling import SignalScaling
 from tests.synth_cases import two_state_plant
@@ -248,6 +252,17 @@ def test_integral_on_one_output_holds_it_at_the_reference_whatever_the_other_rea
         assert gamma_opt * (1 - 1e-6) <= info["lmi_gammas"][i] <= 1.01 * gamma_opt
         K_y = (Ak, Bk[:, 2:] @ Dy, np.linalg.inv(Du) @ Ck, np.linalg.inv(Du) @ Dk[:, 2:] @ Dy)
         assert _margin_on_grid(G, K_y, W1_i, W2) >= 1.0 / info["vertex_gammas"][i]
+        if i == 1:  # the middle breakpoint: the written feedback is W1·K∞·W2 with K∞ the central LMI
+            # controller of the design's realization of the weights (the largest R, S depend on the state
+            # basis), whose four-block closed loop python-control (AB13DD fallback) puts at or below γ_i
+            W2_lib = output_integral_weight(model.Ts, CROSSOVER, [True, False])
+            W1_lib = crossover_normalized(G, integrator_lead_weight(model.Ts, CROSSOVER, integral=False),
+                                          CROSSOVER, W2_lib)
+            Gs = shaped_plant(G, W1_lib, W2_lib)
+            K_inf = lmi_central_controller(Gs, GAMMA_FACTOR).K_inf
+            assert controller_distance(control.ss(*K_y, model.Ts), W1_lib * K_inf * W2_lib) < 1e-6
+            loop = ncf_generalized_plant(Gs).lft(K_inf, Gs.ninputs, Gs.noutputs)
+            assert hinf_norm(loop) <= info["vertex_gammas"][i] * (1 + 1e-6)
 
 
 @pytest.mark.parametrize(("line", "named"), [('scaling = { u = 2.0, y1 = 0.5 }', ["missing ['y2']"]),

@@ -94,12 +94,14 @@ class Estimate:
 
 
 def estimate(verts: list[VertexPlant], gamma_max: float, solver: str) -> Estimate:
-    """Step 3. A solve without a usable point leaves γ̂ = 1 (or gamma_max if smaller), not accurate; an
-    inaccurate γ̂ above gamma_max is kept (it still sets the balancing level).
+    """Step 3. A solve without a usable point leaves γ̂ = 1 (or gamma_max if smaller), not accurate. A γ̂
+    above gamma_max is kept, accurate or not: it is not a lower bound (module docstring), so it refuses no
+    level — held-out draw tests/hinf_cases.py seed 3001 case 20 (a mass chain at Ts = 1.37 ms) has an
+    "optimal" γ̂ = 2.216 where SB10DD reaches 2.165 and hinfsyn certifies 2.170 — and it still sets the
+    balancing level.
 
     Raises:
-        SynthesisError: the solver proves the LMIs infeasible at every γ, or their accurate optimum
-            exceeds ``gamma_max`` (category ``"infeasible"``).
+        SynthesisError: the solver proves the LMIs infeasible at every γ (category ``"infeasible"``).
     """
     n = verts[0].dims[0]
     g = cp.Variable()
@@ -117,9 +119,6 @@ def estimate(verts: list[VertexPlant], gamma_max: float, solver: str) -> Estimat
     gamma = float(g.value)
     if not (np.isfinite(gamma) and gamma > 0):
         return Estimate(min(1.0, gamma_max), False, [], report)
-    if report.accurate and gamma > gamma_max:
-        raise SynthesisError(f"{what} are infeasible at γ ≤ {gamma_max:g} (their optimum is γ = {gamma:.6g})",
-                             category="infeasible")
     return Estimate(gamma, report.accurate, jacobi_scales(matrices), report)
 
 
@@ -170,8 +169,8 @@ class Preconditioned:
 
 
 def preconditioned(cayleys: list[VertexPlant], gamma_max: float, solver: str) -> Preconditioned:
-    """Steps 2–4 on the Cayley images of the vertices (raises SynthesisError when the eliminated LMIs are
-    infeasible with γ ≤ gamma_max)."""
+    """Steps 2–4 on the Cayley images of the vertices (raises SynthesisError when the solver proves the
+    eliminated LMIs infeasible at every γ)."""
     coords = initial_coordinates(cayleys)
     verts = [coords.apply(vc) for vc in cayleys]
     current = estimate(verts, gamma_max, solver)

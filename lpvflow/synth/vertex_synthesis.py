@@ -356,8 +356,7 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     try:
         pre = preconditioned(cayleys, gamma_max, solver)
     except SynthesisError as exc:
-        raise SynthesisError(_failure(exc.category, str(exc), vertices, Ts, gamma_max),
-                             category=exc.category) from None
+        raise SynthesisError(*_failure(exc.category, str(exc), vertices, Ts, gamma_max)) from None
     estimate = pre.estimate
     search = _Search(vertices, cayleys, Ts, solver, estimate.gamma if estimate.accurate else None,
                      list(pre.attempts))
@@ -365,36 +364,41 @@ def synthesize_vertices(vertices: list[VertexPlant], Ts: float, suboptimality: f
     if best is None:
         if infeasible_at(pre.vertices, gamma_max, solver):
             category = "infeasible"
-            what = f"the H∞ LMIs are infeasible at γ ≤ {gamma_max:g} (proven by the eliminated conditions)"
+            what = (f"no level up to γ = {gamma_max:g} passed, and the eliminated H∞ LMIs at {gamma_max:g} "
+                    "have no strict solution in a solve the solver calls accurate")
         else:
             category = "accuracy"
             what = (f"no level up to γ = {gamma_max:g} gave a controller that passes the certificate "
                     f"({search.infeasible} levels infeasible, {len(search.no_point)} without a solution, "
                     f"{search.rejected} rejected by the re-check; estimate γ̂ = {estimate.gamma:.4g}, "
                     f"{estimate.report.status})")
-        raise SynthesisError(_failure(category, what, vertices, Ts, gamma_max), category=category)
+        raise SynthesisError(*_failure(category, what, vertices, Ts, gamma_max))
     best.report = SolveReport(best.report.solver, best.report.status, time.perf_counter() - start,
                               search.attempts)
     best.preconditioning = pre
     return best
 
 
-def _failure(category: str, what: str, vertices: list[VertexPlant], Ts: float, gamma_max: float) -> str:
-    """The one line of a SynthesisError: what failed, and what it means for the design. For one plant the
-    independent Riccati synthesis (SB10DD, bisected) says whether any controller reaches ``gamma_max``."""
+def _failure(category: str, what: str, vertices: list[VertexPlant], Ts: float, gamma_max: float
+             ) -> tuple[str, str]:
+    """The one line of a SynthesisError and its category: what failed, and what it means for the design.
+    For one plant the independent Riccati synthesis (SB10DD, bisected) says whether any controller reaches
+    ``gamma_max``; where it does, the LMIs' "infeasible" was the solver's round-off (the LMIs are exact for
+    one plant, Gahinet & Apkarian 1994), so the category is ``"accuracy"``."""
     if len(vertices) == 1:
         try:
             optimum = riccati_gamma(vertices[0], Ts, rel=1e-3)
         except ModelError:
             optimum = np.inf
-        witness = (f"SLICOT SB10DD reaches γ = {optimum:.4g}, so the LMI solve failed numerically: rescale "
-                   "the weights (signals near 1, time constants within a few decades) or try solver='SCS'"
-                   if optimum <= gamma_max else
-                   f"SLICOT SB10DD finds no controller with γ ≤ {min(gamma_max, 1e6):g} either: relax the "
-                   "weights (lower the W_S bandwidth or gain, or the W_K penalty) or raise gamma_max")
-        return f"{what}; {witness}"
+        if optimum <= gamma_max:
+            return (f"{what}; SLICOT SB10DD reaches γ = {optimum:.4g}, so the LMI solve failed numerically: "
+                    "rescale the weights (signals near 1, time constants within a few decades) or try "
+                    "solver='SCS'", "accuracy")
+        return (f"{what}; SLICOT SB10DD finds no controller with γ ≤ {min(gamma_max, 1e6):g} either: relax "
+                "the weights (lower the W_S bandwidth or gain, or the W_K penalty) or raise gamma_max",
+                category)
     radius = max(np.max(np.abs(np.linalg.eigvals(v.A))) for v in vertices)
     hint = ("no vertex controllers with one common Lyapunov matrix reach it" if category == "infeasible" else
             "the solver could not reach the accuracy a certificate needs with one common Lyapunov matrix")
     return (f"{what}; {hint} (vertex poles up to |z| = {radius:.4g}): shrink the scheduling box, add "
-            "breakpoints, relax the weights or raise gamma_max")
+            "breakpoints, relax the weights or raise gamma_max", category)

@@ -15,6 +15,7 @@ from lpvflow.synth.loop_shaping import (
     loop_shaping,
     ncf_generalized_plant,
     output_integral_weight,
+    output_washout_weight,
     shaped_plant,
 )
 from lpvflow.validate.norms import hinf_norm
@@ -190,6 +191,29 @@ def test_output_integral_weight_integrates_only_the_marked_outputs():
         assert W2.nstates == sum(marked)
     with pytest.raises(ModelError, match="at least one"):
         output_integral_weight(0.01, 1.0, [False, False])
+
+
+def test_output_washout_weight_washes_out_only_the_marked_outputs():
+    """W2 = diag(w_j): w_j(z) = (z − 1)/(z − e^{−ω_c Ts/r_w}) (the ZOH sample of s/(s + ω_c/r_w)) on the
+    marked outputs, 1 on the others: zero at DC, one state each, no pole at z = 1; no output marked is
+    refused."""
+    rng = np.random.default_rng(12)
+    for _ in range(6):
+        Ts, wc = float(rng.choice([0.002, 0.01])), float(rng.uniform(1.0, 20.0))
+        ratio = float(rng.uniform(3, 30))
+        marked = [bool(m) for m in rng.integers(0, 2, 3)]
+        marked[int(rng.integers(0, 3))] = True
+        W2 = output_washout_weight(Ts, wc, marked, washout_ratio=ratio)
+        pole = np.exp(-wc / ratio * Ts)
+        for w in rng.uniform(0.01, 0.9, 4) * np.pi / Ts:
+            z = np.exp(1j * w * Ts)
+            expected = np.diag([(z - 1) / (z - pole) if m else 1.0 for m in marked])
+            np.testing.assert_allclose(W2(z, squeeze=False), expected, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(W2(1.0, squeeze=False), np.diag([0.0 if m else 1.0 for m in marked]),
+                                   atol=1e-12)
+        assert W2.nstates == sum(marked)
+    with pytest.raises(ModelError, match="at least one"):
+        output_washout_weight(0.01, 1.0, [False, False])
 
 
 def test_crossover_normalized_with_an_output_weight_crosses_one_at_the_crossover():

@@ -24,6 +24,7 @@ from lpvflow.synth.loop_shaping import (
     lmi_central_controller,
     ncf_generalized_plant,
     output_integral_weight,
+    output_washout_weight,
     shaped_plant,
 )
 from lpvflow.synth.loop_shaping_design import (
@@ -209,17 +210,20 @@ def _steady_state(G: control.StateSpace, Ak: np.ndarray, Bk: np.ndarray, Ck: np.
     return Ccl @ np.linalg.solve(np.eye(Acl.shape[0]) - Acl, Bcl)
 
 
-@pytest.mark.parametrize(("seed", "integral_outputs"), [(0, None), (0, ["y1"]), (1, ["y1"])])
-def test_integral_on_one_output_holds_it_at_the_reference_whatever_the_other_reads(tmp_path, seed,
-                                                                                    integral_outputs):
-    """[synth] integral_outputs = ["y1"]: W2 = diag((s + ω_c/10)/s, 1), W1 lead and roll-off only. The LMI
-    level against the Riccati optimum of W2·G·W1_i (W2 and the normalization built here from their
-    formulas), the written feedback's margin by the frequency-grid formula, and the property it is for: at
-    steady state y1 = r1 exactly and a sensor offset on y2 moves y1 by nothing. With the integral action at
-    the input (the default) the same offset moves y1."""
+@pytest.mark.parametrize(("seed", "key", "names"), [(0, None, None), (0, "integral_outputs", ["y1"]),
+                                                     (1, "integral_outputs", ["y1"]),
+                                                     (0, "washout_outputs", ["y2"]),
+                                                     (1, "washout_outputs", ["y2"])])
+def test_an_output_weight_holds_y1_at_the_reference_whatever_y2_reads(tmp_path, seed, key, names):
+    """[synth] integral_outputs = ["y1"]: W2 = diag((s + ω_c/10)/s, 1), W1 lead and roll-off only;
+    washout_outputs = ["y2"]: W2 = diag(1, s/(s + ω_c/20)), W1 with its integral action. The LMI level
+    against the Riccati optimum of W2·G·W1_i (W2 and the normalization built here from their formulas), the
+    written feedback's margin by the frequency-grid formula, and the property they are for: at steady state
+    y1 = r1 exactly and a sensor offset on y2 moves y1 by nothing. With the integral action at the input and
+    W2 = I (the default) the same offset moves y1."""
     model = _two_output_plant(seed)
     model.save(tmp_path / "model.json")
-    given = "" if integral_outputs is None else f"integral_outputs = {json.dumps(integral_outputs)}\n"
+    given = "" if key is None else f"{key} = {json.dumps(names)}\n"
     (tmp_path / "design.toml").write_text(TWO_OUTPUTS + 'structure = "2dof"\n'
                                           'scaling = { u = 2.0, y1 = 0.5, y2 = 0.05 }\n'
                                           'weights.R = [{ num = [1.0], den = [1] }, '
@@ -228,20 +232,29 @@ def test_integral_on_one_output_holds_it_at_the_reference_whatever_the_other_rea
     main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"), "-o", str(out)])
     controller = load(out)
     info = controller.info
-    assert info["integral_outputs"] == integral_outputs
+    assert info["integral_outputs"] == (names if key == "integral_outputs" else None)
+    assert info["washout_outputs"] == (names if key == "washout_outputs" else None)
     Du, Dy = np.diag([2.0]), np.diag([0.5, 0.05])
     s = control.tf("s")
-    W2 = None
-    if integral_outputs is not None:
-        W2 = control.append(control.sample_system(control.ss((s + CROSSOVER / 10) / s), model.Ts, "zoh"),
-                            control.ss([], [], [], [[1.0]], model.Ts))
-        lead = (s + 2 * CROSSOVER / 4) / (s + 2 * CROSSOVER) * 10 * CROSSOVER / (s + 10 * CROSSOVER)
-        W1 = control.sample_system(control.ss(lead), model.Ts, "zoh")
+    unit = control.ss([], [], [], [[1.0]], model.Ts)
+
+    def zoh(tf):
+        return control.sample_system(control.ss(tf), model.Ts, "zoh")
+
+    lead = (s + 2 * CROSSOVER / 4) / (s + 2 * CROSSOVER) * 10 * CROSSOVER / (s + 10 * CROSSOVER)
+    if key == "integral_outputs":
+        W2 = control.append(zoh((s + CROSSOVER / 10) / s), unit)
+        W1 = zoh(lead)
+        W2_lib = output_integral_weight(model.Ts, CROSSOVER, [True, False])
+    elif key == "washout_outputs":
+        W2 = control.append(unit, zoh(s / (s + CROSSOVER / 20)))
+        W1 = zoh((s + CROSSOVER / 10) / s * lead)
+        W2_lib = output_washout_weight(model.Ts, CROSSOVER, [False, True])
     for i, p in enumerate(BREAKPOINTS):
         Gp = model.frozen(np.array([p]))
         Ak, Bk, Ck, Dk = controller.Ak[i], controller.Bk[i], controller.Ck[i], controller.Dk[i]
         dc = _steady_state(Gp, Ak, Bk, Ck, Dk)  # columns r1, r2, d1, d2
-        if integral_outputs is None:
+        if key is None:
             assert abs(dc[0, 3]) > 1e-2
             continue
         assert dc[0, 0] == pytest.approx(1.0, abs=1e-9) and abs(dc[0, 3]) < 1e-9
@@ -255,8 +268,8 @@ def test_integral_on_one_output_holds_it_at_the_reference_whatever_the_other_rea
         if i == 1:  # the middle breakpoint: the written feedback is W1·K∞·W2 with K∞ the central LMI
             # controller of the design's realization of the weights (the largest R, S depend on the state
             # basis), whose four-block closed loop python-control (AB13DD fallback) puts at or below γ_i
-            W2_lib = output_integral_weight(model.Ts, CROSSOVER, [True, False])
-            W1_lib = crossover_normalized(G, integrator_lead_weight(model.Ts, CROSSOVER, integral=False),
+            W1_lib = crossover_normalized(G, integrator_lead_weight(model.Ts, CROSSOVER,
+                                                                    integral=key == "washout_outputs"),
                                           CROSSOVER, W2_lib)
             Gs = shaped_plant(G, W1_lib, W2_lib)
             K_inf = lmi_central_controller(Gs, GAMMA_FACTOR).K_inf
@@ -266,7 +279,10 @@ def test_integral_on_one_output_holds_it_at_the_reference_whatever_the_other_rea
 
 
 @pytest.mark.parametrize(("line", "named"), [('scaling = { u = 2.0, y1 = 0.5 }', ["missing ['y2']"]),
-                                             ('integral_outputs = ["y3"]', ["['y3']", "integral_outputs"])])
+                                             ('integral_outputs = ["y3"]', ["['y3']", "integral_outputs"]),
+                                             ('washout_outputs = ["y3"]', ["['y3']", "washout_outputs"]),
+                                             ('integral_outputs = ["y1"]\nwashout_outputs = ["y1"]',
+                                              ["['y1']", "integral_outputs and washout_outputs"])])
 def test_a_key_that_misses_or_invents_a_model_signal_is_one_error_line(tmp_path, capsys, line, named):
     _two_output_plant(0).save(tmp_path / "model.json")
     (tmp_path / "design.toml").write_text(TWO_OUTPUTS + line + "\n")

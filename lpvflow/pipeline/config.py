@@ -160,6 +160,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
                             "loop-shaping: central controllers' level over hinfsyn's optimum γ_LMI (> 1)"),
         "integral_outputs": Key(None, names(), "loop-shaping: outputs whose error the controller integrates "
                                 "(in W2; default: integral action at every plant input, in W1)"),
+        "washout_outputs": Key(None, names(), "loop-shaping: outputs the loop stabilizes but does not hold "
+                               "at a value: W2 = s/(s + crossover/washout_ratio) on them (a sensor offset on "
+                               "them moves nothing in steady state)"),
+        "washout_ratio": Key(20.0, number(0.0, open_low=True),
+                             "loop-shaping: crossover / washout corner of washout_outputs (> 0)"),
         "scaling": Key(None, mapping(number(0.0, open_low=True), "scale > 0"),
                        "loop-shaping: { signal = scale } for every model input and output: the loop is "
                        "shaped in D_y⁻¹·G·D_u (default: none)"),

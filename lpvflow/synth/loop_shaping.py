@@ -318,6 +318,33 @@ def output_integral_weight(Ts: float, crossover: float, integrated: Sequence[boo
     return control.append(*[integrator if flag else unit for flag in integrated])
 
 
+#: Default ratio crossover / washout corner (``[synth] washout_ratio``).
+WASHOUT_RATIO = 20.0
+
+
+def output_washout_weight(Ts: float, crossover: float, washed_out: Sequence[bool], *,
+                          washout_ratio: float = WASHOUT_RATIO) -> control.StateSpace:
+    """W2 with a washout on the outputs marked in ``washed_out`` and 1 on the others:
+
+        W2(s) = diag(w_j(s)),  w_j(s) = s/(s + ω_c/r_w) (washed out), 1 (not),
+
+    sampled with a zero-order hold (D = 1, a zero at z = 1). The loop then ignores the steady value of those
+    outputs: they are stabilized, not held at a reference, so a sensor offset on them moves nothing in steady
+    state — with the integral action at the plant input (W1), K∞(1)·W2(1)·e = 0 then zeroes the other
+    outputs' errors alone. For an output whose steady value the plant's equilibrium fixes (an inverted
+    pendulum's angle: upright is the only equilibrium) the only steady reading is the sensor's offset.
+
+    Raises:
+        ModelError: no output marked.
+    """
+    if not any(washed_out):
+        raise ModelError("output_washout_weight needs at least one washed-out output")
+    s = control.tf("s")
+    washout = control.sample_system(control.ss(s / (s + crossover / washout_ratio)), Ts, "zoh")
+    unit = control.ss([], [], [], [[1.0]], Ts)
+    return control.append(*[washout if flag else unit for flag in washed_out])
+
+
 def crossover_normalized(G: object, W1: control.StateSpace, crossover: float,
                          W2: control.StateSpace | None = None) -> control.StateSpace:
     """W1/σ_max(W2 G W1)(e^{jω_c Ts}): the shaped loop W2·G·W1 crosses 1 at ω_c = ``crossover`` (W2 = I

@@ -14,7 +14,12 @@ b that the robustness stage compares with the ν-gap):
   same at every breakpoint, and W1 keeps the lead and the roll-off: then the named outputs settle at their
   references whatever the other outputs read — with the integral action at the inputs the steady state
   only zeroes K∞(1)·e, a combination of every output's error, and a sensor offset on one output moves the
-  others (on the ADIP, a 0.002 rad pendulum offset moved the held arm ≈ 9°). With ``margin_goal`` the
+  others (on the ADIP, a 0.002 rad pendulum offset moved the held arm ≈ 9°); with ``washout_outputs``
+  W2 = diag(s/(s + ω_c/``washout_ratio``) on the named outputs, 1 on the others)
+  (:func:`lpvflow.synth.loop_shaping.output_washout_weight`) and the integral action stays at the inputs:
+  the loop ignores the steady value of the named outputs (stabilized, not tracked), so K∞(1)·W2(1)·e = 0
+  zeroes the other outputs' errors and an offset on the named ones moves nothing in steady state. With
+  ``margin_goal`` the
   lead zero of W1_i moves towards its pole (A, B of W1 unchanged) until the shipped b(G_i, W1_i·K∞_i·W2)
   reaches the breakpoint's goal (:mod:`lpvflow.synth.margin_goal`);
 * K∞_i from hinfsyn's LMIs (:func:`lpvflow.synth.loop_shaping.lmi_central_controller`): the certified
@@ -70,11 +75,13 @@ from lpvflow.synth.certify import design_coordinates
 from lpvflow.synth.controller import LPVController, mix
 from lpvflow.synth.design import Design
 from lpvflow.synth.loop_shaping import (
+    WASHOUT_RATIO,
     CentralLoopShaping,
     central_ncf_controller,
     controller_distance,
     lmi_central_controller,
     output_integral_weight,
+    output_washout_weight,
     shaped_plant,
 )
 from lpvflow.synth.loop_shaping_common import common_central_controllers, common_weight
@@ -337,23 +344,35 @@ def _level_named(factor: float) -> Iterator[None]:
                              ) from None
 
 
-def output_shaping(model: LPVSS, crossover: float, integral_ratio: float, integral_outputs: list[str] | None
-                   ) -> Shaping:
-    """The :class:`~lpvflow.synth.margin_goal.Shaping` of ``[synth] integral_outputs``: without it the
-    integral action is W1's at every plant input and W2 = I; with it W2 integrates the named outputs'
-    errors (:func:`lpvflow.synth.loop_shaping.output_integral_weight`) and W1 has none.
+def output_shaping(model: LPVSS, crossover: float, integral_ratio: float, integral_outputs: list[str] | None,
+                   washout_outputs: list[str] | None = None, washout_ratio: float = WASHOUT_RATIO) -> Shaping:
+    """The :class:`~lpvflow.synth.margin_goal.Shaping` of ``[synth] integral_outputs`` and
+    ``washout_outputs``: without either the integral action is W1's at every plant input and W2 = I; with
+    the first W2 integrates the named outputs' errors
+    (:func:`lpvflow.synth.loop_shaping.output_integral_weight`) and W1 has none; with the second W2 washes
+    the named outputs out
+    (:func:`lpvflow.synth.loop_shaping.output_washout_weight`, corner ω_c/``washout_ratio``). The two are
+    diagonal, so W2 is their product.
 
     Raises:
-        ModelError: a name that is not a model output.
+        ModelError: a name that is not a model output, or an output named by both keys.
     """
-    if integral_outputs is None:
-        return Shaping(crossover, integral_ratio, control.ss([], [], [], np.eye(model.ny), model.Ts))
-    unknown = [n for n in integral_outputs if n not in model.y_names]
-    if unknown:
-        raise ModelError(f"[synth] integral_outputs names {unknown}, which are not model outputs "
-                         f"{list(model.y_names)}; name the outputs whose error the controller integrates")
-    W2 = output_integral_weight(model.Ts, crossover, [n in integral_outputs for n in model.y_names],
-                                integral_ratio=integral_ratio)
+    W2 = control.ss([], [], [], np.eye(model.ny), model.Ts)
+    for key, names in (("integral_outputs", integral_outputs), ("washout_outputs", washout_outputs)):
+        unknown = [n for n in names or [] if n not in model.y_names]
+        if unknown:
+            raise ModelError(f"[synth] {key} names {unknown}, which are not model outputs "
+                             f"{list(model.y_names)}; name model outputs")
+    both = sorted(set(integral_outputs or []) & set(washout_outputs or []))
+    if both:
+        raise ModelError(f"[synth] integral_outputs and washout_outputs both name {both}: an output is "
+                         "either held at its reference (integral) or not held (washout); name it in one")
+    if integral_outputs:
+        W2 = output_integral_weight(model.Ts, crossover, [n in integral_outputs for n in model.y_names],
+                                    integral_ratio=integral_ratio)
+    if washout_outputs:
+        W2 = W2 * output_washout_weight(model.Ts, crossover, [n in washout_outputs for n in model.y_names],
+                                        washout_ratio=washout_ratio)
     return Shaping(crossover, integral_ratio, W2)
 
 
@@ -389,7 +408,8 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
                          'reference_model')
     scale = shaping_scale(model, settings.get("scaling"))
     shaping = output_shaping(model, crossover, settings.get("integral_ratio") or DEFAULT_INTEGRAL_RATIO,
-                             settings.get("integral_outputs"))
+                             settings.get("integral_outputs"), settings.get("washout_outputs"),
+                             settings.get("washout_ratio") or WASHOUT_RATIO)
     W2 = shaping.W2
     goal = settings.get("margin_goal")
     validated = settings.get("validated_nugap") or {}
@@ -460,6 +480,7 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
             "controller_source": "hinfsyn LMIs: central solution, explicit formulas",
             "scheduling": scheduling,
             "crossover": float(crossover), "integral_outputs": settings.get("integral_outputs"),
+            "washout_outputs": settings.get("washout_outputs"),
             "b_min": check.b_min,
             "b_plant_min": check.b_plant_min, "scaling": settings.get("scaling"),
             "reference_filter": None if filt is None else dict(filt_settings),

@@ -139,7 +139,8 @@ class Shaping:
     """What the loop-shaping weights of every breakpoint share: the crossover ω_c (rad/s), the integral
     corner ratio r_i and the output weight W2 (the same at every breakpoint): W2 = I, and the integral
     action is W1's at the plant's inputs, or W2 integrates chosen outputs
-    (:func:`lpvflow.synth.loop_shaping.output_integral_weight`) and W1 is lead and roll-off only."""
+    (:func:`lpvflow.synth.loop_shaping.output_integral_weight`) and W1 is lead and roll-off only; W2 may
+    also wash out chosen outputs (:func:`lpvflow.synth.loop_shaping.output_washout_weight`)."""
 
     crossover: float
     integral_ratio: float
@@ -147,8 +148,9 @@ class Shaping:
 
     @property
     def input_integral(self) -> bool:
-        """W1 carries the integral action: W2 has no integrator (no state)."""
-        return self.W2.nstates == 0
+        """W1 carries the integral action: W2 has no integrator (no pole at z = 1; a washout's pole is
+        inside the unit circle)."""
+        return not np.any(np.isclose(np.linalg.eigvals(self.W2.A), 1.0, rtol=0.0, atol=1e-12))
 
     def weight(self, G: control.StateSpace, lead_used: float = LEAD_RATIO) -> control.StateSpace:
         """W1 with lead ratio ``lead_used`` (:func:`lead_weight`), normalized so that W2·G·W1 crosses 1 at

@@ -144,3 +144,18 @@ def test_the_homogenized_level_lmis_are_homogeneous_and_refuse_a_low_level_with_
     levels.gamma.value = 0.5 * max(riccati_gamma(v, 0.001) for v in vertices)
     report = rate_bounded.solve(levels.margin_problem, "CLARABEL", "the level LMIs")
     assert report.status == "optimal" and levels.t.value < 0
+
+
+def test_a_gamma_max_below_a_frozen_optimum_is_infeasible_with_sb10dd_as_witness():
+    """gamma_max at 0.9 × the largest frozen SB10DD optimum over the breakpoints: p held at that breakpoint is
+    a trajectory every rate bound admits, on which any scheduled controller is LTI, so the answer is
+    "infeasible" naming a breakpoint whose SB10DD optimum exceeds gamma_max (not "accuracy")."""
+    vertices, b = random_scheduled_plant(1, 2, 3, 0.01)
+    frozen = [riccati_gamma(v, 0.01) for v in vertices]
+    gamma_max = 0.9 * max(frozen)
+    with pytest.raises(SynthesisError, match="SB10DD finds no controller") as info:
+        rate_bounded.synthesize_scheduled(vertices, b, 0.01, rate_bound=RATE, gamma_max=gamma_max)
+    assert info.value.category == "infeasible"
+    message = str(info.value)
+    named = [i for i in range(len(b)) if f"breakpoint {b[i]:.4g} (its optimum" in message]
+    assert len(named) == 1 and frozen[named[0]] > gamma_max and "\n" not in message

@@ -104,6 +104,7 @@ from lpvflow.synth.eliminated import preconditioned
 from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3, interpolate
 from lpvflow.synth.polytope import hat_coordinates
+from lpvflow.synth.riccati import riccati_gamma
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 from lpvflow.synth.vertex_synthesis import homogenizing_scale, synthesize_vertices
 from lpvflow.validate.stability import scaled_margin
@@ -401,6 +402,25 @@ def _common_lyapunov_level(vertices: list[VertexPlant], Ts: float, suboptimality
     return float(result.gamma)
 
 
+def _refuse_below_frozen_optimum(vertices: list[VertexPlant], breakpoints: np.ndarray, Ts: float,
+                                 gamma_max: float, what: str) -> None:
+    """Raise ``"infeasible"`` when SLICOT SB10DD (bisected, :func:`lpvflow.synth.riccati.riccati_gamma`)
+    reaches no γ ≤ ``gamma_max`` for the plant frozen at some breakpoint: p constant there is an admissible
+    trajectory at any rate bound, on which every scheduled controller is an LTI controller of that plant,
+    so none reaches ``gamma_max``. Otherwise return (the failure is the solver's, not the problem's)."""
+    for p, vertex in zip(breakpoints, vertices, strict=True):
+        try:
+            optimum = riccati_gamma(vertex, Ts, rel=1e-3)
+        except ModelError:
+            optimum = np.inf
+        if optimum > gamma_max:
+            raise SynthesisError(f"{what}: no level up to γ = {gamma_max:.4g} passed, and SLICOT SB10DD "
+                                 f"finds no controller with γ ≤ {gamma_max:.4g} for the plant frozen at the "
+                                 f"breakpoint {p:.4g} (its optimum {optimum:.4g}), so no scheduled "
+                                 "controller reaches it there: raise gamma_max or loosen the weights",
+                                 category="infeasible")
+
+
 def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[float], Ts: float, *,
                          rate_bound: float | None, suboptimality: float = 1e-2, solver: str = "CLARABEL",
                          points: Sequence[float] = (), gamma_max: float = GAMMA_MAX) -> ScheduledResult:
@@ -451,8 +471,10 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
 
     best = lowest_certified_level(certified, first, suboptimality, gamma_max, gamma_estimate)
     if best is None:
+        _refuse_below_frozen_optimum(vertices, schedule.breakpoints, Ts, gamma_max, what)
         polytopic = "none" if common is None else f"{common:.4g}"
-        raise SynthesisError(f"{what}: no level from {first * (1 + suboptimality):.4g} (frozen estimate "
+        lowest = min(first * (1 + suboptimality), gamma_max)
+        raise SynthesisError(f"{what}: no level from {lowest:.4g} (frozen estimate "
                              f"{estimate:.4g}, common-Lyapunov level {polytopic}) up to "
                              f"{gamma_max:.4g} gave a controller that passes the certificate: lower the rate "
                              "bound, shrink the range, add breakpoints or loosen the weights",

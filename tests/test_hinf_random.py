@@ -240,18 +240,25 @@ def _common_lyapunov_optimum(vertices: list[VertexPlant]) -> float:
     return float(g.value) if problem.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) else np.nan
 
 
-def test_random_polytopic_families_match_an_independent_common_lyapunov_optimum():
-    """20 families of 2–4 vertices; γ within 2 % of the reference wherever the reference solve returns a
-    point (it must on most), and every vertex loop certified."""
-    rng = np.random.default_rng(11)
+@pytest.mark.parametrize("seed", [11, pytest.param(3001, marks=pytest.mark.slow)])
+def test_random_polytopic_families_match_an_independent_common_lyapunov_optimum(seed):
+    """20 families of 2–4 vertices; every vertex loop certified and γ within 2 % of the reference wherever
+    the reference is valid: its solve returned a point (it must on most) not below the largest vertex's own
+    SB10DD optimum (no common-Lyapunov design can beat that). Seed 3001
+    (drawn after the method was fixed) family 17 — two vertices ±4 %, a near integrator under a DC weight of
+    930 at Ts = 11.7 ms — has a reference of 0.934 under vertex optima 1.150 and
+    1.122: invalid, so not compared (hinfsyn's 1.197 is 1.041× the bound)."""
+    rng = np.random.default_rng(seed)
     compared = 0
     for _ in range(20):
         plants, nmeas, ncon, label = polytopic_case(rng)
         res = hinfsyn(plants, nmeas, ncon)
         for P, K in zip(plants, res.vertex_controllers, strict=True):
             assert hinf_norm(P.lft(K, ncon, nmeas)) <= res.gamma * (1 + 1e-6), label
-        reference = _common_lyapunov_optimum([_vertex(P, nmeas, ncon) for P in plants])
-        if np.isfinite(reference):
+        vertices = [_vertex(P, nmeas, ncon) for P in plants]
+        floor = max(riccati_gamma(v, P.dt, rel=1e-3) for v, P in zip(vertices, plants, strict=True))
+        reference = _common_lyapunov_optimum(vertices)
+        if np.isfinite(reference) and reference >= floor * (1 - 1e-3):
             compared += 1
             assert abs(res.gamma / reference - 1) <= 0.02, label
     assert compared >= 15

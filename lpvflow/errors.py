@@ -30,3 +30,12 @@ class SynthesisError(ModelError):
             raise ValueError(f"unknown SynthesisError category {category!r}")
         super().__init__(message)
         self.category = category
+
+
+class CentralLevelError(SynthesisError):
+    """A :class:`SynthesisError` of the central controller built at ``factor`` × a certified optimum (the
+    optimum itself was found): a larger factor is the remedy the caller can name."""
+
+    def __init__(self, message: str, category: str, factor: float) -> None:
+        super().__init__(message, category)
+        self.factor = factor

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from lpvflow.errors import ModelError, SynthesisError
+from lpvflow.errors import CentralLevelError, ModelError, SynthesisError
 from lpvflow.synth.bilinear import (
     Coordinates,
     _io_scales,
     cayley_vertex,
     lqg_balancing,
 )
-from lpvflow.synth.hinf import central_hinfsyn, hinfsyn
+from lpvflow.synth.hinf import central_hinfsyn, central_near_optimum, hinfsyn
 from lpvflow.synth.plant import VertexPlant
 from lpvflow.synth.riccati import riccati_controller, riccati_gamma
 from lpvflow.validate.norms import hinf_norm
@@ -317,6 +317,10 @@ def test_a_level_sb10dd_reaches_is_never_called_infeasible():
     gamma = hinfsyn(case.P, case.nmeas, case.ncon).gamma
     assert gamma <= 1.01 * optimum
     answered(lambda g: central_hinfsyn(case.P, case.nmeas, case.ncon, g), 1.01 * gamma)
+    try:  # the same central step after hinfsyn's own optimum: its error says which step and level failed
+        central_near_optimum(case.P, case.nmeas, case.ncon, 1.01)
+    except CentralLevelError as exc:
+        assert exc.category == "accuracy" and exc.factor == 1.01
 
 
 def test_an_integrating_weight_on_the_unit_circle_is_an_assumption_error():

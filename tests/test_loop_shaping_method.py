@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from lpvflow.errors import SynthesisError
+from lpvflow.errors import CentralLevelError, SynthesisError
 from lpvflow.models import LPVSS, load
 from lpvflow.pipeline.cli import main
 from lpvflow.synth import loop_shaping_design
@@ -326,23 +326,32 @@ def test_frozen_check_refuses_a_destabilized_controller():
     assert off.worst_ratio >= 1.0 and not off.ok
 
 
-def test_central_controller_failure_names_the_level_key(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("step", ["central", "optimum"])
+def test_central_controller_failure_names_the_level_key(tmp_path, capsys, monkeypatch, step):
     """A central controller that cannot be certified at its level ("raise it") is one line naming
-    [synth] level_factor and its value, exit 2; a level_factor not above 1 is refused before any solve."""
-    def uncertifiable(Gs, factor, solver="CLARABEL"):
-        raise SynthesisError(f"the central controller at γ = {2 * factor:.6g} fails its certificate (margin "
-                             "-1e-09, LMI margin 1e-08): round-off at this level; raise it",
+    [synth] level_factor and its value, exit 2; an error of hinfsyn's optimum search before it is one line
+    without that note (the level is not its remedy); a level_factor not above 1 is refused before any
+    solve."""
+    def failing(Gs, factor, solver="CLARABEL"):
+        if step == "central":
+            raise CentralLevelError(f"the central controller at γ = {2 * factor:.6g} fails its certificate "
+                                    "(margin -1e-09, LMI margin 1e-08): round-off at this level; raise it",
+                                    "accuracy", factor)
+        raise SynthesisError("no level up to γ = 1e+06 gave a controller that passes the certificate",
                              category="accuracy")
 
-    monkeypatch.setattr(loop_shaping_design, "lmi_central_controller", uncertifiable)
+    monkeypatch.setattr(loop_shaping_design, "lmi_central_controller", failing)
     two_state_plant().save(tmp_path / "model.json")
     (tmp_path / "design.toml").write_text(DESIGN + "level_factor = 1.02\n")
     out = tmp_path / "K.json"
     assert main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
                  "-o", str(out)]) == 2
     error = capsys.readouterr().err.strip().splitlines()
-    assert len(error) == 1 and "raise it" in error[0] and "[synth] level_factor = 1.02" in error[0]
-    assert not out.exists()
+    assert len(error) == 1 and not out.exists()
+    assert ("[synth] level_factor = 1.02" in error[0]) == (step == "central")
+    if step == "optimum":
+        return
+    assert "raise it" in error[0]
     (tmp_path / "design.toml").write_text(DESIGN + "level_factor = 1.0\n")
     assert main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / "design.toml"),
                  "-o", str(out)]) == 2

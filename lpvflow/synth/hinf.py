@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import control
 import numpy as np
 
-from lpvflow.errors import ModelError
+from lpvflow.errors import CentralLevelError, ModelError, SynthesisError
 from lpvflow.synth.central import central_vertices
 from lpvflow.synth.controller import LPVController, series_input_filter
 from lpvflow.synth.levels import GAMMA_MAX
@@ -121,14 +121,18 @@ def central_near_optimum(P: control.StateSpace | Sequence[control.StateSpace], n
 
     Raises:
         ModelError: as :func:`hinfsyn`, or ``factor`` not above 1.
-        SynthesisError: as :func:`hinfsyn` and :func:`central_hinfsyn`.
+        SynthesisError: as :func:`hinfsyn` (the optimum search); the central controller's as
+            :class:`~lpvflow.errors.CentralLevelError` (as :func:`central_hinfsyn`, with ``factor``).
     """
     if not factor > 1.0:
         raise ModelError(f"factor is {factor!r}; it must be > 1 (the level above the optimum the central "
                          "controller is built at), e.g. 1.01")
     vertices, Ts = _vertices(P, nmeas, ncon, "central_near_optimum")
     optimum = synthesize_vertices(vertices, Ts, SUBOPTIMALITY, GAMMA_MAX, solver)
-    central = central_vertices(vertices, Ts, factor * optimum.gamma, solver, optimum.preconditioning)
+    try:
+        central = central_vertices(vertices, Ts, factor * optimum.gamma, solver, optimum.preconditioning)
+    except SynthesisError as exc:
+        raise CentralLevelError(str(exc), exc.category, factor) from None
     return central, float(optimum.gamma)
 
 

@@ -69,7 +69,7 @@ from typing import Any
 import control
 import numpy as np
 
-from lpvflow.errors import ModelError, SynthesisError
+from lpvflow.errors import CentralLevelError, ModelError, SynthesisError
 from lpvflow.models import LPVSS
 from lpvflow.synth.certify import design_coordinates
 from lpvflow.synth.controller import LPVController, mix
@@ -334,11 +334,11 @@ def with_reference_model(K_fb: tuple[np.ndarray, ...], model_mats: tuple[np.ndar
 
 @contextlib.contextmanager
 def _level_named(factor: float) -> Iterator[None]:
-    """A :class:`SynthesisError` of the central controllers with the design's level named: "raise the level"
-    is ``[synth] level_factor`` here."""
+    """A :class:`~lpvflow.errors.CentralLevelError` (the central controller at its level, not hinfsyn's
+    optimum search) with the design's level named: "raise the level" is ``[synth] level_factor`` here."""
     try:
         yield
-    except SynthesisError as exc:
+    except CentralLevelError as exc:
         raise SynthesisError(f"{exc} (loop-shaping: the central controllers are built at [synth] "
                              f"level_factor = {factor:g} × hinfsyn's optimum γ_LMI)", category=exc.category
                              ) from None

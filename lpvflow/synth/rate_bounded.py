@@ -429,7 +429,10 @@ def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[floa
 
     Raises:
         ModelError: breakpoints that do not match the vertices, or B2, C2, D12, D21 not constant.
-        SynthesisError: infeasible LMIs, or no level whose controller passes the certificate.
+        SynthesisError: no level up to ``gamma_max`` whose controller passes the certificate —
+            ``"infeasible"`` where SB10DD finds no controller within ``gamma_max`` for the plant frozen at a
+            breakpoint (named), else ``"accuracy"``; ``"infeasible"`` also when the solver proves the frozen
+            eliminated LMIs infeasible at every γ.
     """
     if not suboptimality > 0:
         raise ModelError(f"suboptimality must be positive, got {suboptimality!r}")

@@ -104,7 +104,7 @@ from lpvflow.synth.eliminated import preconditioned
 from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3, interpolate
 from lpvflow.synth.polytope import hat_coordinates
-from lpvflow.synth.riccati import riccati_gamma
+from lpvflow.synth.riccati import riccati_witness
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 from lpvflow.synth.vertex_synthesis import homogenizing_scale, synthesize_vertices
 from lpvflow.validate.stability import scaled_margin
@@ -404,15 +404,12 @@ def _common_lyapunov_level(vertices: list[VertexPlant], Ts: float, suboptimality
 
 def _refuse_below_frozen_optimum(vertices: list[VertexPlant], breakpoints: np.ndarray, Ts: float,
                                  gamma_max: float, what: str) -> None:
-    """Raise ``"infeasible"`` when SLICOT SB10DD (bisected, :func:`lpvflow.synth.riccati.riccati_gamma`)
+    """Raise ``"infeasible"`` when SLICOT SB10DD (bisected, :func:`lpvflow.synth.riccati.riccati_witness`)
     reaches no γ ≤ ``gamma_max`` for the plant frozen at some breakpoint: p constant there is an admissible
     trajectory at any rate bound, on which every scheduled controller is an LTI controller of that plant,
     so none reaches ``gamma_max``. Otherwise return (the failure is the solver's, not the problem's)."""
     for p, vertex in zip(breakpoints, vertices, strict=True):
-        try:
-            optimum = riccati_gamma(vertex, Ts, rel=1e-3)
-        except ModelError:
-            optimum = np.inf
+        optimum = riccati_witness(vertex, Ts)
         if optimum > gamma_max:
             raise SynthesisError(f"{what}: no level up to γ = {gamma_max:.4g} passed, and SLICOT SB10DD "
                                  f"finds no controller with γ ≤ {gamma_max:.4g} for the plant frozen at the "

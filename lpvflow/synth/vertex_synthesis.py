@@ -95,7 +95,7 @@ from lpvflow.synth.controller import LPVController, mix
 from lpvflow.synth.eliminated import Preconditioned, infeasible_at, preconditioned, sym
 from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
-from lpvflow.synth.riccati import riccati_gamma
+from lpvflow.synth.riccati import riccati_witness
 from lpvflow.synth.sdp import SolveReport, solve
 
 #: Default relative width δ of the final level bracket (step 5).
@@ -386,10 +386,7 @@ def _failure(category: str, what: str, vertices: list[VertexPlant], Ts: float, g
     ``gamma_max``; where it does, the LMIs' "infeasible" was the solver's round-off (the LMIs are exact for
     one plant, Gahinet & Apkarian 1994), so the category is ``"accuracy"``."""
     if len(vertices) == 1:
-        try:
-            optimum = riccati_gamma(vertices[0], Ts, rel=1e-3)
-        except ModelError:
-            optimum = np.inf
+        optimum = riccati_witness(vertices[0], Ts)
         if optimum <= gamma_max:
             return (f"{what}; SLICOT SB10DD reaches γ = {optimum:.4g}, so the LMI solve failed numerically: "
                     "rescale the weights (signals near 1, time constants within a few decades) or try "

@@ -317,10 +317,12 @@ def test_a_level_sb10dd_reaches_is_never_called_infeasible():
     gamma = hinfsyn(case.P, case.nmeas, case.ncon).gamma
     assert gamma <= 1.01 * optimum
     answered(lambda g: central_hinfsyn(case.P, case.nmeas, case.ncon, g), 1.01 * gamma)
-    try:  # the same central step after hinfsyn's own optimum: its error says which step and level failed
-        central_near_optimum(case.P, case.nmeas, case.ncon, 1.01)
+    try:  # the same central step after hinfsyn's own optimum: certified, or an error naming step and factor
+        central, _ = central_near_optimum(case.P, case.nmeas, case.ncon, 1.01)
     except CentralLevelError as exc:
         assert exc.category == "accuracy" and exc.factor == 1.01
+    else:
+        assert min(central.certificate) > 0
 
 
 def test_an_integrating_weight_on_the_unit_circle_is_an_assumption_error():

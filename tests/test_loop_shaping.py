@@ -174,46 +174,38 @@ def test_integrator_lead_weight_is_the_sampled_continuous_weight():
         integrator_lead_weight(Ts, 100.0)
 
 
-def test_output_integral_weight_integrates_only_the_marked_outputs():
-    """W2 = diag(w_j): w_j(z) = 1 + (ω_c/r_i)·Ts/(z − 1) (the ZOH sample of (s + ω_c/r_i)/s) on the marked
-    outputs, 1 on the others, nothing off the diagonal; no output marked is refused."""
-    rng = np.random.default_rng(11)
+def _integrator(z, corner, Ts):
+    return 1 + corner * Ts / (z - 1)
+
+
+def _washout(z, corner, Ts):
+    return (z - 1) / (z - np.exp(-corner * Ts))
+
+
+@pytest.mark.parametrize(("weight", "ratio_key", "channel", "dc", "seed"),
+                         [(output_integral_weight, "integral_ratio", _integrator, None, 11),
+                          (output_washout_weight, "washout_ratio", _washout, 0.0, 12)])
+def test_an_output_weight_acts_only_on_the_marked_outputs(weight, ratio_key, channel, dc, seed):
+    """W2 = diag(w_j), the ZOH sample of the channel on the marked outputs, 1 on the others, nothing off the
+    diagonal, one state per marked output: (s + ω_c/r_i)/s → 1 + (ω_c/r_i)·Ts/(z − 1) (integral);
+    s/(s + ω_c/r_w) → (z − 1)/(z − e^{−ω_c Ts/r_w}) (washout, zero at DC). No output marked is refused."""
+    rng = np.random.default_rng(seed)
     for _ in range(6):
         Ts, wc = float(rng.choice([0.002, 0.01])), float(rng.uniform(1.0, 20.0))
         ratio = float(rng.uniform(3, 30))
         marked = [bool(m) for m in rng.integers(0, 2, 3)]
         marked[int(rng.integers(0, 3))] = True
-        W2 = output_integral_weight(Ts, wc, marked, integral_ratio=ratio)
+        W2 = weight(Ts, wc, marked, **{ratio_key: ratio})
         for w in rng.uniform(0.01, 0.9, 4) * np.pi / Ts:
             z = np.exp(1j * w * Ts)
-            expected = np.diag([1 + wc / ratio * Ts / (z - 1) if m else 1.0 for m in marked])
+            expected = np.diag([channel(z, wc / ratio, Ts) if m else 1.0 for m in marked])
             np.testing.assert_allclose(W2(z, squeeze=False), expected, rtol=1e-12, atol=1e-12)
+        if dc is not None:
+            np.testing.assert_allclose(W2(1.0, squeeze=False), np.diag([dc if m else 1.0 for m in marked]),
+                                       atol=1e-12)
         assert W2.nstates == sum(marked)
     with pytest.raises(ModelError, match="at least one"):
-        output_integral_weight(0.01, 1.0, [False, False])
-
-
-def test_output_washout_weight_washes_out_only_the_marked_outputs():
-    """W2 = diag(w_j): w_j(z) = (z − 1)/(z − e^{−ω_c Ts/r_w}) (the ZOH sample of s/(s + ω_c/r_w)) on the
-    marked outputs, 1 on the others: zero at DC, one state each, no pole at z = 1; no output marked is
-    refused."""
-    rng = np.random.default_rng(12)
-    for _ in range(6):
-        Ts, wc = float(rng.choice([0.002, 0.01])), float(rng.uniform(1.0, 20.0))
-        ratio = float(rng.uniform(3, 30))
-        marked = [bool(m) for m in rng.integers(0, 2, 3)]
-        marked[int(rng.integers(0, 3))] = True
-        W2 = output_washout_weight(Ts, wc, marked, washout_ratio=ratio)
-        pole = np.exp(-wc / ratio * Ts)
-        for w in rng.uniform(0.01, 0.9, 4) * np.pi / Ts:
-            z = np.exp(1j * w * Ts)
-            expected = np.diag([(z - 1) / (z - pole) if m else 1.0 for m in marked])
-            np.testing.assert_allclose(W2(z, squeeze=False), expected, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(W2(1.0, squeeze=False), np.diag([0.0 if m else 1.0 for m in marked]),
-                                   atol=1e-12)
-        assert W2.nstates == sum(marked)
-    with pytest.raises(ModelError, match="at least one"):
-        output_washout_weight(0.01, 1.0, [False, False])
+        weight(0.01, 1.0, [False, False])
 
 
 def test_crossover_normalized_with_an_output_weight_crosses_one_at_the_crossover():

@@ -62,6 +62,7 @@ others end in a SynthesisError "accuracy" (an eliminated-LMI or analysis solve t
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import control
 import cvxpy as cp
@@ -86,6 +87,7 @@ from lpvflow.synth.eliminated import (
     sym,
 )
 from lpvflow.synth.plant import VertexPlant
+from lpvflow.synth.riccati import riccati_witness
 from lpvflow.synth.sdp import SolveReport, solve
 from lpvflow.synth.vertex_synthesis import (
     HinfResult,
@@ -186,17 +188,22 @@ def _relative(matrices: list[cp.Expression], sizes: list[cp.Expression], eps: fl
     return [matrices[0] >> eps * sizes[0]] + [M << -eps * D for M, D in pairs]
 
 
-def central_solution(verts: list[VertexPlant], gamma: float, solver: str
+def central_solution(verts: list[VertexPlant], gamma: float, solver: str,
+                     riccati_optimum: Callable[[], float] | None = None
                      ) -> tuple[np.ndarray, np.ndarray, float, SolveReport]:
     """Step 1 of the module docstring on the (continuous, balanced) vertices: (R, S, the relative margin ε
     they keep, report). Margins are relative (:func:`_relative_margin`): ε_w of the widest point (max t of
     the plain conditions), then max trace R + trace S keeping ε = CENTRAL_MARGIN·ε_w, moved towards the
     widest point where the solver left it short — the widest point itself when that solve returns no point
-    (``report.status`` says so).
+    (``report.status`` says so). ``riccati_optimum``: for one plant, its SB10DD optimum
+    (:func:`lpvflow.synth.riccati.riccati_witness`), asked only when an accurate solve finds no strict
+    solution: the conditions are exact for one plant (Gahinet & Apkarian 1994), so where SB10DD reaches γ
+    the solver's verdict was round-off.
 
     Raises:
         SynthesisError: the conditions have no strict solution at γ (category ``"infeasible"`` when the
-            solve was accurate, else ``"accuracy"``), or a solve returned no point (``"accuracy"``).
+            solve was accurate and SB10DD, if asked, does not reach γ either; else ``"accuracy"``), or a
+            solve returned no point (``"accuracy"``).
     """
     n = verts[0].dims[0]
     R, S, t = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True), cp.Variable()
@@ -207,11 +214,16 @@ def central_solution(verts: list[VertexPlant], gamma: float, solver: str
     attempts = list(widest.attempts)
     eps_widest = _relative_margin(matrices, sizes)
     if not eps_widest > 0:
-        verdict = ("no controller of this class reaches the level; raise it" if widest.accurate
-                   else "the solve is not accurate enough to tell; raise the level")
+        reached = riccati_optimum() if widest.accurate and riccati_optimum is not None else float("inf")
+        if not widest.accurate:
+            verdict, category = "the solve is not accurate enough to tell; raise the level", "accuracy"
+        elif reached <= gamma:
+            verdict, category = (f"but SLICOT SB10DD reaches γ = {reached:.4g}, so the solve failed "
+                                 "numerically; raise the level"), "accuracy"
+        else:
+            verdict, category = "no controller of this class reaches the level; raise it", "infeasible"
         raise SynthesisError(f"{what} have no strict solution (largest margin {float(t.value):.3g}, "
-                             f"{widest.solver}: {widest.status}): {verdict}",
-                             category="infeasible" if widest.accurate else "accuracy")
+                             f"{widest.solver}: {widest.status}): {verdict}", category=category)
     widest_point = (R.value.copy(), S.value.copy())
     eps = CENTRAL_MARGIN * eps_widest
     cap = [R << CAP * widest_point[0], S << CAP * widest_point[1]]
@@ -294,13 +306,15 @@ def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solve
     computed (``HinfResult.preconditioning`` of hinfsyn on the same plants), else computed here.
 
     Raises:
-        SynthesisError: an assumption fails (``"assumption"``), no controller reaches γ (``"infeasible"``),
-            or the controller fails its certificate (``"accuracy"``: round-off at this level; raise it).
+        SynthesisError: an assumption fails (``"assumption"``), no controller reaches γ (``"infeasible"``;
+            for one plant only where SB10DD does not reach γ either, else ``"accuracy"``), or the controller
+            fails its certificate (``"accuracy"``: round-off at this level; raise it).
     """
     check_assumptions(vertices)
     cayleys = [cayley_vertex(v) for v in vertices]
     pre = preconditioning or preconditioned(cayleys, gamma, solver)
-    R, S, margin, report = central_solution(pre.vertices, gamma, solver)
+    single = (lambda: riccati_witness(vertices[0], Ts)) if len(vertices) == 1 else None
+    R, S, margin, report = central_solution(pre.vertices, gamma, solver, single)
     if preconditioning is None:  # SDPs solved by this call only
         report.attempts[:0] = pre.attempts
     # the same R, S in the coordinates that balance them (R = S = Σ, a congruence of every condition):

@@ -104,8 +104,9 @@ def central_hinfsyn(P: control.StateSpace | Sequence[control.StateSpace], nmeas:
 
     Raises:
         ModelError: as :func:`hinfsyn`, or a level that is not positive.
-        SynthesisError: ``"assumption"`` as :func:`hinfsyn`; ``"infeasible"`` no controller reaches γ;
-            ``"accuracy"`` a solve without a point or a controller that fails its certificate.
+        SynthesisError: ``"assumption"`` as :func:`hinfsyn`; ``"infeasible"`` no controller reaches γ
+            (for one plant: SB10DD does not reach it either); ``"accuracy"`` a solve without a point, a
+            solve SB10DD contradicts, or a controller that fails its certificate.
     """
     vertices, Ts = _vertices(P, nmeas, ncon, "central_hinfsyn")
     if not (np.isfinite(gamma) and gamma > 0):

@@ -62,6 +62,9 @@ def test_rerun_skips_unchanged_stages_and_a_change_reruns_the_affected_ones(tmp_
                         "adoption": "not configured", "export": "not configured"}
     assert first["failed"] is None
     assert first["verdict"]["pass"]  # identification-only: every configured stage ran
+    # the progress numbering has no silent gap: a skipped stage names the table it needs
+    assert "[3/10] diagnose: skipped (no [diagnose] table)" in lines
+    assert "[7/10] robustness: skipped (no [synth] table)" in lines
     # The validation fit is the stage's model simulated on the held-out part of the stage's data.
     folder = tmp_path / "out" / "tanks"
     data = Dataset.read(folder / "data.csv", ["pump_voltage"], ["lower_level"], ["level"])

@@ -313,8 +313,10 @@ def _run_pass(
     code = cache.code_digest()  # any change to lpvflow's code reruns every stage
     count = len(pass_stages)
     for i, stage in enumerate(pass_stages, 1):
-        if any(config[t] is None for t in stage.requires):
+        missing = [t for t in stage.requires if config[t] is None]
+        if missing:
             outcome[stage.name] = {"status": "not configured"}
+            log(f"[{i}/{count}] {stage.name}: skipped (no {', '.join(f'[{t}]' for t in missing)} table)")
             continue
         settings = StageSettings(config, stage.reads)
         ctx.config = settings

@@ -44,8 +44,9 @@ alone, in two steps, on the Cayley image of every vertex in the balanced coordin
    then step 6 of :mod:`lpvflow.synth.vertex_synthesis` (M Nᵀ = I − RS), and the certificate the same
    numpy re-check of the discrete closed loop with 𝒳 = [S N; Nᵀ ·] (:func:`certificate_margin`). When
    that 𝒳 fails the re-check (the reconstruction from R, S near their largest loses it to round-off while
-   the loop itself meets γ), the controller's own bounded-real analysis supplies 𝒳, re-checked the same
-   way (:func:`closed_loop_lyapunov_factor`).
+   the loop itself meets γ), the controller's own bounded-real analysis supplies 𝒳 — for one plant the
+   stabilizing solution of its bounded-real Riccati equation, for several vertices an SDP — re-checked the
+   same way (:func:`closed_loop_lyapunov_factor`).
 
 At the largest R, S the split blocks are singular and the controller is the Riccati central one; the
 relative margin keeps it strictly inside. Step 6 runs in the coordinates that balance R, S (R = S = Σ, so
@@ -99,6 +100,10 @@ from lpvflow.synth.vertex_synthesis import (
     reconstruct_controller,
 )
 
+#: ε of :func:`_riccati_factor`, in the coordinates where the synthesis's 𝒳 is I: the strictness of the
+#: Riccati certificate. Larger values move the equation's solvability limit below γ on loops with poles near
+#: the unit circle (tests/hinf_cases.py seed 3003 case 13: 1e-6 and above had no stabilizing solution).
+RICCATI_REGULARIZATION = 1e-8
 #: The relative margin the central point keeps, a fraction of the widest point's (:func:`_relative_margin`).
 CENTRAL_MARGIN = 0.05
 #: R ⪯ CAP·R_w, S ⪯ CAP·S_w (R_w, S_w the widest point): the bound on directions the conditions leave
@@ -270,12 +275,17 @@ def closed_loop_lyapunov_factor(vertices: list[VertexPlant], K_vertices: list[tu
     find 𝒴 with [𝒜̃ᵀ𝒴 + 𝒴𝒜̃, 𝒴ℬ̃, 𝒞̃ᵀ; ·, −γI, 𝒟ᵀ; ·, ·, −γI] ≺ 0 and 𝒴 ≻ 0, homogenized as step 5 of
     :mod:`lpvflow.synth.vertex_synthesis` (𝒞̃, 𝒟, γI multiplied by τ, 𝒴 ⪯ I, max t with the matrices ⪯ −tI
     and 𝒴 ⪰ tI); then 𝒳 = F₀ᵀ(𝒴/τ)F₀. In those coordinates 𝒴 ≈ τI when F₀ is nearly right, so the SDP is
-    well scaled. Its answer is only a candidate: :func:`certificate_margin` re-checks it in numpy.
+    well scaled. Its answer is only a candidate: :func:`certificate_margin` re-checks it in numpy. For one
+    plant no SDP: 𝒳 is the bounded-real Riccati equation's stabilizing solution (:func:`_riccati_factor`;
+    held-out draws of tests/hinf_cases.py, seeds 3001–3004 and 2031: never fewer central controllers
+    certified than with the SDP, 2 more on seed 3003 and 2 more on 2031).
 
     Raises:
         SynthesisError: ``"accuracy"`` when the analysis returns no point (τ ≤ 0, or 𝒴/τ not positive
-            definite).
+            definite; for one plant: no stabilizing Riccati solution, or one not positive definite).
     """
+    if len(vertices) == 1:
+        return _riccati_factor(vertices[0], K_vertices[0], start, gamma)
     inverse = np.linalg.inv(start)
     m = start.shape[0]
     Y, t, tau = cp.Variable((m, m), symmetric=True), cp.Variable(), cp.Variable()
@@ -296,6 +306,34 @@ def closed_loop_lyapunov_factor(vertices: list[VertexPlant], K_vertices: list[tu
     except np.linalg.LinAlgError:
         raise SynthesisError(f"{what} have no solution ({report.solver}: {report.status}): the controller "
                              "cannot be certified at this level; raise it", category="accuracy") from None
+
+
+def _riccati_factor(v: VertexPlant, K: tuple[np.ndarray, ...], start: np.ndarray, gamma: float
+                    ) -> tuple[np.ndarray, SolveReport]:
+    """:func:`closed_loop_lyapunov_factor` for one plant, without an SDP: the discrete closed loop
+    (𝒜, ℬ, 𝒞, 𝒟) in the coordinates ξ̃ = F₀ξ, and 𝒳̃ the stabilizing solution of the discrete
+    bounded-real Riccati equation (the Schur complement of the bounded-real inequality on its −γI block,
+    regularized by εI so that it holds strictly):
+
+        𝒳̃ = 𝒜ᵀ𝒳̃𝒜 + 𝒞ᵀ𝒞/γ + εI − (𝒜ᵀ𝒳̃ℬ + 𝒞ᵀ𝒟/γ)(ℬᵀ𝒳̃ℬ − γI + 𝒟ᵀ𝒟/γ)⁻¹(ℬᵀ𝒳̃𝒜 + 𝒟ᵀ𝒞/γ),
+
+    which has one exactly when the loop is stable with ‖T‖∞ < γ (and ε small), by scipy's
+    ``solve_discrete_are`` with the indefinite R = 𝒟ᵀ𝒟/γ − γI. The discrete inequality with 𝒳 holds iff the
+    continuous one of the Cayley image does (:func:`certificate_margin` re-checks it there)."""
+    start_time = time.perf_counter()
+    A, B, C, D = closed_loop(v, K)
+    inverse = np.linalg.inv(start)
+    A, B, C = start @ A @ inverse, start @ B, C @ inverse
+    what = f"the bounded-real Riccati equation of the central controller's loop at γ = {gamma:.6g}"
+    try:
+        X = scipy.linalg.solve_discrete_are(A, B, C.T @ C / gamma + RICCATI_REGULARIZATION * np.eye(len(A)),
+                                            D.T @ D / gamma - gamma * np.eye(B.shape[1]), s=C.T @ D / gamma)
+        factor = np.linalg.cholesky(0.5 * (X + X.T)).T @ start
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise SynthesisError(f"{what} has no stabilizing solution ({str(exc).split('.')[0]}): the controller "
+                             "cannot be certified at this level; raise it", category="accuracy") from None
+    seconds = time.perf_counter() - start_time
+    return factor, SolveReport("scipy", "riccati", seconds, [("scipy", "riccati", seconds)])
 
 
 def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solver: str = "CLARABEL",

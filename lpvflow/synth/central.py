@@ -225,6 +225,10 @@ def central_solution(verts: list[VertexPlant], gamma: float, solver: str,
         elif reached <= gamma:
             verdict, category = (f"but SLICOT SB10DD reaches γ = {reached:.4g}, so the solve failed "
                                  "numerically; raise the level"), "accuracy"
+        elif riccati_optimum is not None:
+            riccati = (f"SLICOT SB10DD's optimum is {reached:.4g}" if np.isfinite(reached)
+                       else "SLICOT SB10DD finds none up to 1e6")
+            verdict, category = f"no controller reaches the level ({riccati}); raise it", "infeasible"
         else:
             verdict, category = "no controller of this class reaches the level; raise it", "infeasible"
         raise SynthesisError(f"{what} have no strict solution (largest margin {float(t.value):.3g}, "

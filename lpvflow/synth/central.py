@@ -69,6 +69,7 @@ import control
 import cvxpy as cp
 import numpy as np
 import scipy.linalg
+from slycot.exceptions import SlycotError
 
 from lpvflow.errors import SynthesisError
 from lpvflow.synth.bilinear import (
@@ -88,7 +89,7 @@ from lpvflow.synth.eliminated import (
     sym,
 )
 from lpvflow.synth.plant import VertexPlant
-from lpvflow.synth.riccati import riccati_witness
+from lpvflow.synth.riccati import RICCATI_GAMMA_LIMIT, riccati_witness
 from lpvflow.synth.sdp import SolveReport, solve
 from lpvflow.synth.vertex_synthesis import (
     HinfResult,
@@ -193,6 +194,22 @@ def _relative(matrices: list[cp.Expression], sizes: list[cp.Expression], eps: fl
     return [matrices[0] >> eps * sizes[0]] + [M << -eps * D for M, D in pairs]
 
 
+def _no_strict_solution(accurate: bool, gamma: float, riccati_optimum: Callable[[], float] | None
+                        ) -> tuple[str, str]:
+    """What a widest point without a positive margin means, and its category (:func:`central_solution`)."""
+    if not accurate:
+        return "the solve is not accurate enough to tell; raise the level", "accuracy"
+    if riccati_optimum is None:
+        return "no controller of this class reaches the level; raise it", "infeasible"
+    reached = riccati_optimum()
+    if reached <= gamma:
+        return (f"but SLICOT SB10DD reaches γ = {reached:.4g}, so the solve failed numerically; raise the "
+                "level"), "accuracy"
+    riccati = (f"SLICOT SB10DD's optimum is {reached:.4g}" if np.isfinite(reached)
+               else f"SLICOT SB10DD finds none up to {RICCATI_GAMMA_LIMIT:g}")
+    return f"no controller reaches the level ({riccati}); raise it", "infeasible"
+
+
 def central_solution(verts: list[VertexPlant], gamma: float, solver: str,
                      riccati_optimum: Callable[[], float] | None = None
                      ) -> tuple[np.ndarray, np.ndarray, float, SolveReport]:
@@ -219,18 +236,7 @@ def central_solution(verts: list[VertexPlant], gamma: float, solver: str,
     attempts = list(widest.attempts)
     eps_widest = _relative_margin(matrices, sizes)
     if not eps_widest > 0:
-        reached = riccati_optimum() if widest.accurate and riccati_optimum is not None else float("inf")
-        if not widest.accurate:
-            verdict, category = "the solve is not accurate enough to tell; raise the level", "accuracy"
-        elif reached <= gamma:
-            verdict, category = (f"but SLICOT SB10DD reaches γ = {reached:.4g}, so the solve failed "
-                                 "numerically; raise the level"), "accuracy"
-        elif riccati_optimum is not None:
-            riccati = (f"SLICOT SB10DD's optimum is {reached:.4g}" if np.isfinite(reached)
-                       else "SLICOT SB10DD finds none up to 1e6")
-            verdict, category = f"no controller reaches the level ({riccati}); raise it", "infeasible"
-        else:
-            verdict, category = "no controller of this class reaches the level; raise it", "infeasible"
+        verdict, category = _no_strict_solution(widest.accurate, gamma, riccati_optimum)
         raise SynthesisError(f"{what} have no strict solution (largest margin {float(t.value):.3g}, "
                              f"{widest.solver}: {widest.status}): {verdict}", category=category)
     widest_point = (R.value.copy(), S.value.copy())
@@ -321,8 +327,9 @@ def _riccati_factor(v: VertexPlant, K: tuple[np.ndarray, ...], start: np.ndarray
 
         𝒳̃ = 𝒜ᵀ𝒳̃𝒜 + 𝒞ᵀ𝒞/γ + εI − (𝒜ᵀ𝒳̃ℬ + 𝒞ᵀ𝒟/γ)(ℬᵀ𝒳̃ℬ − γI + 𝒟ᵀ𝒟/γ)⁻¹(ℬᵀ𝒳̃𝒜 + 𝒟ᵀ𝒞/γ),
 
-    which has one exactly when the loop is stable with ‖T‖∞ < γ (and ε small), by scipy's
-    ``solve_discrete_are`` with the indefinite R = 𝒟ᵀ𝒟/γ − γI. The discrete inequality with 𝒳 holds iff the
+    which has one exactly when the loop is stable with ‖T‖∞ < γ (and ε small), by python-control's
+    ``dare`` (SLICOT through slycot, as :mod:`lpvflow.synth.controller` uses it) with the indefinite
+    R = 𝒟ᵀ𝒟/γ − γI. The discrete inequality with 𝒳 holds iff the
     continuous one of the Cayley image does (:func:`certificate_margin` re-checks it there)."""
     start_time = time.perf_counter()
     A, B, C, D = closed_loop(v, K)
@@ -330,14 +337,14 @@ def _riccati_factor(v: VertexPlant, K: tuple[np.ndarray, ...], start: np.ndarray
     A, B, C = start @ A @ inverse, start @ B, C @ inverse
     what = f"the bounded-real Riccati equation of the central controller's loop at γ = {gamma:.6g}"
     try:
-        X = scipy.linalg.solve_discrete_are(A, B, C.T @ C / gamma + RICCATI_REGULARIZATION * np.eye(len(A)),
-                                            D.T @ D / gamma - gamma * np.eye(B.shape[1]), s=C.T @ D / gamma)
+        X, _, _ = control.dare(A, B, C.T @ C / gamma + RICCATI_REGULARIZATION * np.eye(len(A)),
+                               D.T @ D / gamma - gamma * np.eye(B.shape[1]), C.T @ D / gamma)
         factor = np.linalg.cholesky(0.5 * (X + X.T)).T @ start
-    except (np.linalg.LinAlgError, ValueError) as exc:
+    except (np.linalg.LinAlgError, ValueError, ArithmeticError, SlycotError) as exc:
         raise SynthesisError(f"{what} has no stabilizing solution ({str(exc).split('.')[0]}): the controller "
                              "cannot be certified at this level; raise it", category="accuracy") from None
     seconds = time.perf_counter() - start_time
-    return factor, SolveReport("scipy", "riccati", seconds, [("scipy", "riccati", seconds)])
+    return factor, SolveReport("slycot", "riccati", seconds, [("slycot", "riccati", seconds)])
 
 
 def central_vertices(vertices: list[VertexPlant], Ts: float, gamma: float, solver: str = "CLARABEL",

@@ -35,6 +35,10 @@ def riccati_controller(vertex: VertexPlant, Ts: float, gamma: float) -> tuple[np
     return K if hinf_norm(loop) <= gamma * (1 + 1e-3) else None
 
 
+#: The largest γ :func:`riccati_gamma` tries before it says SB10DD finds no controller.
+RICCATI_GAMMA_LIMIT = 1e6
+
+
 def riccati_gamma(vertex: VertexPlant, Ts: float, rel: float = 1e-4) -> float:
     """Smallest γ (to relative width ``rel``) at which :func:`riccati_controller` returns a controller:
     the frozen optimum the LMI synthesis should reach at one vertex, found without any LMI.
@@ -54,8 +58,9 @@ def riccati_gamma(vertex: VertexPlant, Ts: float, rel: float = 1e-4) -> float:
             hi, lo = lo, lo / 2.0
     else:
         while not achieved(hi):
-            if hi >= 1e6:
-                raise ModelError("SB10DD finds no controller with γ ≤ 1e6 for this vertex")
+            if hi >= RICCATI_GAMMA_LIMIT:
+                raise ModelError(f"SB10DD finds no controller with γ ≤ {RICCATI_GAMMA_LIMIT:g} for this "
+                                 "vertex")
             lo, hi = hi, hi * 2.0
     while hi / lo > 1 + rel:
         mid = (lo * hi) ** 0.5

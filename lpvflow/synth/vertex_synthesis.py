@@ -95,7 +95,7 @@ from lpvflow.synth.controller import LPVController, mix
 from lpvflow.synth.eliminated import Preconditioned, infeasible_at, preconditioned, sym
 from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
-from lpvflow.synth.riccati import riccati_witness
+from lpvflow.synth.riccati import RICCATI_GAMMA_LIMIT, riccati_witness
 from lpvflow.synth.sdp import SolveReport, solve
 
 #: Default relative width δ of the final level bracket (step 5).
@@ -391,7 +391,8 @@ def _failure(category: str, what: str, vertices: list[VertexPlant], Ts: float, g
             return (f"{what}; SLICOT SB10DD reaches γ = {optimum:.4g}, so the LMI solve failed numerically: "
                     "rescale the weights (signals near 1, time constants within a few decades) or try "
                     "solver='SCS'", "accuracy")
-        return (f"{what}; SLICOT SB10DD finds no controller with γ ≤ {min(gamma_max, 1e6):g} either: relax "
+        limit = min(gamma_max, RICCATI_GAMMA_LIMIT)
+        return (f"{what}; SLICOT SB10DD finds no controller with γ ≤ {limit:g} either: relax "
                 "the weights (lower the W_S bandwidth or gain, or the W_K penalty) or raise gamma_max",
                 category)
     radius = max(np.max(np.abs(np.linalg.eigvals(v.A))) for v in vertices)

@@ -151,7 +151,7 @@ def test_a_level_below_the_optimum_is_one_categorised_error(seed):
     gamma_opt = ncf_riccati(Gs).gamma_opt
     with pytest.raises(SynthesisError) as err:
         central_hinfsyn(P, m, m, 0.5 * gamma_opt)
-    assert err.value.category == "infeasible" and "SB10DD's optimum is" in str(err.value)
+    assert err.value.category == "infeasible" and "SB10DD finds no controller with γ ≤" in str(err.value)
     with pytest.raises(SynthesisError) as err:
         central_hinfsyn(P, m, m, 0.9 * gamma_opt)
     assert err.value.category in {"infeasible", "accuracy"} and f"{0.9 * gamma_opt:.6g}" in str(err.value)
@@ -190,7 +190,8 @@ def test_one_plants_analysis_is_its_bounded_real_riccati_solution(index):
 
 def test_the_analysis_of_a_loop_that_misses_the_level_is_one_accuracy_error():
     """The same plant and its certified central controller with the output gain doubled: the loop's norm
-    is above the level, so no 𝒴 ≻ 0 exists and the analysis is one SynthesisError "accuracy", never a
+    is above the level, so the bounded-real Riccati equation of this one plant has no stabilizing solution
+    whose factor the re-check accepts, and the analysis is one SynthesisError "accuracy", never a
     LinAlgError or a factor."""
     case = weighted_cases(4, 2026)[3]
     level = 1.01 * hinfsyn(case.P, case.nmeas, case.ncon).gamma

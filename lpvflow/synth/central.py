@@ -89,7 +89,7 @@ from lpvflow.synth.eliminated import (
     sym,
 )
 from lpvflow.synth.plant import VertexPlant
-from lpvflow.synth.riccati import RICCATI_GAMMA_LIMIT, riccati_witness
+from lpvflow.synth.riccati import riccati_judgement, riccati_witness
 from lpvflow.synth.sdp import SolveReport, solve
 from lpvflow.synth.vertex_synthesis import (
     HinfResult,
@@ -201,13 +201,8 @@ def _no_strict_solution(accurate: bool, gamma: float, riccati_optimum: Callable[
         return "the solve is not accurate enough to tell; raise the level", "accuracy"
     if riccati_optimum is None:
         return "no controller of this class reaches the level; raise it", "infeasible"
-    reached = riccati_optimum()
-    if reached <= gamma:
-        return (f"but SLICOT SB10DD reaches γ = {reached:.4g}, so the solve failed numerically; raise the "
-                "level"), "accuracy"
-    riccati = (f"SLICOT SB10DD's optimum is {reached:.4g}" if np.isfinite(reached)
-               else f"SLICOT SB10DD finds none up to {RICCATI_GAMMA_LIMIT:g}")
-    return f"no controller reaches the level ({riccati}); raise it", "infeasible"
+    judgement, category = riccati_judgement(riccati_optimum(), gamma)
+    return f"{judgement}; raise the level", category
 
 
 def central_solution(verts: list[VertexPlant], gamma: float, solver: str,

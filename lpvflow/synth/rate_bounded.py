@@ -104,7 +104,7 @@ from lpvflow.synth.eliminated import preconditioned
 from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3, interpolate
 from lpvflow.synth.polytope import hat_coordinates
-from lpvflow.synth.riccati import riccati_witness
+from lpvflow.synth.riccati import riccati_judgement, riccati_witness
 from lpvflow.synth.sdp import SolveReport, SynthesisError, solve
 from lpvflow.synth.vertex_synthesis import homogenizing_scale, synthesize_vertices
 from lpvflow.validate.stability import scaled_margin
@@ -409,13 +409,11 @@ def _refuse_below_frozen_optimum(vertices: list[VertexPlant], breakpoints: np.nd
     trajectory at any rate bound, on which every scheduled controller is an LTI controller of that plant,
     so none reaches ``gamma_max``. Otherwise return (the failure is the solver's, not the problem's)."""
     for p, vertex in zip(breakpoints, vertices, strict=True):
-        optimum = riccati_witness(vertex, Ts)
-        if optimum > gamma_max:
-            raise SynthesisError(f"{what}: no level up to γ = {gamma_max:.4g} passed, and SLICOT SB10DD "
-                                 f"finds no controller with γ ≤ {gamma_max:.4g} for the plant frozen at the "
-                                 f"breakpoint {p:.4g} (its optimum {optimum:.4g}), so no scheduled "
-                                 "controller reaches it there: raise gamma_max or loosen the weights",
-                                 category="infeasible")
+        judgement, category = riccati_judgement(riccati_witness(vertex, Ts), gamma_max)
+        if category == "infeasible":
+            raise SynthesisError(f"{what}: no level up to γ = {gamma_max:.4g} passed; for the plant frozen "
+                                 f"at the breakpoint {p:.4g} {judgement}, so no scheduled controller reaches "
+                                 "it there: raise gamma_max or loosen the weights", category=category)
 
 
 def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[float], Ts: float, *,

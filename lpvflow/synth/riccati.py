@@ -76,3 +76,16 @@ def riccati_witness(vertex: VertexPlant, Ts: float) -> float:
         return riccati_gamma(vertex, Ts, rel=1e-3)
     except ModelError:
         return float("inf")
+
+
+def riccati_judgement(optimum: float, gamma: float) -> tuple[str, str]:
+    """What SB10DD's optimum (:func:`riccati_witness`) says of an LMI synthesis that failed at level γ for
+    one plant: (the phrase for the error line, its category). The LMIs are exact for one plant (Gahinet &
+    Apkarian 1994), so where SB10DD reaches γ the failure was the solver's round-off (``"accuracy"``);
+    where it does not, no controller of any kind reaches γ (``"infeasible"``). Callers add the remedy."""
+    if optimum <= gamma:
+        return f"SLICOT SB10DD reaches γ = {optimum:.4g}, so the LMI solve failed numerically", "accuracy"
+    if np.isfinite(optimum):
+        return (f"SLICOT SB10DD finds no controller with γ ≤ {gamma:.4g} either (its optimum is "
+                f"{optimum:.4g})"), "infeasible"
+    return f"SLICOT SB10DD finds no controller with γ ≤ {RICCATI_GAMMA_LIMIT:g} either", "infeasible"

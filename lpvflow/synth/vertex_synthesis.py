@@ -95,7 +95,7 @@ from lpvflow.synth.controller import LPVController, mix
 from lpvflow.synth.eliminated import Preconditioned, infeasible_at, preconditioned, sym
 from lpvflow.synth.levels import GAMMA_MAX, lowest_certified_level
 from lpvflow.synth.plant import GeneralizedPlant, VertexPlant, check_a3
-from lpvflow.synth.riccati import RICCATI_GAMMA_LIMIT, riccati_witness
+from lpvflow.synth.riccati import riccati_judgement, riccati_witness
 from lpvflow.synth.sdp import SolveReport, solve
 
 #: Default relative width δ of the final level bracket (step 5).
@@ -386,15 +386,12 @@ def _failure(category: str, what: str, vertices: list[VertexPlant], Ts: float, g
     ``gamma_max``; where it does, the LMIs' "infeasible" was the solver's round-off (the LMIs are exact for
     one plant, Gahinet & Apkarian 1994), so the category is ``"accuracy"``."""
     if len(vertices) == 1:
-        optimum = riccati_witness(vertices[0], Ts)
-        if optimum <= gamma_max:
-            return (f"{what}; SLICOT SB10DD reaches γ = {optimum:.4g}, so the LMI solve failed numerically: "
-                    "rescale the weights (signals near 1, time constants within a few decades) or try "
-                    "solver='SCS'", "accuracy")
-        limit = min(gamma_max, RICCATI_GAMMA_LIMIT)
-        return (f"{what}; SLICOT SB10DD finds no controller with γ ≤ {limit:g} either: relax "
-                "the weights (lower the W_S bandwidth or gain, or the W_K penalty) or raise gamma_max",
-                category)
+        judgement, verdict = riccati_judgement(riccati_witness(vertices[0], Ts), gamma_max)
+        if verdict == "accuracy":
+            return (f"{what}; {judgement}: rescale the weights (signals near 1, time constants within a few "
+                    "decades) or try solver='SCS'", verdict)
+        return (f"{what}; {judgement}: relax the weights (lower the W_S bandwidth or gain, or the W_K "
+                "penalty) or raise gamma_max", category)
     radius = max(np.max(np.abs(np.linalg.eigvals(v.A))) for v in vertices)
     hint = ("no vertex controllers with one common Lyapunov matrix reach it" if category == "infeasible" else
             "the solver could not reach the accuracy a certificate needs with one common Lyapunov matrix")

@@ -278,9 +278,39 @@ def test_an_output_weight_holds_y1_at_the_reference_whatever_y2_reads(tmp_path, 
             assert hinf_norm(loop) <= info["vertex_gammas"][i] * (1 + 1e-6)
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_an_output_weight_is_the_design_of_a_rescaled_output(tmp_path, seed):
+    """[synth] output_weights = { y1 = 3 } is McFarlane–Glover's constant W2 = diag(3, 1) in the scaled
+    signals: the shaped plant W2·D_y⁻¹·G·D_u is that of the y1 scale divided by 3, so the written 2dof
+    controller — the feedback D_u·W1·K∞·W2·D_y⁻¹ and the reference path −W1·K∞(1)·W2·D_y⁻¹ alike — is that
+    design's, while b is still taken in the `scaling` signals (the margin goal's and the robustness stage's).
+    (The reference path once injected −W1·K∞(1)·D_y⁻¹ r whatever W2's constant part: 7 % off.)"""
+    model = _two_output_plant(seed)
+    model.save(tmp_path / "model.json")
+    base = TWO_OUTPUTS + ('structure = "2dof"\n'
+                          'weights.R = [{ num = [1.0], den = [1] }, { num = [1.0], den = [1] }]\n')
+    variants = {"weighted": "scaling = { u = 2.0, y1 = 0.5, y2 = 0.05 }\noutput_weights = { y1 = 3.0 }\n",
+                "rescaled": f"scaling = {{ u = 2.0, y1 = {0.5 / 3.0!r}, y2 = 0.05 }}\n"}
+    controllers = {}
+    for name, lines in variants.items():
+        (tmp_path / f"{name}.toml").write_text(base + lines)
+        out = tmp_path / f"{name}.json"
+        main(["synth", str(tmp_path / "model.json"), "--config", str(tmp_path / f"{name}.toml"), "-o",
+              str(out)])
+        controllers[name] = load(out)
+    assert controllers["weighted"].info["output_weights"] == {"y1": 3.0}
+    assert controllers["rescaled"].info["output_weights"] is None
+    for i in range(len(BREAKPOINTS)):
+        weighted, rescaled = (control.ss(*(getattr(controllers[n], m)[i] for m in ("Ak", "Bk", "Ck", "Dk")),
+                                         model.Ts) for n in ("weighted", "rescaled"))
+        assert controller_distance(weighted, rescaled) < 1e-5
+
+
 @pytest.mark.parametrize(("line", "named"), [('scaling = { u = 2.0, y1 = 0.5 }', ["missing ['y2']"]),
                                              ('integral_outputs = ["y3"]', ["['y3']", "integral_outputs"]),
                                              ('washout_outputs = ["y3"]', ["['y3']", "washout_outputs"]),
+                                             ('output_weights = { y3 = 2.0 }', ["['y3']", "output_weights"]),
+                                             ('output_weights = { y1 = 0.0 }', ["output_weights.y1", "(0, inf]"]),
                                              ('integral_outputs = ["y1"]\nwashout_outputs = ["y1"]',
                                               ["['y1']", "integral_outputs and washout_outputs"])])
 def test_a_key_that_misses_or_invents_a_model_signal_is_one_error_line(tmp_path, capsys, line, named):

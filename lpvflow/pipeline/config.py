@@ -165,6 +165,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
                                "them moves nothing in steady state)"),
         "washout_ratio": Key(20.0, number(0.0, open_low=True),
                              "loop-shaping: crossover / washout corner of washout_outputs (> 0)"),
+        "output_weights": Key(None, mapping(number(0.0, open_low=True), "weight > 0"),
+                              "loop-shaping: { output = weight }: a constant output weight W2 = diag(weight) "
+                              "in the scaling signals (default 1); a heavier output is held more stiffly"),
         "scaling": Key(None, mapping(number(0.0, open_low=True), "scale > 0"),
                        "loop-shaping: { signal = scale } for every model input and output: the loop is "
                        "shaped in D_y⁻¹·G·D_u (default: none)"),

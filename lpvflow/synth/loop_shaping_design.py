@@ -268,10 +268,11 @@ def controller_matrices(K_inf: tuple[np.ndarray, ...], W1: control.StateSpace, W
                         structure: str) -> tuple[np.ndarray, ...]:
     """The controller of ``structure`` around the shaped plant's K∞ (scaled signals, u_s = K∞ y_s):
     1dof reads e = r − y, u = −W1·K∞·W2 e; 2dof reads [r; y] and injects the reference after K∞,
-    u = W1·(K∞ v − K∞(1) r), v = W2 y − (W2 − D_W2) r (Skogestad & Postlethwaite, *Multivariable Feedback
-    Control*, 2nd ed. 2005, §9.4.3: the reference does not pass the controller's lead, so a step does not
-    kick; W2's integrators read the error y − r, so the integrated outputs settle at the reference; with
-    W2 = I, at DC it is W1·K∞(1)(y − r), the 1dof loop). The feedback from y is W1·K∞·W2 in both."""
+    u = W1·(K∞ v − K∞(1) D_W2 r), v = W2 y − (W2 − D_W2) r, D_W2 = W2's feed-through (Skogestad &
+    Postlethwaite, *Multivariable Feedback Control*, 2nd ed. 2005, §9.4.3: the reference does not pass the
+    controller's lead, so a step does not kick; W2's integrators read the error y − r, so the integrated
+    outputs settle at the reference; with a constant W2 = D_W2, at DC it is W1·K∞(1)·D_W2·(y − r), the 1dof
+    loop). The feedback from y is W1·K∞·W2 in both."""
     A, B, C, D = K_inf
     if structure == "2dof":
         dc = C @ np.linalg.solve(np.eye(A.shape[0]) - A, B) + D
@@ -279,7 +280,7 @@ def controller_matrices(K_inf: tuple[np.ndarray, ...], W1: control.StateSpace, W
         A2, B2, C2, D2 = _matrices(W2)
         ny = D2.shape[0]
         errors = control.ss(A2, np.hstack([-B2, B2]), np.vstack([np.zeros((ny, A2.shape[0])), C2]),
-                            np.block([[np.eye(ny), np.zeros((ny, ny))], [np.zeros((ny, ny)), D2]]), W1.dt)
+                            np.block([[D2, np.zeros((ny, ny))], [np.zeros((ny, ny)), D2]]), W1.dt)
         return _matrices(W1 * two * errors)
     return _matrices(W1 * control.ss(A, -B, C, -D, W1.dt) * W2)
 
@@ -345,20 +346,25 @@ def _level_named(factor: float) -> Iterator[None]:
 
 
 def output_shaping(model: LPVSS, crossover: float, integral_ratio: float, integral_outputs: list[str] | None,
-                   washout_outputs: list[str] | None = None, washout_ratio: float = WASHOUT_RATIO) -> Shaping:
-    """The :class:`~lpvflow.synth.margin_goal.Shaping` of ``[synth] integral_outputs`` and
-    ``washout_outputs``: without either the integral action is W1's at every plant input and W2 = I; with
+                   washout_outputs: list[str] | None = None, washout_ratio: float = WASHOUT_RATIO,
+                   output_weights: Mapping[str, float] | None = None) -> Shaping:
+    """The :class:`~lpvflow.synth.margin_goal.Shaping` of ``[synth] integral_outputs``, ``washout_outputs``
+    and ``output_weights``: without any the integral action is W1's at every plant input and W2 = I; with
     the first W2 integrates the named outputs' errors
     (:func:`lpvflow.synth.loop_shaping.output_integral_weight`) and W1 has none; with the second W2 washes
     the named outputs out
-    (:func:`lpvflow.synth.loop_shaping.output_washout_weight`, corner ω_c/``washout_ratio``). The two are
-    diagonal, so W2 is their product.
+    (:func:`lpvflow.synth.loop_shaping.output_washout_weight`, corner ω_c/``washout_ratio``); the third is
+    the constant W2 = diag(w_j) of McFarlane & Glover's procedure (the outputs' relative importance; 1 for an
+    output not named; Skogestad & Postlethwaite 2005, §9.4.2), applied in the ``scaling`` signals, so that
+    b(G, W1·K∞·W2) is still judged in them. All are diagonal, so W2 is their product.
 
     Raises:
-        ModelError: a name that is not a model output, or an output named by both keys.
+        ModelError: a name that is not a model output, or an output named by both of the first two keys.
     """
-    W2 = control.ss([], [], [], np.eye(model.ny), model.Ts)
-    for key, names in (("integral_outputs", integral_outputs), ("washout_outputs", washout_outputs)):
+    weights = [(output_weights or {}).get(name, 1.0) for name in model.y_names]
+    W2 = control.ss([], [], [], np.diag(weights), model.Ts)
+    for key, names in (("integral_outputs", integral_outputs), ("washout_outputs", washout_outputs),
+                       ("output_weights", list(output_weights or {}))):
         unknown = [n for n in names or [] if n not in model.y_names]
         if unknown:
             raise ModelError(f"[synth] {key} names {unknown}, which are not model outputs "
@@ -369,7 +375,7 @@ def output_shaping(model: LPVSS, crossover: float, integral_ratio: float, integr
                          "either held at its reference (integral) or not held (washout); name it in one")
     if integral_outputs:
         W2 = output_integral_weight(model.Ts, crossover, [n in integral_outputs for n in model.y_names],
-                                    integral_ratio=integral_ratio)
+                                    integral_ratio=integral_ratio) * W2
     if washout_outputs:
         W2 = W2 * output_washout_weight(model.Ts, crossover, [n in washout_outputs for n in model.y_names],
                                         washout_ratio=washout_ratio)
@@ -409,7 +415,7 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
     scale = shaping_scale(model, settings.get("scaling"))
     shaping = output_shaping(model, crossover, settings.get("integral_ratio") or DEFAULT_INTEGRAL_RATIO,
                              settings.get("integral_outputs"), settings.get("washout_outputs"),
-                             settings.get("washout_ratio") or WASHOUT_RATIO)
+                             settings.get("washout_ratio") or WASHOUT_RATIO, settings.get("output_weights"))
     W2 = shaping.W2
     goal = settings.get("margin_goal")
     validated = settings.get("validated_nugap") or {}
@@ -481,6 +487,7 @@ def design(model: LPVSS, plant: GeneralizedPlant, settings: Mapping[str, Any],
             "scheduling": scheduling,
             "crossover": float(crossover), "integral_outputs": settings.get("integral_outputs"),
             "washout_outputs": settings.get("washout_outputs"),
+            "output_weights": settings.get("output_weights"),
             "b_min": check.b_min,
             "b_plant_min": check.b_plant_min, "scaling": settings.get("scaling"),
             "reference_filter": None if filt is None else dict(filt_settings),

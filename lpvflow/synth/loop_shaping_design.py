@@ -18,7 +18,10 @@ b that the robustness stage compares with the ν-gap):
   W2 = diag(s/(s + ω_c/``washout_ratio``) on the named outputs, 1 on the others)
   (:func:`lpvflow.synth.loop_shaping.output_washout_weight`) and the integral action stays at the inputs:
   the loop ignores the steady value of the named outputs (stabilized, not tracked), so K∞(1)·W2(1)·e = 0
-  zeroes the other outputs' errors and an offset on the named ones moves nothing in steady state. With
+  zeroes the other outputs' errors and an offset on the named ones moves nothing in steady state; with
+  ``output_weights`` W2 also carries the constant diag(w_j) of McFarlane & Glover's procedure (the outputs'
+  relative importance, 1 for outputs not named): the loop is shaped as if output j's scale were divided by
+  w_j, while b is still judged in the ``scaling`` signals. With
   ``margin_goal`` the
   lead zero of W1_i moves towards its pole (A, B of W1 unchanged) until the shipped b(G_i, W1_i·K∞_i·W2)
   reaches the breakpoint's goal (:mod:`lpvflow.synth.margin_goal`);

@@ -7,7 +7,8 @@ Vinnicombe's criterion (*Uncertainty and Feedback: H∞ loop-shaping and the ν-
     b(Ĝ(θ_j), K_fb(θ_j)) ≥ g_j = max(f·δν_j, b_min)
 
 (without ``nugap_factor`` g_j = b_min everywhere; without ``at_least`` b_min = 0), K_fb = W1·K∞·W2 the
-feedback the robustness stage judges (W2 = I unless ``[synth] integral_outputs``). The ν-gap is known
+feedback the robustness stage judges (W2 = I unless ``[synth] integral_outputs``, ``washout_outputs``
+or ``output_weights``). The ν-gap is known
 only at the validate points, so the design holds breakpoint i to the largest g_j of the points whose
 convex coordinates λ_i(θ_j) > 0 — the points the controller of breakpoint i takes part in — and to b_min
 where there is none (:func:`vertex_goals`).

@@ -161,3 +161,26 @@ def test_a_hidden_mode_on_the_unit_circle_is_refused():
 def test_continuous_plant_is_refused():
     with pytest.raises(ModelError, match="discrete"):
         optimal_margin(ct.tf([1], [1, 1]))
+
+
+def test_ncf_riccati_solves_a_shaped_plant_with_a_double_pole_at_one():
+    """A shaped ADIP plant of a held-out design (tests/shaped_adip_double_integrator.npz: the arm's
+    integrator and W1's, a double pole at z = 1, Ts = 5 ms; ‖B‖ ≈ 0.009 in the bilinear image), on which
+    scipy's ordered QZ gave up unscaled ("Reordering of (A, B) failed") and the design stopped with "pass a
+    stabilizable and detectable plant". Solved on the frequency-scaled image: γ_opt equals SLICOT SG02AD's
+    (python-control ``care`` on the unscaled image, written here) and the central controller at 1.01·γ_opt
+    reaches b ≥ 1/γ by the frequency-grid four-block peak."""
+    from pathlib import Path
+
+    from lpvflow.validate.lti_eval import bilinear_to_continuous
+    from lpvflow.validate.robust_stability import ncf_riccati
+
+    data = np.load(Path(__file__).with_name("shaped_adip_double_integrator.npz"))
+    G = ct.ss(data["A"], data["B"], data["C"], data["D"], float(data["Ts"]))
+    A, B, C, D = (np.real(M) for M in bilinear_to_continuous(G.A, G.B, G.C, G.D))
+    X, _, _ = ct.care(A, B, C.T @ C, np.eye(B.shape[1]) + D.T @ D, C.T @ D)
+    Z, _, _ = ct.care(A.T, C.T, B @ B.T, np.eye(C.shape[0]) + D @ D.T, B @ D.T)
+    gamma_slicot = np.sqrt(1.0 + np.max(np.linalg.eigvals(X @ Z).real))
+    assert ncf_riccati(G).gamma_opt == pytest.approx(gamma_slicot, rel=1e-6)
+    K, gamma = central_ncf_controller(G, 1.01)
+    assert 1.0 / four_block_peak(G, K) >= (1.0 - 1e-6) / gamma

@@ -158,5 +158,5 @@ def test_a_gamma_max_below_a_frozen_optimum_is_infeasible_with_sb10dd_as_witness
     assert info.value.category == "infeasible"
     message = str(info.value)
     named = [i for i in range(len(b))
-             if f"breakpoint {b[i]:.4g} SLICOT SB10DD finds no controller" in message]
+             if f"breakpoint {b[i]:.4g}, SLICOT SB10DD finds no controller" in message]
     assert len(named) == 1 and frozen[named[0]] > gamma_max and "\n" not in message

@@ -411,9 +411,9 @@ def _refuse_below_frozen_optimum(vertices: list[VertexPlant], breakpoints: np.nd
     for p, vertex in zip(breakpoints, vertices, strict=True):
         judgement, category = riccati_judgement(riccati_witness(vertex, Ts), gamma_max)
         if category == "infeasible":
-            raise SynthesisError(f"{what}: no level up to γ = {gamma_max:.4g} passed; for the plant frozen "
-                                 f"at the breakpoint {p:.4g} {judgement}, so no scheduled controller reaches "
-                                 "it there: raise gamma_max or loosen the weights", category=category)
+            raise SynthesisError(f"{what}: no level up to γ = {gamma_max:.4g} passed; for the plant "
+                                 f"frozen at the breakpoint {p:.4g}, {judgement}, so no scheduled controller "
+                                 "reaches it there: raise gamma_max or loosen the weights", category=category)
 
 
 def synthesize_scheduled(vertices: list[VertexPlant], breakpoints: Sequence[float], Ts: float, *,

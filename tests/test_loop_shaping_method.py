@@ -283,8 +283,8 @@ def test_an_output_weight_is_the_design_of_a_rescaled_output(tmp_path, seed):
     """[synth] output_weights = { y1 = 3 } is McFarlane–Glover's constant W2 = diag(3, 1) in the scaled
     signals: the shaped plant W2·D_y⁻¹·G·D_u is that of the y1 scale divided by 3, so the written 2dof
     controller — the feedback D_u·W1·K∞·W2·D_y⁻¹ and the reference path −W1·K∞(1)·W2·D_y⁻¹ alike — is that
-    design's, while b is still taken in the `scaling` signals (the margin goal's and the robustness stage's).
-    (The reference path once injected −W1·K∞(1)·D_y⁻¹ r whatever W2's constant part: 7 % off.)"""
+    design's (the margin goal and the robustness stage still take b in the `scaling` signals; not asserted
+    here). (The reference path once injected −W1·K∞(1)·D_y⁻¹ r whatever W2's constant part: 7 % off.)"""
     model = _two_output_plant(seed)
     model.save(tmp_path / "model.json")
     base = TWO_OUTPUTS + ('structure = "2dof"\n'

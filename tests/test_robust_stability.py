@@ -1,17 +1,21 @@
 """b(G, K) (u = K y), b_opt(G), delay and disk margins of lpvflow.validate.robust_stability, checked
 against an independent frequency-grid evaluation of the four-block matrix and against each other."""
 
+from pathlib import Path
+
 import control as ct
 import numpy as np
 import pytest
 
 from lpvflow.errors import ModelError
 from lpvflow.synth.loop_shaping import central_ncf_controller
+from lpvflow.validate.lti_eval import bilinear_to_continuous
 from lpvflow.validate.norms import hinf_norm
 from lpvflow.validate.robust_stability import (
     delay_margin_samples,
     generalized_margin,
     input_disk_margin,
+    ncf_riccati,
     optimal_margin,
     robust_stability,
 )
@@ -170,11 +174,6 @@ def test_ncf_riccati_solves_a_shaped_plant_with_a_double_pole_at_one():
     stabilizable and detectable plant". Solved on the frequency-scaled image: γ_opt equals SLICOT SG02AD's
     (python-control ``care`` on the unscaled image, written here) and the central controller at 1.01·γ_opt
     reaches b ≥ 1/γ by the frequency-grid four-block peak."""
-    from pathlib import Path
-
-    from lpvflow.validate.lti_eval import bilinear_to_continuous
-    from lpvflow.validate.robust_stability import ncf_riccati
-
     data = np.load(Path(__file__).with_name("shaped_adip_double_integrator.npz"))
     G = ct.ss(data["A"], data["B"], data["C"], data["D"], float(data["Ts"]))
     A, B, C, D = (np.real(M) for M in bilinear_to_continuous(G.A, G.B, G.C, G.D))

@@ -37,7 +37,8 @@ scaled in frequency to ‖A‖₂ = 1: G(αs) has the realization (A/α, B/√α
 are those of G divided by α, so X and Z do not change — but the solver's ordered QZ does. Unscaled, it gave
 up ("Reordering of (A, B) failed … very ill-conditioned") on a shaped ADIP plant with a double pole at
 z = 1 (‖A‖₂ = 3.5, ‖B‖ = 0.009), which every α from 0.01 to 10 solves (γ_opt 4.6534457423, as SLICOT's
-SG02AD); on the 363 plants of the loop-shaping tests the scaled γ_opt agrees with the unscaled to 7e-9.
+SG02AD); on the 363 plants the loop-shaping tests pass to it (a scratch probe, session 30) the scaled
+γ_opt agrees with the unscaled to 7e-9.
 """
 
 from __future__ import annotations
@@ -117,12 +118,13 @@ def ncf_riccati(G: object) -> NcfRiccati:
         Z = scipy.linalg.solve_continuous_are(Aa.T, Ca.T, Ba @ Ba.T, S, s=Ba @ D.T)
     except (np.linalg.LinAlgError, ValueError) as error:
         raise ModelError(f"the plant's normalized coprime factor Riccati equations have no stabilizing "
-                         f"solution ({error}); pass a stabilizable and detectable plant") from error
+                         f"solution that scipy finds ({error}): the plant is not stabilizable and "
+                         "detectable, or its equations are too ill-conditioned for the solver") from error
     X, Z = (X + X.T) / 2, (Z + Z.T) / 2
     control_loop = A - B @ np.linalg.solve(R, B.T @ X + D.T @ C)
     filter_loop = A - np.linalg.solve(S.T, (Z @ C.T + B @ D.T).T).T @ C
     worst = max(np.max(np.linalg.eigvals(M).real, initial=-np.inf) for M in (control_loop, filter_loop))
-    if worst >= -STABILIZING_TOL * max(1.0, np.linalg.norm(A, 2)):
+    if worst >= -STABILIZING_TOL * max(1.0, alpha):
         raise ModelError("the plant's normalized coprime factor Riccati equations have no stabilizing "
                          "solution (a mode on the unit circle is uncontrollable or unobservable, so no "
                          "controller stabilizes it: b_opt = 0); pass a minimal plant")

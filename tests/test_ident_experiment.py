@@ -164,7 +164,8 @@ def test_gate_verdict_names_the_worst_point():
 def test_a_failing_kid_test_judged_by_the_robustness_stage_is_reported_not_applied():
     """The final pass of an identification-for-control design with [synth] robustness_gate: the same
     failing test is reported (worst point) with passed None and says who judges, unless K_id does not
-    stabilize the model somewhere; a passing one still passes."""
+    stabilize the model somewhere or the model's b_opt is not above its ν-gap somewhere; a passing one
+    still passes."""
     outputs = {"theta": [[-0.5], [0.0], [0.5]], "nugap": [0.05, 0.02, 0.2], "b_P_Kid": [0.1, 0.1, 0.08],
                "nugap_below_b_everywhere": False}
     judged = gate_verdict(outputs, True, None, judged_by_robustness=True)
@@ -176,6 +177,15 @@ def test_a_failing_kid_test_judged_by_the_robustness_stage_is_reported_not_appli
     unstable = gate_verdict({**outputs, "b_P_Kid": [0.1, 0.0, 0.08]}, True, None, judged_by_robustness=True)
     assert unstable["passed"] is False and "(b = 0)" in unstable["reason"]
     assert "not used for synthesis" in unstable["reason"] and "not applied" not in unstable["reason"]
+    # where the model's optimal margin is not above the ν-gap no shipped controller can pass: refused now
+    hopeless = {**outputs, "b_opt": [0.3, 0.25, 0.19], "nugap": [0.05, 0.26, 0.2]}
+    refused = gate_verdict(hopeless, True, None, judged_by_robustness=True)
+    assert refused["passed"] is False and "not used for synthesis" in refused["reason"]
+    assert refused["reason"].endswith(
+        "no controller can pass the robustness stage's test: b_opt(Ĝ) ≤ ν-gap at 2 of 3 points (worst θ = 0: "
+        "b_opt 0.25 ≤ ν-gap 0.26), and b(Ĝ, K) ≤ b_opt(Ĝ) for every K")
+    reachable = gate_verdict({**outputs, "b_opt": [0.3, 0.3, 0.21]}, True, None, judged_by_robustness=True)
+    assert reachable == judged
     outputs.update(nugap=[0.05, 0.02, 0.07], b_P_Kid=[0.1, 0.1, 0.08], nugap_below_b_everywhere=True)
     assert gate_verdict(outputs, True, None, judged_by_robustness=True)["passed"] is True
 

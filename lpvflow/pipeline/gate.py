@@ -34,7 +34,11 @@ def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None,
     design — unless K_id does not stabilize the model's frozen loop somewhere (b = 0): the loop that recorded
     the data was stable, so such a model does not describe the plant whatever controller is shipped (held-out
     ADIP seed 5: a spurious unstable mode, b = 0 at all nine points; deferred, its synthesis failed on the
-    solver instead of naming the model)."""
+    solver instead of naming the model) or the model's own optimal margin is not above the ν-gap somewhere
+    (``b_opt``, b_opt(Ĝ(θ)) = (1 + λmax(XZ))^{−1/2} of :mod:`lpvflow.validate.robust_stability` in the same
+    scaling): b(Ĝ, K) ≤ b_opt(Ĝ) for every controller K, so no controller can pass the robustness stage's
+    test there and the synthesis would be spent on a model already refused (held-out ADIP seed 12: b_opt
+    0.178 ≤ ν-gap 0.179 at +75°; its synthesis took 813 s before the robustness gate stopped it)."""
     if not enabled:
         return {"passed": None, "reason": "gate off ([validate] gate = false)"}
     if "nugap_below_b_everywhere" not in outputs:
@@ -50,8 +54,11 @@ def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None,
     reason = (f"the identified model fails the ν-gap test at {failing} of {len(gaps)} frozen points "
               f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g})")
     unstable = sum(b <= 0 for b in margins)
-    deferred = judged_by_robustness and not unstable
+    beyond = _beyond_any_controller(outputs)
+    deferred = judged_by_robustness and not unstable and not beyond
     reason += NOT_APPLIED if deferred else "; it is not used for synthesis"
+    if judged_by_robustness and beyond:
+        reason += f"; no controller can pass the robustness stage's test: {beyond}"
     if unstable:
         reason += (f"; the experiment controller does not stabilize the model's frozen loop at {unstable} of "
                    f"{len(gaps)} points (b = 0): the model does not describe the plant in that loop")
@@ -60,3 +67,18 @@ def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None,
     if experiment and experiment.get("left_design_box"):
         reason += f"; the experiment record {experiment['left_design_box']}"
     return {"passed": None if deferred else False, "reason": reason}
+
+
+def _beyond_any_controller(outputs: dict) -> str:
+    """Where the model's optimal margin is not above the ν-gap (``b_opt`` ≤ ``nugap``, the worst point
+    named), or "" when it is above at every point or was not computed."""
+    if "b_opt" not in outputs:
+        return ""
+    gaps, optimal, theta = outputs["nugap"], outputs["b_opt"], outputs["theta"]
+    short = [i for i, (g, b) in enumerate(zip(gaps, optimal, strict=True)) if b <= g]
+    if not short:
+        return ""
+    worst = max(short, key=lambda i: gaps[i] - optimal[i])
+    where = ", ".join(f"{v:.3g}" for v in theta[worst])
+    return (f"b_opt(Ĝ) ≤ ν-gap at {len(short)} of {len(gaps)} points (worst θ = {where}: b_opt "
+            f"{optimal[worst]:.3g} ≤ ν-gap {gaps[worst]:.3g}), and b(Ĝ, K) ≤ b_opt(Ĝ) for every K")

@@ -53,6 +53,7 @@ from lpvflow.validate.extensions import Structure
 from lpvflow.validate.frozen import compare_frozen
 from lpvflow.validate.metrics import fit_report
 from lpvflow.validate.plots import bode_overlay, gap_margin_plot
+from lpvflow.validate.robust_stability import optimal_margin
 
 
 def experiment(ctx: StageContext) -> tuple[dict, list[str]]:
@@ -250,6 +251,9 @@ def validate(ctx: StageContext) -> tuple[dict, list[str]]:
         if K is not None:
             outputs["gate_margin"] = [row["stability_margin_b"] - row["nugap"] for row in rows]
             outputs["nugap_below_b_everywhere"] = all(row["passes"] for row in rows)
+        if JUDGED_BY_ROBUSTNESS in cfg:  # the largest b any shipped controller can have (gate_verdict)
+            outputs["b_opt"] = [optimal_margin(scale.plant(model.frozen(np.asarray(row["p"]))))
+                                for row in rows]
     outputs["gate"] = gate_verdict(outputs, cfg["gate"], ctx.outputs.get("experiment"),
                                    JUDGED_BY_ROBUSTNESS in cfg)
     return outputs, artifacts

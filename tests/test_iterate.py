@@ -4,6 +4,7 @@ controller and re-designed; per-round numbers and stage times in summary.json.""
 
 from __future__ import annotations
 
+import html
 import json
 from pathlib import Path
 
@@ -108,6 +109,43 @@ def test_a_failing_round_ends_the_run_and_its_stages_are_the_summary(adip, tmp_p
                                                             "iteration_0/data.csv.json"]
     assert (tmp_path / "iterated" / "iteration_0" / "data.csv").is_file()
     assert not (tmp_path / "iterated" / "data.csv").exists()
+
+
+def test_a_final_model_the_robustness_gate_rejects_falls_back_to_the_round_before(adip, tmp_path):
+    """Judged with the arm angle 100× the voltage and the pendulum, the final pass's model (from the record
+    under round 0's controller) gives a controller with b(Ĝ, K_fb) below its ν-gap: that pass is rejected,
+    its stage files move to iteration_1/, and the final pass runs again on round 0's experiment — the same
+    record byte for byte — whose model and controller pass the gate. The report's rounds table says so."""
+    path = write(tmp_path, adip, **{
+        "weights.integrator_shift = 1e-4\n": "weights.integrator_shift = 1e-4\nrobustness_gate = true\n",
+        "grid = 3\n": "grid = 3\nscaling = { voltage = 1.0, arm_angle = 0.01, pendulum_angle = 1.0 }\n"})
+    lines: list[str] = []
+    summary = run_design(path, log=lines.append)
+    assert summary["failed"] is None and summary["verdict"]["pass"], summary["failed"]
+    folder = tmp_path / "iterated"
+    designed = str(folder / "iteration_0" / "controller.json")
+    first, rejected, final = summary["iterations"]
+    assert (first["iteration"], first["folder"], first["experiment_controller"]) == (0, "iteration_0",
+                                                                                     str(STABILIZING))
+    assert (rejected["iteration"], rejected["folder"]) == (1, "iteration_1")
+    assert rejected["experiment_controller"] == designed
+    assert rejected["rejected"].startswith("stage robustness failed: the controller's robust stability is "
+                                           "not guaranteed")
+    assert (final["iteration"], final["folder"], final["experiment_controller"], final["fallback"]) == (
+        0, ".", str(STABILIZING), True)
+    assert any(line.startswith("iteration 1 rejected (stage robustness failed") for line in lines)
+    moved = folder / "iteration_1"
+    robustness = load(moved / "robustness.json")["outputs"]
+    assert robustness["gate"]["passed"] is False
+    # that pass's validate stage reported the model's optimal margin: no controller's b exceeds it
+    optimal = load(moved / "validate.json")["outputs"]["b_opt"]
+    assert all(row["b"] <= b_opt for row, b_opt in zip(robustness["rows"], optimal, strict=True))
+    assert json.loads((moved / "data.csv.json").read_text())["controller_file"]["path"] == designed
+    assert (folder / "data.csv").read_bytes() == (folder / "iteration_0" / "data.csv").read_bytes()
+    assert summary["stages"]["robustness"]["outputs"]["gate"]["passed"] is True
+    report = (folder / "report.html").read_text()
+    assert '<tr class="fail"><td>1 rejected</td>' in report and "<td>0 (final, fallback)</td>" in report
+    assert "Round 1 was rejected (stage robustness failed" in html.unescape(report)
 
 
 def test_iterate_needs_synth_and_an_excitation(adip, tmp_path):

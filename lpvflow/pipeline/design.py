@@ -19,7 +19,9 @@ scenarios (never part of the verdict). With
 [diagnose] adopt = true and an adopted extension, the adoption stage designs and verifies the identified
 model too and compares the two controllers in closed loop (:func:`lpvflow.pipeline.adoption.adoption`).
 With [experiment] iterate = N the experiment → synth stages first run N rounds, each under the
-controller the round before designed (identification for control, :func:`_run_stages`).
+controller the round before designed (identification for control, :func:`_run_stages`); when the final
+pass's model or controller is rejected before verify, the design falls back to the model of the round
+before (:func:`_run_final_pass`).
 """
 
 from __future__ import annotations
@@ -170,7 +172,8 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
     (the configured controller for round 0) as the experiment controller, same set-points, excitation and
     duration; then every stage runs in ``folder`` with the controller of round N − 1, so the summary's
     stages are the last round's as without iterations. A round that fails (a stage error, the ν-gap gate,
-    the certificate) ends the run: its stages become the summary's. ``summary["iterations"]`` lists each
+    the certificate) ends the run: its stages become the summary's. A final pass that fails before verify
+    falls back to the round before (:func:`_run_final_pass`). ``summary["iterations"]`` lists each
     round's key numbers (:func:`_round_numbers`), the last entry the final design in ``folder``."""
     from lpvflow.pipeline.report import write_report
 
@@ -194,11 +197,7 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
         earlier.append(earlier_record(sub, controller))
         controller = str(sub / "controller.json")
     if failed is None:
-        final = _round_config(config, controller, len(earlier), earlier)
-        failed = _run_pass(STAGES, _judged_by_robustness(final) if earlier else final, folder,
-                           summary["stages"], log)
-        if rounds:
-            rounds.append(_round_numbers(len(rounds), ".", controller, summary["stages"]))
+        failed = _run_final_pass(config, controller, earlier, folder, summary, rounds, log)
     if rounds:
         summary["iterations"] = rounds
     summary["failed"] = failed
@@ -217,6 +216,63 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
         raise KeyboardInterrupt from None
     log(f"report: {folder / 'report.html'}")
     return summary
+
+
+#: The stages whose failure rejects the model of the final pass or the controller designed from it (every
+#: stage before verify): after identification-for-control rounds the design then falls back to the model
+#: of the round before (:func:`_run_final_pass`).
+ACCEPTANCE_STAGES = ("experiment", "identify", "diagnose", "reduce", "validate", "synth", "robustness")
+
+
+def _run_final_pass(config: Config, controller: str | None, earlier: list[dict], folder: Path, summary: dict,
+                    rounds: list[dict], log: Callable[[str], None]) -> dict | None:
+    """The final pass of :func:`_run_stages` in ``folder`` under the last round's ``controller``; returns its
+    failure or None and appends its entry to ``rounds`` (after identification-for-control rounds).
+
+    Identification for control must not leave the design worse than the round before it: when the final
+    pass under round N − 1's controller fails in one of :data:`ACCEPTANCE_STAGES` — its experiment loses the
+    plant, its model fails the validate gate, its synthesis fails, or its controller's b(Ĝ, K_fb) fails the
+    robustness gate — that pass's stage files move to ``iteration_<N>/`` (its ``rounds`` entry carries
+    ``"rejected"``, the failure) and the final pass runs again as with N − 1 rounds: under round N − 2's
+    experiment controller, whose record round N − 1 identified and validated (the configured controller when
+    N = 1), with the final settings. One step back, not more; a failure of that pass ends the run. On
+    held-out identification seeds of the bundled ADIP the last round made a passing model fail (seeds 11, 12:
+    unstable frozen pole, ν-gap 0.18 against round 0's 0.066) or lost the pendulum (seed 14)
+    (benchmarks/README.md, "Falling back to the round before"). A rerun of such a design runs both final
+    passes again: the stage records in ``folder`` are the second pass's."""
+    final = _round_config(config, controller, len(earlier), earlier)
+    failed = _run_pass(STAGES, _judged_by_robustness(final) if earlier else final, folder, summary["stages"],
+                       log)
+    if earlier and failed and failed["stage"] in ACCEPTANCE_STAGES:
+        n = len(earlier)
+        moved = _move_stage_files(summary["stages"], folder, folder / f"iteration_{n}")
+        reason = f"stage {failed['stage']} failed: {failed['error']}"
+        rounds.append(_round_numbers(n, f"iteration_{n}" if moved else None, controller, summary["stages"])
+                      | {"rejected": reason})
+        log(f"iteration {n} rejected ({reason}); "
+            + (f"its files are in iteration_{n}/; " if moved else "")
+            + f"the final pass runs again on the record of iteration {n - 1}'s experiment")
+        controller, earlier, summary["stages"] = earlier[-1]["controller"], earlier[:-1], {}
+        final = _round_config(config, controller, len(earlier), earlier)
+        failed = _run_pass(STAGES, _judged_by_robustness(final) if earlier else final, folder,
+                           summary["stages"], log)
+        rounds.append(_round_numbers(n - 1, ".", controller, summary["stages"]) | {"fallback": True})
+    elif rounds:
+        rounds.append(_round_numbers(len(rounds), ".", controller, summary["stages"]))
+    return failed
+
+
+def _move_stage_files(outcome: dict, folder: Path, destination: Path) -> bool:
+    """Move the stage records (``<stage>.json``) and artifacts of the pass ``outcome`` from ``folder`` to
+    ``destination`` (created when a stage left a record; files of an earlier run there are replaced); True
+    when a file moved."""
+    recorded = [(name, record) for name, record in outcome.items() if "artifacts" in record]
+    for name, record in recorded:
+        for relative in (f"{name}.json", *record["artifacts"]):
+            target = destination / relative
+            target.parent.mkdir(parents=True, exist_ok=True)
+            (folder / relative).replace(target)
+    return bool(recorded)
 
 
 def _in_subfolder(record: dict, sub: str) -> dict:

@@ -284,20 +284,28 @@ def held_step_text(record: dict, units: dict[str, DisplayUnit]) -> str:
 def _iterations_table(rounds: list[dict]) -> str:
     """The identification-for-control rounds (``[experiment] iterate``, ``summary["iterations"]``): per
     round its experiment controller, model order, fit, largest ν-gap against smallest b(P, K_id), the
-    gate, and the γ of its design."""
+    gate, and the γ of its design; a final pass that was rejected and the one that fell back to the round
+    before (:func:`lpvflow.pipeline.design._run_final_pass`) are labelled, the rejection stated below."""
     head = ["round", "experiment controller", "order", "fit BFR [%]", "largest ν-gap", "smallest b(P, K_id)",
             "gate", "γ (LPV / LTI baseline)"]
-    body = []
+    body, notes = [], []
     for r in rounds:
         gate = r.get("gate") or {}
         used = Path(r["experiment_controller"]) if r.get("experiment_controller") else None
-        cells = [str(r["iteration"]), "open loop" if used is None else f"{used.parent.name}/{used.name}",
+        label = f"{r['iteration']} (final, fallback)" if r.get("fallback") else str(r["iteration"])
+        cells = [label + (" rejected" if r.get("rejected") else ""),
+                 "open loop" if used is None else f"{used.parent.name}/{used.name}",
                  number_text(r.get("order")),
                  ", ".join(number_text(b, "", 3) for b in r.get("fit_bfr") or []) or "–",
                  number_text(r.get("max_nugap")), number_text(r.get("min_b_P_Kid")),
                  "–" if not gate else GATE_WORDS[gate.get("passed")],
                  f"{number_text(r.get('gamma'), '', 4)} / {number_text(r.get('baseline_gamma'), '', 4)}"]
-        css = ' class="fail"' if gate and gate.get("passed") is False else ""
+        css = ' class="fail"' if r.get("rejected") or gate.get("passed") is False else ""
         body.append(f"<tr{css}>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
+        if r.get("rejected"):
+            where = f"its files are in {r['folder']}/; " if r.get("folder") else ""
+            notes.append(f"Round {r['iteration']} was rejected ({r['rejected']}); {where}the final design "
+                         f"uses the record of round {r['iteration'] - 1}'s experiment.")
     return ("<h3>Identification for control ([experiment] iterate)</h3><table><tr>"
-            + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" + "".join(body) + "</table>")
+            + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" + "".join(body) + "</table>"
+            + "".join(f"<p>{html.escape(n)}</p>" for n in notes))

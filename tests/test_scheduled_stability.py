@@ -82,6 +82,23 @@ def test_block_triangular_split():
     assert not fast.certified and "block of 2 states" in fast.reason
 
 
+def test_the_first_failing_block_ends_the_attempt_at_that_rate():
+    """The rotating pair drives a stable scalar state: at any jump the pair is not certified, and the block
+    after it (certifiable) is not tried; at a slow rate both are certified."""
+    def loop(p: float) -> np.ndarray:
+        A = np.zeros((3, 3))
+        A[np.ix_([0, 2], [0, 2])] = rotating(p)
+        A[1, 1], A[1, 0] = 0.5, 0.3
+        return A
+
+    assert [sorted(b.tolist()) for b in triangular_blocks([loop(p) for p in RANGE])] == [[0, 2], [1]]
+    slow, fast = scheduled_stability(loop, RANGE, 0.01), scheduled_stability(loop, RANGE, None)
+    assert slow.certified and len(slow.blocks) == 2
+    assert not fast.certified and len(fast.blocks) == 1 and fast.blocks[0].margin <= 0
+    assert fast.reason.startswith("not certified at ν = any per sample: block of 2 states (margin ")
+    assert fast.reason.endswith("; 1 later block(s) not tried")
+
+
 def test_bad_input_is_one_line():
     for call in (lambda: scheduled_stability(rotating, RANGE, -0.1),
                  lambda: scheduled_stability(rotating, RANGE[::-1], 0.1),

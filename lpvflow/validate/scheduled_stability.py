@@ -34,7 +34,9 @@ pattern, in topological order) — e.g. a 2-DOF controller whose reference state
 measurements — the loop is exponentially stable under the rate bound iff every diagonal block is: x_1
 of [x_1; x_2]⁺ = [𝒜_11 0; 𝒜_21 𝒜_22][x_1; x_2] is autonomous, and x_2 is the exponentially stable
 𝒜_22 driven by the bounded 𝒜_21x_1, an exponentially decaying input (variation of constants; the
-converse holds with x_1(0) = 0). Each block is certified on its own; its storage is smaller.
+converse holds with x_1(0) = 0). Each block is certified on its own; its storage is smaller. The first
+block that fails ends the attempt at that rate (on the bundled ADIP loop a 5-state block fails in 1 s, and
+the 16-state block after it took 33 s to return no point).
 """
 
 from __future__ import annotations
@@ -77,8 +79,8 @@ class BlockCertificate:
 @dataclass
 class ScheduledStability:
     """Outcome of :func:`scheduled_stability`: ``certified`` iff every block's re-checked margin is > 0;
-    ``blocks`` the certificate of each diagonal block (None for a block whose SDP returned no point),
-    ``reason`` why not, ``seconds`` the wall time."""
+    ``blocks`` the certificate of each diagonal block tried, in the triangular order, up to the first that
+    fails (None for a block whose SDP returned no point), ``reason`` why not, ``seconds`` the wall time."""
 
     schedule: Schedule
     certified: bool
@@ -143,7 +145,8 @@ def scheduled_stability(loop_at: Callable[[float], np.ndarray], breakpoints: Seq
                         rate_bound: float | None, *, design_per_segment: int = DESIGN_PER_SEGMENT,
                         per_segment: int = FINE_PER_SEGMENT, solver: str = "CLARABEL") -> ScheduledStability:
     """Certify x⁺ = 𝒜(p)x, 𝒜 = ``loop_at(p)``, for |p(k+1) − p(k)| ≤ ``rate_bound`` in [b_0, b_M] (module
-    docstring; None: any jump), block by block (:func:`triangular_blocks` on the fine grid).
+    docstring; None: any jump), block by block (:func:`triangular_blocks` on the fine grid), up to the first
+    block that fails.
 
     Raises:
         ModelError: bad breakpoints or rate bound; a frozen loop on the fine grid that has non-finite
@@ -162,18 +165,21 @@ def scheduled_stability(loop_at: Callable[[float], np.ndarray], breakpoints: Seq
         if radius >= 1.0:
             raise ModelError(f"the frozen loop at p = {p:.4g} is unstable (spectral radius {radius:.6g}): "
                              "no rate is certified; fix the controller there first")
-    blocks, reasons = [], []
-    for states in triangular_blocks(list(loops.values())):
+    blocks, reason = [], ""
+    split = triangular_blocks(list(loops.values()))
+    for states in split:
         block = _certify_block(schedule, states, {p: _block(A, states) for p, A in loops.items()}, design,
                                solver)
         blocks.append(block)
-        if block is None or block.margin <= 0:
-            where = (" (the SDP solver returned no point)" if block is None
-                     else f" (margin {block.margin:.3g} at p = {block.where:.4g})")
-            reasons.append(f"block of {len(states)} states{where}")
-    nu = "any" if rate_bound is None else f"{rate_bound:g}"
-    reason = f"not certified at ν = {nu} per sample: {'; '.join(reasons)}" if reasons else ""
-    return ScheduledStability(schedule, not reasons, blocks, reason, time.perf_counter() - start)
+        if block is None or block.margin <= 0:  # not certified: no later block can change that
+            where = ("the SDP solver returned no point" if block is None
+                     else f"margin {block.margin:.3g} at p = {block.where:.4g}")
+            later = len(split) - len(blocks)
+            nu = "any" if rate_bound is None else f"{rate_bound:g}"
+            reason = (f"not certified at ν = {nu} per sample: block of {len(states)} states ({where})"
+                      + (f"; {later} later block(s) not tried" if later else ""))
+            break
+    return ScheduledStability(schedule, not reason, blocks, reason, time.perf_counter() - start)
 
 
 def largest_certified_rate(loop_at: Callable[[float], np.ndarray], breakpoints: Sequence[float],

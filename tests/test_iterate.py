@@ -115,7 +115,8 @@ def test_a_final_model_the_robustness_gate_rejects_falls_back_to_the_round_befor
     """Judged with the arm angle 100× the voltage and the pendulum, the final pass's model (from the record
     under round 0's controller) gives a controller with b(Ĝ, K_fb) below its ν-gap: that pass is rejected,
     its stage files move to iteration_1/, and the final pass runs again on round 0's experiment — the same
-    record byte for byte — whose model and controller pass the gate. The report's rounds table says so."""
+    record byte for byte — whose model and controller pass the gate. The report's rounds table says so; a
+    rerun reuses every stage."""
     path = write(tmp_path, adip, **{
         "weights.integrator_shift = 1e-4\n": "weights.integrator_shift = 1e-4\nrobustness_gate = true\n",
         "grid = 3\n": "grid = 3\nscaling = { voltage = 1.0, arm_angle = 0.01, pendulum_angle = 1.0 }\n"})
@@ -146,6 +147,25 @@ def test_a_final_model_the_robustness_gate_rejects_falls_back_to_the_round_befor
     report = (folder / "report.html").read_text()
     assert '<tr class="fail"><td>1 rejected</td>' in report and "<td>0 (final, fallback)</td>" in report
     assert "Round 1 was rejected (stage robustness failed" in html.unescape(report)
+    assert json.loads((moved / "rejected.json").read_text())["stage"] == "robustness"
+
+    # a rerun judges the rejected pass where its records are and reuses every stage of both passes
+    lines.clear()
+    again = run_design(path, log=lines.append)
+    assert not [line for line in lines if line.endswith("…")], lines
+    assert any(line.startswith("iteration 1 (rejected by an earlier run): [7/7] robustness: unchanged")
+               for line in lines)
+    assert again["iterations"] == summary["iterations"] and again["failed"] is None
+
+    # judged in the data's own scaling the same pass is accepted: its records come back and it is the design
+    path.write_text(path.read_text().replace("scaling = { voltage = 1.0, arm_angle = 0.01, pendulum_angle = "
+                                             "1.0 }\n", ""))
+    accepted = run_design(path, log=lambda line: None)
+    assert accepted["failed"] is None
+    assert [r["folder"] for r in accepted["iterations"]] == ["iteration_0", "."]
+    assert accepted["stages"]["experiment"]["status"] == "cached"  # the record that moved back
+    assert json.loads((folder / "data.csv.json").read_text())["controller_file"]["path"] == designed
+    assert not (moved / "rejected.json").exists() and not (moved / "data.csv").exists()
 
 
 def test_iterate_needs_synth_and_an_excitation(adip, tmp_path):

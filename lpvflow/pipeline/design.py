@@ -218,6 +218,8 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
     return summary
 
 
+#: The file in ``iteration_<N>/`` that marks a rejected final pass (its failure, :func:`_run_final_pass`).
+REJECTED_MARK = "rejected.json"
 #: The stages whose failure rejects the model of the final pass or the controller designed from it (every
 #: stage before verify): after identification-for-control rounds the design then falls back to the model
 #: of the round before (:func:`_run_final_pass`).
@@ -232,47 +234,61 @@ def _run_final_pass(config: Config, controller: str | None, earlier: list[dict],
     Identification for control must not leave the design worse than the round before it: when the final
     pass under round N − 1's controller fails in one of :data:`ACCEPTANCE_STAGES` — its experiment loses the
     plant, its model fails the validate gate, its synthesis fails, or its controller's b(Ĝ, K_fb) fails the
-    robustness gate — that pass's stage files move to ``iteration_<N>/`` (its ``rounds`` entry carries
-    ``"rejected"``, the failure) and the final pass runs again as with N − 1 rounds: under round N − 2's
-    experiment controller, whose record round N − 1 identified and validated (the configured controller when
-    N = 1), with the final settings. One step back, not more; a failure of that pass ends the run. On
-    held-out identification seeds of the bundled ADIP the last round made a passing model fail (seeds 11, 12:
-    unstable frozen pole, ν-gap 0.18 against round 0's 0.066) or lost the pendulum (seed 14)
-    (benchmarks/README.md, "Falling back to the round before"). A rerun of such a design runs both final
-    passes again: the stage records in ``folder`` are the second pass's."""
+    robustness gate — that pass's stage files move to ``iteration_<N>/`` with :data:`REJECTED_MARK` (its
+    ``rounds`` entry carries ``"rejected"``, the failure) and the final pass runs again as with N − 1
+    rounds: under round N − 2's experiment controller, whose record round N − 1 identified and validated
+    (the configured controller when N = 1), with the final settings. One step back, not more; a failure of
+    that pass ends the run. A rerun judges the rejected pass again in ``iteration_<N>/``, where its stage
+    records are (reused while their keys hold); if it passes now, its files move back and the design goes
+    on from it. On held-out identification seeds of the bundled ADIP the last round made a passing model
+    fail (seeds 11, 12: unstable frozen pole, ν-gap 0.18 against round 0's 0.066) or lost the pendulum
+    (seeds 8, 14) (benchmarks/README.md, "Falling back to the round before")."""
+    final = _round_config(config, controller, len(earlier), earlier)
+    if not earlier:
+        return _run_pass(STAGES, final, folder, summary["stages"], log)
+    final, n = _judged_by_robustness(final), len(earlier)
+    rejected, outcome, failed = folder / f"iteration_{n}", {}, None
+    if (rejected / REJECTED_MARK).is_file():
+        failed = _run_pass(tuple(s for s in STAGES if s.name in ACCEPTANCE_STAGES), final, rejected, outcome,
+                           lambda line: log(f"iteration {n} (rejected by an earlier run): {line}"))
+        if failed is None:  # accepted now: its records go back to the design folder, which goes on from them
+            _move_stage_files(outcome, rejected, folder)
+            (rejected / REJECTED_MARK).unlink()
+            outcome = {}
+    if failed is None:
+        failed = _run_pass(STAGES, final, folder, outcome, log)
+        if failed and failed["stage"] in ACCEPTANCE_STAGES:
+            _move_stage_files(outcome, folder, rejected)
+    if not failed or failed["stage"] not in ACCEPTANCE_STAGES:
+        summary["stages"] = outcome
+        rounds.append(_round_numbers(n, ".", controller, outcome))
+        return failed
+    atomic_write_json(rejected / REJECTED_MARK, failed)
+    moved = any("artifacts" in record for record in outcome.values())
+    reason = f"stage {failed['stage']} failed: {failed['error']}"
+    rounds.append(_round_numbers(n, f"iteration_{n}" if moved else None, controller, outcome)
+                  | {"rejected": reason})
+    log(f"iteration {n} rejected ({reason}); " + (f"its files are in iteration_{n}/; " if moved else "")
+        + f"the final pass runs again on the record of iteration {n - 1}'s experiment")
+    controller, earlier = earlier[-1]["controller"], earlier[:-1]
     final = _round_config(config, controller, len(earlier), earlier)
     failed = _run_pass(STAGES, _judged_by_robustness(final) if earlier else final, folder, summary["stages"],
                        log)
-    if earlier and failed and failed["stage"] in ACCEPTANCE_STAGES:
-        n = len(earlier)
-        moved = _move_stage_files(summary["stages"], folder, folder / f"iteration_{n}")
-        reason = f"stage {failed['stage']} failed: {failed['error']}"
-        rounds.append(_round_numbers(n, f"iteration_{n}" if moved else None, controller, summary["stages"])
-                      | {"rejected": reason})
-        log(f"iteration {n} rejected ({reason}); "
-            + (f"its files are in iteration_{n}/; " if moved else "")
-            + f"the final pass runs again on the record of iteration {n - 1}'s experiment")
-        controller, earlier, summary["stages"] = earlier[-1]["controller"], earlier[:-1], {}
-        final = _round_config(config, controller, len(earlier), earlier)
-        failed = _run_pass(STAGES, _judged_by_robustness(final) if earlier else final, folder,
-                           summary["stages"], log)
-        rounds.append(_round_numbers(n - 1, ".", controller, summary["stages"]) | {"fallback": True})
-    elif rounds:
-        rounds.append(_round_numbers(len(rounds), ".", controller, summary["stages"]))
+    rounds.append(_round_numbers(n - 1, ".", controller, summary["stages"]) | {"fallback": True})
     return failed
 
 
-def _move_stage_files(outcome: dict, folder: Path, destination: Path) -> bool:
+def _move_stage_files(outcome: dict, folder: Path, destination: Path) -> None:
     """Move the stage records (``<stage>.json``) and artifacts of the pass ``outcome`` from ``folder`` to
-    ``destination`` (created when a stage left a record; files of an earlier run there are replaced); True
-    when a file moved."""
-    recorded = [(name, record) for name, record in outcome.items() if "artifacts" in record]
-    for name, record in recorded:
+    ``destination`` (created; files of an earlier run there are replaced)."""
+    destination.mkdir(exist_ok=True)
+    for name, record in outcome.items():
+        if "artifacts" not in record:  # a stage that failed or did not run left no record
+            continue
         for relative in (f"{name}.json", *record["artifacts"]):
             target = destination / relative
             target.parent.mkdir(parents=True, exist_ok=True)
             (folder / relative).replace(target)
-    return bool(recorded)
 
 
 def _in_subfolder(record: dict, sub: str) -> dict:

@@ -111,18 +111,25 @@ def test_a_failing_round_ends_the_run_and_its_stages_are_the_summary(adip, tmp_p
     assert not (tmp_path / "iterated" / "data.csv").exists()
 
 
+#: The robustness gate on, and the validate scaling weighing the arm 100× the voltage and the pendulum: the
+#: final pass's controller then has b(Ĝ, K_fb) below its ν-gap, round 0's does not.
+REJECTED_AT_ROBUSTNESS = {
+    "weights.integrator_shift = 1e-4\n": "weights.integrator_shift = 1e-4\nrobustness_gate = true\n",
+    "grid = 3\n": "grid = 3\nscaling = { voltage = 1.0, arm_angle = 0.01, pendulum_angle = 1.0 }\n"}
+
+
 def test_a_final_model_the_robustness_gate_rejects_falls_back_to_the_round_before(adip, tmp_path):
     """Judged with the arm angle 100× the voltage and the pendulum, the final pass's model (from the record
     under round 0's controller) gives a controller with b(Ĝ, K_fb) below its ν-gap: that pass is rejected,
     its stage files move to iteration_1/, and the final pass runs again on round 0's experiment — the same
-    record byte for byte — whose model and controller pass the gate. The report's rounds table says so; a
-    rerun reuses every stage."""
-    path = write(tmp_path, adip, **{
-        "weights.integrator_shift = 1e-4\n": "weights.integrator_shift = 1e-4\nrobustness_gate = true\n",
-        "grid = 3\n": "grid = 3\nscaling = { voltage = 1.0, arm_angle = 0.01, pendulum_angle = 1.0 }\n"})
+    record byte for byte — whose model and controller pass the gate. The report's rounds table and the
+    verdict say so; a rerun reuses every stage."""
+    path = write(tmp_path, adip, **REJECTED_AT_ROBUSTNESS)
     lines: list[str] = []
     summary = run_design(path, log=lines.append)
     assert summary["failed"] is None and summary["verdict"]["pass"], summary["failed"]
+    assert summary["verdict"]["reason"].endswith("; iteration 1 was rejected at robustness, the design uses "
+                                                 "iteration 0's record")
     folder = tmp_path / "iterated"
     designed = str(folder / "iteration_0" / "controller.json")
     first, rejected, final = summary["iterations"]
@@ -157,13 +164,22 @@ def test_a_final_model_the_robustness_gate_rejects_falls_back_to_the_round_befor
                for line in lines)
     assert again["iterations"] == summary["iterations"] and again["failed"] is None
 
-    # judged in the data's own scaling the same pass is accepted: its records come back and it is the design
-    path.write_text(path.read_text().replace("scaling = { voltage = 1.0, arm_angle = 0.01, pendulum_angle = "
-                                             "1.0 }\n", ""))
+
+@pytest.mark.slow
+def test_a_rejected_final_pass_accepted_by_a_later_run_moves_back_and_is_the_design(adip, tmp_path):
+    """After the fallback above, without the robustness gate the same pass is accepted on the next run: its
+    records come back from iteration_1/ (the final pass in the design folder reuses them) and it is the
+    design."""
+    path = write(tmp_path, adip, **REJECTED_AT_ROBUSTNESS)
+    assert run_design(path, log=lambda line: None)["iterations"][1]["rejected"]
+    folder, moved = tmp_path / "iterated", tmp_path / "iterated" / "iteration_1"
+    designed = str(folder / "iteration_0" / "controller.json")
+    path.write_text(path.read_text().replace("robustness_gate = true", "robustness_gate = false"))
     accepted = run_design(path, log=lambda line: None)
     assert accepted["failed"] is None
     assert [r["folder"] for r in accepted["iterations"]] == ["iteration_0", "."]
     assert accepted["stages"]["experiment"]["status"] == "cached"  # the record that moved back
+    assert accepted["stages"]["robustness"]["outputs"]["gate"]["passed"] is None  # reported, not a gate
     assert json.loads((folder / "data.csv.json").read_text())["controller_file"]["path"] == designed
     assert not (moved / "rejected.json").exists() and not (moved / "data.csv").exists()
 

@@ -202,6 +202,11 @@ def _run_stages(config: Config, config_path: str, folder: Path, log: Callable[[s
         summary["iterations"] = rounds
     summary["failed"] = failed
     summary["verdict"] = _verdict(summary)
+    for r in rounds:  # the verdict line says that identification for control fell back (_run_final_pass)
+        if r.get("rejected"):
+            summary["verdict"]["reason"] += (f"; iteration {r['iteration']} was rejected at "
+                                             f"{r['rejected_stage']}, the design uses iteration "
+                                             f"{r['iteration'] - 1}'s record")
     summary["stage_seconds"] = {n: s.get("seconds") for n, s in summary["stages"].items()}
     before = _file_states(folder)
     try:  # the summary and the report are undone together on Ctrl-C, like a stage's files
@@ -267,7 +272,7 @@ def _run_final_pass(config: Config, controller: str | None, earlier: list[dict],
     moved = any("artifacts" in record for record in outcome.values())
     reason = f"stage {failed['stage']} failed: {failed['error']}"
     rounds.append(_round_numbers(n, f"iteration_{n}" if moved else None, controller, outcome)
-                  | {"rejected": reason})
+                  | {"rejected": reason, "rejected_stage": failed["stage"]})
     log(f"iteration {n} rejected ({reason}); " + (f"its files are in iteration_{n}/; " if moved else "")
         + f"the final pass runs again on the record of iteration {n - 1}'s experiment")
     controller, earlier = earlier[-1]["controller"], earlier[:-1]

@@ -248,10 +248,13 @@ def _run_final_pass(config: Config, controller: str | None, earlier: list[dict],
     on from it. On held-out identification seeds of the bundled ADIP the last round made a passing model
     fail (seeds 11, 12: unstable frozen pole, ν-gap 0.18 against round 0's 0.066) or lost the pendulum
     (seeds 8, 14) (benchmarks/README.md, "Falling back to the round before")."""
-    final = _round_config(config, controller, len(earlier), earlier)
+    def final_config(controller: str | None, earlier: list[dict]) -> Config:
+        final = _round_config(config, controller, len(earlier), earlier)
+        return _judged_by_robustness(final) if earlier else final
+
+    final, n = final_config(controller, earlier), len(earlier)
     if not earlier:
         return _run_pass(STAGES, final, folder, summary["stages"], log)
-    final, n = _judged_by_robustness(final), len(earlier)
     rejected, outcome, failed = folder / f"iteration_{n}", {}, None
     if (rejected / REJECTED_MARK).is_file():
         failed = _run_pass(tuple(s for s in STAGES if s.name in ACCEPTANCE_STAGES), final, rejected, outcome,
@@ -275,10 +278,8 @@ def _run_final_pass(config: Config, controller: str | None, earlier: list[dict],
                   | {"rejected": reason, "rejected_stage": failed["stage"]})
     log(f"iteration {n} rejected ({reason}); " + (f"its files are in iteration_{n}/; " if moved else "")
         + f"the final pass runs again on the record of iteration {n - 1}'s experiment")
-    controller, earlier = earlier[-1]["controller"], earlier[:-1]
-    final = _round_config(config, controller, len(earlier), earlier)
-    failed = _run_pass(STAGES, _judged_by_robustness(final) if earlier else final, folder, summary["stages"],
-                       log)
+    controller = earlier[-1]["controller"]
+    failed = _run_pass(STAGES, final_config(controller, earlier[:-1]), folder, summary["stages"], log)
     rounds.append(_round_numbers(n - 1, ".", controller, summary["stages"]) | {"fallback": True})
     return failed
 

@@ -45,12 +45,10 @@ def gate_verdict(outputs: dict, enabled: bool, experiment: dict | None = None,
         return {"passed": None, "reason": "not evaluated: the ν-gap test needs [validate] reference = "
                                           "\"linearization\" or \"local\" and an [experiment] controller"}
     gaps, margins, theta = outputs["nugap"], outputs["b_P_Kid"], outputs["theta"]
-    worst = int(np.argmax(np.asarray(gaps) - np.asarray(margins)))
-    where = ", ".join(f"{v:.3g}" for v in theta[worst])
+    failing, worst, where = shortfall(gaps, margins, theta)
     if outputs["nugap_below_b_everywhere"]:
         return {"passed": True, "reason": f"ν-gap < b(P, K_id) at all {len(gaps)} frozen points (closest at "
                                           f"θ = {where}: ν-gap {gaps[worst]:.3g} < b {margins[worst]:.3g})"}
-    failing = sum(g >= b for g, b in zip(gaps, margins, strict=True))
     reason = (f"the identified model fails the ν-gap test at {failing} of {len(gaps)} frozen points "
               f"(worst θ = {where}: ν-gap {gaps[worst]:.3g} ≥ b(P, K_id) {margins[worst]:.3g})")
     unstable = sum(b <= 0 for b in margins)
@@ -74,11 +72,17 @@ def _beyond_any_controller(outputs: dict) -> str:
     named), or "" when it is above at every point or was not computed."""
     if "b_opt" not in outputs:
         return ""
-    gaps, optimal, theta = outputs["nugap"], outputs["b_opt"], outputs["theta"]
-    short = [i for i, (g, b) in enumerate(zip(gaps, optimal, strict=True)) if b <= g]
+    gaps, optimal = outputs["nugap"], outputs["b_opt"]
+    short, worst, where = shortfall(gaps, optimal, outputs["theta"])
     if not short:
         return ""
-    worst = max(short, key=lambda i: gaps[i] - optimal[i])
-    where = ", ".join(f"{v:.3g}" for v in theta[worst])
-    return (f"b_opt(Ĝ) ≤ ν-gap at {len(short)} of {len(gaps)} points (worst θ = {where}: b_opt "
+    return (f"b_opt(Ĝ) ≤ ν-gap at {short} of {len(gaps)} points (worst θ = {where}: b_opt "
             f"{optimal[worst]:.3g} ≤ ν-gap {gaps[worst]:.3g}), and b(Ĝ, K) ≤ b_opt(Ĝ) for every K")
+
+
+def shortfall(gaps: list[float], margins: list[float], theta: list[list[float]]) -> tuple[int, int, str]:
+    """Vinnicombe's test δν < b point by point: (how many points fail it, margin ≤ ν-gap; the index of the
+    point with the largest δν − b, the first of equals; its θ as text "a, b, c")."""
+    worst = int(np.argmax(np.asarray(gaps, dtype=float) - np.asarray(margins, dtype=float)))
+    failing = sum(b <= g for g, b in zip(gaps, margins, strict=True))
+    return failing, worst, ", ".join(f"{v:.3g}" for v in theta[worst])

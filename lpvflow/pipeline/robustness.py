@@ -37,6 +37,7 @@ from lpvflow.models import load
 from lpvflow.pipeline.context import StageContext
 from lpvflow.pipeline.coordinates import read_data
 from lpvflow.pipeline.frozen_references import signal_scaling
+from lpvflow.pipeline.gate import shortfall
 from lpvflow.pipeline.rate_certificate import rate_certificate
 from lpvflow.pipeline.trajectory_validation import trajectory_validation
 from lpvflow.validate.robust_stability import delay_margin_samples, generalized_margin, input_disk_margin
@@ -86,12 +87,12 @@ def robustness_verdict(outputs: dict, enabled: bool) -> dict:
         return {"passed": None, "reason": "not evaluated: the validate stage computed no ν-gap ([validate] "
                                           "reference = \"linearization\" or \"local\")"}
     rows = outputs["rows"]
-    worst = min(rows, key=lambda row: row["b"] - row["nugap"])
-    where = ", ".join(f"{v:.3g}" for v in worst["theta"])
+    failing, index, where = shortfall([row["nugap"] for row in rows], [row["b"] for row in rows],
+                                      [row["theta"] for row in rows])
+    worst = rows[index]
     if outputs["guaranteed"]:
         return {"passed": True, "reason": f"b(Ĝ, K_fb) > ν-gap at all {len(rows)} points (closest at θ = "
                                           f"{where}: b {worst['b']:.3g} > ν-gap {worst['nugap']:.3g})"}
-    failing = sum(not row["b_above_nugap"] for row in rows)
     return {"passed": False,
             "reason": f"the controller's robust stability is not guaranteed at {failing} of {len(rows)} "
                       f"points (worst θ = {where}: b(Ĝ, K_fb) {worst['b']:.3g} ≤ ν-gap "
